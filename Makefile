@@ -1,0 +1,32 @@
+# Set-up and the README's two quick-start commands.
+# torch==2.13.0 (the CPU build) is installed before the package so that the package's
+# torch range is already satisfied and pip never pulls the multi-GB CUDA wheels.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.pmsr-installed
+
+.PHONY: setup demo test test-all bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+demo: setup
+	$(BIN)/pmsr demo
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+test-all: setup
+	$(BIN)/python -m pytest -q -m ""
+
+bench: setup
+	$(BIN)/python benchmarks/simulate_throughput.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

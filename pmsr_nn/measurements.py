@@ -1,0 +1,290 @@
+"""Bistatic measurement functions, their analytic Jacobians, and composed measurement models.
+
+All functions are batched torch: a target position ``pos`` is ``(..., d)`` (d = 2 or 3), the
+sensor positions of the pairs are ``(N, d)``, and a per-pair output is ``(..., N)``. Units are
+SI (m, m/s, rad); Doppler (Hz) and delay (s) are converted at this boundary only.
+
+Conventions
+-----------
+* Bistatic range ``r = |p - tx| + |p - rx|`` (m).
+* Bistatic range-rate ``rdot = dr/dt = v . (u_tx + u_rx)`` with ``u_s = (p - s) / |p - s|``:
+  positive for a receding target. (Eq. 5 of the MDFNN paper writes ``(s - p)/|s - p|``, i.e. the
+  opposite sign; only the sign convention differs.)
+* Doppler ``f_d = -rdot * f_c / c`` (Hz), the sign of Eq. 3 in the S-MSJPDA paper: an
+  approaching target has a positive Doppler shift.
+* Delay ``tau = r / c`` (s).
+* Azimuth at the receiver, clockwise from north: ``atan2(x - x_rx, y - y_rx)`` in (-pi, pi],
+  using the horizontal coordinates only. (Eq. 5 of the MDFNN paper writes the transmitter's
+  coordinates; the receiver measures the angle, so we use the receiver's.)
+
+Targets on top of a sensor
+--------------------------
+The unit vector ``u_s`` (and so the range-rate and every Jacobian) is undefined when the target
+sits on a sensor. We never return NaN: distances are guarded from below by
+``MIN_SENSOR_DISTANCE_M`` (a target exactly on a sensor gets ``u_s = 0``, finite Jacobians), and
+:meth:`MeasurementModel.near_sensor` flags states closer than a chosen radius so that a simulator
+can reject them and a filter can report them. The guard only acts below 1 mm, where no physical
+radar measures anything.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import torch
+
+from . import SPEED_OF_LIGHT
+from .errors import ConfigError
+from .geometry import Geometry
+
+MIN_SENSOR_DISTANCE_M = 1e-3
+
+COMPONENTS = ("range", "range_rate", "doppler", "delay", "azimuth")
+"""Measurement kinds a model can be composed of. Units: m, m/s, Hz, s, rad."""
+
+
+def wrap_angle(a: torch.Tensor) -> torch.Tensor:
+    """Wrap angles (rad) to (-pi, pi]."""
+    return math.pi - torch.remainder(math.pi - a, 2 * math.pi)
+
+
+def _offsets(pos: torch.Tensor, sensors: torch.Tensor):
+    """Offsets ``p - s`` ``(..., N, d)``, guarded distances ``(..., N)`` and unit vectors ``(..., N, d)``."""
+    diff = pos.unsqueeze(-2) - sensors
+    dist = torch.linalg.vector_norm(diff, dim=-1).clamp_min(MIN_SENSOR_DISTANCE_M)
+    return diff, dist, diff / dist.unsqueeze(-1)
+
+
+def bistatic_range(pos: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+    """Bistatic range ``|p - tx| + |p - rx|`` in m: ``pos (..., d)``, ``tx, rx (N, d)`` -> ``(..., N)``."""
+    return _offsets(pos, tx)[1] + _offsets(pos, rx)[1]
+
+
+def bistatic_range_jacobian(pos: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+    """``d r / d p = u_tx + u_rx``, shape ``(..., N, d)``."""
+    return _offsets(pos, tx)[2] + _offsets(pos, rx)[2]
+
+
+def bistatic_range_rate(pos: torch.Tensor, vel: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+    """Bistatic range-rate ``v . (u_tx + u_rx)`` in m/s, ``(..., N)``."""
+    return (bistatic_range_jacobian(pos, tx, rx) * vel.unsqueeze(-2)).sum(-1)
+
+
+def bistatic_range_rate_jacobians(pos: torch.Tensor, vel: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor):
+    """Jacobians of the range-rate: ``(d rdot/d p, d rdot/d v)``, each ``(..., N, d)``.
+
+    ``d (v . u_s) / d p = (v - u_s (u_s . v)) / |p - s|`` (the component of ``v`` normal to the
+    line of sight, divided by the distance), summed over the transmitter and the receiver.
+    """
+    v = vel.unsqueeze(-2)
+    d_pos = torch.zeros_like(v.expand(*pos.shape[:-1], tx.shape[0], pos.shape[-1]))
+    d_vel = torch.zeros_like(d_pos)
+    for sensors in (tx, rx):
+        _, dist, unit = _offsets(pos, sensors)
+        d_pos = d_pos + (v - unit * (unit * v).sum(-1, keepdim=True)) / dist.unsqueeze(-1)
+        d_vel = d_vel + unit
+    return d_pos, d_vel
+
+
+def doppler_hz(pos: torch.Tensor, vel: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor, carrier_hz: torch.Tensor) -> torch.Tensor:
+    """Bistatic Doppler ``-rdot * f_c / c`` in Hz, ``(..., N)``; ``carrier_hz`` is ``(N,)``."""
+    return -bistatic_range_rate(pos, vel, tx, rx) * carrier_hz / SPEED_OF_LIGHT
+
+
+def bistatic_delay_s(pos: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+    """Bistatic delay ``r / c`` in s, ``(..., N)``."""
+    return bistatic_range(pos, tx, rx) / SPEED_OF_LIGHT
+
+
+def azimuth(pos: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+    """Azimuth at the receiver, clockwise from north, in (-pi, pi] rad, ``(..., N)``."""
+    dx = pos[..., None, 0] - rx[:, 0]
+    dy = pos[..., None, 1] - rx[:, 1]
+    return torch.atan2(dx, dy)
+
+
+def azimuth_jacobian(pos: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+    """``d phi / d p`` ``(..., N, d)``: ``(dy, -dx) / (dx^2 + dy^2)`` in the horizontal plane, 0 in z."""
+    dx = pos[..., None, 0] - rx[:, 0]
+    dy = pos[..., None, 1] - rx[:, 1]
+    rho2 = (dx * dx + dy * dy).clamp_min(MIN_SENSOR_DISTANCE_M**2)
+    jac = torch.zeros(*dx.shape, pos.shape[-1], dtype=pos.dtype, device=pos.device)
+    jac[..., 0] = dy / rho2
+    jac[..., 1] = -dx / rho2
+    return jac
+
+
+@dataclass(frozen=True)
+class MeasurementModel:
+    """``z = h(x) + w`` for a geometry, a state layout and a list of measurement components.
+
+    The measurement vector is component-major by default (``layout="component"``):
+    ``[r_1..r_N, rdot_1..rdot_N, phi_1..phi_N]`` as Eq. 6 of the MDFNN paper; ``layout="pair"``
+    gives ``[r_1, fd_1, r_2, fd_2, ...]`` (range + Doppler per sensor, the S-MSJPDA layout).
+
+    ``noise_std`` holds one standard deviation per component, in that component's unit
+    (m, m/s, Hz, s, rad); ``R`` can also take per-run deviations ``(..., n_components)``.
+    ``pos_idx`` / ``vel_idx`` say where position and velocity sit in the state vector (take them
+    from the motion model).
+    """
+
+    geometry: Geometry
+    components: tuple[str, ...]
+    noise_std: tuple[float, ...]
+    pos_idx: tuple[int, ...]
+    vel_idx: tuple[int, ...]
+    layout: str = "component"
+
+    def __post_init__(self) -> None:
+        unknown = [c for c in self.components if c not in COMPONENTS]
+        if unknown or not self.components or len(set(self.components)) != len(self.components):
+            raise ConfigError(f"measurement components must be distinct names from {COMPONENTS}, got {self.components}")
+        if len(self.noise_std) != len(self.components):
+            raise ConfigError(f"need one noise deviation per component {self.components}, got {self.noise_std}")
+        if not all(math.isfinite(s) and s > 0 for s in self.noise_std):
+            raise ConfigError(f"noise deviations must be positive, got {self.noise_std}")
+        if self.layout not in ("component", "pair"):
+            raise ConfigError(f"layout must be 'component' or 'pair', got {self.layout!r}")
+        if len(self.pos_idx) != self.geometry.dim or len(self.vel_idx) != self.geometry.dim:
+            raise ConfigError(
+                f"state has {len(self.pos_idx)}-D positions but the geometry is {self.geometry.dim}-D "
+                "(use Geometry.lifted(3) for 3-D targets over ground sensors)"
+            )
+
+    @property
+    def n_pairs(self) -> int:
+        return self.geometry.n_pairs
+
+    @property
+    def dim_z(self) -> int:
+        return len(self.components) * self.n_pairs
+
+    @property
+    def labels(self) -> list[str]:
+        """Row names, e.g. ``range_1``, in measurement order."""
+        names = [[f"{c}_{n + 1}" for n in range(self.n_pairs)] for c in self.components]
+        return self._arrange_list(names)
+
+    @property
+    def angle_mask(self) -> torch.Tensor:
+        """Boolean ``(dim_z,)``: which rows are angles (wrapped on subtraction)."""
+        rows = [[c == "azimuth"] * self.n_pairs for c in self.components]
+        return torch.tensor(self._arrange_list(rows), dtype=torch.bool)
+
+    def _arrange_list(self, per_component: list[list]) -> list:
+        if self.layout == "component":
+            return [v for comp in per_component for v in comp]
+        return [per_component[c][n] for n in range(self.n_pairs) for c in range(len(self.components))]
+
+    def _sensors(self, x: torch.Tensor):
+        g = self.geometry
+        return (
+            g.pair_tx_positions(x.dtype, x.device),
+            g.pair_rx_positions(x.dtype, x.device),
+            g.pair_carriers(x.dtype, x.device),
+        )
+
+    def _split_state(self, x: torch.Tensor):
+        return x[..., list(self.pos_idx)], x[..., list(self.vel_idx)]
+
+    def h(self, x: torch.Tensor) -> torch.Tensor:
+        """Noise-free measurement ``(..., dim_z)`` of states ``x (..., dim_x)``."""
+        tx, rx, fc = self._sensors(x)
+        # The simulator's hot path: offsets are kept as one (..., N) tensor per coordinate (fast,
+        # contiguous element-wise work instead of tiny trailing axes) and shared by all components.
+        pos = [x[..., i, None] for i in self.pos_idx]
+        vel = [x[..., i, None] for i in self.vel_idx]
+        off_t = [p - tx[:, c] for c, p in enumerate(pos)]
+        off_r = [p - rx[:, c] for c, p in enumerate(pos)]
+        d_t = sum(o * o for o in off_t).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
+        d_r = sum(o * o for o in off_r).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
+        rng = rate = None
+        rows = []
+        for c in self.components:
+            if c in ("range", "delay"):
+                rng = d_t + d_r if rng is None else rng
+                rows.append(rng if c == "range" else rng / SPEED_OF_LIGHT)
+            elif c in ("range_rate", "doppler"):
+                if rate is None:
+                    rate = sum(v * (ot / d_t + orr / d_r) for v, ot, orr in zip(vel, off_t, off_r))
+                rows.append(rate if c == "range_rate" else -rate * fc / SPEED_OF_LIGHT)
+            else:
+                rows.append(torch.atan2(off_r[0], off_r[1]))
+        return self._stack(rows, n_trailing=0)
+
+    def jacobian(self, x: torch.Tensor) -> torch.Tensor:
+        """Analytic Jacobian ``dh/dx`` ``(..., dim_z, dim_x)``."""
+        pos, vel = self._split_state(x)
+        tx, rx, fc = self._sensors(x)
+        zeros = torch.zeros(*pos.shape[:-1], self.n_pairs, pos.shape[-1], dtype=x.dtype, device=x.device)
+        blocks = []
+        rate_jac = None
+        for c in self.components:
+            if c in ("range", "delay"):
+                d_pos = bistatic_range_jacobian(pos, tx, rx)
+                scale = 1.0 if c == "range" else 1.0 / SPEED_OF_LIGHT
+                blocks.append((d_pos * scale, zeros))
+            elif c in ("range_rate", "doppler"):
+                if rate_jac is None:
+                    rate_jac = bistatic_range_rate_jacobians(pos, vel, tx, rx)
+                scale = 1.0 if c == "range_rate" else (-fc / SPEED_OF_LIGHT)[:, None]
+                blocks.append((rate_jac[0] * scale, rate_jac[1] * scale))
+            else:
+                blocks.append((azimuth_jacobian(pos, rx), zeros))
+        rows = []
+        for d_pos, d_vel in blocks:
+            jac = torch.zeros(*d_pos.shape[:-1], x.shape[-1], dtype=x.dtype, device=x.device)
+            jac[..., list(self.pos_idx)] = d_pos
+            jac[..., list(self.vel_idx)] = d_vel
+            rows.append(jac)
+        return self._stack(rows, n_trailing=1)
+
+    def _stack(self, rows: list[torch.Tensor], n_trailing: int) -> torch.Tensor:
+        """Per-component ``(..., N, *trailing)`` tensors -> ``(..., dim_z, *trailing)``."""
+        axis = -2 - n_trailing  # the new component axis, just before the pair axis
+        stacked = torch.stack(rows, dim=axis)  # (..., C, N, *trailing)
+        if self.layout == "pair":
+            stacked = stacked.transpose(axis, axis + 1)
+        lead = stacked.shape[: stacked.dim() + axis]
+        return stacked.reshape(*lead, self.dim_z, *stacked.shape[stacked.dim() + axis + 2 :])
+
+    def std_vector(self, noise_std: torch.Tensor | Sequence[float] | None = None, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Per-row standard deviations ``(..., dim_z)`` from per-component ones ``(..., C)``."""
+        s = torch.as_tensor(self.noise_std if noise_std is None else noise_std, dtype=dtype, device=device)
+        if s.shape[-1] != len(self.components):
+            raise ConfigError(f"expected {len(self.components)} deviations per run, got shape {tuple(s.shape)}")
+        per_pair = s.unsqueeze(-1).expand(*s.shape, self.n_pairs)  # (..., C, N)
+        return self._stack(list(per_pair.unbind(-2)), n_trailing=0)
+
+    def R(self, noise_std: torch.Tensor | Sequence[float] | None = None, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Diagonal measurement covariance ``(..., dim_z, dim_z)``; per-run deviations allowed."""
+        return torch.diag_embed(self.std_vector(noise_std, dtype, device) ** 2)
+
+    def residual(self, z: torch.Tensor, z_pred: torch.Tensor) -> torch.Tensor:
+        """``z - z_pred`` with angle rows wrapped to (-pi, pi]."""
+        d = z - z_pred
+        mask = self.angle_mask.to(d.device)
+        return torch.where(mask, wrap_angle(d), d)
+
+    def near_sensor(self, x: torch.Tensor, radius_m: float) -> torch.Tensor:
+        """Boolean ``(...,)``: the target is within ``radius_m`` of any transmitter or receiver."""
+        pos, _ = self._split_state(x)
+        tx, rx, _ = self._sensors(x)
+        sensors = torch.cat([tx, rx])
+        dist = torch.linalg.vector_norm(pos.unsqueeze(-2) - sensors, dim=-1)
+        return (dist < radius_m).any(-1)
+
+    def sample(self, x: torch.Tensor, noise_std: torch.Tensor | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Noisy measurements ``h(x) + w`` with angles wrapped; ``noise_std`` per run ``(..., C)`` broadcasts over time."""
+        z = self.h(x)
+        std = self.std_vector(noise_std, x.dtype, x.device)
+        if noise_std is not None and std.dim() < z.dim():
+            std = std.reshape(*std.shape[:-1], *([1] * (z.dim() - std.dim())), std.shape[-1])
+        noise = torch.randn(z.shape, generator=generator, dtype=z.dtype, device=z.device)
+        z = z.addcmul_(noise, std)
+        angles = self.angle_mask.nonzero().squeeze(-1).to(z.device)
+        if len(angles):
+            z[..., angles] = wrap_angle(z[..., angles])
+        return z

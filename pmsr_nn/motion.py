@@ -1,0 +1,173 @@
+"""Linear kinematic motion models: constant velocity (CV) and constant acceleration (CA).
+
+State layout is axis-major: CV ``[x, vx, y, vy]`` (3-D adds ``z, vz``), CA
+``[x, vx, ax, y, vy, ay]`` (3-D adds ``z, vz, az``). Every model is a chain of integrators per
+axis, so ``F(T)`` is block-diagonal with the per-axis block ``exp(S T)`` (``S`` the shift matrix).
+
+Process noise
+-------------
+* CV: the discrete white-noise acceleration model of the S-MSJPDA paper (and the SMC-PHD paper),
+  per axis ``q * [[T^4/4, T^3/2], [T^3/2, T^2]]`` with ``q`` the acceleration variance in m^2/s^4.
+* CA: Eq. 12 of the MDFNN paper (continuous white-noise jerk), per axis
+  ``q * [[T^5/20, T^4/8, T^3/6], [T^4/8, T^3/3, T^2/2], [T^3/6, T^2/2, T]]`` with ``q`` the
+  power spectral density in m^2/s^5.
+
+``q`` may be a scalar, a per-run tensor ``(...,)`` or a per-axis tensor ``(..., spatial_dim)``
+(e.g. zero vertical noise for a target that keeps its altitude).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from .errors import ConfigError
+
+
+@dataclass(frozen=True)
+class KinematicModel:
+    """A chain of ``order`` integrators per spatial axis (order 2: CV, order 3: CA)."""
+
+    spatial_dim: int = 2
+
+    order: int = 0  # set by subclasses
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if self.spatial_dim not in (2, 3):
+            raise ConfigError(f"spatial_dim must be 2 or 3, got {self.spatial_dim}")
+
+    @property
+    def dim_x(self) -> int:
+        return self.spatial_dim * self.order
+
+    @property
+    def pos_idx(self) -> tuple[int, ...]:
+        return tuple(a * self.order for a in range(self.spatial_dim))
+
+    @property
+    def vel_idx(self) -> tuple[int, ...]:
+        return tuple(a * self.order + 1 for a in range(self.spatial_dim))
+
+    @property
+    def acc_idx(self) -> tuple[int, ...]:
+        if self.order < 3:
+            raise AttributeError(f"{self.name} has no acceleration states")
+        return tuple(a * self.order + 2 for a in range(self.spatial_dim))
+
+    def F_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Per-axis transition ``(order, order)``: entry ``(i, j) = T^(j-i) / (j-i)!`` for ``j >= i``."""
+        n = self.order
+        blk = torch.zeros(n, n, dtype=dtype, device=device)
+        for i in range(n):
+            for j in range(i, n):
+                blk[i, j] = T ** (j - i) / math.factorial(j - i)
+        return blk
+
+    def Q_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Per-axis process-noise covariance for unit ``q``, ``(order, order)``."""
+        raise NotImplementedError
+
+    def F(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
+        """State transition ``(dim_x, dim_x)`` over an interval ``T`` (s)."""
+        eye = torch.eye(self.spatial_dim, dtype=dtype, device=device)
+        return torch.kron(eye, self.F_block(T, dtype, device))
+
+    def _per_axis_q(self, q, dtype, device) -> torch.Tensor:
+        q = torch.as_tensor(q, dtype=dtype, device=device)
+        if q.dim() == 0 or q.shape[-1] != self.spatial_dim:
+            q = q.unsqueeze(-1).expand(*q.shape, self.spatial_dim)
+        if bool((q < 0).any()) or not bool(torch.isfinite(q).all()):
+            raise ConfigError("process noise intensity q must be finite and non-negative")
+        return q
+
+    def _block_diag(self, per_axis: torch.Tensor, blk: torch.Tensor) -> torch.Tensor:
+        """``per_axis (..., D)`` and ``blk (n, n)`` -> ``kron(diag(per_axis), blk)`` ``(..., D*n, D*n)``."""
+        D, n = self.spatial_dim, self.order
+        eye = torch.eye(D, dtype=blk.dtype, device=blk.device)
+        out = per_axis[..., :, None, None, None] * eye[:, None, :, None] * blk[None, :, None, :]
+        return out.reshape(*per_axis.shape[:-1], D * n, D * n)
+
+    def Q(self, T: float, q, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Process-noise covariance ``(..., dim_x, dim_x)``; ``q`` scalar, ``(...,)`` or ``(..., spatial_dim)``."""
+        return self._block_diag(self._per_axis_q(q, dtype, device), self.Q_block(T, dtype, device))
+
+    def noise_factor(self, T: float, q, dtype=torch.float64, device=None) -> torch.Tensor:
+        """A square root ``L`` with ``L L^T = Q(T, q)``, valid for ``q = 0`` on some axes."""
+        blk = torch.linalg.cholesky(self.Q_block(T, dtype, device))
+        return self._block_diag(self._per_axis_q(q, dtype, device).sqrt(), blk)
+
+    def propagate(self, x0: torch.Tensor, increments: torch.Tensor, T: float) -> torch.Tensor:
+        """Run ``x_k = F x_{k-1} + w_k`` for all runs at once.
+
+        ``x0 (B, dim_x)``, ``increments (B, K-1, dim_x)`` (the ``w_k``) -> states ``(B, K, dim_x)``
+        with ``x_0`` first. Instead of K matrix products, each derivative of the chain is a
+        cumulative sum over time of the already-known higher derivatives (exact for ``exp(S T)``).
+        """
+        B, steps = x0.shape[0], increments.shape[1] + 1
+        n = self.order
+        w = increments.reshape(B, steps - 1, self.spatial_dim, n)
+        start = x0.reshape(B, 1, self.spatial_dim, n)
+        out = torch.empty(B, steps, self.spatial_dim, n, dtype=x0.dtype, device=x0.device)
+        for c in reversed(range(n)):  # highest derivative first
+            step = w[..., c].clone()
+            for m in range(1, n - c):
+                step += (T**m / math.factorial(m)) * out[:, :-1, :, c + m]
+            out[:, :1, :, c] = start[..., c]
+            out[:, 1:, :, c] = start[..., c] + torch.cumsum(step, dim=1)
+        return out.reshape(B, steps, self.dim_x)
+
+    def sample(self, x0: torch.Tensor, steps: int, T: float, q, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Draw trajectories ``(B, steps, dim_x)`` starting at ``x0 (B, dim_x)``; ``q`` as in :meth:`Q`."""
+        L = self.noise_factor(T, q, x0.dtype, x0.device)  # (dim_x, dim_x) or (B, dim_x, dim_x)
+        n = torch.randn(x0.shape[0], steps - 1, self.dim_x, generator=generator, dtype=x0.dtype, device=x0.device)
+        if L.dim() == 2:
+            w = n @ L.T
+        else:
+            w = torch.einsum("bij,bkj->bki", L, n)
+        return self.propagate(x0, w, T)
+
+
+@dataclass(frozen=True)
+class ConstantVelocity(KinematicModel):
+    """CV model; ``q`` is the white acceleration variance (m^2/s^4)."""
+
+    order: int = 2
+    name: str = "cv"
+
+    def Q_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
+        return torch.tensor([[T**4 / 4, T**3 / 2], [T**3 / 2, T**2]], dtype=dtype, device=device)
+
+    def noise_factor(self, T: float, q, dtype=torch.float64, device=None) -> torch.Tensor:
+        # The CV block is rank one (noise enters through one acceleration): L = sqrt(q) [T^2/2, T]^T.
+        blk = torch.tensor([[T**2 / 2, 0.0], [T, 0.0]], dtype=dtype, device=device)
+        return self._block_diag(self._per_axis_q(q, dtype, device).sqrt(), blk)
+
+
+@dataclass(frozen=True)
+class ConstantAcceleration(KinematicModel):
+    """CA model (Eq. 12 of the MDFNN paper); ``q`` is the jerk power spectral density (m^2/s^5)."""
+
+    order: int = 3
+    name: str = "ca"
+
+    def Q_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
+        return torch.tensor(
+            [
+                [T**5 / 20, T**4 / 8, T**3 / 6],
+                [T**4 / 8, T**3 / 3, T**2 / 2],
+                [T**3 / 6, T**2 / 2, T],
+            ],
+            dtype=dtype,
+            device=device,
+        )
+
+
+def motion_model(name: str, spatial_dim: int = 2) -> KinematicModel:
+    """``"cv"`` or ``"ca"`` -> the model instance."""
+    models = {"cv": ConstantVelocity, "ca": ConstantAcceleration}
+    if name not in models:
+        raise ConfigError(f"unknown motion model {name!r}; choose one of {sorted(models)}")
+    return models[name](spatial_dim=spatial_dim)

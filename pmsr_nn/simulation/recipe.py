@@ -1,0 +1,271 @@
+"""The track-generator recipe: every parameter of the CA multistatic dataset, with defaults.
+
+The defaults are Section 2 of the MDFNN paper (Xu, Yi et al., FITEE 2023); the file
+``datasets/fitee2023_ca.yaml`` spells every one of them out with its source, and a test keeps
+the two identical. Where the paper is silent or inconsistent the choice is ours and documented
+in that file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+from ..config import check_interval, from_dict, load_yaml, require, to_dict
+from ..errors import ConfigError, GeometryError
+from ..geometry import Geometry, Receiver, Transmitter, polar_position
+
+
+@dataclass(frozen=True)
+class TransmitterSpec:
+    """A transmitter at ``position_m`` (m) with carrier ``carrier_hz``."""
+
+    position_m: tuple[float, ...] = (0.0, 0.0)
+    carrier_hz: float = 650.0e6
+
+
+@dataclass(frozen=True)
+class ReceiverSpec:
+    """A receiver, either at ``position_m`` or at ``baseline_m`` along ``bearing_deg`` (clockwise
+    from north) from the first transmitter."""
+
+    position_m: tuple[float, ...] | None = None
+    baseline_m: float | None = None
+    bearing_deg: float | None = None
+
+    def resolve(self, origin: tuple[float, ...]) -> tuple[float, ...]:
+        polar = self.baseline_m is not None or self.bearing_deg is not None
+        if (self.position_m is None) == (not polar) or (polar and (self.baseline_m is None or self.bearing_deg is None)):
+            raise ConfigError("a receiver needs either position_m, or both baseline_m and bearing_deg")
+        if self.position_m is not None:
+            return self.position_m
+        require(self.baseline_m >= 0, f"baseline_m must be non-negative, got {self.baseline_m}")
+        return polar_position(self.baseline_m, self.bearing_deg, origin)
+
+
+def _default_receivers() -> tuple[ReceiverSpec, ...]:
+    return (
+        ReceiverSpec(baseline_m=7560.0, bearing_deg=240.0),
+        ReceiverSpec(baseline_m=8120.0, bearing_deg=270.0),
+        ReceiverSpec(baseline_m=8280.0, bearing_deg=300.0),
+    )
+
+
+@dataclass(frozen=True)
+class GeometrySpec:
+    transmitters: tuple[TransmitterSpec, ...] = (TransmitterSpec(),)
+    receivers: tuple[ReceiverSpec, ...] = field(default_factory=_default_receivers)
+
+    def build(self, dim: int) -> Geometry:
+        """All transmitter-receiver pairs, sensors on the ground (z = 0 when ``dim == 3``)."""
+        require(len(self.transmitters) > 0 and len(self.receivers) > 0, "need at least one transmitter and one receiver")
+        for t in self.transmitters:
+            require(len(t.position_m) == 2, f"sensor positions are 2-D ground coordinates [x, y], got {list(t.position_m)}")
+        origin = self.transmitters[0].position_m
+        rx = []
+        for r in self.receivers:
+            pos = r.resolve(origin)
+            require(len(pos) == 2, f"sensor positions are 2-D ground coordinates [x, y], got {list(pos)}")
+            rx.append(Receiver(tuple(pos)))
+        tx = [Transmitter(t.position_m, t.carrier_hz) for t in self.transmitters]
+        try:
+            return Geometry.all_pairs(tx, rx).lifted(dim)
+        except GeometryError as exc:
+            raise ConfigError(str(exc)) from None
+
+
+@dataclass(frozen=True)
+class InitialStateSpec:
+    """Polar decomposition of the initial state (Eqs. 7-9): uniform draws in each interval.
+
+    Bearings and headings are clockwise from north, ``x = R sin(theta)``, ``y = R cos(theta)``.
+    """
+
+    range_m: tuple[float, float] = (2800.0, 8400.0)
+    bearing_deg: tuple[float, float] = (0.0, 180.0)
+    speed_mps: tuple[float, float] = (0.0, 26.0)
+    heading_deg: tuple[float, float] = (-180.0, 180.0)
+    accel_mps2: tuple[float, float] = (0.1, 5.0)
+    accel_heading_deg: tuple[float, float] = (-180.0, 180.0)
+    altitude_m: tuple[float, float] = (0.0, 0.0)
+
+    def validate(self) -> None:
+        check_interval("initial.range_m", self.range_m, nonneg=True)
+        check_interval("initial.bearing_deg", self.bearing_deg)
+        check_interval("initial.speed_mps", self.speed_mps, nonneg=True)
+        check_interval("initial.heading_deg", self.heading_deg)
+        check_interval("initial.accel_mps2", self.accel_mps2, nonneg=True)
+        check_interval("initial.accel_heading_deg", self.accel_heading_deg)
+        check_interval("initial.altitude_m", self.altitude_m, nonneg=True)
+
+
+@dataclass(frozen=True)
+class MotionSpec:
+    """CA motion: interval ``dt_s``, ``steps`` samples per track, jerk PSD ``q_psd`` (m^2/s^5)."""
+
+    model: Literal["ca"] = "ca"
+    dt_s: float = 1.0
+    steps: int = 1000
+    q_psd: float = 4.0
+    q_psd_vertical: float = 0.0
+    initial: InitialStateSpec = InitialStateSpec()
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """Per-track measurement noise deviations, each drawn uniformly from its interval."""
+
+    range_m: tuple[float, float] = (16.0, 30.0)
+    range_rate_mps: tuple[float, float] = (2.0, 4.0)
+    azimuth_deg: tuple[float, float] = (0.6, 3.0)
+
+    def intervals_si(self) -> list[tuple[float, float]]:
+        """Intervals in SI units (m, m/s, rad), in measurement-component order."""
+        deg = math.pi / 180
+        return [self.range_m, self.range_rate_mps, (self.azimuth_deg[0] * deg, self.azimuth_deg[1] * deg)]
+
+    def validate(self) -> None:
+        for name, iv in (("range_m", self.range_m), ("range_rate_mps", self.range_rate_mps), ("azimuth_deg", self.azimuth_deg)):
+            check_interval(f"noise.{name}", iv, positive=True)
+
+
+@dataclass(frozen=True)
+class EnvelopeSpec:
+    """Table 1 of the paper: where a drone track is allowed to be.
+
+    Distance and azimuth are measured from the transmitter (the paper's "passive radar", the
+    origin of Eq. 7); the azimuth sector is clockwise from north, boresight 90 deg +- 60 deg.
+    """
+
+    range_m: tuple[float, float] = (200.0, 11000.0)
+    speed_mps: tuple[float, float] = (0.0, 26.0)
+    azimuth_deg: tuple[float, float] = (30.0, 150.0)
+
+    def validate(self) -> None:
+        check_interval("envelope.range_m", self.range_m, nonneg=True)
+        check_interval("envelope.speed_mps", self.speed_mps, nonneg=True)
+        check_interval("envelope.azimuth_deg", self.azimuth_deg)
+
+
+@dataclass(frozen=True)
+class EnvelopeVariantSpec:
+    """Values that replace the paper's when ``variant: envelope``; tracks leaving are redrawn."""
+
+    q_psd: float = 1.0e-7
+    accel_mps2: tuple[float, float] = (0.0, 0.02)
+    bearing_deg: tuple[float, float] = (30.0, 150.0)
+    max_draws_per_track: int = 200
+
+    def validate(self) -> None:
+        require(self.q_psd >= 0, f"envelope_variant.q_psd must be non-negative, got {self.q_psd}")
+        check_interval("envelope_variant.accel_mps2", self.accel_mps2, nonneg=True)
+        check_interval("envelope_variant.bearing_deg", self.bearing_deg)
+        require(self.max_draws_per_track >= 1, "envelope_variant.max_draws_per_track must be >= 1")
+
+
+@dataclass(frozen=True)
+class SplitSpec:
+    """Fractions of whole tracks in each split."""
+
+    train: float = 0.85
+    val: float = 0.10
+    test: float = 0.05
+
+    def validate(self) -> None:
+        fr = (self.train, self.val, self.test)
+        require(all(f >= 0 for f in fr), f"split fractions must be non-negative, got {fr}")
+        require(abs(sum(fr) - 1.0) < 1e-9, f"split fractions must sum to 1, got {sum(fr)}")
+        require(self.train > 0, "the training split cannot be empty")
+
+    def counts(self, n: int) -> tuple[int, int, int]:
+        """Tracks per split: val and test rounded, train takes the rest."""
+        n_val, n_test = round(n * self.val), round(n * self.test)
+        n_train = n - n_val - n_test
+        for name, frac, cnt in (("train", self.train, n_train), ("val", self.val, n_val), ("test", self.test, n_test)):
+            if frac > 0 and cnt < 1:
+                raise ConfigError(f"{n} tracks leave the {name} split empty; ask for more tracks")
+        return n_train, n_val, n_test
+
+
+@dataclass(frozen=True)
+class StorageSpec:
+    """How arrays are written: element type and tracks generated per chunk (bounds memory)."""
+
+    dtype: Literal["float32", "float64"] = "float32"
+    chunk_tracks: int = 256
+
+
+@dataclass(frozen=True)
+class TrackRecipe:
+    """Everything that defines a generated dataset; see ``datasets/fitee2023_ca.yaml``."""
+
+    name: str = "fitee2023_ca"
+    seed: int = 0
+    tracks: int = 70
+    variant: Literal["envelope", "literal"] = "envelope"
+    dim: Literal[2, 3] = 2
+    window: int = 100
+    min_sensor_distance_m: float = 50.0
+    geometry: GeometrySpec = GeometrySpec()
+    motion: MotionSpec = MotionSpec()
+    noise: NoiseSpec = NoiseSpec()
+    envelope: EnvelopeSpec = EnvelopeSpec()
+    envelope_variant: EnvelopeVariantSpec = EnvelopeVariantSpec()
+    splits: SplitSpec = SplitSpec()
+    storage: StorageSpec = StorageSpec()
+
+    def __post_init__(self) -> None:
+        require(self.tracks >= 1, f"tracks must be at least 1, got {self.tracks}")
+        require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
+        m = self.motion
+        require(m.dt_s > 0, f"motion.dt_s must be positive, got {m.dt_s}")
+        require(m.steps >= 2, f"motion.steps must be at least 2, got {m.steps}")
+        require(m.q_psd >= 0 and m.q_psd_vertical >= 0, "motion.q_psd and q_psd_vertical must be non-negative")
+        require(self.window >= 1, f"window must be at least 1, got {self.window}")
+        require(
+            self.window <= m.steps,
+            f"window of {self.window} samples is longer than the track ({m.steps} samples)",
+        )
+        require(self.min_sensor_distance_m >= 0, "min_sensor_distance_m must be non-negative")
+        require(self.storage.chunk_tracks >= 1, "storage.chunk_tracks must be at least 1")
+        m.initial.validate()
+        self.noise.validate()
+        self.envelope.validate()
+        self.envelope_variant.validate()
+        self.splits.validate()
+        self.splits.counts(self.tracks)
+        self.geometry.build(self.dim)  # raises on a degenerate geometry
+
+    # -- derived quantities -------------------------------------------------------------
+    @property
+    def windows_per_track(self) -> int:
+        """Every full window: ``K - window + 1`` (Algorithm 1 literally stops one short, at ``K - window``)."""
+        return self.motion.steps - self.window + 1
+
+    def effective_motion(self) -> MotionSpec:
+        """Motion parameters in force for this variant (envelope overrides applied)."""
+        if self.variant == "literal":
+            return self.motion
+        ev = self.envelope_variant
+        initial = replace(self.motion.initial, accel_mps2=ev.accel_mps2, bearing_deg=ev.bearing_deg)
+        return replace(self.motion, q_psd=ev.q_psd, initial=initial)
+
+    def with_overrides(self, **kw) -> "TrackRecipe":
+        """A copy with top-level fields replaced (validated again)."""
+        try:
+            return replace(self, **{k: v for k, v in kw.items() if v is not None})
+        except ConfigError as exc:
+            raise ConfigError(f"recipe: {exc}") from None
+
+    def to_dict(self) -> dict:
+        return to_dict(self)
+
+
+def load_recipe(path) -> TrackRecipe:
+    """Load and validate a recipe YAML file."""
+    return from_dict(TrackRecipe, load_yaml(path), where="recipe")
+
+
+def recipe_from_dict(data: dict) -> TrackRecipe:
+    return from_dict(TrackRecipe, data, where="recipe")
