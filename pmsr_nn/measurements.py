@@ -38,6 +38,7 @@ import torch
 from . import SPEED_OF_LIGHT
 from .errors import ConfigError
 from .geometry import Geometry
+from .rng import standard_normal
 
 MIN_SENSOR_DISTANCE_M = 1e-3
 
@@ -282,7 +283,7 @@ class MeasurementModel:
         std = self.std_vector(noise_std, x.dtype, x.device)
         if noise_std is not None and std.dim() < z.dim():
             std = std.reshape(*std.shape[:-1], *([1] * (z.dim() - std.dim())), std.shape[-1])
-        noise = torch.randn(z.shape, generator=generator, dtype=z.dtype, device=z.device)
+        noise = standard_normal(z.shape, generator, z.dtype, z.device)
         z = z.addcmul_(noise, std)
         angles = self.angle_mask.nonzero().squeeze(-1).to(z.device)
         if len(angles):

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import torch
 
 from .errors import ConfigError
+from .rng import standard_normal
 
 
 @dataclass(frozen=True)
@@ -122,7 +123,7 @@ class KinematicModel:
     def sample(self, x0: torch.Tensor, steps: int, T: float, q, generator: torch.Generator | None = None) -> torch.Tensor:
         """Draw trajectories ``(B, steps, dim_x)`` starting at ``x0 (B, dim_x)``; ``q`` as in :meth:`Q`."""
         L = self.noise_factor(T, q, x0.dtype, x0.device)  # (dim_x, dim_x) or (B, dim_x, dim_x)
-        n = torch.randn(x0.shape[0], steps - 1, self.dim_x, generator=generator, dtype=x0.dtype, device=x0.device)
+        n = standard_normal((x0.shape[0], steps - 1, self.dim_x), generator, x0.dtype, x0.device)
         if L.dim() == 2:
             w = n @ L.T
         else:
