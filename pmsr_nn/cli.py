@@ -67,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise a dataset", description="Print the summary of a dataset directory.")
     i.add_argument("path", type=Path, help="dataset directory")
     i.add_argument("--verify", action="store_true", help="also recompute and check every array checksum")
+    i.add_argument("--plot", type=Path, metavar="PNG", help="also draw the sensors, the envelope and the first tracks")
 
     d = sub.add_parser(
         "demo",
@@ -75,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(envelope and literal), write them under --out and print their summaries.",
     )
     d.add_argument("--out", type=Path, default=DEMO_DIR, help=f"output directory (default {DEMO_DIR})")
-    d.add_argument("--tracks", type=_positive_int, default=64, help="tracks per dataset (default 64)")
+    d.add_argument("--tracks", type=_positive_int, help="tracks per dataset (default: the recipe's 70, the paper's scale)")
     return p
 
 
@@ -113,6 +114,10 @@ def cmd_info(args) -> int:
     print(summarise(args.path, ds.manifest))
     if args.verify:
         print("checksums: all arrays match the manifest")
+    if args.plot:
+        from .plots import plot_dataset_tracks
+
+        print(f"figure    {plot_dataset_tracks(args.path, args.plot)}")
     return 0
 
 
@@ -120,14 +125,17 @@ def cmd_demo(args) -> int:
     from .data.store import is_our_dataset, write_dataset
     from .simulation.recipe import TrackRecipe
 
+    from .plots import plot_dataset_tracks
+
     args.out.mkdir(parents=True, exist_ok=True)
-    print(f"pmsr demo: the FITEE 2023 CA recipe (built-in defaults), {args.tracks} tracks per variant\n")
+    print("pmsr demo: the FITEE 2023 CA recipe (built-in defaults = datasets/fitee2023_ca.yaml), both variants\n")
     for variant in ("envelope", "literal"):
         out = args.out / f"fitee2023_ca_{variant}"
-        recipe = TrackRecipe(tracks=args.tracks, variant=variant)
+        recipe = TrackRecipe(variant=variant).with_overrides(tracks=args.tracks)
         t0 = time.perf_counter()
         manifest = write_dataset(recipe, out, overwrite=is_our_dataset(out))
         print(summarise(out, manifest, time.perf_counter() - t0))
+        print(f"figure    {plot_dataset_tracks(out, args.out / f'tracks_{variant}.png')}")
         print()
     print("The learned trackers and the evaluation harness are not built yet; this demo stops at the dataset.")
     return 0

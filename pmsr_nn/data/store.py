@@ -1,0 +1,278 @@
+"""The track dataset on disk: an HDF5 file plus a JSON manifest, written atomically.
+
+Layout of a dataset directory::
+
+    DIR/manifest.json   format, package version, full recipe, seed, shapes, column names and
+                        units, split sizes, normalisation statistics (training split only),
+                        envelope statistics, SHA-256 of every array
+    DIR/tracks.h5       states (N, K, dim_x), measurements (N, K, dim_z), noise_std (N, 3),
+                        split (N,) 0/1/2 = train/val/test, violations (N, 3) bool
+                        (range, speed, azimuth), and the manifest again as an attribute
+
+HDF5 opens in MATLAB (``h5read``) and every other language; MATLAB shows the axes reversed
+(``K x dim x N``) because it is column-major. Arrays are chunked one track per chunk, so a window
+of one track is a single small read.
+
+Atomicity: everything is written into a hidden sibling directory ``.DIR.partial-PID`` that is
+renamed to ``DIR`` only after the last byte and the manifest are on disk. A failed or interrupted
+run removes it (a killed one leaves only the hidden ``.partial`` directory, which no reader
+accepts).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .. import __version__
+from ..errors import DatasetError, PmsrError
+from ..rng import seeded_generator
+from ..simulation.recipe import TrackRecipe
+from ..simulation.tracks import ENVELOPE_CRITERIA, DrawStats, build_models, generate_tracks
+from .normalise import MinMaxScaler, RunningMinMax
+
+FORMAT = "pmsr_nn.track_dataset"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+ARRAYS = "tracks.h5"
+SPLITS = ("train", "val", "test")
+_SPLIT_STREAM, _CHUNK_STREAM = 1, 2
+
+
+def state_columns(dim: int) -> list[str]:
+    axes = "xyz"[:dim]
+    return [f"{q}{a}" for a in axes for q in ("", "v", "a")]
+
+
+def is_our_dataset(path: Path) -> bool:
+    """True when ``path`` is a directory holding a manifest of this format."""
+    try:
+        return json.loads((Path(path) / MANIFEST).read_text()).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def check_output_path(out: Path, overwrite: bool) -> None:
+    """Refuse to write over anything that is not one of our datasets (and over ours unless asked)."""
+    out = Path(out)
+    if out.exists() or out.is_symlink():
+        if not is_our_dataset(out):
+            raise DatasetError(f"output path {out} exists and is not a pmsr_nn dataset; choose another path")
+        if not overwrite:
+            raise DatasetError(f"dataset {out} already exists; pass --overwrite to replace it")
+    if not out.parent.exists():
+        raise DatasetError(f"parent directory {out.parent} does not exist")
+
+
+def assign_splits(recipe: TrackRecipe) -> np.ndarray:
+    """Split code per track (0 train, 1 val, 2 test): a seeded permutation of whole tracks."""
+    n_train, n_val, _ = recipe.splits.counts(recipe.tracks)
+    perm = torch.randperm(recipe.tracks, generator=seeded_generator(recipe.seed, _SPLIT_STREAM)).numpy()
+    code = np.full(recipe.tracks, 2, dtype=np.uint8)
+    code[perm[:n_train]] = 0
+    code[perm[n_train : n_train + n_val]] = 1
+    return code
+
+
+def write_dataset(recipe: TrackRecipe, out: str | Path, *, overwrite: bool = False, progress: bool = True) -> dict:
+    """Generate the recipe's tracks chunk by chunk and write them atomically to ``out``.
+
+    Memory stays bounded by ``storage.chunk_tracks`` however many tracks are asked for. Returns
+    the manifest.
+    """
+    out = Path(out)
+    check_output_path(out, overwrite)
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        manifest = _write_into(recipe, tmp, progress)
+        if out.exists():  # overwrite of one of our datasets: swap, then remove the old one
+            old = out.parent / f".{out.name}.old-{os.getpid()}"
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old)
+        else:
+            tmp.rename(out)
+        return manifest
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _write_into(recipe: TrackRecipe, tmp: Path, progress: bool) -> dict:
+    motion, meas = build_models(recipe)
+    n, K = recipe.tracks, recipe.motion.steps
+    dtype = np.dtype(recipe.storage.dtype)
+    split = assign_splits(recipe)
+    shapes = {"states": (n, K, motion.dim_x), "measurements": (n, K, meas.dim_z), "noise_std": (n, 3)}
+    digests = {name: hashlib.sha256() for name in ("states", "measurements", "noise_std", "split", "violations")}
+    mm_z, mm_x = RunningMinMax(meas.dim_z), RunningMinMax(motion.dim_x)
+    stats = DrawStats()
+    violations = np.zeros((n, len(ENVELOPE_CRITERIA)), dtype=bool)
+    chunk = recipe.storage.chunk_tracks
+    with h5py.File(tmp / ARRAYS, "w") as h5:
+        dsets = {
+            name: h5.create_dataset(name, shape, dtype=dtype if name != "noise_std" else np.float64,
+                                    chunks=(1, *shape[1:]) if len(shape) == 3 else None)
+            for name, shape in shapes.items()
+        }
+        with tqdm(total=n, unit="track", desc=f"simulate {recipe.name}", disable=None if progress else True, leave=False) as bar:
+            for c, start in enumerate(range(0, n, chunk)):
+                stop = min(start + chunk, n)
+                batch, st = generate_tracks(recipe, stop - start, seeded_generator(recipe.seed, _CHUNK_STREAM, c))
+                stats.add(st)
+                arrays = {
+                    "states": batch.states.numpy().astype(dtype),
+                    "measurements": batch.measurements.numpy().astype(dtype),
+                    "noise_std": batch.noise_std.numpy(),
+                }
+                for name, arr in arrays.items():
+                    dsets[name][start:stop] = arr
+                    digests[name].update(np.ascontiguousarray(arr).tobytes())
+                train = split[start:stop] == 0
+                mm_z.update(arrays["measurements"][train])
+                mm_x.update(arrays["states"][train])
+                violations[start:stop] = np.stack([batch.violations[k].numpy() for k in ENVELOPE_CRITERIA], -1)
+                bar.update(stop - start)
+        h5.create_dataset("split", data=split)
+        h5.create_dataset("violations", data=violations)
+        digests["split"].update(split.tobytes())
+        digests["violations"].update(violations.tobytes())
+        for name, cols in (("states", state_columns(recipe.dim)), ("measurements", meas.labels),
+                           ("noise_std", ["range_m", "range_rate_mps", "azimuth_rad"])):
+            h5[name].attrs["columns"] = json.dumps(cols)
+        h5["violations"].attrs["columns"] = json.dumps(list(ENVELOPE_CRITERIA))
+        manifest = _manifest(recipe, shapes, dtype, split, violations, stats, mm_x.scaler(), mm_z.scaler(), meas, digests)
+        h5.attrs["format"] = FORMAT
+        h5.attrs["manifest"] = json.dumps(manifest)
+    (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+    return manifest
+
+
+def _manifest(recipe, shapes, dtype, split, violations, stats, scaler_x, scaler_z, meas, digests) -> dict:
+    counts = {name: int((split == i).sum()) for i, name in enumerate(SPLITS)}
+    left = violations.any(-1)
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "pmsr_nn_version": __version__,
+        "name": recipe.name,
+        "seed": recipe.seed,
+        "variant": recipe.variant,
+        "recipe": recipe.to_dict(),
+        "geometry": meas.geometry.to_dict(),
+        "dtype": dtype.name,
+        "shapes": {k: list(v) for k, v in shapes.items()},
+        "columns": {
+            "states": state_columns(recipe.dim),
+            "measurements": meas.labels,
+            "noise_std": ["range_m", "range_rate_mps", "azimuth_rad"],
+        },
+        "units": "SI: m, m/s, m/s^2, rad; azimuth clockwise from north at the receiver; range-rate dr/dt",
+        "dt_s": recipe.motion.dt_s,
+        "window": recipe.window,
+        "windows_per_track": recipe.windows_per_track,
+        "splits": counts,
+        "windows": {k: v * recipe.windows_per_track for k, v in counts.items()},
+        "normalisation": {"fitted_on": "train", "states": scaler_x.to_dict(), "measurements": scaler_z.to_dict()},
+        "envelope": {
+            "fraction_left": float(left.mean()),
+            "fraction_left_by_criterion": {k: float(violations[:, i].mean()) for i, k in enumerate(ENVELOPE_CRITERIA)},
+            "draws": vars(stats).copy(),
+            "acceptance": stats.acceptance,
+        },
+        "checksums_sha256": {k: d.hexdigest() for k, d in digests.items()},
+    }
+
+
+@dataclass
+class TrackDataset:
+    """A dataset directory opened for reading; arrays are read lazily from HDF5."""
+
+    path: Path
+    manifest: dict
+
+    @property
+    def file(self) -> h5py.File:
+        if getattr(self, "_h5", None) is None:
+            self._h5 = h5py.File(self.path / ARRAYS, "r")
+        return self._h5
+
+    def close(self) -> None:
+        if getattr(self, "_h5", None) is not None:
+            self._h5.close()
+            self._h5 = None
+
+    def __getstate__(self):  # h5py handles do not cross process boundaries (DataLoader workers)
+        return {"path": self.path, "manifest": self.manifest}
+
+    @property
+    def split(self) -> np.ndarray:
+        return self.file["split"][()]
+
+    def split_indices(self, name: str) -> np.ndarray:
+        """Track indices of split ``name`` ('train', 'val' or 'test'), ascending."""
+        if name not in SPLITS:
+            raise DatasetError(f"unknown split {name!r}; choose one of {SPLITS}")
+        return np.flatnonzero(self.split == SPLITS.index(name))
+
+    def scaler(self, which: str) -> MinMaxScaler:
+        """Normalisation fitted on the training split, for 'states' or 'measurements'."""
+        return MinMaxScaler.from_dict(self.manifest["normalisation"][which])
+
+    def recipe(self) -> TrackRecipe:
+        from ..simulation.recipe import recipe_from_dict
+
+        return recipe_from_dict(self.manifest["recipe"])
+
+    def verify(self) -> None:
+        """Recompute every checksum; raise :class:`DatasetError` on a mismatch."""
+        for name, want in self.manifest["checksums_sha256"].items():
+            h = hashlib.sha256()
+            ds = self.file[name]
+            step = 256
+            for a in range(0, ds.shape[0], step):
+                h.update(np.ascontiguousarray(ds[a : a + step]).tobytes())
+            if h.hexdigest() != want:
+                raise DatasetError(f"{self.path}: array '{name}' does not match its checksum (corrupted?)")
+
+
+def open_dataset(path: str | Path) -> TrackDataset:
+    """Open a dataset directory written by :func:`write_dataset`, checking it is complete and ours."""
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"no dataset at {path}")
+    try:
+        manifest = json.loads((path / MANIFEST).read_text())
+    except OSError:
+        raise DatasetError(f"{path} has no {MANIFEST}: not a pmsr_nn dataset, or an incomplete one") from None
+    except ValueError:
+        raise DatasetError(f"{path}/{MANIFEST} is not valid JSON (corrupted?)") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise DatasetError(f"{path} is not a pmsr_nn track dataset")
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise DatasetError(f"{path} has format version {manifest.get('format_version')}; this pmsr_nn reads {FORMAT_VERSION}")
+    ds = TrackDataset(path, manifest)
+    try:
+        f = ds.file
+        for name, shape in manifest["shapes"].items():
+            if list(f[name].shape) != shape:
+                raise DatasetError(f"{path}: array '{name}' has shape {f[name].shape}, manifest says {shape}")
+    except (OSError, KeyError) as exc:
+        ds.close()
+        raise DatasetError(f"{path}/{ARRAYS} is missing or unreadable ({exc})") from None
+    except PmsrError:
+        ds.close()
+        raise
+    return ds
