@@ -19,7 +19,7 @@ Process noise
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -33,8 +33,8 @@ class KinematicModel:
 
     spatial_dim: int = 2
 
-    order: int = 0  # set by subclasses
-    name: str = ""
+    order: int = field(default=0, init=False)  # integrators per axis, set by each subclass
+    name: str = field(default="", init=False)
 
     def __post_init__(self) -> None:
         if self.spatial_dim not in (2, 3):
@@ -135,8 +135,8 @@ class KinematicModel:
 class ConstantVelocity(KinematicModel):
     """CV model; ``q`` is the white acceleration variance (m^2/s^4)."""
 
-    order: int = 2
-    name: str = "cv"
+    order: int = field(default=2, init=False)
+    name: str = field(default="cv", init=False)
 
     def Q_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
         return torch.tensor([[T**4 / 4, T**3 / 2], [T**3 / 2, T**2]], dtype=dtype, device=device)
@@ -151,8 +151,8 @@ class ConstantVelocity(KinematicModel):
 class ConstantAcceleration(KinematicModel):
     """CA model (Eq. 12 of the MDFNN paper); ``q`` is the jerk power spectral density (m^2/s^5)."""
 
-    order: int = 3
-    name: str = "ca"
+    order: int = field(default=3, init=False)
+    name: str = field(default="ca", init=False)
 
     def Q_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
         return torch.tensor(

@@ -141,3 +141,17 @@ def test_invalid_models_are_rejected():
         MeasurementModel(g, ("range",), (0.0,), motion.pos_idx, motion.vel_idx)
     with pytest.raises(ConfigError, match="3-D"):
         MeasurementModel(g, ("range",), (1.0,), ConstantVelocity(3).pos_idx, ConstantVelocity(3).vel_idx)
+
+
+def test_public_functions_agree_with_the_model():
+    from pmsr_nn.measurements import azimuth, bistatic_delay_s, bistatic_range, bistatic_range_rate, doppler_hz
+
+    motion = ConstantAcceleration(3)
+    g = Geometry.all_pairs([Transmitter((0.0, 0.0), FC)], [Receiver((4000.0, 0.0)), Receiver((-3000.0, 500.0))]).lifted(3)
+    model = MeasurementModel(g, COMPONENTS, (1.0,) * 5, motion.pos_idx, motion.vel_idx)
+    x = torch.randn(5, 9, generator=torch.Generator().manual_seed(9)) * 2000
+    pos, vel = x[:, list(motion.pos_idx)], x[:, list(motion.vel_idx)]
+    tx, rx, fc = g.pair_tx_positions(), g.pair_rx_positions(), g.pair_carriers()
+    expected = torch.cat([bistatic_range(pos, tx, rx), bistatic_range_rate(pos, vel, tx, rx),
+                          doppler_hz(pos, vel, tx, rx, fc), bistatic_delay_s(pos, tx, rx), azimuth(pos, rx)], -1)
+    torch.testing.assert_close(model.h(x), expected, rtol=1e-13, atol=1e-12)

@@ -118,3 +118,20 @@ def test_unreachable_envelope_is_a_clear_error():
     r = short(TrackRecipe(envelope_variant=EnvelopeVariantSpec(q_psd=4.0, accel_mps2=(4.0, 5.0), max_draws_per_track=3)), steps=1000)
     with pytest.raises(ConfigError, match="acceptable"):
         generate_tracks(r, 8, seeded_generator(7))
+
+
+@pytest.mark.parametrize("spec,ok", [
+    ({"position_m": (1.0, 2.0)}, True),
+    ({"baseline_m": 10.0, "bearing_deg": 90.0}, True),
+    ({"baseline_m": 10.0}, False),
+    ({}, False),
+    ({"position_m": (1.0, 2.0), "bearing_deg": 90.0}, False),
+])
+def test_receiver_spec_forms(spec, ok):
+    from pmsr_nn.simulation.recipe import ReceiverSpec
+
+    if ok:
+        assert len(ReceiverSpec(**spec).resolve((0.0, 0.0))) == 2
+    else:
+        with pytest.raises(ConfigError):
+            ReceiverSpec(**spec).resolve((0.0, 0.0))

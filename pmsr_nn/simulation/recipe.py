@@ -35,11 +35,11 @@ class ReceiverSpec:
     bearing_deg: float | None = None
 
     def resolve(self, origin: tuple[float, ...]) -> tuple[float, ...]:
-        polar = self.baseline_m is not None or self.bearing_deg is not None
-        if (self.position_m is None) == (not polar) or (polar and (self.baseline_m is None or self.bearing_deg is None)):
-            raise ConfigError("a receiver needs either position_m, or both baseline_m and bearing_deg")
+        has_polar = (self.baseline_m is not None, self.bearing_deg is not None)
         if self.position_m is not None:
+            require(not any(has_polar), "a receiver needs either position_m, or baseline_m and bearing_deg, not both")
             return self.position_m
+        require(all(has_polar), "a receiver needs either position_m, or both baseline_m and bearing_deg")
         require(self.baseline_m >= 0, f"baseline_m must be non-negative, got {self.baseline_m}")
         return polar_position(self.baseline_m, self.bearing_deg, origin)
 
