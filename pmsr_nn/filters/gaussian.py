@@ -1,0 +1,150 @@
+"""Batched Gaussian filtering steps shared by the EKF, the UKF and the multi-target trackers.
+
+A Gaussian is ``x (..., n)`` and ``P (..., n, n)``; the leading axes are runs, tracks or
+hypotheses. The EKF and the UKF share one update (:func:`kalman_update`) and differ only in how
+they compute the predicted measurement moments (:func:`linearised_moments` or
+:func:`unscented_moments`), as in Stone Soup's Kalman updaters.
+
+Missing measurements: a NaN entry of ``z`` (per run, per component) is skipped exactly: its
+innovation, cross-covariance and innovation-covariance rows are zeroed (with a unit diagonal),
+so the gain column is zero and that entry changes nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..errors import PmsrError
+from ..measurements import MeasurementModel, wrap_angle
+
+
+class FilterError(PmsrError):
+    """A filter met a non-finite state or a covariance that is not positive definite."""
+
+
+@dataclass
+class Gaussian:
+    """Mean ``x (..., n)`` and covariance ``P (..., n, n)``."""
+
+    x: torch.Tensor
+    P: torch.Tensor
+
+
+@dataclass
+class MeasurementMoments:
+    """Predicted measurement ``z (..., m)``, its covariance ``S (..., m, m)`` (R included) and the
+    state-measurement cross-covariance ``C (..., n, m)``."""
+
+    z: torch.Tensor
+    S: torch.Tensor
+    C: torch.Tensor
+
+
+def symmetrise(P: torch.Tensor) -> torch.Tensor:
+    return 0.5 * (P + P.transpose(-1, -2))
+
+
+def predict(g: Gaussian, F: torch.Tensor, Q: torch.Tensor) -> Gaussian:
+    """Linear prediction ``x = F x``, ``P = F P F^T + Q``; ``F (n, n)``, ``Q (..., n, n)``."""
+    x = g.x @ F.transpose(-1, -2)
+    P = F @ g.P @ F.transpose(-1, -2) + Q
+    return Gaussian(x, symmetrise(P))
+
+
+def linearised_moments(g: Gaussian, model: MeasurementModel, R: torch.Tensor) -> MeasurementMoments:
+    """EKF moments with the analytic Jacobian ``H`` at the mean: ``S = H P H^T + R``, ``C = P H^T``."""
+    H = model.jacobian(g.x)
+    C = g.P @ H.transpose(-1, -2)
+    return MeasurementMoments(model.h(g.x), symmetrise(H @ C + R), C)
+
+
+@dataclass(frozen=True)
+class SigmaPoints:
+    """Scaled sigma points (van der Merwe): ``2n + 1`` points, weights from ``alpha, beta, kappa``.
+
+    ``lambda = alpha^2 (n + kappa) - n``; points ``x`` and ``x +- columns of chol((n + lambda) P)``.
+    Defaults ``alpha = 1, beta = 2, kappa = 3 - n`` (the classic choice that matches the fourth
+    moment of a Gaussian); ``kappa=None`` means ``3 - n``.
+    """
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float | None = None
+
+    def weights(self, n: int, dtype=torch.float64, device=None) -> tuple[torch.Tensor, torch.Tensor, float]:
+        kappa = 3.0 - n if self.kappa is None else self.kappa
+        lam = self.alpha**2 * (n + kappa) - n
+        wm = torch.full((2 * n + 1,), 0.5 / (n + lam), dtype=dtype, device=device)
+        wc = wm.clone()
+        wm[0] = lam / (n + lam)
+        wc[0] = lam / (n + lam) + (1 - self.alpha**2 + self.beta)
+        return wm, wc, n + lam
+
+    def points(self, g: Gaussian) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Sigma points ``(..., 2n+1, n)`` and the mean and covariance weights ``(2n+1,)``."""
+        n = g.x.shape[-1]
+        wm, wc, scale = self.weights(n, g.x.dtype, g.x.device)
+        L = safe_cholesky(scale * g.P)  # (..., n, n); columns are the offsets
+        offsets = L.transpose(-1, -2)  # rows
+        x = g.x.unsqueeze(-2)
+        return torch.cat([x, x + offsets, x - offsets], dim=-2), wm, wc
+
+
+def safe_cholesky(P: torch.Tensor) -> torch.Tensor:
+    """Cholesky factor of a batch of covariances.
+
+    Fallback for matrices that round-off has made slightly indefinite: add a jitter of
+    ``1e-12 * mean diagonal``, growing 100x per attempt up to ``1e-6``; beyond that the matrix is
+    not a covariance and :class:`FilterError` is raised naming the first bad batch index.
+    """
+    L, info = torch.linalg.cholesky_ex(P)
+    if not bool((info != 0).any()):
+        return L
+    scale = torch.diagonal(P, dim1=-2, dim2=-1).mean(-1).abs().clamp_min(1e-300)[..., None, None]
+    eye = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device)
+    for rel in (1e-12, 1e-10, 1e-8, 1e-6):
+        L, info = torch.linalg.cholesky_ex(P + rel * scale * eye)
+        if not bool((info != 0).any()):
+            return L
+    bad = torch.nonzero(info != 0)[0].tolist()
+    raise FilterError(f"covariance at batch index {bad} is not positive definite (even with jitter 1e-6)")
+
+
+def unscented_moments(g: Gaussian, model: MeasurementModel, R: torch.Tensor, sigma: SigmaPoints = SigmaPoints()) -> MeasurementMoments:
+    """UKF moments from sigma points through ``h``; angle rows use circular means and wrapped residuals."""
+    X, wm, wc = sigma.points(g)
+    Z = model.h(X)  # (..., 2n+1, m)
+    angles = model.angle_mask.to(Z.device)
+    z_lin = (wm[:, None] * Z).sum(-2)
+    z_circ = torch.atan2((wm[:, None] * torch.sin(Z)).sum(-2), (wm[:, None] * torch.cos(Z)).sum(-2))
+    z_mean = torch.where(angles, z_circ, z_lin)
+    dZ = Z - z_mean.unsqueeze(-2)
+    dZ = torch.where(angles, wrap_angle(dZ), dZ)
+    dX = X - g.x.unsqueeze(-2)
+    S = (dZ.transpose(-1, -2) * wc) @ dZ + R
+    C = (dX.transpose(-1, -2) * wc) @ dZ
+    return MeasurementMoments(z_mean, symmetrise(S), C)
+
+
+def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: MeasurementModel) -> tuple[Gaussian, torch.Tensor, torch.Tensor]:
+    """Kalman update from predicted moments; NaN entries of ``z (..., m)`` are skipped.
+
+    Returns the posterior, the innovation ``nu (..., m)`` (wrapped on angle rows, 0 where missing)
+    and the innovation covariance ``S`` actually used.
+    """
+    missing = torch.isnan(z)
+    nu = model.residual(torch.where(missing, m.z, z), m.z)
+    S, C = m.S, m.C
+    if bool(missing.any()):
+        keep = (~missing).to(S.dtype)
+        S = S * keep.unsqueeze(-1) * keep.unsqueeze(-2) + torch.diag_embed(1.0 - keep)
+        C = C * keep.unsqueeze(-2)
+        nu = nu * keep
+    L = safe_cholesky(S)
+    # K = C S^-1, computed as (S^-1 C^T)^T with the Cholesky factor.
+    K = torch.cholesky_solve(C.transpose(-1, -2), L).transpose(-1, -2)
+    x = g.x + (K @ nu.unsqueeze(-1)).squeeze(-1)
+    P = symmetrise(g.P - K @ S @ K.transpose(-1, -2))
+    return Gaussian(x, P), nu, S

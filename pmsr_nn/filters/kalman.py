@@ -1,0 +1,96 @@
+"""Batched EKF and UKF over whole measurement sequences (the only Python loop is over time).
+
+Convention: the prior ``(x0, P0)`` is the state at step 0 *before* ``z[:, 0]``; step 0 is an
+update only, every later step a prediction over ``dt`` followed by an update. A run whose state
+becomes non-finite raises :class:`~pmsr_nn.filters.gaussian.FilterError` naming the run and step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+
+from ..errors import ConfigError
+from ..measurements import MeasurementModel
+from ..motion import KinematicModel
+from .gaussian import (
+    FilterError,
+    Gaussian,
+    MeasurementMoments,
+    SigmaPoints,
+    kalman_update,
+    linearised_moments,
+    predict,
+    unscented_moments,
+)
+
+
+@dataclass
+class FilterResult:
+    """Filtered means ``x (B, K, n)``, covariances ``P (B, K, n, n)``, innovations ``nu (B, K, m)``
+    and innovation covariances ``S (B, K, m, m)``."""
+
+    x: torch.Tensor
+    P: torch.Tensor
+    nu: torch.Tensor
+    S: torch.Tensor
+
+
+def _check_inputs(prior: Gaussian, z: torch.Tensor, model: MeasurementModel, motion: KinematicModel, R: torch.Tensor) -> None:
+    n, m = motion.dim_x, model.dim_z
+    if prior.x.shape[-1] != n or prior.P.shape[-2:] != (n, n):
+        raise ConfigError(f"prior must be x (B, {n}) and P (B, {n}, {n}); got {tuple(prior.x.shape)}, {tuple(prior.P.shape)}")
+    if z.dim() != 3 or z.shape[-1] != m or z.shape[0] != prior.x.shape[0]:
+        raise ConfigError(f"measurements must be (B={prior.x.shape[0]}, K, {m}); got {tuple(z.shape)}")
+    if R.shape[-2:] != (m, m):
+        raise ConfigError(f"R must be ({m}, {m}) or (B, {m}, {m}); got {tuple(R.shape)}")
+    bad_x = ~torch.isfinite(prior.x).all(-1)
+    if bool(bad_x.any()):
+        raise ConfigError(f"prior mean of run {int(bad_x.nonzero()[0])} is not finite")
+    inf = torch.isinf(z)
+    if bool(inf.any()):
+        b, k, _ = inf.nonzero()[0].tolist()
+        raise ConfigError(f"measurement of run {b} at step {k} is infinite (use NaN for a missing value)")
+    for name, M in (("P0", prior.P), ("R", R)):
+        if not torch.allclose(M, M.transpose(-1, -2), rtol=1e-10, atol=0):
+            raise ConfigError(f"{name} is not symmetric")
+        if bool((torch.linalg.cholesky_ex(M)[1] != 0).any()):
+            raise ConfigError(f"{name} is not positive definite")
+
+
+def run_gaussian_filter(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt: float, q, model: MeasurementModel,
+                        R: torch.Tensor, moments: Callable[[Gaussian, MeasurementModel, torch.Tensor], MeasurementMoments]) -> FilterResult:
+    """Filter ``z (B, K, m)`` (NaN = missing) with motion ``F(dt), Q(dt, q)`` and the given moments."""
+    _check_inputs(prior, z, model, motion, R)
+    F = motion.F(dt, z.dtype, z.device)
+    Q = motion.Q(dt, q, z.dtype, z.device)
+    g = prior
+    xs, Ps, nus, Ss = [], [], [], []
+    for k in range(z.shape[1]):
+        if k > 0:
+            g = predict(g, F, Q)
+        try:
+            g, nu, S = kalman_update(g, z[:, k], moments(g, model, R), model)
+        except FilterError as exc:
+            raise FilterError(f"step {k}: {exc}") from None
+        bad = ~torch.isfinite(g.x).all(-1)
+        if bool(bad.any()):
+            raise FilterError(f"state of run {int(bad.nonzero()[0])} became non-finite at step {k}")
+        xs.append(g.x)
+        Ps.append(g.P)
+        nus.append(nu)
+        Ss.append(S)
+    return FilterResult(torch.stack(xs, 1), torch.stack(Ps, 1), torch.stack(nus, 1), torch.stack(Ss, 1))
+
+
+def ekf(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt: float, q, model: MeasurementModel, R: torch.Tensor) -> FilterResult:
+    """Extended Kalman filter (analytic Jacobians) for a batch of runs."""
+    return run_gaussian_filter(prior, z, motion, dt, q, model, R, linearised_moments)
+
+
+def ukf(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt: float, q, model: MeasurementModel, R: torch.Tensor,
+        sigma: SigmaPoints = SigmaPoints()) -> FilterResult:
+    """Unscented Kalman filter (scaled sigma points, redrawn after each prediction) for a batch of runs."""
+    return run_gaussian_filter(prior, z, motion, dt, q, model, R, lambda g, mm, RR: unscented_moments(g, mm, RR, sigma))
