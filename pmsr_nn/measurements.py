@@ -63,30 +63,10 @@ def bistatic_range(pos: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor) -> tor
     return _offsets(pos, tx)[1] + _offsets(pos, rx)[1]
 
 
-def bistatic_range_jacobian(pos: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
-    """``d r / d p = u_tx + u_rx``, shape ``(..., N, d)``."""
-    return _offsets(pos, tx)[2] + _offsets(pos, rx)[2]
-
-
 def bistatic_range_rate(pos: torch.Tensor, vel: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
     """Bistatic range-rate ``v . (u_tx + u_rx)`` in m/s, ``(..., N)``."""
-    return (bistatic_range_jacobian(pos, tx, rx) * vel.unsqueeze(-2)).sum(-1)
-
-
-def bistatic_range_rate_jacobians(pos: torch.Tensor, vel: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor):
-    """Jacobians of the range-rate: ``(d rdot/d p, d rdot/d v)``, each ``(..., N, d)``.
-
-    ``d (v . u_s) / d p = (v - u_s (u_s . v)) / |p - s|`` (the component of ``v`` normal to the
-    line of sight, divided by the distance), summed over the transmitter and the receiver.
-    """
-    v = vel.unsqueeze(-2)
-    d_pos = torch.zeros_like(v.expand(*pos.shape[:-1], tx.shape[0], pos.shape[-1]))
-    d_vel = torch.zeros_like(d_pos)
-    for sensors in (tx, rx):
-        _, dist, unit = _offsets(pos, sensors)
-        d_pos = d_pos + (v - unit * (unit * v).sum(-1, keepdim=True)) / dist.unsqueeze(-1)
-        d_vel = d_vel + unit
-    return d_pos, d_vel
+    unit_sum = _offsets(pos, tx)[2] + _offsets(pos, rx)[2]
+    return (unit_sum * vel.unsqueeze(-2)).sum(-1)
 
 
 def doppler_hz(pos: torch.Tensor, vel: torch.Tensor, tx: torch.Tensor, rx: torch.Tensor, carrier_hz: torch.Tensor) -> torch.Tensor:
@@ -104,17 +84,6 @@ def azimuth(pos: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
     dx = pos[..., None, 0] - rx[:, 0]
     dy = pos[..., None, 1] - rx[:, 1]
     return torch.atan2(dx, dy)
-
-
-def azimuth_jacobian(pos: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
-    """``d phi / d p`` ``(..., N, d)``: ``(dy, -dx) / (dx^2 + dy^2)`` in the horizontal plane, 0 in z."""
-    dx = pos[..., None, 0] - rx[:, 0]
-    dy = pos[..., None, 1] - rx[:, 1]
-    rho2 = (dx * dx + dy * dy).clamp_min(MIN_SENSOR_DISTANCE_M**2)
-    jac = torch.zeros(*dx.shape, pos.shape[-1], dtype=pos.dtype, device=pos.device)
-    jac[..., 0] = dy / rho2
-    jac[..., 1] = -dx / rho2
-    return jac
 
 
 @dataclass(frozen=True)
@@ -216,29 +185,50 @@ class MeasurementModel:
         return self._stack(rows, n_trailing=0)
 
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
-        """Analytic Jacobian ``dh/dx`` ``(..., dim_z, dim_x)``."""
-        pos, vel = self._split_state(x)
+        """Analytic Jacobian ``dh/dx`` ``(..., dim_z, dim_x)``.
+
+        Rows: ``dr/dp = u_tx + u_rx``; ``drdot/dp = sum_s (v - u_s (u_s . v)) / |p - s|`` and
+        ``drdot/dv = u_tx + u_rx``; ``dphi/d(x, y) = (dy, -dx) / (dx^2 + dy^2)`` at the receiver;
+        Doppler and delay are the range-rate and range rows scaled by ``-f_c / c`` and ``1 / c``.
+        Computed per coordinate on ``(..., N)`` tensors, like :meth:`h`.
+        """
         tx, rx, fc = self._sensors(x)
-        zeros = torch.zeros(*pos.shape[:-1], self.n_pairs, pos.shape[-1], dtype=x.dtype, device=x.device)
-        blocks = []
-        rate_jac = None
+        D = len(self.pos_idx)
+        pos = [x[..., i, None] for i in self.pos_idx]
+        vel = [x[..., i, None] for i in self.vel_idx]
+        off_t = [p - tx[:, c] for c, p in enumerate(pos)]
+        off_r = [p - rx[:, c] for c, p in enumerate(pos)]
+        d_t = sum(o * o for o in off_t).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
+        d_r = sum(o * o for o in off_r).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
+        u_t = [o / d_t for o in off_t]
+        u_r = [o / d_r for o in off_r]
+        grad_r = [a + b for a, b in zip(u_t, u_r)]  # d r / d p_c, also d rdot / d v_c
+        uv_t = sum(u * v for u, v in zip(u_t, vel))
+        uv_r = sum(u * v for u, v in zip(u_r, vel))
+        grad_rate = [(v - ut * uv_t) / d_t + (v - ur * uv_r) / d_r for v, ut, ur in zip(vel, u_t, u_r)]
+        rho2 = (off_r[0] ** 2 + off_r[1] ** 2).clamp_min(MIN_SENSOR_DISTANCE_M**2)
+        zero = torch.zeros_like(d_t)
+        grad_az = [off_r[1] / rho2, -off_r[0] / rho2] + [zero] * (D - 2)
+        blocks = []  # per component: (d/dp list, d/dv list), each entry (..., N)
         for c in self.components:
-            if c in ("range", "delay"):
-                d_pos = bistatic_range_jacobian(pos, tx, rx)
-                scale = 1.0 if c == "range" else 1.0 / SPEED_OF_LIGHT
-                blocks.append((d_pos * scale, zeros))
-            elif c in ("range_rate", "doppler"):
-                if rate_jac is None:
-                    rate_jac = bistatic_range_rate_jacobians(pos, vel, tx, rx)
-                scale = 1.0 if c == "range_rate" else (-fc / SPEED_OF_LIGHT)[:, None]
-                blocks.append((rate_jac[0] * scale, rate_jac[1] * scale))
+            if c == "range":
+                blocks.append((grad_r, None))
+            elif c == "delay":
+                blocks.append(([g / SPEED_OF_LIGHT for g in grad_r], None))
+            elif c == "range_rate":
+                blocks.append((grad_rate, grad_r))
+            elif c == "doppler":
+                scale = -fc / SPEED_OF_LIGHT
+                blocks.append(([g * scale for g in grad_rate], [g * scale for g in grad_r]))
             else:
-                blocks.append((azimuth_jacobian(pos, rx), zeros))
+                blocks.append((grad_az, None))
         rows = []
         for d_pos, d_vel in blocks:
-            jac = torch.zeros(*d_pos.shape[:-1], x.shape[-1], dtype=x.dtype, device=x.device)
-            jac[..., list(self.pos_idx)] = d_pos
-            jac[..., list(self.vel_idx)] = d_vel
+            jac = torch.zeros(*d_t.shape, x.shape[-1], dtype=x.dtype, device=x.device)
+            for c in range(D):
+                jac[..., self.pos_idx[c]] = d_pos[c]
+                if d_vel is not None:
+                    jac[..., self.vel_idx[c]] = d_vel[c]
             rows.append(jac)
         return self._stack(rows, n_trailing=1)
 

@@ -49,15 +49,16 @@ def symmetrise(P: torch.Tensor) -> torch.Tensor:
 def predict(g: Gaussian, F: torch.Tensor, Q: torch.Tensor) -> Gaussian:
     """Linear prediction ``x = F x``, ``P = F P F^T + Q``; ``F (n, n)``, ``Q (..., n, n)``."""
     x = g.x @ F.transpose(-1, -2)
-    P = F @ g.P @ F.transpose(-1, -2) + Q
-    return Gaussian(x, symmetrise(P))
+    P = F @ g.P @ F.transpose(-1, -2) + Q  # symmetrised by the update that follows
+    return Gaussian(x, P)
 
 
 def linearised_moments(g: Gaussian, model: MeasurementModel, R: torch.Tensor) -> MeasurementMoments:
     """EKF moments with the analytic Jacobian ``H`` at the mean: ``S = H P H^T + R``, ``C = P H^T``."""
     H = model.jacobian(g.x)
     C = g.P @ H.transpose(-1, -2)
-    return MeasurementMoments(model.h(g.x), symmetrise(H @ C + R), C)
+    # S is only read through its lower triangle (Cholesky), so it is not symmetrised here.
+    return MeasurementMoments(model.h(g.x), H @ C + R, C)
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,8 @@ def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: Me
     """Kalman update from predicted moments; NaN entries of ``z (..., m)`` are skipped.
 
     Returns the posterior, the innovation ``nu (..., m)`` (wrapped on angle rows, 0 where missing)
-    and the innovation covariance ``S`` actually used.
+    and the normalised innovation squared ``nu^T S^-1 nu (...,)`` (chi-square with as many
+    degrees of freedom as entries present, when the filter is consistent).
     """
     missing = torch.isnan(z)
     nu = model.residual(torch.where(missing, m.z, z), m.z)
@@ -143,8 +145,9 @@ def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: Me
         C = C * keep.unsqueeze(-2)
         nu = nu * keep
     L = safe_cholesky(S)
-    # K = C S^-1, computed as (S^-1 C^T)^T with the Cholesky factor.
-    K = torch.cholesky_solve(C.transpose(-1, -2), L).transpose(-1, -2)
-    x = g.x + (K @ nu.unsqueeze(-1)).squeeze(-1)
-    P = symmetrise(g.P - K @ S @ K.transpose(-1, -2))
-    return Gaussian(x, P), nu, S
+    # With W = L^-1 C^T: K = C S^-1 = W^T L^-1, K S K^T = W^T W and NIS = |L^-1 nu|^2.
+    W = torch.linalg.solve_triangular(L, torch.cat([C.transpose(-1, -2), nu.unsqueeze(-1)], -1), upper=False)
+    Wc, e = W[..., :-1], W[..., -1]
+    x = g.x + (Wc.transpose(-1, -2) @ e.unsqueeze(-1)).squeeze(-1)
+    P = symmetrise(g.P - Wc.transpose(-1, -2) @ Wc)
+    return Gaussian(x, P), nu, (e * e).sum(-1)

@@ -30,12 +30,12 @@ from .gaussian import (
 @dataclass
 class FilterResult:
     """Filtered means ``x (B, K, n)``, covariances ``P (B, K, n, n)``, innovations ``nu (B, K, m)``
-    and innovation covariances ``S (B, K, m, m)``."""
+    and normalised innovations squared ``nis (B, K)``."""
 
     x: torch.Tensor
     P: torch.Tensor
     nu: torch.Tensor
-    S: torch.Tensor
+    nis: torch.Tensor
 
 
 def _check_inputs(prior: Gaussian, z: torch.Tensor, model: MeasurementModel, motion: KinematicModel, R: torch.Tensor) -> None:
@@ -67,22 +67,21 @@ def run_gaussian_filter(prior: Gaussian, z: torch.Tensor, motion: KinematicModel
     F = motion.F(dt, z.dtype, z.device)
     Q = motion.Q(dt, q, z.dtype, z.device)
     g = prior
-    xs, Ps, nus, Ss = [], [], [], []
-    for k in range(z.shape[1]):
+    B, K, m = z.shape
+    n = prior.x.shape[-1]
+    out = FilterResult(z.new_empty(B, K, n), z.new_empty(B, K, n, n), z.new_empty(B, K, m), z.new_empty(B, K))
+    for k in range(K):
         if k > 0:
             g = predict(g, F, Q)
         try:
-            g, nu, S = kalman_update(g, z[:, k], moments(g, model, R), model)
+            g, out.nu[:, k], out.nis[:, k] = kalman_update(g, z[:, k], moments(g, model, R), model)
         except FilterError as exc:
             raise FilterError(f"step {k}: {exc}") from None
         bad = ~torch.isfinite(g.x).all(-1)
         if bool(bad.any()):
             raise FilterError(f"state of run {int(bad.nonzero()[0])} became non-finite at step {k}")
-        xs.append(g.x)
-        Ps.append(g.P)
-        nus.append(nu)
-        Ss.append(S)
-    return FilterResult(torch.stack(xs, 1), torch.stack(Ps, 1), torch.stack(nus, 1), torch.stack(Ss, 1))
+        out.x[:, k], out.P[:, k] = g.x, g.P
+    return out
 
 
 def ekf(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt: float, q, model: MeasurementModel, R: torch.Tensor) -> FilterResult:
