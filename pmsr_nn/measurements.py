@@ -159,17 +159,25 @@ class MeasurementModel:
     def _split_state(self, x: torch.Tensor):
         return x[..., list(self.pos_idx)], x[..., list(self.vel_idx)]
 
-    def h(self, x: torch.Tensor) -> torch.Tensor:
-        """Noise-free measurement ``(..., dim_z)`` of states ``x (..., dim_x)``."""
+    def _per_coordinate(self, x: torch.Tensor):
+        """Velocity components and offsets to each pair's sensors, one ``(..., N)`` tensor per
+        coordinate, plus guarded distances ``(..., N)`` and carriers ``(N,)``.
+
+        Keeping coordinates apart makes the hot paths (simulation, filters) contiguous
+        element-wise work instead of operations on tiny trailing axes.
+        """
         tx, rx, fc = self._sensors(x)
-        # The simulator's hot path: offsets are kept as one (..., N) tensor per coordinate (fast,
-        # contiguous element-wise work instead of tiny trailing axes) and shared by all components.
         pos = [x[..., i, None] for i in self.pos_idx]
         vel = [x[..., i, None] for i in self.vel_idx]
         off_t = [p - tx[:, c] for c, p in enumerate(pos)]
         off_r = [p - rx[:, c] for c, p in enumerate(pos)]
         d_t = sum(o * o for o in off_t).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
         d_r = sum(o * o for o in off_r).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
+        return vel, off_t, off_r, d_t, d_r, fc
+
+    def h(self, x: torch.Tensor) -> torch.Tensor:
+        """Noise-free measurement ``(..., dim_z)`` of states ``x (..., dim_x)``."""
+        vel, off_t, off_r, d_t, d_r, fc = self._per_coordinate(x)
         rng = rate = None
         rows = []
         for c in self.components:
@@ -192,14 +200,8 @@ class MeasurementModel:
         Doppler and delay are the range-rate and range rows scaled by ``-f_c / c`` and ``1 / c``.
         Computed per coordinate on ``(..., N)`` tensors, like :meth:`h`.
         """
-        tx, rx, fc = self._sensors(x)
         D = len(self.pos_idx)
-        pos = [x[..., i, None] for i in self.pos_idx]
-        vel = [x[..., i, None] for i in self.vel_idx]
-        off_t = [p - tx[:, c] for c, p in enumerate(pos)]
-        off_r = [p - rx[:, c] for c, p in enumerate(pos)]
-        d_t = sum(o * o for o in off_t).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
-        d_r = sum(o * o for o in off_r).sqrt().clamp_min(MIN_SENSOR_DISTANCE_M)
+        vel, off_t, off_r, d_t, d_r, fc = self._per_coordinate(x)
         u_t = [o / d_t for o in off_t]
         u_r = [o / d_r for o in off_r]
         grad_r = [a + b for a, b in zip(u_t, u_r)]  # d r / d p_c, also d rdot / d v_c
