@@ -100,7 +100,8 @@ def main() -> None:
             "ukf": lambda: ukf(prior, z, motion, DT, Q_PSD, model, R, sigma)}
     max_diff = 0.0
     for kind, fn in runs.items():
-        fn() if args.device != "cpu" else None  # warm-up on accelerators
+        if args.device != "cpu":
+            fn()  # warm-up on accelerators
         t0 = time.perf_counter()
         res = fn()
         if args.device != "cpu":

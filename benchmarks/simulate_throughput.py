@@ -68,6 +68,23 @@ def child(variant: str, tracks: int, out: str) -> dict:
     }
 
 
+def normal_sampler_rates(n: int = 10_000_000) -> dict:
+    """Standard normals per second from torch's CPU sampler in float64 and in float32 (then cast)."""
+    import torch
+
+    from pmsr_nn.rng import standard_normal
+
+    g = torch.Generator().manual_seed(0)
+    rates = {}
+    for name, fn in (("float64", lambda: torch.randn(n, generator=g, dtype=torch.float64)),
+                     ("float32_cast", lambda: standard_normal((n,), g))):
+        fn()
+        t0 = time.perf_counter()
+        fn()
+        rates[name] = n / (time.perf_counter() - t0)
+    return rates
+
+
 def cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -111,8 +128,12 @@ def main() -> None:
         print(f"| {r['variant']} | {r['tracks']} | {r['track_steps_per_s'] / 1e6:.2f} M | {r['seconds']:.2f} | "
               f"{r['bytes'] / 1e6:.0f} | {r['raw_write_seconds']:.2f} | {r['seconds'] / max(r['raw_write_seconds'], 1e-9):.1f}x | "
               f"{r['acceptance']:.1%} | {r['fraction_left_envelope']:.1%} | {r['peak_rss_mib']:.0f} |")
+    rates = normal_sampler_rates()
+    print(f"\nStandard normals (10^7 draws, this process): float64 {rates['float64'] / 1e6:.0f} M/s, "
+          f"float32 drawn then cast to float64 {rates['float32_cast'] / 1e6:.0f} M/s "
+          f"({rates['float32_cast'] / rates['float64']:.1f}x)")
     if args.json:
-        args.json.write_text(json.dumps({"info": info, "rows": rows}, indent=2) + "\n")
+        args.json.write_text(json.dumps({"info": info, "rows": rows, "normal_sampler_per_s": rates}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

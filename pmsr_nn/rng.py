@@ -20,8 +20,9 @@ def seeded_generator(seed: int, *stream: int, device=None) -> torch.Generator:
 def standard_normal(shape, generator: torch.Generator | None, dtype=torch.float64, device=None) -> torch.Tensor:
     """Standard normal draws of ``shape`` in ``dtype``.
 
-    The draws are made in float32 and cast: on CPU torch's float32 sampler is about 5x faster
-    than its float64 one, and the simulator's time is dominated by these draws. The only loss is
+    The draws are made in float32 and cast: on this project's 2-core CPU that is about 3.6x the
+    rate of torch's float64 sampler, cast included (``benchmarks/simulate_throughput.py`` measures
+    it), and the simulator's time is dominated by these draws. The only loss is
     resolution in the far tail: |z| can not exceed about 5.8 (probability below 1e-8 per draw),
     which no statistic of this package can see.
     """

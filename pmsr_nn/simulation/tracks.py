@@ -21,7 +21,7 @@ range-rate is undefined on top of a sensor (see :mod:`pmsr_nn.measurements`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 
@@ -80,10 +80,6 @@ class TrackBatch:
     measurements: torch.Tensor
     noise_std: torch.Tensor
     violations: dict[str, torch.Tensor]
-
-    @property
-    def left_envelope(self) -> torch.Tensor:
-        return torch.stack(list(self.violations.values())).any(0)
 
 
 @dataclass
@@ -153,13 +149,14 @@ def generate_tracks(recipe: TrackRecipe, n: int, g: torch.Generator) -> tuple[Tr
     """Draw ``n`` accepted tracks of the recipe's variant, redrawing rejected candidates.
 
     For the envelope variant the rejection has two stages: initial states whose noise-free CA
-    path already leaves the envelope are redrawn before any noise is sampled (cheap), then noisy
-    paths that leave are redrawn. The kept tracks are therefore distributed as Eqs. 7-9 with the
-    envelope-variant values, conditioned on both paths staying inside.
+    path leaves the envelope (checked every ``NOMINAL_GRID_STEPS`` samples) are redrawn before any
+    noise is sampled (cheap), then noisy paths that leave at any sample are redrawn. The kept
+    tracks are therefore distributed as Eqs. 7-9 with the envelope-variant values, conditioned on
+    both paths staying inside.
 
     The sequence of draws depends only on the generator, so the same seed gives the same
-    tracks. Raises :class:`ConfigError` when fewer than one candidate in
-    ``max_draws_per_track`` is acceptable.
+    tracks. Raises :class:`ConfigError` once ``max_draws_per_track * n`` initial states have been
+    drawn without filling the batch.
     """
     motion, meas = build_models(recipe)
     mot = recipe.effective_motion()
