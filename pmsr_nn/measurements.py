@@ -281,3 +281,54 @@ class MeasurementModel:
         if len(angles):
             z[..., angles] = wrap_angle(z[..., angles])
         return z
+
+
+@dataclass(frozen=True, eq=False)
+class LinearMeasurementModel:
+    """``z = H x + w`` with a fixed ``H (dim_z, dim_x)``: position fixes (SI+KF), the
+    linear-Gaussian checks and any tracker that measures the state directly.
+
+    Offers the part of :class:`MeasurementModel`'s interface the filters use (``dim_z``,
+    ``angle_mask``, ``h``, ``jacobian``, ``residual``, ``R``); no row is an angle.
+    """
+
+    H: torch.Tensor
+    noise_std: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if self.H.dim() != 2:
+            raise ConfigError(f"H must be (dim_z, dim_x), got shape {tuple(self.H.shape)}")
+        if len(self.noise_std) != self.H.shape[0] or not all(math.isfinite(s) and s > 0 for s in self.noise_std):
+            raise ConfigError(f"need {self.H.shape[0]} positive noise deviations, got {self.noise_std}")
+
+    @classmethod
+    def position(cls, dim_x: int, pos_idx: Sequence[int], noise_std_m: float) -> "LinearMeasurementModel":
+        """Direct position measurement (m) with the same deviation on every axis."""
+        H = torch.zeros(len(pos_idx), dim_x, dtype=torch.float64)
+        H[range(len(pos_idx)), list(pos_idx)] = 1.0
+        return cls(H, (float(noise_std_m),) * len(pos_idx))
+
+    @property
+    def dim_z(self) -> int:
+        return self.H.shape[0]
+
+    @property
+    def angle_mask(self) -> torch.Tensor:
+        return torch.zeros(self.dim_z, dtype=torch.bool)
+
+    def h(self, x: torch.Tensor) -> torch.Tensor:
+        return x @ self.H.to(x).transpose(-1, -2)
+
+    def jacobian(self, x: torch.Tensor) -> torch.Tensor:
+        return self.H.to(x).expand(*x.shape[:-1], *self.H.shape)
+
+    def residual(self, z: torch.Tensor, z_pred: torch.Tensor) -> torch.Tensor:
+        return z - z_pred
+
+    def R(self, noise_std: torch.Tensor | Sequence[float] | None = None, dtype=torch.float64, device=None) -> torch.Tensor:
+        s = torch.as_tensor(self.noise_std if noise_std is None else noise_std, dtype=dtype, device=device)
+        return torch.diag_embed(s**2)
+
+    def sample(self, x: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        std = torch.as_tensor(self.noise_std, dtype=x.dtype, device=x.device)
+        return self.h(x) + standard_normal((*x.shape[:-1], self.dim_z), generator, x.dtype, x.device) * std

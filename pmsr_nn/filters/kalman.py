@@ -13,7 +13,7 @@ from typing import Callable
 import torch
 
 from ..errors import ConfigError
-from ..measurements import MeasurementModel
+from ..measurements import LinearMeasurementModel, MeasurementModel
 from ..motion import KinematicModel
 from .gaussian import (
     FilterError,
@@ -44,8 +44,8 @@ def _check_inputs(prior: Gaussian, z: torch.Tensor, model: MeasurementModel, mot
         raise ConfigError(f"prior must be x (B, {n}) and P (B, {n}, {n}); got {tuple(prior.x.shape)}, {tuple(prior.P.shape)}")
     if z.dim() != 3 or z.shape[-1] != m or z.shape[0] != prior.x.shape[0]:
         raise ConfigError(f"measurements must be (B={prior.x.shape[0]}, K, {m}); got {tuple(z.shape)}")
-    if R.shape[-2:] != (m, m):
-        raise ConfigError(f"R must be ({m}, {m}) or (B, {m}, {m}); got {tuple(R.shape)}")
+    if R.shape[-2:] != (m, m) or R.dim() > 4 or (R.dim() == 4 and R.shape[:2] != z.shape[:2]):
+        raise ConfigError(f"R must be ({m}, {m}), (B, {m}, {m}) or per step (B, K, {m}, {m}); got {tuple(R.shape)}")
     bad_x = ~torch.isfinite(prior.x).all(-1)
     if bool(bad_x.any()):
         raise ConfigError(f"prior mean of run {int(bad_x.nonzero()[0])} is not finite")
@@ -62,7 +62,11 @@ def _check_inputs(prior: Gaussian, z: torch.Tensor, model: MeasurementModel, mot
 
 def run_gaussian_filter(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt: float, q, model: MeasurementModel,
                         R: torch.Tensor, moments: Callable[[Gaussian, MeasurementModel, torch.Tensor], MeasurementMoments]) -> FilterResult:
-    """Filter ``z (B, K, m)`` (NaN = missing) with motion ``F(dt), Q(dt, q)`` and the given moments."""
+    """Filter ``z (B, K, m)`` (NaN = missing) with motion ``F(dt), Q(dt, q)`` and the given moments.
+
+    ``R`` is ``(m, m)``, per run ``(B, m, m)`` or per run and step ``(B, K, m, m)`` (position
+    fixes whose accuracy changes along the track, as in SI+KF).
+    """
     _check_inputs(prior, z, model, motion, R)
     F = motion.F(dt, z.dtype, z.device)
     Q = motion.Q(dt, q, z.dtype, z.device)
@@ -74,7 +78,8 @@ def run_gaussian_filter(prior: Gaussian, z: torch.Tensor, motion: KinematicModel
         if k > 0:
             g = predict(g, F, Q)
         try:
-            g, out.nu[:, k], out.nis[:, k] = kalman_update(g, z[:, k], moments(g, model, R), model)
+            R_k = R[:, k] if R.dim() == 4 else R
+            g, out.nu[:, k], out.nis[:, k] = kalman_update(g, z[:, k], moments(g, model, R_k), model)
         except FilterError as exc:
             raise FilterError(f"step {k}: {exc}") from None
         bad = ~torch.isfinite(g.x).all(-1)
@@ -93,3 +98,11 @@ def ukf(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt: float, q, 
         sigma: SigmaPoints = SigmaPoints()) -> FilterResult:
     """Unscented Kalman filter (scaled sigma points, redrawn after each prediction) for a batch of runs."""
     return run_gaussian_filter(prior, z, motion, dt, q, model, R, lambda g, mm, RR: unscented_moments(g, mm, RR, sigma))
+
+
+def kalman_filter(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt: float, q, model: LinearMeasurementModel,
+                  R: torch.Tensor) -> FilterResult:
+    """Linear Kalman filter for a :class:`~pmsr_nn.measurements.LinearMeasurementModel`."""
+    if not isinstance(model, LinearMeasurementModel):
+        raise ConfigError("kalman_filter needs a LinearMeasurementModel; use ekf or ukf for bistatic measurements")
+    return run_gaussian_filter(prior, z, motion, dt, q, model, R, linearised_moments)
