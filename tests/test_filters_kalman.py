@@ -8,7 +8,8 @@ import torch
 from filterpy.kalman import ExtendedKalmanFilter, KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.filters import FilterError, Gaussian, SigmaPoints, ekf, ukf
+from pmsr_nn.filters import FilterError, Gaussian, SigmaPoints, ekf, kalman_filter, ukf
+from pmsr_nn.measurements import LinearMeasurementModel
 from pmsr_nn.motion import ConstantVelocity
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.recipe import TrackRecipe
@@ -91,7 +92,7 @@ def test_linear_gaussian_ekf_equals_ukf_equals_kalman_filter():
     motion = ConstantVelocity()
     H = torch.zeros(2, 4)
     H[0, 0] = H[1, 2] = 1.0
-    lin = _LinearModel(H)
+    lin = LinearMeasurementModel(H, (3.0, 4.0))
     gen = torch.Generator().manual_seed(1)
     B, K = 4, 25
     z = torch.randn(B, K, 2, generator=gen) * 10 + torch.arange(K)[None, :, None] * 5.0
@@ -101,6 +102,7 @@ def test_linear_gaussian_ekf_equals_ukf_equals_kalman_filter():
     b = ukf(prior, z, motion, 1.0, 0.5, lin, R)
     torch.testing.assert_close(a.x, b.x, rtol=1e-10, atol=1e-9)
     torch.testing.assert_close(a.P, b.P, rtol=1e-10, atol=1e-9)
+    torch.testing.assert_close(kalman_filter(prior, z, motion, 1.0, 0.5, lin, R).x, a.x, rtol=0, atol=0)
     kf = KalmanFilter(dim_x=4, dim_z=2)
     kf.x, kf.P, kf.F, kf.Q, kf.H, kf.R = np.zeros(4), np.eye(4) * 100.0, motion.F(1.0).numpy(), motion.Q(1.0, 0.5).numpy(), H.numpy(), R.numpy()
     for k in range(K):
@@ -109,23 +111,6 @@ def test_linear_gaussian_ekf_equals_ukf_equals_kalman_filter():
         kf.update(z[0, k].numpy())
         np.testing.assert_allclose(a.x[0, k].numpy(), kf.x, rtol=1e-10, atol=1e-9)
         np.testing.assert_allclose(a.P[0, k].numpy(), kf.P, rtol=1e-9, atol=1e-9)
-
-
-class _LinearModel:
-    """A linear measurement ``z = H x`` with the MeasurementModel interface the filters use."""
-
-    def __init__(self, H):
-        self.H, self.dim_z = H, H.shape[0]
-        self.angle_mask = torch.zeros(self.dim_z, dtype=torch.bool)
-
-    def h(self, x):
-        return x @ self.H.T
-
-    def jacobian(self, x):
-        return self.H.expand(*x.shape[:-1], *self.H.shape)
-
-    def residual(self, a, b):
-        return a - b
 
 
 def test_missing_measurements_are_skipped(scenario):
