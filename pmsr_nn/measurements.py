@@ -30,7 +30,7 @@ radar measures anything.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import torch
@@ -147,6 +147,24 @@ class MeasurementModel:
         if self.layout == "component":
             return [v for comp in per_component for v in comp]
         return [per_component[c][n] for n in range(self.n_pairs) for c in range(len(self.components))]
+
+    def for_pairs(self, pairs: Sequence[int]) -> "MeasurementModel":
+        """The same model restricted to some pairs (sensors), in the given order: what a
+        sequential multi-sensor update or a single receiver's detections are filtered with."""
+        pairs = [int(p) for p in pairs]
+        if not pairs or any(not 0 <= p < self.n_pairs for p in pairs):
+            raise ConfigError(f"pair indices must be in [0, {self.n_pairs}), got {pairs}")
+        geometry = replace(self.geometry, pairs=tuple(self.geometry.pairs[p] for p in pairs))
+        return replace(self, geometry=geometry)
+
+    def rows_for_pairs(self, pairs: Sequence[int]) -> list[int]:
+        """Rows of this model's ``z`` that make up ``for_pairs(pairs)``'s ``z``, in its order."""
+        pairs = [int(p) for p in pairs]
+        C = len(self.components)
+        full = self._arrange_list([[(c, n) for n in range(self.n_pairs)] for c in range(C)])
+        where = {key: row for row, key in enumerate(full)}
+        sub = self.for_pairs(pairs)._arrange_list([[(c, p) for p in pairs] for c in range(C)])
+        return [where[key] for key in sub]
 
     def _sensors(self, x: torch.Tensor):
         g = self.geometry

@@ -13,10 +13,11 @@ so the gain column is zero and that entry changes nothing.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import torch
 
-from ..errors import PmsrError
+from ..errors import ConfigError, PmsrError
 from ..measurements import MeasurementModel, wrap_angle
 
 
@@ -132,6 +133,9 @@ def unscented_moments(g: Gaussian, model: MeasurementModel, R: torch.Tensor, sig
 def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: MeasurementModel) -> tuple[Gaussian, torch.Tensor, torch.Tensor]:
     """Kalman update from predicted moments; NaN entries of ``z (..., m)`` are skipped.
 
+    The batch axes of ``g``/``m`` and ``z`` broadcast, so one call updates a track with each of
+    several candidate measurements (one posterior per association hypothesis).
+
     Returns the posterior, the innovation ``nu (..., m)`` (wrapped on angle rows, 0 where missing)
     and the normalised innovation squared ``nu^T S^-1 nu (...,)`` (chi-square with as many
     degrees of freedom as entries present, when the filter is consistent).
@@ -145,9 +149,41 @@ def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: Me
         C = C * keep.unsqueeze(-2)
         nu = nu * keep
     L = safe_cholesky(S)
+    # Per-hypothesis use: one predicted track against several measurements broadcasts the batch
+    # axes of (g, m) against those of z, e.g. x (B, T, 1, n) with z (B, T, M, m).
+    batch = torch.broadcast_shapes(C.shape[:-2], nu.shape[:-1])
+    Ct = C.transpose(-1, -2).expand(*batch, *C.shape[-1:], C.shape[-2])
     # With W = L^-1 C^T: K = C S^-1 = W^T L^-1, K S K^T = W^T W and NIS = |L^-1 nu|^2.
-    W = torch.linalg.solve_triangular(L, torch.cat([C.transpose(-1, -2), nu.unsqueeze(-1)], -1), upper=False)
+    W = torch.linalg.solve_triangular(L, torch.cat([Ct, nu.expand(*batch, nu.shape[-1]).unsqueeze(-1)], -1), upper=False)
     Wc, e = W[..., :-1], W[..., -1]
     x = g.x + (Wc.transpose(-1, -2) @ e.unsqueeze(-1)).squeeze(-1)
     P = symmetrise(g.P - Wc.transpose(-1, -2) @ Wc)
     return Gaussian(x, P), nu, (e * e).sum(-1)
+
+
+def sequential_update(g: Gaussian, z: torch.Tensor, model: MeasurementModel, R: torch.Tensor,
+                      moments: Callable[[Gaussian, MeasurementModel, torch.Tensor], MeasurementMoments],
+                      order: Sequence[int] | None = None) -> tuple[Gaussian, torch.Tensor]:
+    """Update with one sensor (bistatic pair) at a time, recomputing the moments after each.
+
+    This is the sequential multi-sensor update of the S-MSJPDA and SMC-PHD papers: each pair's
+    rows of ``z (..., m)`` (NaN = missing) update the posterior of the previous pair, so an EKF
+    re-linearises at every sensor. Needs ``R`` (``(m, m)`` or ``(..., m, m)``) block-diagonal
+    across pairs (independent sensors). With moments linear in the state the result equals the
+    joint update (information adds up); the EKF's re-linearisation is what makes them differ.
+    Returns the posterior and the summed NIS ``(...,)``.
+    """
+    order = range(model.n_pairs) if order is None else order
+    blocks = [model.rows_for_pairs([p]) for p in order]
+    mask = torch.zeros(model.dim_z, model.dim_z, dtype=torch.bool, device=R.device)
+    for rows in blocks:
+        mask[torch.tensor(rows)[:, None], torch.tensor(rows)] = True
+    if bool((R.masked_fill(mask, 0) != 0).any()):
+        raise ConfigError("sequential_update needs R block-diagonal across pairs (independent sensors)")
+    nis = z.new_zeros(torch.broadcast_shapes(g.x.shape[:-1], z.shape[:-1]))
+    for p, rows in zip(order, blocks):
+        sub = model.for_pairs([p])
+        R_p = R[..., rows, :][..., rows]
+        g, _, nis_p = kalman_update(g, z[..., rows], moments(g, sub, R_p), sub)
+        nis = nis + nis_p
+    return g, nis
