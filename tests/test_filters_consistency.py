@@ -6,6 +6,7 @@ import pytest
 import torch
 from scipy.stats import chi2
 
+from pmsr_nn.bounds import pcrb
 from pmsr_nn.filters import Gaussian, ekf, ukf
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.recipe import TrackRecipe
@@ -43,3 +44,20 @@ def test_nees_inside_its_99_percent_interval(method):
     nis = res.nis.mean(0)
     lo_z, hi_z = chi2.ppf([0.005, 0.995], 9 * RUNS) / RUNS
     assert ((nis > lo_z) & (nis < hi_z)).double().mean().item() >= 1 - 3 / STEPS
+
+
+def test_ukf_rmse_within_a_few_percent_of_the_pcrb_after_convergence():
+    """Matched, mildly nonlinear scenario: the UKF is nearly efficient once converged."""
+    motion, model, truth, z, prior = matched_scenario()
+    res = ukf(prior, z, motion, DT, Q_PSD, model, model.R())
+    pos = list(motion.pos_idx)
+    after = slice(STEPS // 2, None)
+    per_run = ((res.x - truth)[:, after][..., pos] ** 2).sum(-1).mean(1)  # (RUNS,) time-averaged squared error
+    mse, se = per_run.mean().item(), per_run.std().item() / RUNS**0.5
+    for form in ("information_averaged", "per_trajectory"):
+        bound = pcrb(truth, motion, DT, Q_PSD, model, model.R(), prior.P[0], form=form)
+        b = torch.diagonal(bound.filtering[after], dim1=-2, dim2=-1)[..., pos].sum(-1).mean().item()
+        # No estimator beats the bound (up to 3 standard errors of the Monte Carlo MSE) ...
+        assert mse > b - 3 * se, (form, mse, b)
+        # ... and the UKF's RMSE is within 5 % of it (the same statistical allowance).
+        assert mse - 3 * se < 1.05**2 * b, (form, mse**0.5, b**0.5)
