@@ -1,11 +1,19 @@
-"""Batched single-target filters and smoothers: shared Gaussian steps, KF, EKF, UKF, RTS and
-unscented RTS smoothers."""
+"""Batched single-target filters and smoothers.
+
+Shared Gaussian steps (:mod:`.gaussian`: predict, EKF / UKF moments, Kalman update, sequential
+per-sensor update), whole-sequence KF / EKF / UKF (:mod:`.kalman`), RTS and unscented RTS
+smoothers (:mod:`.smoothing`), SI+KF (:mod:`.spherical`) and the bootstrap particle filter
+(:mod:`.particle`). The PCRB lives in :mod:`pmsr_nn.bounds`.
+"""
 
 from .gaussian import (FilterError, Gaussian, SigmaPoints, kalman_update, linearised_moments, predict,
                        sequential_update, unscented_moments)
 from .kalman import FilterResult, ekf, kalman_filter, run_gaussian_filter, ukf
+from .particle import ParticleResult, particle_filter, systematic_resample
 from .smoothing import SmootherResult, rts_backward, rts_smoother, unscented_rts_smoother
+from .spherical import SIKFResult, fix_covariance, si_kf, spherical_interpolation
 
 __all__ = ["FilterError", "Gaussian", "SigmaPoints", "kalman_update", "linearised_moments", "predict",
-           "sequential_update", "unscented_moments", "FilterResult", "ekf", "kalman_filter", "run_gaussian_filter", "ukf",
-           "SmootherResult", "rts_backward", "rts_smoother", "unscented_rts_smoother"]
+           "sequential_update", "unscented_moments", "FilterResult", "ekf", "kalman_filter", "run_gaussian_filter",
+           "ukf", "ParticleResult", "particle_filter", "systematic_resample", "SmootherResult", "rts_backward",
+           "rts_smoother", "unscented_rts_smoother", "SIKFResult", "fix_covariance", "si_kf", "spherical_interpolation"]
