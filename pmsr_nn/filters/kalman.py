@@ -38,7 +38,9 @@ class FilterResult:
     nis: torch.Tensor
 
 
-def _check_inputs(prior: Gaussian, z: torch.Tensor, model: MeasurementModel, motion: KinematicModel, R: torch.Tensor) -> None:
+def check_filter_inputs(prior: Gaussian, z: torch.Tensor, model: MeasurementModel, motion: KinematicModel, R: torch.Tensor) -> None:
+    """Shapes, finiteness and positive definiteness of a filter's inputs; :class:`ConfigError`
+    naming the run (and step) otherwise. Shared by every whole-sequence filter."""
     n, m = motion.dim_x, model.dim_z
     if prior.x.shape[-1] != n or prior.P.shape[-2:] != (n, n):
         raise ConfigError(f"prior must be x (B, {n}) and P (B, {n}, {n}); got {tuple(prior.x.shape)}, {tuple(prior.P.shape)}")
@@ -67,7 +69,7 @@ def run_gaussian_filter(prior: Gaussian, z: torch.Tensor, motion: KinematicModel
     ``R`` is ``(m, m)``, per run ``(B, m, m)`` or per run and step ``(B, K, m, m)`` (position
     fixes whose accuracy changes along the track, as in SI+KF).
     """
-    _check_inputs(prior, z, model, motion, R)
+    check_filter_inputs(prior, z, model, motion, R)
     F = motion.F(dt, z.dtype, z.device)
     Q = motion.Q(dt, q, z.dtype, z.device)
     g = prior

@@ -40,7 +40,7 @@ from ..measurements import MeasurementModel
 from ..motion import KinematicModel
 from ..rng import standard_normal
 from .gaussian import FilterError, Gaussian, symmetrise
-from .kalman import _check_inputs
+from .kalman import check_filter_inputs
 
 CHUNK_BYTES = 1 << 30
 """Default memory budget of one chunk of runs: its particles and one step's temporaries."""
@@ -166,7 +166,7 @@ def particle_filter(prior: Gaussian, z: torch.Tensor, motion: KinematicModel, dt
     covariance after 30 steps is about 20x the exact one (the plain filter's about 2e-4x), so use
     its means, not its covariances, as a reference.
     """
-    _check_inputs(prior, z, model, motion, R)
+    check_filter_inputs(prior, z, model, motion, R)
     B, K, m = z.shape
     n = motion.dim_x
     dtype, device = z.dtype, z.device
