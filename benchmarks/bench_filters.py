@@ -11,10 +11,6 @@ estimates of both on those tracks give ``max_abs_diff_vs_filterpy``.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
-import os
-import platform
 import sys
 import time
 from dataclasses import replace
@@ -24,7 +20,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from simulate_throughput import cpu_model  # noqa: E402
+from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.filters import Gaussian, SigmaPoints, ekf, ukf  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402
@@ -119,11 +115,7 @@ def main() -> None:
               f"filterpy {per_track * 1e3:.1f} ms/track -> speed-up {figures[f'{kind}_speedup_vs_filterpy']:.0f}x; "
               f"max |diff| {diff:.2e}")
     figures["max_abs_diff_vs_filterpy"] = max_diff
-    figures["info"] = {"date": datetime.date.today().isoformat(), "command": "python " + " ".join(sys.argv),
-                       "machine": f"{cpu_model()}, {os.cpu_count()} cores", "python": platform.python_version(),
-                       "torch": torch.__version__}
-    if args.json:
-        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+    write_figures(figures, args.json)
 
 
 if __name__ == "__main__":

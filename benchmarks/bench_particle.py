@@ -17,10 +17,6 @@ variant), with which resampled particles are hardly rejuvenated (duplicates stay
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
-import os
-import platform
 import sys
 import time
 from dataclasses import replace
@@ -29,7 +25,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from simulate_throughput import cpu_model  # noqa: E402
+from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.filters import Gaussian, SigmaPoints, ukf  # noqa: E402
 from pmsr_nn.filters.particle import particle_filter  # noqa: E402
@@ -108,11 +104,7 @@ def main() -> None:
               f"(tracks the PF kept: {figures[f'{name}_rmse_pos_m_kept']:.2f} m, {figures[f'{name}_rmse_vel_mps_kept']:.3f} m/s)")
     print(f"pf: mean ESS {figures['pf_mean_ess_fraction']:.1%} of the particles, resampled at "
           f"{figures['pf_resampled_fraction']:.1%} of track-steps, lost {figures['pf_lost_tracks']} of {args.tracks} tracks")
-    figures["info"] = {"date": datetime.date.today().isoformat(), "command": "python " + " ".join(sys.argv),
-                       "machine": f"{cpu_model()}, {os.cpu_count()} cores", "python": platform.python_version(),
-                       "torch": torch.__version__}
-    if args.json:
-        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+    write_figures(figures, args.json)
 
 
 if __name__ == "__main__":

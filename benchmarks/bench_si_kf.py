@@ -14,10 +14,6 @@ steps (maximum-likelihood fixes, the CRB as R) are both measured. Times are the 
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
-import os
-import platform
 import sys
 import time
 from dataclasses import replace
@@ -26,7 +22,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from simulate_throughput import cpu_model  # noqa: E402
+from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.filters.spherical import range_rows, si_kf, spherical_interpolation  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402
@@ -91,11 +87,7 @@ def main() -> None:
               f"fixes {fig['fix_rmse_m']:.1f} m, SI+KF {fig['kf_rmse_m']:.1f} m (mean NIS {fig['kf_mean_nis']:.2f}, "
               f"{fig['missed_fixes']} missed, {fig['rejected_fixes']} rejected); fixes {n / t_fix / 1e6:.2f} M track-steps/s, "
               f"SI+KF {t_all:.3f} s = {n / t_all / 1e3:.0f} k track-steps/s")
-    figures["info"] = {"date": datetime.date.today().isoformat(), "command": "python " + " ".join(sys.argv),
-                       "machine": f"{cpu_model()}, {os.cpu_count()} cores", "python": platform.python_version(),
-                       "torch": torch.__version__}
-    if args.json:
-        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+    write_figures(figures, args.json)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,9 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from run_info import cpu_model  # noqa: E402
+
 
 def child(variant: str, tracks: int, out: str) -> dict:
     import numpy as np
@@ -83,16 +86,6 @@ def normal_sampler_rates(n: int = 10_000_000) -> dict:
         fn()
         rates[name] = n / (time.perf_counter() - t0)
     return rates
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def main() -> None:
