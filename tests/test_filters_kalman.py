@@ -160,3 +160,9 @@ def test_safe_cholesky_fallback_and_error():
     bad[1] = torch.tensor([[1.0, 0.0], [0.0, -1.0]])
     with pytest.raises(FilterError, match=r"batch index \[1\]"):
         safe_cholesky(bad)
+
+
+def test_prior_batch_mismatch_is_named(scenario):
+    motion, model, z, R, prior = scenario
+    with pytest.raises(ConfigError, match="prior must be"):
+        ekf(Gaussian(prior.x, prior.P[:2]), z, motion, DT, Q_PSD, model, R)

@@ -42,7 +42,7 @@ def check_filter_inputs(prior: Gaussian, z: torch.Tensor, model: MeasurementMode
     """Shapes, finiteness and positive definiteness of a filter's inputs; :class:`ConfigError`
     naming the run (and step) otherwise. Shared by every whole-sequence filter."""
     n, m = motion.dim_x, model.dim_z
-    if prior.x.shape[-1] != n or prior.P.shape[-2:] != (n, n):
+    if prior.x.dim() != 2 or prior.x.shape[-1] != n or prior.P.shape[-2:] != (n, n) or prior.P.shape[:-2] not in ((), prior.x.shape[:1]):
         raise ConfigError(f"prior must be x (B, {n}) and P (B, {n}, {n}); got {tuple(prior.x.shape)}, {tuple(prior.P.shape)}")
     if z.dim() != 3 or z.shape[-1] != m or z.shape[0] != prior.x.shape[0]:
         raise ConfigError(f"measurements must be (B={prior.x.shape[0]}, K, {m}); got {tuple(z.shape)}")
