@@ -58,23 +58,27 @@ class KinematicModel:
             raise AttributeError(f"{self.name} has no acceleration states")
         return tuple(a * self.order + 2 for a in range(self.spatial_dim))
 
-    def F_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
-        """Per-axis transition ``(order, order)``: entry ``(i, j) = T^(j-i) / (j-i)!`` for ``j >= i``."""
+    def F_block(self, T, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Per-axis transition ``(..., order, order)``: entry ``(i, j) = T^(j-i) / (j-i)!`` for
+        ``j >= i``; ``T`` a float or a tensor of intervals ``(...,)`` (s)."""
         n = self.order
-        blk = torch.zeros(n, n, dtype=dtype, device=device)
+        T = torch.as_tensor(T, dtype=dtype, device=device)
+        blk = torch.zeros(*T.shape, n, n, dtype=dtype, device=device)
         for i in range(n):
             for j in range(i, n):
-                blk[i, j] = T ** (j - i) / math.factorial(j - i)
+                blk[..., i, j] = T ** (j - i) / math.factorial(j - i)
         return blk
 
     def Q_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
         """Per-axis process-noise covariance for unit ``q``, ``(order, order)``."""
         raise NotImplementedError
 
-    def F(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
-        """State transition ``(dim_x, dim_x)`` over an interval ``T`` (s)."""
+    def F(self, T, dtype=torch.float64, device=None) -> torch.Tensor:
+        """State transition ``(dim_x, dim_x)`` over an interval ``T`` (s), or ``(..., dim_x, dim_x)``
+        for a tensor of intervals ``T (...,)``."""
+        blk = self.F_block(T, dtype, device)
         eye = torch.eye(self.spatial_dim, dtype=dtype, device=device)
-        return torch.kron(eye, self.F_block(T, dtype, device))
+        return torch.einsum("ab,...ij->...aibj", eye, blk).reshape(*blk.shape[:-2], self.dim_x, self.dim_x)
 
     def _per_axis_q(self, q, dtype, device) -> torch.Tensor:
         q = torch.as_tensor(q, dtype=dtype, device=device)

@@ -127,3 +127,15 @@ def test_motion_model_lookup():
     assert motion_model("cv").pos_idx == (0, 2)
     with pytest.raises(ConfigError):
         motion_model("singer")
+
+
+def test_transition_for_a_tensor_of_intervals_matches_one_at_a_time():
+    for model in (ConstantVelocity(), ConstantAcceleration(spatial_dim=3)):
+        T = torch.tensor([[0.5, -2.0], [3.0, 0.0]], dtype=torch.float64)
+        batched = model.F(T)
+        assert batched.shape == (2, 2, model.dim_x, model.dim_x)
+        for i in range(2):
+            for j in range(2):
+                torch.testing.assert_close(batched[i, j], model.F(float(T[i, j])), rtol=0, atol=0)
+        # F(-T) undoes F(T): what SI+KF uses to move a later fix back to step 0.
+        torch.testing.assert_close(model.F(-T) @ batched, torch.eye(model.dim_x).expand_as(batched), rtol=0, atol=1e-12)

@@ -50,7 +50,7 @@ SI is not efficient. To first order SI fits ``dR = J dp + c eps`` with an extra 
 direction ``c_n = -R_n / |p - r_n|`` (the dropped constraint), so its covariance exceeds the
 Cramer-Rao bound ``(J^T R^-1 J)^-1``, ``J`` rows ``u_tx + u_rx``, unless ``J^T c = 0``. On the
 default geometry (targets east of the transmitter, receivers 7.5-8.3 km west) the gap is large:
-at (5, 3) km, SI's position variance is about 45x the CRB (trace 255 vs 5.5 m^2 per 1 m^2 of
+at (5, 3) km, SI's position variance is 46x the CRB (trace 255 vs 5.5 m^2 per 1 m^2 of
 range variance), so :func:`fix_covariance` offers both: ``method="si"`` is the first-order
 covariance of the SI estimator itself (what the Kalman filter must be told), ``method="crb"``
 the bound, which is also the first-order covariance of the maximum-likelihood fix. A few
@@ -511,17 +511,6 @@ def range_rows(model: MeasurementModel) -> list[int]:
     return [labels.index(f"range_{n + 1}") for n in range(model.n_pairs)]
 
 
-def _transition(motion: KinematicModel, T: torch.Tensor) -> torch.Tensor:
-    """``F(T)`` for a batch of intervals ``T (B,)``: ``(B, dim_x, dim_x)`` (axis-major layout)."""
-    n = motion.order
-    blk = torch.zeros(*T.shape, n, n, dtype=T.dtype, device=T.device)
-    for i in range(n):
-        for j in range(i, n):
-            blk[..., i, j] = T ** (j - i) / math.factorial(j - i)
-    eye = torch.eye(motion.spatial_dim, dtype=T.dtype, device=T.device)
-    return torch.einsum("ab,...ij->...aibj", eye, blk).reshape(*T.shape, motion.dim_x, motion.dim_x)
-
-
 def si_kf(z: torch.Tensor, model: MeasurementModel, motion: KinematicModel, dt: float, q,
           noise_std: torch.Tensor | None = None, prior: Gaussian | None = None, *,
           weighting: str = "distance", refine_steps: int = 0, covariance: str | None = None,
@@ -663,7 +652,7 @@ def _initial_prior(fixes, R, keep, alt_dropped, pos_w, fr: _Frame, motion: Kinem
         P[:, list(motion.acc_idx), list(motion.acc_idx)] = sd_a**2
     # Back to step 0: x_0 = F(-k0 dt) x_k0 (so that K predictions later it is x_k0 again).
     k_used = torch.where(has, k0, torch.zeros_like(k0))
-    Fb = _transition(motion, -dt * k_used.to(_WORK))
+    Fb = motion.F(-dt * k_used.to(_WORK), _WORK, dev)  # (B, n, n)
     x = (Fb @ x.unsqueeze(-1)).squeeze(-1)
     P = symmetrise(Fb @ P @ Fb.transpose(-1, -2))
     fixes = fixes.clone()

@@ -166,7 +166,7 @@ def generate_tracks(recipe: TrackRecipe, n: int, g: torch.Generator) -> tuple[Tr
     budget = recipe.envelope_variant.max_draws_per_track * n
     if envelope:
         times = torch.arange(0, mot.steps, NOMINAL_GRID_STEPS, dtype=torch.float64) * mot.dt_s
-        grid_F = torch.stack([motion.F(float(t)) for t in times])  # (G, dim_x, dim_x)
+        grid_F = motion.F(times)  # (G, dim_x, dim_x)
     while have < n:
         need = n - have
         # Stage 1 (envelope variant): collect `need` initial states whose noise-free path
