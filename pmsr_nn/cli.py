@@ -68,6 +68,58 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--verify", action="store_true", help="also recompute and check every array checksum")
     i.add_argument("--plot", type=Path, metavar="PNG", help="also draw the sensors, the envelope and the first tracks")
 
+    t = sub.add_parser(
+        "train",
+        help="train a learned tracker (DFNN / MDFNN / RNN)",
+        description="Train a tracker from a YAML config (train/*.yaml) into a run folder: checkpoints "
+        "(best and last), TensorBoard logs (RUN/tb), the resolved config, tracker.pt for inference and "
+        "metrics.json. KEY=VALUE overrides change any config entry, e.g. trainer.max_epochs=5 "
+        "model.filter_order=10. A missing dataset is simulated once into the config's cache_dir.",
+    )
+    t.add_argument("config", nargs="?", help="training config YAML (optional with --resume)")
+    t.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides (YAML values)")
+    t.add_argument("--out", type=Path, required=True, help="run folder (new, or the run to --resume)")
+    t.add_argument("--resume", action="store_true", help="continue an interrupted run from RUN/checkpoints/last.ckpt")
+
+    sel = sub.add_parser(
+        "select",
+        help="train u models and keep the best (Section 3.3 of the MDFNN paper)",
+        description="Train --members models of one config with different seeds and cross-validation folds "
+        "of the train+val tracks, evaluate each on its validation fold and on fresh tracks never used in "
+        "training, keep the best (lowest fresh-track position RMSE) as OUT/best.pt and write the "
+        "comparison table OUT/selection.md and OUT/selection.json.",
+    )
+    sel.add_argument("config", help="training config YAML")
+    sel.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides (YAML values)")
+    sel.add_argument("--out", type=Path, required=True, help="output folder (must not exist)")
+    sel.add_argument("--members", type=_positive_int, default=10, help="number of models u (default 10, the paper's)")
+    sel.add_argument("--fresh-tracks", type=_positive_int, default=20, help="fresh evaluation tracks (default 20)")
+
+    tr = sub.add_parser(
+        "track",
+        help="estimate states from measurements with a trained tracker",
+        description="Run a trained tracker over measurement sequences of any length (sliding windows, "
+        "spliced). Input: a CSV with a header naming the checkpoint's measurement columns (SI units; an "
+        "optional 'track' column holds several sequences) or a dataset directory. Output: .csv (one "
+        "estimate row per input row) or .h5.",
+    )
+    tr.add_argument("--checkpoint", type=Path, required=True, help="tracker.pt or a run's .ckpt")
+    tr.add_argument("--input", type=Path, required=True, help="measurement CSV or dataset directory")
+    tr.add_argument("--out", type=Path, required=True, help="estimates file, .csv or .h5")
+    tr.add_argument("--split", choices=["train", "val", "test"], help="only this split of a dataset input")
+    tr.add_argument("--stride", type=_positive_int, help="window stride (default: the largest that keeps every estimate's full context)")
+    tr.add_argument("--nan", choices=["error", "hold"], default="error",
+                    help="a scan with a NaN: stop with an error (default) or repeat the last valid scan")
+    tr.add_argument("--device", default="cpu", help="torch device (default cpu)")
+
+    e = sub.add_parser("export", help="write a dataset's measurements as CSV",
+                       description="Write the measurements of a dataset (all tracks or one split) as a CSV that "
+                       "'pmsr track' reads: a 'track' column and the measurement columns in SI units.")
+    e.add_argument("dataset", type=Path, help="dataset directory")
+    e.add_argument("--out", type=Path, required=True, help="CSV file to write")
+    e.add_argument("--split", choices=["train", "val", "test"], help="only this split")
+    e.add_argument("--tracks", type=_positive_int, help="at most this many tracks")
+
     d = sub.add_parser(
         "demo",
         help="the main job on its built-in default",
@@ -82,7 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return {"simulate": cmd_simulate, "info": cmd_info, "demo": cmd_demo}[args.command](args)
+        commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
+                    "track": cmd_track, "export": cmd_export, "demo": cmd_demo}
+        return commands[args.command](args)
     except PmsrError as exc:
         print(f"pmsr: error: {exc}", file=sys.stderr)
         return 2
@@ -101,6 +155,96 @@ def cmd_simulate(args) -> int:
     seconds = time.perf_counter() - t0
     if not args.quiet:
         print(summarise(args.out, manifest, seconds))
+    return 0
+
+
+def _quiet_lightning() -> None:
+    """Keep Lightning's start-up chatter and hardware tips out of the command's output."""
+    import logging
+    import warnings
+
+    for name in ("lightning.pytorch", "lightning.fabric", "pytorch_lightning"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+    warnings.filterwarnings("ignore", message=".*number of training batches.*")
+
+
+def _split_overrides(config: str | None, overrides: list[str]) -> tuple[str | None, list[str]]:
+    if config is not None and "=" in config and not config.endswith((".yaml", ".yml")):
+        return None, [config, *overrides]
+    return config, list(overrides)
+
+
+def cmd_train(args) -> int:
+    from .nets.training import load_train_config, train
+
+    _quiet_lightning()
+    config, overrides = _split_overrides(args.config, args.overrides)
+    if config is None and not args.resume:
+        raise PmsrError("give a training config (e.g. train/smoke.yaml), or --resume an existing run")
+    cfg = load_train_config(config, overrides) if config is not None else None
+    if args.resume and cfg is None and overrides:
+        raise PmsrError("overrides need the config they apply to; a resumed run keeps its own config")
+    m = train(cfg, args.out, resume=args.resume)
+    print(f"run       {args.out}  ({m['epochs']} epochs, {m['global_step']} steps, "
+          f"{m['train_windows_per_second']} windows/s)")
+    print(f"val       position RMSE {m['val']['pos_rmse_m']:.2f} m, velocity RMSE {m['val']['vel_rmse_mps']:.3f} m/s "
+          "(every sample of every window)")
+    print(f"test      position RMSE {m['test']['pos_rmse_m']:.2f} m, velocity RMSE {m['test']['vel_rmse_mps']:.3f} m/s")
+    print(f"tracker   {args.out / 'tracker.pt'}   (tensorboard --logdir {args.out / 'tb'})")
+    return 0
+
+
+def cmd_select(args) -> int:
+    from .nets.selection import select_best
+    from .nets.training import load_train_config
+
+    _quiet_lightning()
+    cfg = load_train_config(args.config, args.overrides)
+    result = select_best(cfg, args.out, members=args.members, fresh_tracks=args.fresh_tracks)
+    print(result["table"])
+    print(f"\nbest      member {result['best']} -> {args.out / 'best.pt'}")
+    return 0
+
+
+def cmd_track(args) -> int:
+    from .data.sequences import read_measurements, write_estimates
+    from .nets.inference import Tracker
+
+    tracker = Tracker.load(args.checkpoint, device=args.device)
+    seqs = read_measurements(args.input, tracker.measurement_columns, split=args.split)
+    if "geometry" in seqs.source:
+        tracker.check_compatible(seqs.source["geometry"], seqs.source["columns"], seqs.source.get("dt_s"),
+                                 where=f"dataset {args.input}")
+    t0 = time.perf_counter()
+    estimates: list = [None] * len(seqs.z)
+    for _, idx in seqs.by_length():
+        import torch
+
+        batch = tracker.track(torch.stack([seqs.z[i] for i in idx]), stride=args.stride, nan=args.nan)
+        for j, i in enumerate(idx):
+            estimates[i] = batch[j]
+    seconds = time.perf_counter() - t0
+    write_estimates(args.out, seqs, estimates, tracker.state_columns,
+                    {"checkpoint": str(args.checkpoint), "input": str(args.input), "pmsr_nn": __version__,
+                     "model": tracker.meta["model"]["kind"], "looks_ahead": tracker.looks_ahead})
+    steps = sum(len(z) for z in seqs.z)
+    kind = "smoother (looks ahead)" if tracker.looks_ahead else "causal filter"
+    print(f"tracked   {len(seqs.z)} sequence(s), {steps} scans with {tracker.meta['model']['kind']} ({kind}) in "
+          f"{seconds:.2f} s -> {args.out}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from .data.sequences import read_dataset, write_csv_measurements
+
+    import torch
+
+    seqs = read_dataset(args.dataset, args.split)
+    z = torch.stack(seqs.z[: args.tracks] if args.tracks else seqs.z)
+    write_csv_measurements(args.out, z, seqs.source["columns"])
+    print(f"wrote     {len(z)} track(s) x {z.shape[1]} scans -> {args.out}")
     return 0
 
 

@@ -19,3 +19,11 @@ class GeometryError(PmsrError, ValueError):
 
 class DatasetError(PmsrError):
     """A dataset on disk is missing, foreign, incomplete or corrupted."""
+
+
+class CheckpointError(PmsrError):
+    """A checkpoint is missing, truncated, foreign, or made for another geometry or layout."""
+
+
+class MeasurementError(PmsrError, ValueError):
+    """Measurements given to a tracker have the wrong shape or columns, NaNs, or are too short."""

@@ -5,10 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import lightning as L
+import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from .normalise import MinMaxScaler
+from ..errors import ConfigError
+from .normalise import MinMaxScaler, RunningMinMax
 from .store import open_dataset
 from .windows import WindowDataset
 
@@ -17,13 +19,19 @@ class TrackWindowDataModule(L.LightningDataModule):
     """Train / val / test windows of a dataset written by ``pmsr simulate``.
 
     Batches are ``(z, x)`` with ``z (B, window, dim_z)`` and ``x (B, window, dim_x)``, float32,
-    normalised to [-1, 1] with statistics fitted on the training split only. The scalers are
+    normalised to [-1, 1] with statistics fitted on the training tracks only. The scalers are
     :attr:`measurement_scaler` and :attr:`state_scaler` (physical units back with
     ``denormalise``). Training batches are shuffled with a generator seeded by ``seed``.
+
+    ``fold``/``folds``: cross-validation for model selection. The dataset's train and val tracks
+    are pooled and cut into ``folds`` parts by a permutation seeded from the dataset seed; part
+    ``fold`` validates, the rest train, and the normalisation is refitted on those training
+    tracks. The test split is never touched.
     """
 
     def __init__(self, path: str | Path, window: int | None = None, batch_size: int = 256,
-                 num_workers: int = 0, seed: int = 0, normalise: bool = True):
+                 num_workers: int = 0, seed: int = 0, normalise: bool = True,
+                 fold: int | None = None, folds: int | None = None):
         super().__init__()
         self.path = Path(path)
         self.data = open_dataset(self.path)
@@ -32,17 +40,45 @@ class TrackWindowDataModule(L.LightningDataModule):
         self.num_workers = num_workers
         self.seed = seed
         self.normalise = normalise
+        self.tracks = {s: self.data.split_indices(s) for s in ("train", "val", "test")}
         self.measurement_scaler: MinMaxScaler = self.data.scaler("measurements")
         self.state_scaler: MinMaxScaler = self.data.scaler("states")
+        if folds is not None and folds > 1:
+            self._use_fold(int(fold or 0), int(folds))
         self._sets: dict[str, WindowDataset] = {}
+
+    def _use_fold(self, fold: int, folds: int) -> None:
+        pool = np.concatenate([self.tracks["train"], self.tracks["val"]])
+        if not 0 <= fold < folds:
+            raise ConfigError(f"data fold {fold} is outside 0..{folds - 1}")
+        if len(pool) < folds:
+            raise ConfigError(f"{len(pool)} train+val tracks cannot be cut into {folds} folds; simulate more tracks")
+        g = torch.Generator().manual_seed(int(self.data.manifest["seed"]) + 7919)
+        pool = pool[torch.randperm(len(pool), generator=g).numpy()]
+        parts = np.array_split(pool, folds)
+        self.tracks["val"] = np.sort(parts[fold])
+        self.tracks["train"] = np.sort(np.concatenate([p for i, p in enumerate(parts) if i != fold]))
+        f = self.data.file
+        mm_z, mm_x = RunningMinMax(f["measurements"].shape[-1]), RunningMinMax(f["states"].shape[-1])
+        for i in self.tracks["train"]:
+            mm_z.update(f["measurements"][i])
+            mm_x.update(f["states"][i])
+        self.measurement_scaler, self.state_scaler = mm_z.scaler(), mm_x.scaler()
 
     @property
     def manifest(self) -> dict:
         return self.data.manifest
 
+    def normalisation(self) -> dict:
+        """The statistics in force, as stored in a checkpoint."""
+        return {"fitted_on": "train", "states": self.state_scaler.to_dict(),
+                "measurements": self.measurement_scaler.to_dict()}
+
     def dataset(self, split: str) -> WindowDataset:
         if split not in self._sets:
-            self._sets[split] = WindowDataset(self.data, split, self.window, normalise=self.normalise)
+            self._sets[split] = WindowDataset(self.data, split, self.window, normalise=self.normalise,
+                                              tracks=self.tracks[split],
+                                              scalers=(self.measurement_scaler, self.state_scaler))
         return self._sets[split]
 
     def setup(self, stage: str | None = None) -> None:

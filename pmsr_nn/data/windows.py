@@ -13,6 +13,7 @@ import torch
 from torch.utils.data import Dataset
 
 from ..errors import DatasetError
+from .normalise import MinMaxScaler
 from .store import TrackDataset, open_dataset
 
 IN_MEMORY_LIMIT_BYTES = 2 * 1024**3
@@ -36,18 +37,22 @@ class WindowDataset(Dataset):
     """
 
     def __init__(self, dataset: TrackDataset | str, split: str, window: int | None = None,
-                 normalise: bool = True, dtype: torch.dtype = torch.float32, in_memory: bool | None = None):
+                 normalise: bool = True, dtype: torch.dtype = torch.float32, in_memory: bool | None = None,
+                 tracks: np.ndarray | None = None, scalers: tuple[MinMaxScaler, MinMaxScaler] | None = None):
+        """``tracks`` (file indices) replaces the split's own tracks and ``scalers``
+        (measurements, states) the manifest's statistics, for cross-validation folds."""
         self.data = open_dataset(dataset) if not isinstance(dataset, TrackDataset) else dataset
         man = self.data.manifest
         self.split = split
         self.window = int(window or man["window"])
         self.steps = man["shapes"]["states"][1]
         self.per_track = windows_per_track(self.steps, self.window)
-        self.tracks = self.data.split_indices(split)
+        self.tracks = np.asarray(tracks) if tracks is not None else self.data.split_indices(split)
         self.normalise = normalise
         self.dtype = dtype
-        self.measurement_scaler = self.data.scaler("measurements")
-        self.state_scaler = self.data.scaler("states")
+        if scalers is None:
+            scalers = (self.data.scaler("measurements"), self.data.scaler("states"))
+        self.measurement_scaler, self.state_scaler = scalers
         row_bytes = np.dtype(man["dtype"]).itemsize * self.steps * (
             man["shapes"]["states"][2] + man["shapes"]["measurements"][2]
         )

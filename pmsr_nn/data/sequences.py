@@ -1,0 +1,181 @@
+"""Measurement sequences in, state estimates out: the file formats of ``pmsr track``.
+
+Inputs:
+  * a CSV file with a header row naming the measurement columns (``range_1 .. azimuth_3``, SI
+    units: m, m/s, rad), one row per scan, optionally a ``track`` column holding several
+    sequences (rows of one track in time order; tracks may differ in length). Empty cells and
+    ``nan`` are missing values. A file without a header is read when it has exactly the expected
+    number of numeric columns, in the expected order.
+  * a dataset directory written by ``pmsr simulate`` (its geometry and columns are checked
+    against the checkpoint), all tracks or one split.
+
+Outputs (written atomically): ``.csv`` with ``track``, ``k`` and the state columns, one row per
+input row in the input's order; or ``.h5`` with ``estimates (N, K, dim_x)``, ``track`` ids and the
+columns as an attribute.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import MeasurementError
+
+
+@dataclass
+class Sequences:
+    """Measurement sequences grouped by track: ``z[i] (K_i, D)`` for ``track[i]``."""
+
+    z: list[torch.Tensor]
+    track: list[str]
+    rows: list[np.ndarray]  # input row numbers of each track's samples (to write back in order)
+    source: dict = field(default_factory=dict)  # geometry / columns / dt_s when the input says
+
+    def by_length(self):
+        """``(length, indices)`` groups that can be tracked as one batch."""
+        groups: dict[int, list[int]] = {}
+        for i, z in enumerate(self.z):
+            groups.setdefault(len(z), []).append(i)
+        return groups.items()
+
+
+def _number(cell: str, where: str) -> float:
+    cell = cell.strip()
+    if cell == "" or cell.lower() == "nan":
+        return math.nan
+    try:
+        return float(cell)
+    except ValueError:
+        raise MeasurementError(f"{where}: {cell!r} is not a number") from None
+
+
+def read_csv(path: Path, columns: list[str]) -> Sequences:
+    """Read measurement rows in the order ``columns`` from a CSV file."""
+    try:
+        lines = list(csv.reader(path.read_text().splitlines()))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MeasurementError(f"cannot read {path}: {exc}") from None
+    lines = [ln for ln in lines if ln and any(c.strip() for c in ln)]
+    if not lines:
+        raise MeasurementError(f"{path} holds no rows")
+    head = [c.strip() for c in lines[0]]
+    try:
+        [float(c) for c in head]
+        header, body, first = None, lines, 1
+    except ValueError:
+        header, body, first = head, lines[1:], 2
+    if header is None:
+        if len(head) != len(columns):
+            raise MeasurementError(f"{path}: {len(head)} columns and no header; the checkpoint expects "
+                                   f"{len(columns)} ({', '.join(columns)})")
+        header = list(columns)
+    missing = [c for c in columns if c not in header]
+    unknown = [c for c in header if c not in columns and c not in ("track", "k", "time_s")]
+    if missing or unknown:
+        raise MeasurementError(f"{path}: columns {header} do not match the checkpoint's {columns}"
+                               + (f" (missing {missing})" if missing else "") + (f" (unknown {unknown})" if unknown else ""))
+    if not body:
+        raise MeasurementError(f"{path} has a header but no measurement rows")
+    idx = [header.index(c) for c in columns]
+    tcol = header.index("track") if "track" in header else None
+    values = np.empty((len(body), len(columns)))
+    tracks: list[str] = []
+    for r, row in enumerate(body):
+        where = f"{path}, line {r + first}"
+        if len(row) != len(header):
+            raise MeasurementError(f"{where}: {len(row)} cells, the header has {len(header)}")
+        values[r] = [_number(row[i], where) for i in idx]
+        tracks.append(row[tcol].strip() if tcol is not None else "0")
+    order: dict[str, list[int]] = {}
+    for r, t in enumerate(tracks):
+        order.setdefault(t, []).append(r)
+    rows = [np.asarray(v) for v in order.values()]
+    return Sequences([torch.from_numpy(values[r]) for r in rows], list(order), rows, {"columns": list(columns)})
+
+
+def read_dataset(path: Path, split: str | None = None) -> Sequences:
+    """Measurement sequences of a dataset directory (all tracks, or one split)."""
+    from .store import open_dataset
+
+    ds = open_dataset(path)
+    try:
+        m = ds.manifest
+        ids = ds.split_indices(split) if split else np.arange(m["shapes"]["measurements"][0])
+        z = torch.from_numpy(ds.file["measurements"][np.sort(ids)].astype(np.float64)) if len(ids) else None
+    finally:
+        ds.close()
+    if z is None:
+        raise MeasurementError(f"{path}: split {split!r} holds no tracks")
+    K = z.shape[1]
+    rows = [np.arange(i * K, (i + 1) * K) for i in range(len(ids))]
+    source = {"geometry": m["geometry"], "columns": m["columns"]["measurements"], "dt_s": m["dt_s"]}
+    return Sequences(list(z.unbind(0)), [str(int(i)) for i in np.sort(ids)], rows, source)
+
+
+def read_measurements(path: str | Path, columns: list[str], split: str | None = None) -> Sequences:
+    """A CSV file or a dataset directory; see the module docstring."""
+    path = Path(path)
+    if path.is_dir():
+        return read_dataset(path, split)
+    if not path.is_file():
+        raise MeasurementError(f"no measurement file at {path}")
+    if split is not None:
+        raise MeasurementError("--split applies to a dataset directory, not to a CSV file")
+    return read_csv(path, columns)
+
+
+def write_estimates(path: str | Path, seqs: Sequences, estimates: list[torch.Tensor], columns: list[str],
+                    provenance: dict) -> Path:
+    """Write estimates (one ``(K_i, dim_x)`` per sequence) as ``.csv`` or ``.h5``, atomically."""
+    path = Path(path)
+    if path.suffix not in (".csv", ".h5"):
+        raise MeasurementError(f"output {path} must end in .csv or .h5")
+    if not path.parent.exists():
+        raise MeasurementError(f"output directory {path.parent} does not exist")
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    try:
+        if path.suffix == ".csv":
+            n = sum(len(r) for r in seqs.rows)
+            out = [None] * n
+            for t, rows, est in zip(seqs.track, seqs.rows, estimates):
+                for k, (r, x) in enumerate(zip(rows, est.tolist())):
+                    out[r] = [t, k, *(f"{v:.6f}" for v in x)]
+            with open(tmp, "w", newline="") as f:
+                w = csv.writer(f)
+                w.writerow(["track", "k", *columns])
+                w.writerows(out)
+        else:
+            import h5py
+
+            lengths = {len(e) for e in estimates}
+            with h5py.File(tmp, "w") as h5:
+                if len(lengths) == 1:
+                    h5.create_dataset("estimates", data=torch.stack(estimates).numpy())
+                else:
+                    for t, e in zip(seqs.track, estimates):
+                        h5.create_dataset(f"estimates/{t}", data=e.numpy())
+                h5.create_dataset("track", data=np.array(seqs.track, dtype="S"))
+                h5.attrs["columns"] = json.dumps(columns)
+                h5.attrs["provenance"] = json.dumps(provenance)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def write_csv_measurements(path: str | Path, z: torch.Tensor, columns: list[str]) -> Path:
+    """Measurements ``(B, K, D)`` as a CSV with a ``track`` column (what ``pmsr track`` reads)."""
+    path = Path(path)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["track", *columns])
+        for b, seq in enumerate(z.tolist()):
+            w.writerows([b, *(repr(v) for v in row)] for row in seq)
+    return path

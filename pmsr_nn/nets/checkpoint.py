@@ -1,0 +1,95 @@
+"""Self-contained tracker checkpoints, read without unpickling arbitrary objects.
+
+A checkpoint holds the network weights (``state_dict``, keys prefixed ``net.``) and a plain-data
+``pmsr`` block: format and package version, the model config, the measurement and state
+columns, the training window, the sampling interval, the scenario geometry and the
+normalisation statistics. Lightning's own checkpoints of a training run carry the same block
+(added in ``TrackerModule.on_save_checkpoint``), so both load here; the slim ``tracker.pt`` a
+run exports holds only the block and the weights.
+
+Everything is read with ``torch.load(weights_only=True)``: tensors, numbers, strings, lists and
+dicts only. A file that needs anything else is refused, never executed.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import zipfile
+from pathlib import Path
+
+import torch
+
+from .. import __version__
+from ..config import from_dict, to_dict
+from ..errors import CheckpointError, ConfigError
+from .config import ModelConfig
+
+FORMAT = "pmsr_nn.tracker"
+FORMAT_VERSION = 1
+
+
+def tracker_metadata(model: ModelConfig, manifest: dict, normalisation: dict, **training) -> dict:
+    """The ``pmsr`` block for a network trained on the dataset ``manifest`` describes.
+
+    ``normalisation`` is ``{"states": {"min", "max"}, "measurements": {...}}`` as fitted on the
+    tracks the network was trained on. ``training`` adds free-form plain-data facts (seed, fold).
+    """
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "pmsr_nn_version": __version__,
+        "model": to_dict(model),
+        "dim_z": manifest["shapes"]["measurements"][2],
+        "dim_x": manifest["shapes"]["states"][2],
+        "window": int(training.pop("window", manifest["window"])),
+        "dt_s": manifest["dt_s"],
+        "geometry": manifest["geometry"],
+        "measurement_columns": list(manifest["columns"]["measurements"]),
+        "state_columns": list(manifest["columns"]["states"]),
+        "normalisation": normalisation,
+        "dataset": {k: manifest[k] for k in ("name", "seed", "variant")},
+        "training": training,
+    }
+
+
+def save_tracker(path: str | Path, meta: dict, state_dict: dict) -> Path:
+    """Write ``{'pmsr': meta, 'state_dict': ...}`` atomically (temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    try:
+        torch.save({"pmsr": meta, "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
+    """``(meta, model config, network state_dict)`` of a checkpoint, checked to be ours and whole."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint at {path}")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, EOFError, zipfile.BadZipFile, ValueError) as exc:
+        raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): "
+                              f"{str(exc).splitlines()[0][:120]}") from None
+    except pickle.UnpicklingError:
+        raise CheckpointError(f"{path} holds objects other than tensors and plain data; "
+                              "refusing to unpickle it (only pmsr_nn checkpoints are loaded)") from None
+    meta = blob.get("pmsr") if isinstance(blob, dict) else None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise CheckpointError(f"{path} is not a pmsr_nn tracker checkpoint (no 'pmsr' block)")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(f"{path} has checkpoint format {meta.get('format_version')}; "
+                              f"this pmsr_nn reads {FORMAT_VERSION}")
+    try:
+        cfg = from_dict(ModelConfig, meta["model"], where="checkpoint model")
+    except (ConfigError, KeyError) as exc:
+        raise CheckpointError(f"{path}: model config unreadable ({exc})") from None
+    sd = blob.get("state_dict", {})
+    net = {k[len("net."):]: v for k, v in sd.items() if k.startswith("net.")}
+    if not net:
+        raise CheckpointError(f"{path} holds no network weights")
+    return meta, cfg, net

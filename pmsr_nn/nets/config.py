@@ -1,0 +1,56 @@
+"""Model configuration: every size of DFNN, MDFNN and the RNN baseline is a config value."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from ..config import require
+
+Activation = Literal["tanh", "sigmoid", "relu", "gelu", "identity"]
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of a learned tracker (``models/*.yaml``).
+
+    ``kind``: ``mdfnn`` (hidden layers with FIR filter layers between them, Eqs. 21-27),
+    ``dfnn`` (the same hidden layers without filter layers: the ablation of Table 3) or ``rnn``
+    (a recurrent baseline, Gao et al. 2018). Defaults are Table 2 of the MDFNN paper: hidden
+    layers of 384, 225 and 540 nodes, filter layers of 384 and 225 (the width of the hidden
+    layer each one filters), filter order M = 20.
+
+    ``filter_window``: ``causal`` reads the last M hidden outputs (Fig. 4b) and gives a
+    filter; ``centred`` reads M/2 either side and gives a *smoother* (compare it with the
+    smoothing bound, never the filtering one).
+
+    ``output_activation``: the paper's Eq. 27 applies ``f_h`` (tanh) to the output. Targets are
+    normalised to [-1, 1] on the training split, so a test state at the edge of that range sits
+    where tanh saturates; ``identity`` is the default and ``tanh`` the paper's choice.
+    """
+
+    kind: Literal["mdfnn", "dfnn", "rnn"] = "mdfnn"
+    hidden: tuple[int, ...] = (384, 225, 540)
+    filter_order: int = 20
+    filter_window: Literal["causal", "centred"] = "causal"
+    filter_taps: Literal["shared", "per_channel"] = "shared"
+    activation: Activation = "tanh"
+    output_activation: Activation = "identity"
+    rnn_cell: Literal["rnn", "lstm", "gru"] = "lstm"
+    rnn_hidden: int = 256
+    rnn_layers: int = 1
+    dropout: float = 0.0
+
+    def __post_init__(self) -> None:
+        require(len(self.hidden) >= 1 and all(h >= 1 for h in self.hidden),
+                f"model.hidden must list at least one positive layer width, got {list(self.hidden)}")
+        require(self.filter_order >= 1, f"model.filter_order must be at least 1, got {self.filter_order}")
+        require(self.kind != "mdfnn" or len(self.hidden) >= 2,
+                "model.hidden: an MDFNN needs at least two hidden layers (a filter layer sits between two)")
+        require(self.rnn_hidden >= 1 and self.rnn_layers >= 1, "model.rnn_hidden and model.rnn_layers must be positive")
+        require(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
+
+    @property
+    def looks_ahead(self) -> bool:
+        """True for a smoother (an estimate at k uses measurements after k)."""
+        return self.kind == "mdfnn" and self.filter_window == "centred"

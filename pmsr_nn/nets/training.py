@@ -1,0 +1,329 @@
+"""``pmsr train``: one training run from a YAML config into a self-describing run folder.
+
+Run folder::
+
+    RUN/config.yaml          the resolved config (every default spelled out)
+    RUN/checkpoints/best.ckpt   Lightning checkpoint with the lowest validation position RMSE
+    RUN/checkpoints/last.ckpt   the latest state, rewritten every ``checkpoint_every_n_steps``
+    RUN/tb/                  TensorBoard logs (``tensorboard --logdir RUN/tb``)
+    RUN/tracker.pt           the best weights as a slim, self-contained inference checkpoint
+    RUN/metrics.json         final validation and test metrics, validation history, throughput
+
+An interrupted run continues from ``last.ckpt`` with ``--resume`` (same config). Every
+Lightning checkpoint carries the ``pmsr`` block, so any of them serves ``pmsr track``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+from lightning.pytorch.callbacks import Callback
+
+from ..config import from_dict, load_yaml, require, to_dict
+from ..errors import ConfigError
+from .checkpoint import save_tracker, tracker_metadata
+from .config import ModelConfig
+from .module import OptimConfig
+
+_CHILD_ENV = "PMSR_TRAIN_RUN"  # set before fit: DDP worker processes re-run the command and must not refuse the folder
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Where the windows come from.
+
+    Either ``path``, an existing dataset directory, or a recipe (``recipe``: a YAML file; none:
+    the built-in FITEE 2023 CA defaults) with optional overrides, simulated once into
+    ``cache_dir`` under a name that hashes the resolved recipe (so a changed recipe never
+    reuses stale data). ``window`` overrides the recipe's sequence size epsilon.
+    """
+
+    path: str | None = None
+    recipe: str | None = None
+    tracks: int | None = None
+    steps: int | None = None
+    seed: int | None = None
+    variant: str | None = None
+    window: int | None = None
+    cache_dir: str = "data"
+    batch_size: int = 256
+    num_workers: int = 0
+    fold: int | None = None
+    folds: int | None = None
+
+    def __post_init__(self) -> None:
+        require(self.path is None or self.recipe is None, "data: give either path or recipe, not both")
+        require(self.batch_size >= 1, f"data.batch_size must be positive, got {self.batch_size}")
+        require(self.variant in (None, "envelope", "literal"), f"data.variant must be envelope or literal, got {self.variant!r}")
+
+
+@dataclass(frozen=True)
+class TrainerConfig:
+    """Lightning ``Trainer`` settings. ``train_batches_per_epoch`` caps an epoch (a fresh random
+    subset of windows each epoch); none uses every window."""
+
+    max_epochs: int = 50
+    max_time_minutes: float | None = None
+    train_batches_per_epoch: int | None = None
+    val_batches: int | None = None
+    accelerator: str = "auto"
+    devices: int = 1
+    strategy: str = "auto"
+    num_nodes: int = 1
+    precision: str = "32-true"
+    deterministic: bool = True
+    gradient_clip_val: float | None = 1.0
+    early_stopping_patience: int | None = 10
+    checkpoint_every_n_steps: int = 200
+    log_every_n_steps: int = 20
+    threads: int | None = None
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        require(self.max_epochs >= 1, f"trainer.max_epochs must be positive, got {self.max_epochs}")
+        require(self.devices >= 1 and self.num_nodes >= 1, "trainer.devices and trainer.num_nodes must be positive")
+        require(self.checkpoint_every_n_steps >= 1, "trainer.checkpoint_every_n_steps must be positive")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A whole training run (``train/*.yaml``). ``model`` may name a file under ``models/``."""
+
+    name: str = "tracker"
+    seed: int = 0
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    trainer: TrainerConfig = field(default_factory=TrainerConfig)
+
+
+# -- loading ---------------------------------------------------------------------------------
+
+def _find(path: str, base: Path, what: str) -> Path:
+    """``path`` as given (relative to the working directory), else relative to ``base``."""
+    for p in (Path(path), base / path):
+        if p.exists():
+            return p
+    raise ConfigError(f"{what} not found: {path} (looked in the working directory and {base})")
+
+
+def apply_overrides(raw: dict, overrides: list[str]) -> dict:
+    """``['trainer.max_epochs=5', 'model.hidden=[64,64]']`` applied to a nested dict (YAML values)."""
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"override {item!r} is not KEY=VALUE (e.g. trainer.max_epochs=5)")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ConfigError(f"override {item!r}: value is not valid YAML") from None
+        node = raw
+        parts = key.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"override {item!r}: {p} is not a section")
+        node[parts[-1]] = value
+    return raw
+
+
+def load_train_config(path: str | Path | None, overrides: list[str] = ()) -> TrainConfig:
+    """Read a training config, expand a ``model: FILE`` reference, apply overrides, validate."""
+    raw = load_yaml(path) if path is not None else {}
+    base = Path(path).parent if path is not None else Path(".")
+    if isinstance(raw.get("model"), str):
+        raw["model"] = load_yaml(_find(raw["model"], base, "model config"))
+    raw = apply_overrides(raw, list(overrides))
+    cfg = from_dict(TrainConfig, raw, where="train config")
+    d = cfg.data
+    if d.path is not None:
+        d = replace(d, path=str(_find(d.path, base, "dataset")))
+    if d.recipe is not None:
+        d = replace(d, recipe=str(_find(d.recipe, base, "recipe")))
+    return replace(cfg, data=d)
+
+
+def resolve_recipe(data: DataConfig):
+    """The recipe a data config describes (built-in defaults when it names none)."""
+    from ..simulation.recipe import TrackRecipe, load_recipe
+
+    recipe = load_recipe(data.recipe) if data.recipe else TrackRecipe()
+    if data.steps is not None:
+        recipe = recipe.with_overrides(motion=replace(recipe.motion, steps=data.steps))
+    return recipe.with_overrides(tracks=data.tracks, seed=data.seed, variant=data.variant)
+
+
+def prepare_dataset(data: DataConfig, progress: bool = True) -> Path:
+    """The dataset directory for ``data``: the given path, or the recipe simulated into the cache."""
+    from ..data.store import is_our_dataset, open_dataset, write_dataset
+
+    if data.path is not None:
+        open_dataset(data.path).close()  # clear error now if it is not one of ours
+        return Path(data.path)
+    recipe = resolve_recipe(data)
+    key = hashlib.sha256(json.dumps(recipe.to_dict(), sort_keys=True).encode()).hexdigest()[:10]
+    out = Path(data.cache_dir) / f"{recipe.name}-{recipe.variant}-{recipe.tracks}x{recipe.motion.steps}-{key}"
+    if not is_our_dataset(out):
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_dataset(recipe, out, progress=progress)
+    return out
+
+
+# -- the run folder --------------------------------------------------------------------------
+
+def _check_run_folder(out: Path, resume: bool) -> None:
+    if os.environ.get(_CHILD_ENV) == str(out.resolve()):
+        return
+    if resume:
+        if not (out / "config.yaml").is_file():
+            raise ConfigError(f"cannot resume: {out} is not a pmsr training run (no config.yaml)")
+        if not (out / "checkpoints" / "last.ckpt").is_file():
+            raise ConfigError(f"cannot resume: {out}/checkpoints/last.ckpt does not exist (no checkpoint was written yet)")
+        return
+    if out.exists() and any(out.iterdir()):
+        hint = "; pass --resume to continue it" if (out / "config.yaml").is_file() else ""
+        raise ConfigError(f"run folder {out} exists and is not empty{hint}, or choose another --out")
+    if not out.parent.exists():
+        raise ConfigError(f"parent directory {out.parent} does not exist")
+
+
+def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> dict:
+    """Train ``cfg`` into the run folder ``out``; return the final metrics (also in metrics.json).
+
+    With ``resume``, ``cfg`` may be None (the run's own config.yaml is used); a given config must
+    equal it.
+    """
+    import lightning as L
+    import torch
+    from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    from ..data.datamodule import TrackWindowDataModule
+    from .module import TrackerModule
+
+    out = Path(out)
+    _check_run_folder(out, resume)
+    if resume:
+        stored = from_dict(TrainConfig, load_yaml(out / "config.yaml"), where=f"{out}/config.yaml")
+        if cfg is not None and to_dict(cfg) != to_dict(stored):
+            raise ConfigError(f"the given config differs from {out}/config.yaml; resume with the run's own config (omit CONFIG)")
+        cfg = stored
+    tc = cfg.trainer
+    if tc.threads:
+        torch.set_num_threads(tc.threads)
+    dataset = prepare_dataset(cfg.data, progress=tc.progress)
+    dm = TrackWindowDataModule(dataset, window=cfg.data.window, batch_size=cfg.data.batch_size,
+                               num_workers=cfg.data.num_workers, seed=cfg.seed,
+                               fold=cfg.data.fold, folds=cfg.data.folds)
+    meta = tracker_metadata(cfg.model, dm.manifest, dm.normalisation(), window=dm.window, seed=cfg.seed,
+                            fold=cfg.data.fold, folds=cfg.data.folds, run=cfg.name)
+    L.seed_everything(cfg.seed, workers=True, verbose=False)
+    module = TrackerModule(to_dict(cfg.model), to_dict(cfg.optim), meta, max_epochs=tc.max_epochs)
+
+    out.mkdir(exist_ok=True)
+    os.environ[_CHILD_ENV] = str(out.resolve())
+    ckpt_dir = out / "checkpoints"
+    best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor="val/pos_rmse_m", mode="min",
+                           save_top_k=1, auto_insert_metric_name=False, enable_version_counter=False)
+    last = ModelCheckpoint(dirpath=ckpt_dir, filename="last", save_top_k=0, save_last=True,
+                           every_n_train_steps=tc.checkpoint_every_n_steps)
+    history = ValidationHistory()
+    callbacks = [best, last, history, LearningRateMonitor(logging_interval="epoch")]
+    if tc.early_stopping_patience:
+        callbacks.append(EarlyStopping(monitor="val/pos_rmse_m", mode="min", patience=tc.early_stopping_patience))
+    trainer = L.Trainer(
+        default_root_dir=out, max_epochs=tc.max_epochs,
+        max_time={"minutes": tc.max_time_minutes} if tc.max_time_minutes else None,
+        limit_train_batches=tc.train_batches_per_epoch or 1.0, limit_val_batches=tc.val_batches or 1.0,
+        accelerator=tc.accelerator, devices=tc.devices, strategy=tc.strategy, num_nodes=tc.num_nodes,
+        precision=tc.precision, deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
+        logger=TensorBoardLogger(save_dir=out, name="tb", version="", default_hp_metric=False),
+        callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps,
+        enable_progress_bar=tc.progress, enable_model_summary=tc.progress,
+    )
+    if trainer.is_global_zero and not resume:
+        (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
+    resumed_from = str(ckpt_dir / "last.ckpt") if resume else None
+    t0 = time.perf_counter()
+    trainer.fit(module, datamodule=dm, ckpt_path=resumed_from)
+    fit_seconds = time.perf_counter() - t0
+
+    best_path = best.best_model_path or str(ckpt_dir / "last.ckpt")
+    val = trainer.validate(module, datamodule=dm, ckpt_path=best_path, verbose=False)
+    test = trainer.test(module, datamodule=dm, ckpt_path=best_path, verbose=False)
+    metrics = {
+        "run": cfg.name,
+        "dataset": str(dataset),
+        "best_checkpoint": str(Path(best_path)),
+        "resumed_from": resumed_from,
+        "epochs": trainer.current_epoch,
+        "global_step": trainer.global_step,
+        "fit_seconds_this_session": round(fit_seconds, 3),
+        "train_windows_per_second": history.windows_per_second(),
+        "val": {k.split("/", 1)[1]: float(v) for k, v in val[0].items()},
+        "test": {k.split("/", 1)[1]: float(v) for k, v in test[0].items()},
+        "history": history.records,
+        "context_samples": {"behind": module.net.context[0], "ahead": module.net.context[1]},
+        "looks_ahead": cfg.model.looks_ahead,
+        "parameters": sum(p.numel() for p in module.net.parameters()),
+    }
+    if trainer.is_global_zero:
+        save_tracker(out / "tracker.pt", meta, {f"net.{k}": v for k, v in module.net.state_dict().items()})
+        _merge_history(out / "metrics.json", metrics)
+        tmp = out / ".metrics.json.partial"
+        tmp.write_text(json.dumps(metrics, indent=2) + "\n")
+        os.replace(tmp, out / "metrics.json")
+    return metrics
+
+
+def _merge_history(path: Path, metrics: dict) -> None:
+    """A resumed run keeps the validation history of the sessions before it."""
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text()).get("history", [])
+        except ValueError:
+            old = []
+        seen = {(r["epoch"], r["step"]) for r in metrics["history"]}
+        metrics["history"] = [r for r in old if (r["epoch"], r["step"]) not in seen] + metrics["history"]
+
+
+class ValidationHistory(Callback):
+    """Validation position RMSE against wall time, and training throughput (windows/s)."""
+
+    def __init__(self):
+        self.records: list[dict[str, Any]] = []
+        self._t0 = None
+        self._windows = 0
+        self._train_seconds = 0.0
+        self._batch_t = None
+
+    def on_train_start(self, trainer, pl_module):
+        self._t0 = time.perf_counter()
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
+        self._batch_t = time.perf_counter()
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        if self._batch_t is not None:
+            self._train_seconds += time.perf_counter() - self._batch_t
+            self._windows += len(batch[0]) * trainer.world_size
+
+    def on_validation_epoch_end(self, trainer, pl_module):
+        m = trainer.callback_metrics
+        if trainer.sanity_checking or "val/pos_rmse_m" not in m:
+            return
+        self.records.append({
+            "epoch": trainer.current_epoch, "step": trainer.global_step,
+            "wall_seconds": round(time.perf_counter() - (self._t0 or time.perf_counter()), 3),
+            "val_pos_rmse_m": float(m["val/pos_rmse_m"]), "val_vel_rmse_mps": float(m.get("val/vel_rmse_mps", float("nan"))),
+        })
+
+    def windows_per_second(self) -> float | None:
+        return round(self._windows / self._train_seconds, 1) if self._train_seconds > 0 else None
