@@ -132,7 +132,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # KEY=VALUE overrides may follow options (argparse stops collecting positionals there)
+        if hasattr(args, "overrides") and all("=" in e and not e.startswith("-") for e in extra):
+            args.overrides = [*args.overrides, *extra]
+        else:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
                     "track": cmd_track, "export": cmd_export, "demo": cmd_demo}
@@ -202,7 +208,7 @@ def cmd_select(args) -> int:
 
     _quiet_lightning()
     cfg = load_train_config(args.config, args.overrides)
-    result = select_best(cfg, args.out, members=args.members, fresh_tracks=args.fresh_tracks)
+    result = select_best(cfg, args.out, members=args.members, fresh_tracks_n=args.fresh_tracks)
     print(result["table"])
     print(f"\nbest      member {result['best']} -> {args.out / 'best.pt'}")
     return 0

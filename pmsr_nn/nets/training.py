@@ -43,6 +43,7 @@ class DataConfig:
     the built-in FITEE 2023 CA defaults) with optional overrides, simulated once into
     ``cache_dir`` under a name that hashes the resolved recipe (so a changed recipe never
     reuses stale data). ``window`` overrides the recipe's sequence size epsilon.
+    ``eval_window_stride``: validation and test read every s-th window (all tracks, less time).
     """
 
     path: str | None = None
@@ -54,6 +55,7 @@ class DataConfig:
     window: int | None = None
     cache_dir: str = "data"
     batch_size: int = 256
+    eval_window_stride: int = 10
     num_workers: int = 0
     fold: int | None = None
     folds: int | None = None
@@ -221,7 +223,8 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
     dataset = prepare_dataset(cfg.data, progress=tc.progress)
     dm = TrackWindowDataModule(dataset, window=cfg.data.window, batch_size=cfg.data.batch_size,
                                num_workers=cfg.data.num_workers, seed=cfg.seed,
-                               fold=cfg.data.fold, folds=cfg.data.folds)
+                               fold=cfg.data.fold, folds=cfg.data.folds,
+                               eval_window_stride=cfg.data.eval_window_stride)
     meta = tracker_metadata(cfg.model, dm.manifest, dm.normalisation(), window=dm.window, seed=cfg.seed,
                             fold=cfg.data.fold, folds=cfg.data.folds, run=cfg.name)
     L.seed_everything(cfg.seed, workers=True, verbose=False)

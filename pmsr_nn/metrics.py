@@ -1,0 +1,35 @@
+"""Accuracy metrics over Monte Carlo runs / tracks.
+
+``est`` and ``truth`` are ``(B, K, dim_x)`` in SI units; ``idx`` picks the components (the
+position or velocity columns). The error at a sample is the Euclidean norm over ``idx``.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+
+
+def position_columns(dim_x: int) -> list[int]:
+    """Position columns of a CA state ``[x, vx, ax, y, vy, ay(, z, vz, az)]``."""
+    return list(range(0, dim_x, 3))
+
+
+def velocity_columns(dim_x: int) -> list[int]:
+    return list(range(1, dim_x, 3))
+
+
+def squared_error(est: torch.Tensor, truth: torch.Tensor, idx: Sequence[int]) -> torch.Tensor:
+    """``(B, K)`` squared Euclidean error on the ``idx`` components."""
+    return ((est - truth)[..., list(idx)] ** 2).sum(-1)
+
+
+def rmse_over_time(est: torch.Tensor, truth: torch.Tensor, idx: Sequence[int]) -> torch.Tensor:
+    """``(K,)`` RMSE at each step over the runs (Eq. 31 of the MDFNN paper)."""
+    return squared_error(est, truth, idx).mean(0).sqrt()
+
+
+def pooled_rmse(est: torch.Tensor, truth: torch.Tensor, idx: Sequence[int], start: int = 0) -> float:
+    """Root of the mean squared error over runs and the steps from ``start`` on (one pooled number)."""
+    return float(squared_error(est[:, start:], truth[:, start:], idx).mean().sqrt())

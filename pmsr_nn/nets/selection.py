@@ -1,0 +1,106 @@
+"""Model selection as in Section 3.3 of the MDFNN paper: train u models, keep the best.
+
+Member ``i`` trains with seed ``seed + i`` on cross-validation fold ``i`` of the pooled train
+and val tracks (so each member validates on tracks the others trained on), then every member
+is scored on (a) its validation fold and (b) fresh tracks drawn with a seed no training run
+used. The member with the lowest fresh-track position RMSE (after the first window) is kept.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from ..errors import ConfigError
+from ..metrics import pooled_rmse, position_columns, velocity_columns
+from .inference import Tracker
+from .training import TrainConfig, prepare_dataset, train
+
+FRESH_SEED_OFFSET = 1_000_003
+"""Fresh tracks use ``recipe seed + FRESH_SEED_OFFSET``: a random stream no training set draws from."""
+
+
+def fresh_tracks(cfg: TrainConfig, tracks: int, out: Path) -> Path:
+    """Simulate ``tracks`` tracks of the training recipe with an unused seed into ``out``."""
+    from ..data.store import write_dataset
+    from ..simulation.recipe import SplitSpec
+    from .training import resolve_recipe
+
+    if cfg.data.path is not None:
+        from ..data.store import open_dataset
+
+        recipe = open_dataset(cfg.data.path).recipe()
+    else:
+        recipe = resolve_recipe(cfg.data)
+    # Only evaluated, never trained on: the split labels are irrelevant, all tracks are scored.
+    recipe = recipe.with_overrides(tracks=tracks, seed=recipe.seed + FRESH_SEED_OFFSET, splits=SplitSpec(1.0, 0.0, 0.0))
+    write_dataset(recipe, out, progress=False)
+    return out
+
+
+def score_on(tracker: Tracker, dataset: Path) -> dict:
+    """Position and velocity RMSE of ``tracker`` on every track of ``dataset`` after the first window."""
+    from ..data.store import open_dataset
+
+    ds = open_dataset(dataset)
+    try:
+        z = torch.from_numpy(ds.file["measurements"][()]).double()
+        x = torch.from_numpy(ds.file["states"][()]).double()
+        tracker.check_compatible(ds.manifest["geometry"], ds.manifest["columns"]["measurements"], ds.manifest["dt_s"],
+                                 where=f"dataset {dataset}")
+    finally:
+        ds.close()
+    est = tracker.track(z)
+    start = tracker.window
+    return {"pos_rmse_m": pooled_rmse(est, x, position_columns(x.shape[-1]), start),
+            "vel_rmse_mps": pooled_rmse(est, x, velocity_columns(x.shape[-1]), start)}
+
+
+def select_best(cfg: TrainConfig, out: str | Path, *, members: int = 10, fresh_tracks_n: int = 20) -> dict:
+    """Train ``members`` models into ``out/member-NN``, score them, copy the best to ``out/best.pt``."""
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise ConfigError(f"output folder {out} exists and is not empty; choose another --out")
+    if cfg.data.fold is not None or cfg.data.folds is not None:
+        raise ConfigError("select assigns the data folds itself; remove data.fold / data.folds from the config")
+    prepare_dataset(cfg.data)  # fail on a bad recipe before anything is written
+    out.mkdir(parents=True, exist_ok=True)
+    fresh = fresh_tracks(cfg, fresh_tracks_n, out / "fresh")
+    rows = []
+    for i in range(members):
+        print(f"select: member {i + 1}/{members}", flush=True)
+        data = replace(cfg.data, fold=i, folds=members) if members > 1 else cfg.data
+        member = replace(cfg, name=f"{cfg.name}-member{i:02d}", seed=cfg.seed + i, data=data)
+        run = out / f"member-{i:02d}"
+        m = train(member, run)
+        scores = score_on(Tracker.load(run / "tracker.pt"), fresh)
+        rows.append({"member": i, "seed": member.seed, "fold": data.fold, "run": str(run),
+                     "val_pos_rmse_m": m["val"]["pos_rmse_m"], "val_vel_rmse_mps": m["val"]["vel_rmse_mps"],
+                     "fresh_pos_rmse_m": scores["pos_rmse_m"], "fresh_vel_rmse_mps": scores["vel_rmse_mps"],
+                     "epochs": m["epochs"]})
+    best = min(rows, key=lambda r: r["fresh_pos_rmse_m"])
+    shutil.copyfile(Path(best["run"]) / "tracker.pt", out / "best.pt")
+    table = selection_table(rows, best["member"], fresh_tracks_n)
+    result = {"best": best["member"], "members": rows, "fresh_dataset": str(fresh), "table": table,
+              "criterion": "lowest position RMSE on the fresh tracks after the first window"}
+    (out / "selection.json").write_text(json.dumps(result, indent=2) + "\n")
+    (out / "selection.md").write_text(table + "\n")
+    return result
+
+
+def selection_table(rows: list[dict], best: int, fresh: int) -> str:
+    lines = [
+        f"| member | seed | fold | epochs | val pos RMSE (m) | val vel RMSE (m/s) | fresh pos RMSE (m) | fresh vel RMSE (m/s) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        mark = " **best**" if r["member"] == best else ""
+        lines.append(f"| {r['member']}{mark} | {r['seed']} | {r['fold']} | {r['epochs']} | {r['val_pos_rmse_m']:.2f} | "
+                     f"{r['val_vel_rmse_mps']:.3f} | {r['fresh_pos_rmse_m']:.2f} | {r['fresh_vel_rmse_mps']:.3f} |")
+    lines.append(f"\nval: every sample of every validation window of the member's fold; fresh: {fresh} new tracks, "
+                 "whole sequences tracked by sliding windows, samples after the first window.")
+    return "\n".join(lines)
