@@ -193,6 +193,8 @@ def cmd_train(args) -> int:
     if args.resume and cfg is None and overrides:
         raise PmsrError("overrides need the config they apply to; a resumed run keeps its own config")
     m = train(cfg, args.out, resume=args.resume)
+    if m["global_rank"] != 0:  # DDP workers: rank 0 reports
+        return 0
     print(f"run       {args.out}  ({m['epochs']} epochs, {m['global_step']} steps, "
           f"{m['train_windows_per_second']} windows/s)")
     print(f"val       position RMSE {m['val']['pos_rmse_m']:.2f} m, velocity RMSE {m['val']['vel_rmse_mps']:.3f} m/s "

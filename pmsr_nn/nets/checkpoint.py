@@ -72,7 +72,7 @@ def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
         raise CheckpointError(f"no checkpoint at {path}")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, zipfile.BadZipFile, ValueError) as exc:
+    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError) as exc:
         raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): "
                               f"{str(exc).splitlines()[0][:120]}") from None
     except pickle.UnpicklingError:

@@ -85,7 +85,7 @@ class Tracker:
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "Tracker":
         """Load a ``tracker.pt`` or any Lightning checkpoint of a run (never unpickles objects)."""
         meta, cfg, state = read_checkpoint(path)
-        net = build_network(cfg, meta["dim_z"], meta["dim_x"])
+        net = build_network(cfg, meta["dim_z"], meta["dim_x"]).float()
         try:
             net.load_state_dict(state)
         except RuntimeError as exc:
@@ -158,8 +158,9 @@ class Tracker:
         if stride < 1:
             raise MeasurementError(f"stride must be at least 1, got {stride}")
         starts, which, offset = splice_plan(K, self.window, stride, self.context)
-        device = next(self.net.parameters()).device
-        zn = self.measurement_scaler.normalise(z).to(torch.float32)
+        p = next(self.net.parameters())
+        device = p.device
+        zn = self.measurement_scaler.normalise(z).to(p.dtype)
         t = starts[:, None] + torch.arange(self.window)  # (W, window)
         windows = zn[:, t]  # (B, W, window, dim_z)
         flat = windows.reshape(-1, self.window, z.shape[-1])

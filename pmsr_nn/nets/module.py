@@ -55,7 +55,8 @@ class TrackerModule(L.LightningModule):
         self.optim_cfg = from_dict(OptimConfig, optim, "optim")
         self.meta = meta
         self.max_epochs = max_epochs
-        self.net = build_network(self.model_cfg, meta["dim_z"], meta["dim_x"])
+        # Networks train in float32 whatever torch's default dtype (Lightning's precision then applies).
+        self.net = build_network(self.model_cfg, meta["dim_z"], meta["dim_x"]).float()
         scaler = MinMaxScaler.from_dict(meta["normalisation"]["states"])
         self.register_buffer("state_lo", scaler.lo.float(), persistent=False)
         self.register_buffer("state_span", scaler.span.float(), persistent=False)

@@ -255,7 +255,10 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
         (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
     resumed_from = str(ckpt_dir / "last.ckpt") if resume else None
     t0 = time.perf_counter()
-    trainer.fit(module, datamodule=dm, ckpt_path=resumed_from)
+    try:
+        trainer.fit(module, datamodule=dm, ckpt_path=resumed_from)
+    finally:
+        os.environ.pop(_CHILD_ENV, None)  # workers have inherited it; this process must check again next time
     fit_seconds = time.perf_counter() - t0
 
     best_path = best.best_model_path or str(ckpt_dir / "last.ckpt")
@@ -276,6 +279,8 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
         "context_samples": {"behind": module.net.context[0], "ahead": module.net.context[1]},
         "looks_ahead": cfg.model.looks_ahead,
         "parameters": sum(p.numel() for p in module.net.parameters()),
+        "world_size": trainer.world_size,
+        "global_rank": trainer.global_rank,
     }
     if trainer.is_global_zero:
         save_tracker(out / "tracker.pt", meta, {f"net.{k}": v for k, v in module.net.state_dict().items()})

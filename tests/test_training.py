@@ -1,0 +1,263 @@
+"""Training runs, checkpoints, inference and the CLI commands train / track / select / export."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from pmsr_nn.cli import main
+from pmsr_nn.errors import CheckpointError, ConfigError, MeasurementError
+from pmsr_nn.nets.checkpoint import read_checkpoint, save_tracker
+from pmsr_nn.nets.inference import Tracker
+from pmsr_nn.nets.training import apply_overrides, load_train_config, train
+
+TINY = {
+    "name": "tiny",
+    "seed": 0,
+    "data": {"tracks": 12, "steps": 120, "window": 40, "batch_size": 32, "eval_window_stride": 4},
+    "model": {"kind": "mdfnn", "hidden": [32, 24, 32], "filter_order": 5},
+    "optim": {"lr": 3.0e-3},
+    "trainer": {"max_epochs": 2, "checkpoint_every_n_steps": 2, "accelerator": "cpu", "progress": False},
+}
+
+
+def write_config(path: Path, cache: Path, **sections) -> Path:
+    cfg = json.loads(json.dumps(TINY))
+    cfg["data"]["cache_dir"] = str(cache)
+    for k, v in sections.items():
+        cfg[k].update(v)
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """One tiny training run shared by the tests that only read it."""
+    root = tmp_path_factory.mktemp("run")
+    cfg = write_config(root / "tiny.yaml", root / "data")
+    assert main(["train", str(cfg), "--out", str(root / "run")]) == 0
+    return root
+
+
+def dataset_of(root: Path) -> Path:
+    return next((root / "data").iterdir())
+
+
+def test_a_run_folder_holds_everything_it_promises(run):
+    out = run / "run"
+    for name in ("config.yaml", "metrics.json", "tracker.pt", "checkpoints/best.ckpt", "checkpoints/last.ckpt"):
+        assert (out / name).is_file(), name
+    assert any((out / "tb").glob("events.out.tfevents.*"))
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["epochs"] == 2 and m["global_step"] > 0 and m["val"]["pos_rmse_m"] > 0
+    assert m["history"] and m["context_samples"] == {"behind": 8, "ahead": 0}
+    stored = yaml.safe_load((out / "config.yaml").read_text())
+    assert stored["trainer"]["max_epochs"] == 2 and stored["optim"]["schedule"] == "cosine"  # defaults spelled out
+
+
+def test_every_checkpoint_of_a_run_serves_inference_and_they_agree(run):
+    out = run / "run"
+    z = torch.from_numpy(__import__("h5py").File(dataset_of(run) / "tracks.h5")["measurements"][:2]).double()
+    best = Tracker.load(out / "checkpoints" / "best.ckpt").track(z)
+    slim = Tracker.load(out / "tracker.pt").track(z)
+    torch.testing.assert_close(best, slim, rtol=0, atol=0)
+    assert best.shape == (2, 120, 6) and best.dtype == torch.float64
+
+
+def test_spliced_tracking_equals_one_pass_over_the_whole_sequence(run):
+    tracker = Tracker.load(run / "run" / "tracker.pt")
+    g = torch.Generator().manual_seed(0)
+    z = torch.from_numpy(__import__("h5py").File(dataset_of(run) / "tracks.h5")["measurements"][:3]).double()
+    z = z + torch.randn(z.shape, generator=g, dtype=torch.float64)
+    with torch.no_grad():
+        full = tracker.state_scaler.denormalise(tracker.net(tracker.measurement_scaler.normalise(z).float()).double())
+    for stride in (None, 1, 13):
+        torch.testing.assert_close(tracker.track(z, stride=stride), full, rtol=0, atol=0)
+
+
+def test_track_cli_writes_one_estimate_per_input_row(run, tmp_path):
+    csv_in, csv_out = tmp_path / "z.csv", tmp_path / "est.csv"
+    assert main(["export", str(dataset_of(run)), "--out", str(csv_in), "--tracks", "2"]) == 0
+    assert main(["track", "--checkpoint", str(run / "run" / "tracker.pt"), "--input", str(csv_in), "--out", str(csv_out)]) == 0
+    rows_in = csv_in.read_text().splitlines()
+    rows_out = csv_out.read_text().splitlines()
+    assert len(rows_out) == len(rows_in) == 1 + 2 * 120
+    assert rows_out[0] == "track,k,x,vx,ax,y,vy,ay"
+    assert main(["track", "--checkpoint", str(run / "run" / "tracker.pt"), "--input", str(dataset_of(run)),
+                 "--split", "test", "--out", str(tmp_path / "est.h5")]) == 0
+
+
+def _csv(tmp_path, header, rows):
+    p = tmp_path / "m.csv"
+    p.write_text("\n".join([",".join(header)] + [",".join(map(str, r)) for r in rows]) + "\n")
+    return p
+
+
+COLUMNS = [f"{c}_{i}" for c in ("range", "range_rate", "azimuth") for i in (1, 2, 3)]
+
+
+@pytest.mark.parametrize("case,message", [
+    ("eight_columns", "do not match the checkpoint"),
+    ("nan_row", "holds NaN"),
+    ("short", "shorter than the network's window"),
+    ("ragged", "cells, the header has"),
+    ("word", "is not a number"),
+])
+def test_bad_measurement_files_get_one_line_errors(run, tmp_path, capsys, case, message):
+    z = torch.from_numpy(__import__("h5py").File(dataset_of(run) / "tracks.h5")["measurements"][0]).double().tolist()
+    header, rows = list(COLUMNS), [list(r) for r in z]
+    if case == "eight_columns":
+        header, rows = header[:8], [r[:8] for r in rows]
+    elif case == "nan_row":
+        rows[50][3] = "nan"
+    elif case == "short":
+        rows = rows[:30]
+    elif case == "ragged":
+        rows[5] = rows[5][:7]
+    elif case == "word":
+        rows[7][0] = "abc"
+    out = tmp_path / "est.csv"
+    code = main(["track", "--checkpoint", str(run / "run" / "tracker.pt"), "--input", str(_csv(tmp_path, header, rows)),
+                 "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and len(err.splitlines()) == 1
+    assert not out.exists() and not list(tmp_path.glob(".*partial*"))
+
+
+def test_nan_hold_tracks_through_a_missing_scan(run, tmp_path):
+    z = torch.from_numpy(__import__("h5py").File(dataset_of(run) / "tracks.h5")["measurements"][0]).double().tolist()
+    z[50][3] = "nan"
+    out = tmp_path / "est.csv"
+    assert main(["track", "--checkpoint", str(run / "run" / "tracker.pt"), "--nan", "hold",
+                 "--input", str(_csv(tmp_path, COLUMNS, z)), "--out", str(out)]) == 0
+    assert len(out.read_text().splitlines()) == 121
+
+
+def test_truncated_foreign_and_pickled_checkpoints_are_refused(run, tmp_path):
+    good = (run / "run" / "tracker.pt").read_bytes()
+    (tmp_path / "cut.pt").write_bytes(good[: len(good) // 2])
+    with pytest.raises(CheckpointError, match="truncated or corrupted"):
+        read_checkpoint(tmp_path / "cut.pt")
+    torch.save({"state_dict": {"w": torch.zeros(2)}}, tmp_path / "foreign.pt")
+    with pytest.raises(CheckpointError, match="not a pmsr_nn tracker checkpoint"):
+        read_checkpoint(tmp_path / "foreign.pt")
+    torch.save({"pmsr": ConfigError("an arbitrary object")}, tmp_path / "evil.pt")
+    with pytest.raises(CheckpointError, match="refusing to unpickle"):
+        read_checkpoint(tmp_path / "evil.pt")
+    with pytest.raises(CheckpointError, match="no checkpoint at"):
+        read_checkpoint(tmp_path / "missing.pt")
+
+
+def test_a_checkpoint_for_another_geometry_is_refused(run, tmp_path):
+    meta, _, state = read_checkpoint(run / "run" / "tracker.pt")
+    meta = json.loads(json.dumps(meta))
+    meta["geometry"]["receivers"][0]["position_m"][0] += 500.0
+    save_tracker(tmp_path / "moved.pt", meta, {f"net.{k}": v for k, v in state.items()})
+    code = main(["track", "--checkpoint", str(tmp_path / "moved.pt"), "--input", str(dataset_of(run)), "--out", str(tmp_path / "e.csv")])
+    assert code == 2 and not (tmp_path / "e.csv").exists()
+    with pytest.raises(CheckpointError, match="another sensor geometry"):
+        Tracker.load(tmp_path / "moved.pt").check_compatible(read_checkpoint(run / "run" / "tracker.pt")[0]["geometry"], COLUMNS)
+
+
+def test_weights_that_do_not_fit_the_config_are_refused(run, tmp_path):
+    meta, _, state = read_checkpoint(run / "run" / "tracker.pt")
+    meta = json.loads(json.dumps(meta))
+    meta["model"]["hidden"] = [32, 24, 33]
+    save_tracker(tmp_path / "odd.pt", meta, {f"net.{k}": v for k, v in state.items()})
+    with pytest.raises(CheckpointError, match="do not fit the model config"):
+        Tracker.load(tmp_path / "odd.pt")
+
+
+def test_config_errors_name_the_key_and_nothing_is_written(tmp_path, capsys):
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data", model={"filter_ordr": 3})
+    assert main(["train", str(cfg), "--out", str(tmp_path / "r")]) == 2
+    assert "did you mean 'filter_order'" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data")
+    assert main(["train", str(cfg), "--out", str(tmp_path / "r"), "optim.lr=-1"]) == 2
+    assert "optim.lr must be positive" in capsys.readouterr().err
+    assert main(["train", "--resume", "--out", str(tmp_path / "nothing")]) == 2
+    assert "cannot resume" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        apply_overrides({}, ["trainer.max_epochs"])
+
+
+def test_an_existing_run_is_never_overwritten(run, capsys):
+    assert main(["train", str(run / "tiny.yaml"), "--out", str(run / "run")]) == 2
+    assert "pass --resume" in capsys.readouterr().err
+
+
+def test_overrides_and_model_files_resolve(tmp_path):
+    (tmp_path / "m.yaml").write_text("kind: rnn\nrnn_hidden: 16\n")
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data")
+    raw = yaml.safe_load(cfg.read_text())
+    raw["model"] = "m.yaml"
+    cfg.write_text(yaml.safe_dump(raw))
+    c = load_train_config(cfg, ["model.rnn_cell=gru", "trainer.max_epochs=7"])
+    assert (c.model.kind, c.model.rnn_cell, c.model.rnn_hidden, c.trainer.max_epochs) == ("rnn", "gru", 16, 7)
+
+
+def _run_cli(args, **kw):
+    return subprocess.Popen([sys.executable, "-m", "pmsr_nn.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, **kw)
+
+
+def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data", trainer={"max_epochs": 12, "early_stopping_patience": None,
+                                                                           "checkpoint_every_n_steps": 5})
+    run = tmp_path / "run"
+    proc = _run_cli(["train", str(cfg), "--out", str(run)])
+    last = run / "checkpoints" / "last.ckpt"
+    deadline = time.time() + 120
+    epoch_at_kill = -1
+    while time.time() < deadline and proc.poll() is None:
+        if last.is_file():
+            try:
+                epoch_at_kill = torch.load(last, weights_only=True)["epoch"]
+            except Exception:  # caught mid-write: try again
+                epoch_at_kill = -1
+            if epoch_at_kill >= 2:
+                break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert epoch_at_kill >= 2, "the run never wrote a checkpoint past epoch 2"
+    assert not (run / "metrics.json").exists()  # it really was cut short
+    step_at_kill = torch.load(last, weights_only=True)["global_step"]
+    done = _run_cli(["train", "--resume", "--out", str(run)])
+    out, _ = done.communicate(timeout=300)
+    assert done.returncode == 0, out
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["resumed_from"].endswith("last.ckpt") and m["epochs"] == 12
+    assert min(r["epoch"] for r in m["history"]) >= epoch_at_kill  # no epoch before the kill was trained again
+    assert m["global_step"] > step_at_kill
+
+
+def test_ddp_with_two_cpu_processes(tmp_path):
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data")
+    env = {**os.environ, "PMSR_TRAIN_RUN": ""}
+    p = _run_cli(["train", str(cfg), "--out", str(tmp_path / "run"), "trainer.devices=2", "trainer.strategy=ddp"], env=env)
+    out, _ = p.communicate(timeout=300)
+    assert p.returncode == 0, out
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["world_size"] == 2
+    # each of the two processes sees half of the 10 x 81 training windows per epoch
+    assert m["global_step"] == 2 * -(-(-(-10 * 81 // 2)) // 32)
+    assert out.count("run       ") == 1  # only rank 0 reports
+
+
+def test_select_keeps_the_member_with_the_best_fresh_track_rmse(tmp_path):
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data", trainer={"max_epochs": 1})
+    assert main(["select", str(cfg), "--out", str(tmp_path / "sel"), "--members", "2", "--fresh-tracks", "3"]) == 0
+    res = json.loads((tmp_path / "sel" / "selection.json").read_text())
+    assert [r["fold"] for r in res["members"]] == [0, 1] and [r["seed"] for r in res["members"]] == [0, 1]
+    best = min(res["members"], key=lambda r: r["fresh_pos_rmse_m"])
+    assert res["best"] == best["member"]
+    assert (tmp_path / "sel" / "best.pt").read_bytes() == (Path(best["run"]) / "tracker.pt").read_bytes()
