@@ -33,13 +33,6 @@ from pmsr_nn.simulation.recipe import TrackRecipe, load_recipe
 from pmsr_nn.simulation.tracks import build_models, generate_tracks
 
 
-def prior_sd(recipe: TrackRecipe) -> torch.Tensor:
-    """Prior deviations per axis: 100 m, 5 m/s (a coarse initial fix, as a track initiator gives)
-    and the largest initial acceleration of the recipe (m/s^2)."""
-    accel = recipe.effective_motion().initial.accel_mps2[1]
-    return torch.tensor([100.0, 5.0, max(accel, 0.01)] * 2, dtype=torch.float64)
-
-
 def rmse(est: torch.Tensor, truth: torch.Tensor, idx, burn_in: int) -> float:
     """Root of the mean (over tracks and steps after ``burn_in``) squared error on the ``idx`` components."""
     err = (est - truth)[:, burn_in:][..., list(idx)]
@@ -56,7 +49,7 @@ def run(recipe: TrackRecipe, tracks: int, steps: int, burn_in: int, particles: i
     q, dt = recipe.effective_motion().q_psd, recipe.motion.dt_s
     batch, _ = generate_tracks(recipe, tracks, seeded_generator(seed, 1))
     truth, z, R = batch.states, batch.measurements, model.R(batch.noise_std)
-    sd = prior_sd(recipe)
+    sd = recipe.initiation_prior_sd()
     P0 = torch.diag(sd**2)
     x0 = truth[:, 0] + torch.randn(tracks, 6, generator=seeded_generator(seed, 2), dtype=torch.float64) * sd
     prior = Gaussian(x0, P0.expand(tracks, 6, 6).clone())

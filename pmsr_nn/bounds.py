@@ -177,3 +177,47 @@ def pcrb(truth: torch.Tensor, motion: KinematicModel, dt: float, q, model: Measu
             sum_s += Ps.sum(0)
             pos_s[s:e] = torch.diagonal(Ps, dim1=-2, dim2=-1)[..., pos].sum(-1).sqrt()
     return BoundResult(form, sum_f / B, None if sum_s is None else sum_s / B, motion.pos_idx, motion.vel_idx, pos_f, pos_s)
+
+
+def finite_memory_pcrb(truth: torch.Tensor, motion: KinematicModel, dt: float, q, model: MeasurementModel | LinearMeasurementModel,
+                       R: torch.Tensor, P0: torch.Tensor, memory: int, chunk_windows: int = 4096) -> BoundResult:
+    """Filtering PCRB for an estimator that reads only the last ``memory`` scans.
+
+    The bound at step ``k`` is the filtering bound of scans ``max(0, k - memory + 1) .. k`` alone,
+    with prior covariance ``P0`` on the state at the first of them (for a learned tracker: the
+    spread of the states it was trained on). A network whose estimate at ``k`` reads a finite
+    window (an MDFNN reads ``2 (M - 1) + 1`` scans) cannot beat this bound, which sits above the
+    ordinary filtering bound that uses every past scan. Per-trajectory form, filtering only;
+    ``truth (B, K, n)``, ``R`` ``(m, m)`` or per run ``(B, m, m)``.
+    """
+    _check(truth, motion, model, P0, R, "per_trajectory")
+    if memory < 1:
+        raise ConfigError(f"memory must be at least 1 scan, got {memory}")
+    B, K, n = truth.shape
+    L = min(memory, K)
+    F = motion.F(dt, truth.dtype, truth.device)
+    Q = motion.Q(dt, q, truth.dtype, truth.device)
+    if Q.dim() > 2:
+        raise ConfigError("finite_memory_pcrb needs one q for all runs")
+    J0 = _inverse_spd(P0.to(truth.dtype))
+    info = measurement_information(truth, model, R)  # (B, K, n, n)
+    J0_b = J0.expand(B, n, n) if J0.dim() == 2 else J0
+    sum_P = torch.empty(K, n, n, dtype=truth.dtype, device=truth.device)
+    pos = list(motion.pos_idx)
+    per_track = truth.new_empty(B, K)
+    head = _filtering_pass(info[:, :L], J0_b, F, Q)  # steps k < L read every scan so far
+    sum_P[:L] = head.mean(0)
+    per_track[:, :L] = torch.diagonal(head, dim1=-2, dim2=-1)[..., pos].sum(-1).sqrt()
+    # Steps k >= L: a window of L scans ending at k. Windows of all runs are one batch.
+    starts = torch.arange(1, K - L + 1, device=truth.device)
+    per_chunk = max(1, chunk_windows // B)
+    for c in range(0, len(starts), per_chunk):
+        s = starts[c : c + per_chunk]
+        idx = s[:, None] + torch.arange(L, device=truth.device)  # (S, L)
+        win = info[:, idx].reshape(B * len(s), L, n, n)
+        J = J0_b.repeat_interleave(len(s), 0) if J0_b.shape[0] == B else J0_b.expand(B * len(s), n, n)
+        P_last = _filtering_pass(win, J, F, Q)[:, -1].reshape(B, len(s), n, n)
+        k = s + L - 1
+        sum_P[k] = P_last.mean(0)
+        per_track[:, k] = torch.diagonal(P_last, dim1=-2, dim2=-1)[..., pos].sum(-1).sqrt()
+    return BoundResult(f"finite memory ({L} scans)", sum_P, None, motion.pos_idx, motion.vel_idx, per_track, None)

@@ -111,3 +111,29 @@ def test_bad_inputs(tracks):
         pcrb(truth, motion, DT, Q_PSD, model, R, -P0)
     with pytest.raises(ConfigError, match="one q for all runs"):
         pcrb(truth, motion, DT, torch.full((40,), Q_PSD), model, R, P0, form="information_averaged")
+
+
+def test_finite_memory_bound_reduces_to_the_filtering_bound_and_to_single_scans(tracks):
+    from pmsr_nn.bounds import finite_memory_pcrb
+
+    motion, model, truth, R = tracks
+    full = pcrb(truth, motion, DT, Q_PSD, model, R, P0, smoothing=False)
+    whole = finite_memory_pcrb(truth, motion, DT, Q_PSD, model, R, P0, memory=truth.shape[1])
+    torch.testing.assert_close(whole.filtering, full.filtering, rtol=1e-12, atol=1e-12)
+    # One scan: the prior on that scan's state plus its own information, nothing carried over.
+    one = finite_memory_pcrb(truth, motion, DT, Q_PSD, model, R, P0, memory=1)
+    single = torch.linalg.inv(torch.linalg.inv(P0) + measurement_information(truth, model, R)).mean(0)
+    torch.testing.assert_close(one.filtering, single, rtol=1e-9, atol=1e-9)
+
+
+def test_finite_memory_window_equals_a_filtering_pass_over_that_window(tracks):
+    from pmsr_nn.bounds import finite_memory_pcrb
+
+    motion, model, truth, R = tracks
+    L, k = 4, 9
+    window = pcrb(truth[:, k - L + 1 : k + 1], motion, DT, Q_PSD, model, R, P0, smoothing=False)
+    bound = finite_memory_pcrb(truth, motion, DT, Q_PSD, model, R, P0, memory=L, chunk_windows=7)
+    torch.testing.assert_close(bound.filtering[k], window.filtering[-1], rtol=1e-10, atol=1e-10)
+    # less memory, less information: every step's position bound is at least the full filter's
+    full = pcrb(truth, motion, DT, Q_PSD, model, R, P0, smoothing=False)
+    assert bool((bound.position_rmse() >= full.position_rmse() * (1 - 1e-12)).all())

@@ -251,6 +251,15 @@ class TrackRecipe:
         initial = replace(self.motion.initial, accel_mps2=ev.accel_mps2, bearing_deg=ev.bearing_deg)
         return replace(self.motion, q_psd=ev.q_psd, initial=initial)
 
+    def initiation_prior_sd(self):
+        """Deviations ``(dim_x,)`` of the prior the classical filters and the bounds start from:
+        100 m, 5 m/s (a coarse first fix, as a track initiator gives) and the recipe's largest
+        initial acceleration (m/s^2), per axis."""
+        import torch
+
+        accel = self.effective_motion().initial.accel_mps2[1]
+        return torch.tensor([100.0, 5.0, max(accel, 0.01)] * self.dim, dtype=torch.float64)
+
     def with_overrides(self, **kw) -> "TrackRecipe":
         """A copy with top-level fields replaced (validated again)."""
         try:
