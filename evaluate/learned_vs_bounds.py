@@ -130,6 +130,11 @@ def run(trackers: dict[str, Tracker], dataset: Path, split: str, seed: int, max_
                         "memory_bound_velocity_mps": avg(mb.velocity_rmse()),
                         "steps_below_memory_bound": int((p_curve[start:] < mb.position_rmse()[start:]).sum())})
             row["over_memory_bound"] = row["position_rmse_m"] / row["memory_bound_position_m"]
+            # What Eq. 29 sees: RMSE of each normalised state component. A component the
+            # measurements barely inform (acceleration) can dominate the training loss.
+            sc = trackers[name].state_scaler
+            e_n = sc.normalise(x[:, start:]) - sc.normalise(truth[:, start:])
+            row["normalised_rmse_per_component"] = dict(zip(man["columns"]["states"], (e_n**2).mean((0, 1)).sqrt().tolist()))
         rows.append(row)
     curves["PCRB filtering"] = pcrb_pos.tolist()
     curves["PCRB smoothing"] = smooth_pos.tolist()

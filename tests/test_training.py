@@ -261,3 +261,30 @@ def test_select_keeps_the_member_with_the_best_fresh_track_rmse(tmp_path):
     best = min(res["members"], key=lambda r: r["fresh_pos_rmse_m"])
     assert res["best"] == best["member"]
     assert (tmp_path / "sel" / "best.pt").read_bytes() == (Path(best["run"]) / "tracker.pt").read_bytes()
+
+
+@pytest.mark.parametrize("name", ["smoke", "mdfnn", "dfnn", "rnn"])
+def test_shipped_training_configs_load(name):
+    root = Path(__file__).resolve().parents[1]
+    cfg = load_train_config(root / "train" / f"{name}.yaml")
+    assert cfg.name == name and cfg.model.kind == ("mdfnn" if name == "smoke" else name)
+    if name != "smoke":
+        assert cfg.model.hidden == (384, 225, 540) or cfg.model.kind == "rnn"
+        assert cfg.data.window == 100
+
+
+def test_learned_vs_bounds_study_runs_on_a_tiny_run(run, tmp_path, capsys):
+    import importlib.util
+
+    script = Path(__file__).resolve().parents[1] / "evaluate" / "learned_vs_bounds.py"
+    spec = importlib.util.spec_from_file_location("learned_vs_bounds", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    assert study.main(["--tracker", f"TINY={run / 'run' / 'tracker.pt'}", "--split", "val", "--out", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "results.json").read_text())
+    rows = {r["method"]: r for r in res["rows"]}
+    assert set(rows) == {"TINY", "EKF", "UKF"} and rows["TINY"]["memory_scans"] == 9
+    # less memory can only cost: the finite-memory bound sits on or above the filtering bound
+    assert res["bounds"]["memory_9"]["position_m"] >= res["bounds"]["filtering"]["position_m"]
+    assert not rows["TINY"]["below_bound"] and rows["TINY"]["over_memory_bound"] > 1
+    assert (tmp_path / "rmse.png").stat().st_size > 0 and "finite-memory" in capsys.readouterr().out
