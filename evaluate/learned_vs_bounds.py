@@ -149,6 +149,24 @@ def run(trackers: dict[str, Tracker], dataset: Path, split: str, seed: int, max_
             "checkpoints": {name: t.source for name, t in trackers.items()}}
 
 
+def training_summary(tracker: Tracker) -> dict | None:
+    """From the run's metrics.json (next to the checkpoint): epochs, steps, and how much the
+    validation position RMSE still fell over the last quarter of training (a budget-limited run
+    is still falling)."""
+    path = Path(tracker.source).resolve().parent
+    path = path / "metrics.json" if (path / "metrics.json").is_file() else path.parent / "metrics.json"
+    if not path.is_file():
+        return None
+    m = json.loads(path.read_text())
+    h = [r["val_pos_rmse_m"] for r in m.get("history", [])]
+    if not h:
+        return None
+    q = max(1, len(h) // 4)
+    return {"epochs": m["epochs"], "steps": m["global_step"], "first_val_pos_rmse_m": h[0], "last_val_pos_rmse_m": h[-1],
+            "best_val_pos_rmse_m": min(h), "fall_over_last_quarter": 1 - min(h[-q:]) / min(h[:-q] or h),
+            "train_windows_per_second": m.get("train_windows_per_second")}
+
+
 def table(res: dict) -> str:
     lines = [f"{res['tracks']} {res['split']} tracks x {res['steps']} scans ({res['variant']} variant); "
              f"RMSE per step over tracks (Eq. 31), averaged over steps {res['from_step']}..{res['steps'] - 1}",
@@ -208,7 +226,13 @@ def main(argv=None) -> int:
         metrics = Path(trackers[next(iter(trackers))].source).parent / "metrics.json"
         dataset = Path(json.loads(metrics.read_text())["dataset"])
     res = run(trackers, dataset, a.split, a.seed, a.max_tracks)
+    res["training"] = {name: training_summary(t) for name, t in trackers.items()}
     print(table(res))
+    for name, s in res["training"].items():
+        if s:
+            print(f"{name}: {s['epochs']} epochs / {s['steps']} steps; validation position RMSE {s['first_val_pos_rmse_m']:.1f} -> "
+                  f"{s['last_val_pos_rmse_m']:.1f} m (best {s['best_val_pos_rmse_m']:.1f}); fell {100 * s['fall_over_last_quarter']:.1f} % "
+                  "over the last quarter of training")
     a.out.mkdir(parents=True, exist_ok=True)
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from run_info import run_info
