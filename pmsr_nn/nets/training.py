@@ -192,8 +192,6 @@ def _check_run_folder(out: Path, resume: bool) -> None:
     if out.exists() and any(out.iterdir()):
         hint = "; pass --resume to continue it" if (out / "config.yaml").is_file() else ""
         raise ConfigError(f"run folder {out} exists and is not empty{hint}, or choose another --out")
-    if not out.parent.exists():
-        raise ConfigError(f"parent directory {out.parent} does not exist")
 
 
 def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> dict:
@@ -230,7 +228,7 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
     L.seed_everything(cfg.seed, workers=True, verbose=False)
     module = TrackerModule(to_dict(cfg.model), to_dict(cfg.optim), meta, max_epochs=tc.max_epochs)
 
-    out.mkdir(exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     os.environ[_CHILD_ENV] = str(out.resolve())
     ckpt_dir = out / "checkpoints"
     best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor="val/pos_rmse_m", mode="min",
