@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,24 +20,16 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
+from scenario import ca_scenario  # noqa: E402
 
-from pmsr_nn.filters import Gaussian, SigmaPoints, ekf, ukf  # noqa: E402
-from pmsr_nn.rng import seeded_generator  # noqa: E402
-from pmsr_nn.simulation.recipe import TrackRecipe  # noqa: E402
-from pmsr_nn.simulation.tracks import build_models, generate_tracks  # noqa: E402
+from pmsr_nn.filters import SigmaPoints, ekf, ukf  # noqa: E402
 
 DT, Q_PSD, STEPS = 1.0, 1e-7, 100
 
 
 def scenario(n_tracks: int, device: str):
-    recipe = TrackRecipe()
-    recipe = replace(recipe, window=STEPS, motion=replace(recipe.motion, steps=STEPS))
-    motion, model = build_models(recipe)
-    batch, _ = generate_tracks(recipe, n_tracks, seeded_generator(0))
-    sd = torch.tensor([50.0, 3.0, 0.05] * 2, dtype=torch.float64)
-    x0 = batch.states[:, 0] + torch.randn(n_tracks, 6, generator=seeded_generator(1), dtype=torch.float64) * sd
-    prior = Gaussian(x0.to(device), torch.diag(sd**2).expand(n_tracks, 6, 6).contiguous().to(device))
-    return motion, model, batch.measurements.to(device), model.R(batch.noise_std).to(device), prior
+    sc = ca_scenario(n_tracks, STEPS, device)
+    return sc.motion, sc.model, sc.z, sc.R, sc.prior
 
 
 def filterpy_run(kind, motion, model, z, R, prior, n):

@@ -19,33 +19,24 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
+from scenario import ca_scenario  # noqa: E402
 
-from pmsr_nn.filters import Gaussian, SigmaPoints, ukf  # noqa: E402
+from pmsr_nn.filters import SigmaPoints, ukf  # noqa: E402
 from pmsr_nn.filters.particle import particle_filter  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402
-from pmsr_nn.simulation.recipe import TrackRecipe  # noqa: E402
-from pmsr_nn.simulation.tracks import build_models, generate_tracks  # noqa: E402
 
 DT = 1.0
 
 
 def scenario(n_tracks: int, steps: int, device: str):
-    recipe = TrackRecipe()
-    recipe = replace(recipe, window=steps, motion=replace(recipe.motion, steps=steps))
-    motion, model = build_models(recipe)
-    batch, _ = generate_tracks(recipe, n_tracks, seeded_generator(0))
-    sd = torch.tensor([50.0, 3.0, 0.05] * 2, dtype=torch.float64)
-    x0 = batch.states[:, 0] + torch.randn(n_tracks, 6, generator=seeded_generator(1), dtype=torch.float64) * sd
-    prior = Gaussian(x0.to(device), torch.diag(sd**2).expand(n_tracks, 6, 6).contiguous().to(device))
-    return (motion, model, batch.states.to(device), batch.measurements.to(device), model.R(batch.noise_std).to(device),
-            prior, recipe.effective_motion().q_psd)
+    sc = ca_scenario(n_tracks, steps, device)
+    return sc.motion, sc.model, sc.truth, sc.z, sc.R, sc.prior, sc.q
 
 
 def rmse(x: torch.Tensor, truth: torch.Tensor, idx) -> float:

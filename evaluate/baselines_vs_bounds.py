@@ -28,15 +28,10 @@ import torch
 
 from pmsr_nn.bounds import pcrb
 from pmsr_nn.filters import Gaussian, ekf, particle_filter, rts_smoother, si_kf, ukf, unscented_rts_smoother
+from pmsr_nn.metrics import pooled_rmse, rmse_over_time
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.recipe import TrackRecipe, load_recipe
 from pmsr_nn.simulation.tracks import build_models, generate_tracks
-
-
-def rmse(est: torch.Tensor, truth: torch.Tensor, idx, burn_in: int) -> float:
-    """Root of the mean (over tracks and steps after ``burn_in``) squared error on the ``idx`` components."""
-    err = (est - truth)[:, burn_in:][..., list(idx)]
-    return float((err**2).sum(-1).mean().sqrt())
 
 
 def bound_rmse(P: torch.Tensor, idx, burn_in: int) -> float:
@@ -89,8 +84,8 @@ def run(recipe: TrackRecipe, tracks: int, steps: int, burn_in: int, particles: i
         rows.append({
             "method": name,
             "kind": "smoother" if smoother else "filter",
-            "position_rmse_m": rmse(est.x, truth, pos, burn_in),
-            "velocity_rmse_mps": rmse(est.x, truth, vel, burn_in),
+            "position_rmse_m": pooled_rmse(est.x, truth, pos, burn_in),
+            "velocity_rmse_mps": pooled_rmse(est.x, truth, vel, burn_in),
             "mse_over_per_track_bound": float(ratio.mean()),
             "mse_over_per_track_bound_se": float(ratio.std() / len(ratio) ** 0.5),
             "seconds": seconds[name],
@@ -106,7 +101,7 @@ def run(recipe: TrackRecipe, tracks: int, steps: int, burn_in: int, particles: i
                 "velocity_rmse_mps": bound_rmse(getattr(b, which), vel, burn_in),
                 "seconds": seconds["PCRB (both forms)"],
             })
-    curves = {name: ((est.x - truth)[..., list(pos)] ** 2).sum(-1).mean(0).sqrt().tolist() for name, est in estimates.items()}
+    curves = {name: rmse_over_time(est.x, truth, pos).tolist() for name, est in estimates.items()}
     for form, b in bounds.items():
         curves[f"PCRB {form} (filtering)"] = b.position_rmse().tolist()
         curves[f"PCRB {form} (smoothing)"] = b.position_rmse("smoothing").tolist()

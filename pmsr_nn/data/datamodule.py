@@ -62,11 +62,10 @@ class TrackWindowDataModule(L.LightningDataModule):
         parts = np.array_split(pool, folds)
         self.tracks["val"] = np.sort(parts[fold])
         self.tracks["train"] = np.sort(np.concatenate([p for i, p in enumerate(parts) if i != fold]))
-        f = self.data.file
+        f, train = self.data.file, self.tracks["train"]  # sorted, as h5py's fancy indexing needs
         mm_z, mm_x = RunningMinMax(f["measurements"].shape[-1]), RunningMinMax(f["states"].shape[-1])
-        for i in self.tracks["train"]:
-            mm_z.update(f["measurements"][i])
-            mm_x.update(f["states"][i])
+        mm_z.update(f["measurements"][train])
+        mm_x.update(f["states"][train])
         self.measurement_scaler, self.state_scaler = mm_z.scaler(), mm_x.scaler()
 
     @property

@@ -8,7 +8,7 @@ from typing import Literal
 import lightning as L
 import torch
 
-from ..config import from_dict, require, to_dict
+from ..config import from_dict, require
 from ..data.normalise import MinMaxScaler
 from .config import ModelConfig
 from .networks import build_network
@@ -131,7 +131,3 @@ class TrackerModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["pmsr"] = self.meta
-
-
-def module_hparams(model: ModelConfig, optim: OptimConfig) -> tuple[dict, dict]:
-    return to_dict(model), to_dict(optim)
