@@ -120,14 +120,39 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--split", choices=["train", "val", "test"], help="only this split")
     e.add_argument("--tracks", type=_positive_int, help="at most this many tracks")
 
+    ev = sub.add_parser(
+        "evaluate",
+        help="run every method of a scenario on the same Monte Carlo draws",
+        description="Run a scenario (evaluate/*.yaml): every method on the same truth and measurement draws, "
+        "the PCRB of each case; write OUT/results.json, OUT/report.md and PNG figures. With --shard I/N only a "
+        "slice of the Monte Carlo runs is run and OUT holds shard.json + blocks.npz for 'pmsr merge'.",
+    )
+    ev.add_argument("scenario", type=Path, help="scenario YAML, e.g. evaluate/fitee2023_three_trajectories.yaml")
+    ev.add_argument("--out", type=Path, required=True, help="output folder (new or empty unless --overwrite)")
+    ev.add_argument("--mc-runs", type=_positive_int, help="Monte Carlo runs per case (overrides the scenario's)")
+    ev.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
+                    help="use this checkpoint for learned method NAME (repeatable)")
+    ev.add_argument("--shard", default="1/1", metavar="I/N", help="run the I-th of N slices of the runs (default 1/1: all)")
+    ev.add_argument("--device", default="cpu", help="torch device for the learned trackers (default cpu)")
+    ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
+
+    mg = sub.add_parser("merge", help="combine the shards of a scenario run",
+                        description="Combine the output folders of 'pmsr evaluate --shard I/N' runs (all N of them) "
+                        "into the results, report and figures of the whole run.")
+    mg.add_argument("shards", type=Path, nargs="+", help="shard output folders")
+    mg.add_argument("--out", type=Path, required=True, help="output folder")
+    mg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+
     d = sub.add_parser(
         "demo",
-        help="the main job on its built-in default",
-        description="Simulate a small dataset of the built-in FITEE 2023 CA recipe in both variants "
-        "(envelope and literal), write them under --out and print their summaries.",
+        help="the main job on its built-in default (about 8 minutes on a 2-core CPU)",
+        description="Simulate a small dataset of the built-in FITEE 2023 CA recipe, train a small MDFNN and a "
+        "small RNN on it, evaluate them against the EKF, UKF, SI+KF and the PCRB on the three built-in "
+        "trajectories, print the comparison table and write the report (OUT/evaluation/report.md).",
     )
-    d.add_argument("--out", type=Path, default=DEMO_DIR, help=f"output directory (default {DEMO_DIR})")
-    d.add_argument("--tracks", type=_positive_int, help="tracks per dataset (default: the recipe's 70, the paper's scale)")
+    d.add_argument("--out", type=Path, default=DEMO_DIR, help=f"output folder (default {DEMO_DIR}; a previous demo there is replaced)")
+    d.add_argument("--mc-runs", type=_positive_int, default=20, help="Monte Carlo runs per trajectory (default 20)")
     return p
 
 
@@ -141,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
-                    "track": cmd_track, "export": cmd_export, "demo": cmd_demo}
+                    "track": cmd_track, "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge,
+                    "demo": cmd_demo}
         return commands[args.command](args)
     except PmsrError as exc:
         print(f"pmsr: error: {exc}", file=sys.stderr)
@@ -256,6 +282,52 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _checkpoint_overrides(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise PmsrError(f"--checkpoint expects NAME=PATH, got {item!r}")
+        out[name] = path
+    return out
+
+
+def print_summary(res: dict) -> None:
+    """The methods x cases position-RMSE table of a results.json."""
+    from .harness.report import summary_table
+
+    print("\n".join(summary_table(res, None, "", False)))
+
+
+def cmd_evaluate(args) -> int:
+    from .harness import evaluate
+    from .harness.runner import parse_shard
+
+    shard = parse_shard(args.shard)
+    t0 = time.perf_counter()
+    res = evaluate(args.scenario, args.out, mc_runs=args.mc_runs, checkpoints=_checkpoint_overrides(args.checkpoint),
+                   shard=shard, device=args.device, progress=not args.quiet, overwrite=args.overwrite)
+    if args.quiet:
+        return 0
+    if shard != (1, 1):
+        print(f"shard     {shard[0]}/{shard[1]} (blocks {res['blocks'][0]}..{res['blocks'][-1]}) -> {args.out} "
+              f"in {time.perf_counter() - t0:.1f} s; combine all shards with 'pmsr merge'")
+        return 0
+    print(f"position RMSE (m), Eq. 31 averaged after the warm-up; {res['mc_runs']} runs per case\n")
+    print_summary(res)
+    print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def cmd_merge(args) -> int:
+    from .harness import merge
+
+    res = merge(args.shards, args.out, overwrite=args.overwrite)
+    print_summary(res)
+    print(f"\nreport    {args.out / 'report.md'}")
+    return 0
+
+
 def cmd_info(args) -> int:
     from .data.store import open_dataset
 
@@ -273,23 +345,15 @@ def cmd_info(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .data.store import is_our_dataset, write_dataset
-    from .simulation.recipe import TrackRecipe
+    from .harness.demo import run_demo
 
-    from .plots import plot_dataset_tracks
-
-    args.out.mkdir(parents=True, exist_ok=True)
-    print("pmsr demo: the FITEE 2023 CA recipe (built-in defaults = datasets/fitee2023_ca.yaml), both variants\n")
-    for variant in ("envelope", "literal"):
-        out = args.out / f"fitee2023_ca_{variant}"
-        recipe = TrackRecipe(variant=variant).with_overrides(tracks=args.tracks)
-        t0 = time.perf_counter()
-        manifest = write_dataset(recipe, out, overwrite=is_our_dataset(out))
-        print(summarise(out, manifest, time.perf_counter() - t0))
-        print(f"figure    {plot_dataset_tracks(out, args.out / f'tracks_{variant}.png')}")
-        print()
-    print("The evaluation harness is not built yet, so this demo stops at the dataset. Train a tracker with\n"
-          "  pmsr train train/smoke.yaml --out runs/smoke   (about 10 s; train/mdfnn.yaml for the full MDFNN)")
+    _quiet_lightning()
+    res = run_demo(args.out, mc_runs=args.mc_runs)
+    print(f"\nposition RMSE (m), Eq. 31 averaged over steps {res['settings']['warmup_steps']}.. ; "
+          f"{res['mc_runs']} runs per trajectory; bold = below its own bound\n")
+    print_summary(res)
+    print(f"\nreport    {args.out / 'evaluation' / 'report.md'}   ({res['demo']['total_seconds'] / 60:.1f} min in all)")
+    print("full study: pmsr evaluate evaluate/fitee2023_three_trajectories.yaml --out runs/eval")
     return 0
 
 

@@ -3,8 +3,8 @@
 A typo'd key, a string where a number belongs or a missing required field is reported as a
 :class:`~pmsr_nn.errors.ConfigError` naming the dotted path of the offending entry (and the
 closest valid key for a typo). Supported field types: ``bool``, ``int``, ``float``, ``str``,
-``tuple[float, float]`` (an interval), ``tuple[X, ...]``, ``Literal[...]``, ``X | None`` and
-nested dataclasses.
+``tuple[float, float]`` (an interval), ``tuple[X, ...]``, ``Literal[...]``, ``X | None``,
+nested dataclasses and ``dict`` (a free mapping whose owner checks its keys).
 """
 
 from __future__ import annotations
@@ -85,6 +85,10 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
         if len(value) != len(args):
             raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
         return tuple(_convert(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
+    if tp is dict or origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {value!r}")
+        return dict(value)
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: expected true or false, got {value!r}")

@@ -1,0 +1,145 @@
+"""``pmsr evaluate`` and ``pmsr merge``: a scenario (or shard of one) into an output folder.
+
+An unsharded run writes ``results.json`` (schema in DESIGN.md), ``report.md`` and PNG figures.
+A shard ``I/N`` writes ``shard.json`` and ``blocks.npz`` (the raw per-block sums); ``merge``
+checks that the shards come from one scenario and cover every block once, then writes what the
+unsharded run would have (the same figures, bit for bit, timings aside). Output folders are
+built under a temporary name and renamed when complete: a failure leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from ..environment import environment
+from ..errors import ConfigError
+from .report import reference_table, write_report
+from .runner import DEFINITIONS, BlockSums, Setup, describe, finalise, prepare, run_blocks, shard_blocks
+from .scenario import Scenario, load_scenario, scenario_from_dict
+
+SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
+
+
+@contextmanager
+def atomic_dir(out: Path, overwrite: bool):
+    """Yield a temporary folder that becomes ``out`` only if the block completes."""
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise ConfigError(f"output folder {out} exists and is not empty (choose another --out or pass --overwrite)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)
+
+
+def _load(scenario: Scenario | str | Path, mc_runs: int | None, checkpoints: dict[str, str] | None) -> Scenario:
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    return sc.with_mc_runs(mc_runs).with_checkpoints(checkpoints or {})
+
+
+def _references(sc: Scenario) -> tuple[dict | None, dict | None, dict]:
+    if sc.reference is None:
+        return None, None, {}
+    path = sc.path(sc.reference.file)
+    table = reference_table(path, sc.reference.table)
+    timing = reference_table(path, sc.reference.timing) if sc.reference.timing else None
+    return table, timing, {"file": str(path), "table": sc.reference.table, "timing": sc.reference.timing,
+                           "label": sc.reference.label}
+
+
+def build_results(setup: Setup, bs: BlockSums, device: str) -> dict:
+    sc = setup.scenario
+    _, _, ref_info = _references(sc)
+    return {"scenario": sc.name, "seed": sc.seed, "mc_runs": sc.mc_runs, "environment": environment(device),
+            "description": sc.description, "settings": describe(setup), "definitions": DEFINITIONS,
+            "reference": ref_info, "cases": finalise(setup, bs)}
+
+
+def _examples(bs: BlockSums) -> dict:
+    return {c: {m: np.asarray(a) for m, a in per.items()} for c, per in bs.example.items()}
+
+
+def write_outputs(setup: Setup, bs: BlockSums, out: Path, device: str) -> dict:
+    """``results.json``, ``report.md`` and figures into ``out`` (an existing, empty folder)."""
+    sc = setup.scenario
+    res = build_results(setup, bs, device)
+    ref, timing, info = _references(sc)
+    (out / "results.json").write_text(json.dumps(res, indent=1, allow_nan=True) + "\n")
+    write_report(res, out, _examples(bs), setup.recipe.geometry.build(2), ref, timing, info.get("label", "paper"))
+    return res
+
+
+def evaluate(scenario: Scenario | str | Path, out: Path, *, mc_runs: int | None = None,
+             checkpoints: dict[str, str] | None = None, shard: tuple[int, int] = (1, 1), device: str = "cpu",
+             progress: bool = True, overwrite: bool = False) -> dict:
+    """Run a scenario (or one shard) into ``out``; returns results.json's content (or shard.json's)."""
+    sc = _load(scenario, mc_runs, checkpoints)
+    blocks = shard_blocks(sc.n_blocks, shard)
+    setup = prepare(sc, device)
+    _references(sc)  # a bad reference entry fails now, not after the run
+    with atomic_dir(out, overwrite) as tmp:
+        bs = run_blocks(setup, blocks, progress=progress)
+        if shard == (1, 1):
+            return write_outputs(setup, bs, tmp, device)
+        meta = {"format": SHARD_FORMAT, "shard": list(shard), "blocks": list(blocks), "scenario": sc.to_dict(),
+                "base_dir": sc.base_dir, "environment": environment(device)}
+        np.savez_compressed(tmp / "blocks.npz", **bs.to_arrays())
+        (tmp / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
+        return meta
+
+
+def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:
+    """Combine shard folders of one scenario into the full results in ``out``."""
+    metas, parts = [], []
+    for d in shards:
+        d = Path(d)
+        try:
+            meta = json.loads((d / "shard.json").read_text())
+        except (OSError, ValueError):
+            raise ConfigError(f"{d} is not a shard folder of 'pmsr evaluate --shard' (no readable shard.json)") from None
+        if meta.get("format") != SHARD_FORMAT:
+            raise ConfigError(f"{d}/shard.json is not a {SHARD_FORMAT} file")
+        try:
+            with np.load(d / "blocks.npz", allow_pickle=False) as f:
+                parts.append(BlockSums.from_arrays({k: f[k] for k in f.files}))
+        except (OSError, ValueError, KeyError) as exc:
+            raise ConfigError(f"{d}/blocks.npz is missing or corrupted ({exc})") from None
+        metas.append(meta)
+    first = metas[0]
+    for d, m in zip(shards, metas):
+        if m["scenario"] != first["scenario"]:
+            raise ConfigError(f"{d} comes from another scenario or settings than {shards[0]}")
+    order = sorted(range(len(parts)), key=lambda i: parts[i].blocks[0] if parts[i].blocks else -1)
+    merged = BlockSums([b for i in order for b in parts[i].blocks])
+    sc = scenario_from_dict(first["scenario"], first["base_dir"])
+    if merged.blocks != list(range(sc.n_blocks)):
+        raise ConfigError(f"the shards cover blocks {merged.blocks}; the scenario has blocks 0..{sc.n_blocks - 1}, "
+                          "each needed exactly once")
+    for i in order:
+        p = parts[i]
+        for c in p.sums:
+            for m in p.sums[c]:
+                dst = merged.sums.setdefault(c, {}).setdefault(m, {})
+                for q, a in p.sums[c][m].items():
+                    dst[q] = a if q not in dst else np.concatenate([dst[q], a])
+                for name in ("run_mse", "seconds"):
+                    src, tgt = getattr(p, name)[c][m], getattr(merged, name).setdefault(c, {})
+                    tgt[m] = src if m not in tgt else np.concatenate([tgt[m], src])
+        for c, per in p.example.items():
+            merged.example.setdefault(c, {}).update(per)
+    setup = prepare(sc, device)
+    with atomic_dir(out, overwrite) as tmp:
+        res = write_outputs(setup, merged, tmp, device)
+    return res

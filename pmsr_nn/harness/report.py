@@ -1,0 +1,223 @@
+"""``report.md`` and PNG figures from a ``results.json`` dict (and the example run's estimates).
+
+The paper's numbers, where the scenario names a reference table, are printed in their own
+column labelled as the paper's; they are read from the reference file and never enter a figure
+of ours.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+
+
+def reference_table(path: Path, dotted: str) -> dict:
+    """The entry ``dotted`` (``a.b.c``) of the JSON reference file at ``path``."""
+    try:
+        node = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"reference file {path}: {exc}") from None
+    for key in dotted.split("."):
+        if not isinstance(node, dict) or key not in node:
+            raise ConfigError(f"reference file {path} has no entry {dotted!r}")
+        node = node[key]
+    return node
+
+
+def paper_value(ref: dict | None, case: str, method: str, single_case: bool):
+    if not ref:
+        return None
+    row = ref if single_case else ref.get(case, {})
+    v = row.get(method) if isinstance(row, dict) else None
+    return v if isinstance(v, (int, float)) else None
+
+
+def _f(v, digits=2) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float) and not np.isfinite(v):
+        return str(v)
+    return f"{v:.{digits}f}"
+
+
+def case_table(name: str, case: dict, ref: dict | None, ref_label: str, single_case: bool) -> list[str]:
+    lines = [f"### {case['title']} (`{name}`, {case['steps']} steps)", "",
+             f"| method | causal | pos RMSE (m) | vel RMSE (m/s) | own bound (m) | RMSE / bound | ANEES | diverged runs | "
+             f"pooled pos RMSE (m) | {ref_label}: pos RMSE (m) |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for m, r in case["methods"].items():
+        rmse = _f(r["rmse_pos_m"])
+        if r["below_bound"]:
+            rmse = f"**{rmse}** (below its bound!)"
+        causal = "yes" if r["causal"] else "no (looks ahead)"
+        lines.append(f"| {m} | {causal} | {rmse} | {_f(r['rmse_vel_mps'], 3)} | {_f(r['bound_pos_m'])} ({r['bound']}) | "
+                     f"{_f(r['over_bound'])} | {_f(r['anees'])} | {r['diverged_runs']} / {r['runs']} | "
+                     f"{_f(r['rmse_pos_pooled_m'])} | {_f(paper_value(ref, name, m, single_case))} |")
+    p = case["pcrb"]
+    lines.append(f"| PCRB filtering | | {_f(p['pos_m'])} | {_f(p['vel_mps'], 3)} | | | | | | |")
+    lines.append(f"| PCRB smoothing | | {_f(p['smoothing_pos_m'])} | {_f(p['smoothing_vel_mps'], 3)} | | | | | | |")
+    lines.append(f"| PCRB filtering, q = 0 (floor) | | {_f(p['q0_pos_m'])} | | | | | | | |")
+    return lines
+
+
+def summary_table(res: dict, ref: dict | None, ref_label: str, single_case: bool) -> list[str]:
+    """Methods x cases, ours beside the paper's (the layout of the MDFNN paper's Table 6)."""
+    names = list(res["cases"])
+    head = "| method | " + " | ".join(f"{c} ours | {c} {ref_label}" if ref else f"{c}" for c in names) + " |"
+    lines = [head, "|---|" + "---:|" * (len(names) * (2 if ref else 1))]
+    methods = list(next(iter(res["cases"].values()))["methods"])
+    for m in methods:
+        cells = []
+        for c in names:
+            r = res["cases"][c]["methods"][m]
+            v = _f(r["rmse_pos_m"])
+            cells.append(f"**{v}**" if r["below_bound"] else v)
+            if ref:
+                cells.append(_f(paper_value(ref, c, m, single_case)))
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    cells = []
+    for c in names:
+        cells.append(_f(res["cases"][c]["pcrb"]["pos_m"]))
+        if ref:
+            cells.append("-")
+    lines.append("| PCRB (filtering, per trajectory) | " + " | ".join(cells) + " |")
+    cells = []
+    for c in names:
+        cells.append(_f(res["cases"][c]["pcrb"]["q0_pos_m"]))
+        if ref:
+            cells.append("-")
+    lines.append("| PCRB with q = 0 (floor) | " + " | ".join(cells) + " |")
+    return lines
+
+
+def timing_table(res: dict, ref_timing: dict | None, ref_label: str) -> list[str]:
+    cases = list(res["cases"].values())
+    methods = list(cases[0]["methods"])
+    mc = res["mc_runs"]
+    lines = [f"| method | seconds per run (mean over cases) | ms for {mc} runs of one case | {ref_label}: ms |",
+             "|---|---:|---:|---:|"]
+    for m in methods:
+        s = float(np.mean([c["methods"][m]["seconds_per_run"] for c in cases]))
+        ref = ref_timing.get(m) if ref_timing else None
+        lines.append(f"| {m} | {s:.4f} | {1e3 * s * mc:.0f} | {_f(ref, 1)} |")
+    return lines
+
+
+def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dict | None, ref_timing: dict | None,
+                 ref_label: str = "paper") -> list[Path]:
+    """Write ``out/report.md`` and the figures; returns the files written."""
+    single_case = bool(ref) and not any(isinstance(v, dict) for v in ref.values())
+    figures = plot_rmse(res, out) + [plot_trajectories(res, examples, recipe_geometry, out / "trajectories.png")]
+    env, st = res["environment"], res["settings"]
+    lines = [f"# {res['scenario']}: {res['mc_runs']} Monte Carlo runs per case, seed {res['seed']}", ""]
+    if res.get("description"):
+        lines += [res["description"].strip(), ""]
+    lines += [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg; "
+              f"recipe `{Path(st['recipe']).name}` ({st['variant']} variant, dt {st['dt_s']} s, q {st['q_psd']:g} m^2/s^5). "
+              f"Position RMSE = {res['definitions']['rmse_pos_m']} (warm-up {st['warmup_steps']} steps). "
+              "The pooled RMSE is given beside it; it weighs late, large errors more.", "",
+              "## Position RMSE (m)" + (", ours beside the paper's" if ref else ""), ""]
+    lines += summary_table(res, ref, ref_label, single_case)
+    lines.append("")
+    if ref:
+        info = res["reference"]
+        lines += [f"Columns marked *{ref_label}* are the paper's numbers, read from `{Path(info['file']).name}` "
+                  f"(`{info['table']}`) for reference only; the paper's trajectories are not given numerically, so "
+                  "they compare in order of magnitude and ranking, not digit by digit.", ""]
+    flagged = [(c, m) for c, v in res["cases"].items() for m, r in v["methods"].items() if r["below_bound"]]
+    if flagged:
+        floor = [(c, m) for c, m in flagged if res["cases"][c]["methods"][m]["below_q0_bound"]]
+        anees = [res["cases"][c]["methods"][m]["anees"] for c, m in flagged]
+        known = [a for a in anees if a is not None]
+        lines += ["**Below the bound (bold):** " + ", ".join(f"{m} on {c}" for c, m in flagged) + ". "
+                  "The per-trajectory PCRB assumes, like the filters, that the target's acceleration wanders with "
+                  "jerk PSD q; the designed trajectories have no such process noise, so a filter's error on them "
+                  "lacks the part the bound reserves for it"
+                  + (f" (the flagged methods' ANEES of {min(known):.2f}-{max(known):.2f} says the same: their errors are "
+                     "smaller than their own covariances)" if known else "") +
+                  ". The floor for these flights is the bound with q = 0 (last row); "
+                  + ("**" + ", ".join(f"{m} on {c}" for c, m in floor) + " is below even that floor: a bug or a "
+                     "mismatch to investigate.**" if floor else "no method is below it."), ""]
+    lines += ["## Per case", ""]
+    for name, case in res["cases"].items():
+        lines += case_table(name, case, ref, ref_label, single_case) + [""]
+        lines += [f"![RMSE vs time]({name}_rmse.png)", ""]
+    lines += ["Causal methods are compared with the filtering bound, methods that look ahead with the smoothing bound. "
+              "Diverged runs are counted and kept in the averages.", "",
+              "## Trajectories", "", "![trajectories](trajectories.png)", "",
+              "## Run time (measured in this run)", ""]
+    lines += timing_table(res, ref_timing, ref_label)
+    lines += ["", f"Environment: pmsr_nn {env['pmsr_nn']}, torch {env['torch']}, {env['machine']}, device {env['device']}, "
+              f"{env['threads']} threads, {env['date']}, commit {env['commit']}. Command: `{env['command']}`.", "",
+              "## Definitions", ""]
+    lines += [f"- `{k}`: {v}" for k, v in res["definitions"].items()]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    return [out / "report.md", *figures]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_rmse(res: dict, out: Path) -> list[Path]:
+    """One figure per case: position RMSE vs step for every method, with the PCRB (Fig. 9 analogue)."""
+    plt = _plt()
+    paths = []
+    dt = res["settings"]["dt_s"]
+    for name, case in res["cases"].items():
+        fig, ax = plt.subplots(figsize=(8, 4.8))
+        t = np.arange(case["steps"]) * dt
+        for m, curve in case["curves"]["rmse_pos_m"].items():
+            ax.semilogy(t, curve, lw=1.2, label=m)
+        ax.semilogy(t, case["curves"]["pcrb_pos_m"], "k--", lw=1.4, label="PCRB (filtering)")
+        ax.semilogy(t, case["curves"]["pcrb_q0_pos_m"], "--", color="grey", lw=1.0, label="PCRB, q = 0 (floor)")
+        if any(not r["causal"] for r in case["methods"].values()):
+            ax.semilogy(t, case["curves"]["pcrb_smoothing_pos_m"], "k:", lw=1.4, label="PCRB (smoothing)")
+        ax.axvline(res["settings"]["warmup_steps"] * dt, color="grey", lw=0.8)
+        ax.set(xlabel="time (s)", ylabel="position RMSE (m)", title=f"{case['title']}: {res['mc_runs']} runs")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8, ncol=2)
+        fig.tight_layout()
+        p = out / f"{name}_rmse.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+    return paths
+
+
+def plot_trajectories(res: dict, examples: dict, geometry, path: Path) -> Path:
+    """Sensors, every case's true trajectory and one run's estimates (Fig. 8 / 12 analogue)."""
+    plt = _plt()
+    names = list(res["cases"])
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(4.2 * (len(names) + 1), 4.4))
+    ax0 = axes[0]
+    for tx in geometry.transmitters:
+        ax0.plot(tx.position_m[0] / 1e3, tx.position_m[1] / 1e3, "k^", ms=9)
+    for rx in geometry.receivers:
+        ax0.plot(rx.position_m[0] / 1e3, rx.position_m[1] / 1e3, "bv", ms=7)
+    for name in names:
+        truth = np.asarray(res["cases"][name]["truth_pos_m"])
+        ax0.plot(truth[:, 0] / 1e3, truth[:, 1] / 1e3, lw=1.6, label=name)
+        ax0.plot(truth[0, 0] / 1e3, truth[0, 1] / 1e3, "ko", ms=3)
+    ax0.set(xlabel="east (km)", ylabel="north (km)", title="sensors (^ Tx, v Rx) and true trajectories", aspect="equal")
+    ax0.legend(fontsize=7)
+    for ax, name in zip(axes[1:], names):
+        truth = np.asarray(res["cases"][name]["truth_pos_m"])
+        ax.plot(truth[:, 0] / 1e3, truth[:, 1] / 1e3, "k", lw=2.2, label="truth")
+        for m, est in examples.get(name, {}).items():
+            ax.plot(est[:, 0] / 1e3, est[:, 1] / 1e3, lw=0.8, label=m)
+        ax.set(xlabel="east (km)", title=f"{res['cases'][name]['title']}: run 0", aspect="equal")
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

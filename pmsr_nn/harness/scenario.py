@@ -1,0 +1,221 @@
+"""Evaluation scenarios: what is simulated, how often, and which methods run on it (YAML).
+
+A scenario names a dataset recipe (or takes the built-in one) (sensor geometry, motion model and its q, sampling interval,
+Table 1 envelope), overrides its measurement noise with fixed deviations, and lists
+
+* ``cases``: fixed true trajectories (:class:`CaseSpec`, drawn by :mod:`.trajectories`), each
+  seen by every method through the same ``mc_runs`` measurement-noise draws;
+* ``methods``: classical filters and learned trackers with their settings (:class:`MethodSpec`).
+
+Paths (recipe, checkpoints, reference file) are relative to the scenario file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from ..config import from_dict, load_yaml, require
+from ..errors import ConfigError
+
+MethodKind = Literal["ekf", "ukf", "si_kf", "particle_filter", "learned"]
+
+METHOD_OPTIONS: dict[str, dict[str, object]] = {
+    "ekf": {},
+    "ukf": {},
+    # refine_steps 0 is the paper's plain spherical interpolation
+    "si_kf": {"refine_steps": 0},
+    "particle_filter": {"particles": 2000, "roughening": 0.2},
+    "learned": {"stride": None},
+}
+"""Options each method kind accepts, with their defaults."""
+
+
+@dataclass(frozen=True)
+class SegmentSpec:
+    """A stretch of flight with constant along-track and cross-track acceleration (m/s^2).
+
+    ``across_mps2 > 0`` turns right (clockwise seen from above), ``along_mps2 > 0`` speeds up.
+    """
+
+    duration_s: float
+    along_mps2: float = 0.0
+    across_mps2: float = 0.0
+
+    def __post_init__(self) -> None:
+        require(self.duration_s > 0, f"segment duration_s must be positive, got {self.duration_s}")
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    """One fixed true trajectory: start (range and bearing from the first transmitter, clockwise
+    from north), initial speed and heading, then its segments; ``title`` names it in the report."""
+
+    name: str
+    start_range_m: float
+    start_bearing_deg: float
+    speed_mps: float
+    heading_deg: float
+    segments: tuple[SegmentSpec, ...] = ()
+    title: str = ""
+
+    def __post_init__(self) -> None:
+        require(bool(self.name), "a case needs a name")
+        require(len(self.segments) > 0, f"case {self.name!r}: the trajectory is empty (no segments)")
+        require(self.speed_mps >= 0, f"case {self.name!r}: speed_mps must be >= 0")
+
+    @property
+    def duration_s(self) -> float:
+        return sum(s.duration_s for s in self.segments)
+
+
+@dataclass(frozen=True)
+class FixedNoiseSpec:
+    """Measurement deviations used for every run (the paper's Section 4: 30 m, 2 m/s, 3 deg)."""
+
+    range_m: float = 30.0
+    range_rate_mps: float = 2.0
+    azimuth_deg: float = 3.0
+
+    def __post_init__(self) -> None:
+        require(min(self.range_m, self.range_rate_mps, self.azimuth_deg) > 0, "noise deviations must be positive")
+
+    def si(self) -> tuple[float, float, float]:
+        return self.range_m, self.range_rate_mps, math.radians(self.azimuth_deg)
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A method to run: ``kind`` picks the implementation, ``options`` its settings
+    (:data:`METHOD_OPTIONS`), ``checkpoint`` the trained tracker of a ``learned`` method."""
+
+    name: str
+    kind: MethodKind
+    checkpoint: str | None = None
+    options: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        require(bool(self.name) and "/" not in self.name, f"method name {self.name!r} must be non-empty, without '/'")
+        if self.kind == "learned":
+            require(self.checkpoint is not None, f"method {self.name!r}: a learned method needs a checkpoint")
+        else:
+            require(self.checkpoint is None, f"method {self.name!r}: only a learned method takes a checkpoint")
+        allowed = METHOD_OPTIONS[self.kind]
+        unknown = sorted(set(self.options) - set(allowed))
+        require(not unknown, f"method {self.name!r}: unknown option(s) {unknown} for kind {self.kind!r} "
+                             f"(valid: {sorted(allowed) or 'none'})")
+
+    def option(self, key: str):
+        return self.options.get(key, METHOD_OPTIONS[self.kind][key])
+
+
+@dataclass(frozen=True)
+class ReferenceSpec:
+    """Where the paper's numbers for this scenario are: ``table`` is a dotted key into ``file``
+    whose value maps case name -> method -> number (or method -> number for one case);
+    ``timing`` optionally one mapping method -> milliseconds for the run-time table."""
+
+    table: str
+    file: str = "reference/paper_tables.json"
+    timing: str | None = None
+    label: str = "paper"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    cases: tuple[CaseSpec, ...]
+    methods: tuple[MethodSpec, ...]
+    recipe: str | None = None  # None: the built-in FITEE 2023 CA recipe (= datasets/fitee2023_ca.yaml)
+    seed: int = 0
+    mc_runs: int = 100
+    block_runs: int = 10
+    noise: FixedNoiseSpec = FixedNoiseSpec()
+    warmup_steps: int = 100
+    divergence_m: float = 1000.0
+    ramp_s: float = 60.0
+    reference: ReferenceSpec | None = None
+    description: str = ""
+    base_dir: str = field(default=".", init=False, compare=False)
+
+    def __post_init__(self) -> None:
+        require(self.mc_runs >= 1, f"mc_runs must be at least 1, got {self.mc_runs}")
+        require(self.block_runs >= 1, f"block_runs must be at least 1, got {self.block_runs}")
+        require(self.warmup_steps >= 0, f"warmup_steps must be >= 0, got {self.warmup_steps}")
+        require(self.divergence_m > 0, f"divergence_m must be positive, got {self.divergence_m}")
+        require(self.ramp_s >= 0, f"ramp_s must be >= 0, got {self.ramp_s}")
+        require(len(self.cases) > 0, "a scenario needs at least one case")
+        require(len(self.methods) > 0, "a scenario needs at least one method")
+        for what, names in (("case", [c.name for c in self.cases]), ("method", [m.name for m in self.methods])):
+            dup = sorted({n for n in names if names.count(n) > 1})
+            require(not dup, f"duplicate {what} name(s): {dup}")
+
+    def path(self, relative: str) -> Path:
+        """``relative`` resolved against the scenario file's folder (absolute paths unchanged)."""
+        p = Path(relative).expanduser()
+        return p if p.is_absolute() else Path(self.base_dir) / p
+
+    @property
+    def n_blocks(self) -> int:
+        return math.ceil(self.mc_runs / self.block_runs)
+
+    def block_runs_range(self, block: int) -> range:
+        return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
+
+    def with_mc_runs(self, mc_runs: int | None) -> "Scenario":
+        if mc_runs is None:
+            return self
+        return self.replace(mc_runs=mc_runs)
+
+    def with_checkpoints(self, checkpoints: dict[str, str]) -> "Scenario":
+        """Swap the checkpoint of named learned methods (``--checkpoint NAME=PATH``); the new
+        paths are taken as given (relative to the working directory)."""
+        by_name = {m.name: m for m in self.methods}
+        for name in checkpoints:
+            if name not in by_name:
+                raise ConfigError(f"--checkpoint {name}=...: the scenario has no method {name!r} "
+                                  f"(methods: {', '.join(by_name)})")
+            if by_name[name].kind != "learned":
+                raise ConfigError(f"--checkpoint {name}=...: {name!r} is a {by_name[name].kind}, not a learned method")
+        methods = tuple(dataclasses.replace(m, checkpoint=str(Path(checkpoints[m.name]).resolve()))
+                        if m.name in checkpoints else m for m in self.methods)
+        return self.replace(methods=methods)
+
+    def replace(self, **kw) -> "Scenario":
+        try:
+            new = dataclasses.replace(self, **kw)
+        except ConfigError as exc:
+            raise ConfigError(f"scenario {self.name!r}: {exc}") from None
+        object.__setattr__(new, "base_dir", self.base_dir)
+        return new
+
+    def to_dict(self) -> dict:
+        from ..config import to_dict
+
+        return to_dict(self)
+
+
+FITEE2023_TRAJECTORIES = (
+    CaseSpec("trajectory_1", 4000.0, 130.0, 10.0, 20.0, (SegmentSpec(1000.0),), "1: steady flight, 10 m/s"),
+    CaseSpec("trajectory_2", 9000.0, 35.0, 5.0, 180.0, (SegmentSpec(1000.0, along_mps2=0.015),),
+             "2: sustained acceleration, 5 to 20 m/s"),
+    CaseSpec("trajectory_3", 7800.0, 140.0, 12.0, 0.0, (SegmentSpec(300.0), SegmentSpec(700.0, across_mps2=0.02)),
+             "3: straight, then a 64-deg right turn"),
+)
+"""The three trajectories of ``evaluate/fitee2023_three_trajectories.yaml`` (a test keeps them
+equal), built in so that ``pmsr demo`` needs no file."""
+
+
+def scenario_from_dict(data: dict, base_dir: str | Path = ".", where: str = "scenario") -> Scenario:
+    sc = from_dict(Scenario, data, where=where)
+    object.__setattr__(sc, "base_dir", str(Path(base_dir).resolve()))
+    return sc
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load and validate a scenario YAML file (relative paths inside it are resolved against it)."""
+    p = Path(path)
+    return scenario_from_dict(load_yaml(p), p.parent, where=str(p))

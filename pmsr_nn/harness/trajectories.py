@@ -1,0 +1,92 @@
+"""Fixed true trajectories from a :class:`~.scenario.CaseSpec`: start, speed, heading, and
+segments of along-track / cross-track acceleration.
+
+The acceleration a segment asks for is reached through a linear ramp of ``ramp_s`` seconds
+from the previous segment's value (a jerk-limited manoeuvre onset rather than a step, which no
+CA tracker with a small q could follow). The flight is integrated with a fine sub-step and
+sampled every ``dt_s`` as a CA state ``[x, vx, ax, y, vy, ay]`` (the acceleration is the true
+one at the sample time, turning with the velocity in a turn).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ..errors import ConfigError
+from ..motion import ConstantAcceleration
+from ..simulation.recipe import TrackRecipe
+from ..simulation.tracks import build_models, envelope_violations
+from .scenario import CaseSpec
+
+SUBSTEPS = 100
+"""Integration sub-steps per sampling interval (semi-implicit; error far below a millimetre)."""
+
+
+def commanded_acceleration(case: CaseSpec, t: float, ramp_s: float) -> tuple[float, float]:
+    """(along, across) acceleration (m/s^2) asked for at time ``t`` (s)."""
+    start, prev = 0.0, (0.0, 0.0)
+    for i, seg in enumerate(case.segments):
+        target = (seg.along_mps2, seg.across_mps2)
+        if i == 0:
+            prev = target  # the flight starts already in its first segment
+        end = start + seg.duration_s
+        if t < end or i == len(case.segments) - 1:
+            w = 1.0 if ramp_s <= 0 else min(1.0, max(0.0, (t - start) / ramp_s))
+            return tuple(p + w * (c - p) for p, c in zip(prev, target))
+        start, prev = end, target
+    raise AssertionError("unreachable")
+
+
+def design_trajectory(case: CaseSpec, recipe: TrackRecipe, ramp_s: float) -> torch.Tensor:
+    """True states ``(K, 6)`` (float64, SI) sampled every ``recipe.motion.dt_s`` over the case's
+    duration, ``K = duration / dt`` (rounded down, at least one sample)."""
+    if recipe.dim != 2:
+        raise ConfigError("designed trajectories are planar; use a 2-D recipe")
+    dt = recipe.motion.dt_s
+    K = int(math.floor(case.duration_s / dt + 1e-9))
+    if K < 2:
+        raise ConfigError(f"case {case.name!r}: the trajectory is empty ({case.duration_s} s at dt = {dt} s)")
+    ox, oy = recipe.geometry.transmitters[0].position_m[:2]
+    b = math.radians(case.start_bearing_deg)
+    x, y = ox + case.start_range_m * math.sin(b), oy + case.start_range_m * math.cos(b)
+    psi = math.radians(case.heading_deg)
+    v = case.speed_mps
+    h = dt / SUBSTEPS
+    out = []
+    t = 0.0
+    for k in range(K):
+        for s in range(SUBSTEPS if k else 0):
+            along, across = commanded_acceleration(case, t, ramp_s)
+            # speed and heading (clockwise from north) change; position follows the velocity
+            v_new = max(0.0, v + along * h)
+            if v > 1e-9:
+                psi += across / v * h
+            x += 0.5 * (v + v_new) * math.sin(psi) * h
+            y += 0.5 * (v + v_new) * math.cos(psi) * h
+            v = v_new
+            t += h
+        t = k * dt  # no drift of the clock over many sub-steps
+        along, across = commanded_acceleration(case, t, ramp_s)
+        s_, c_ = math.sin(psi), math.cos(psi)
+        ax, ay = along * s_ + across * c_, along * c_ - across * s_
+        out.append([x, v * s_, ax, y, v * c_, ay])
+    return torch.tensor(out, dtype=torch.float64)
+
+
+def check_inside(truth: torch.Tensor, recipe: TrackRecipe, name: str) -> None:
+    """A :class:`ConfigError` if the trajectory leaves the recipe's envelope (where the learned
+    trackers were trained) or passes within ``min_sensor_distance_m`` of a sensor."""
+    motion = ConstantAcceleration(spatial_dim=recipe.dim)
+    bad = {k: bool(v[0]) for k, v in envelope_violations(recipe, truth[None], motion).items()}
+    left = [k for k, v in bad.items() if v]
+    if left:
+        env = recipe.envelope
+        raise ConfigError(f"case {name!r} leaves the recipe's envelope ({', '.join(left)}; range {env.range_m} m, "
+                          f"speed {env.speed_mps} m/s, azimuth {env.azimuth_deg} deg from the transmitter)")
+    _, model = build_models(recipe)
+    near = model.near_sensor(truth, recipe.min_sensor_distance_m)
+    if bool(near.any()):
+        k = int(near.nonzero()[0])
+        raise ConfigError(f"case {name!r} passes within {recipe.min_sensor_distance_m} m of a sensor at step {k}")

@@ -1,0 +1,213 @@
+"""The evaluation harness: scenarios, designed trajectories, same draws for every method,
+reproducibility, shards, the report, and bad input."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from pmsr_nn.cli import main
+from pmsr_nn.errors import CheckpointError, ConfigError
+from pmsr_nn.filters import ekf
+from pmsr_nn.harness import evaluate, load_scenario, merge
+from pmsr_nn.harness.runner import draw_block, prepare
+from pmsr_nn.harness.scenario import FITEE2023_TRAJECTORIES, CaseSpec, SegmentSpec, scenario_from_dict
+from pmsr_nn.harness.trajectories import design_trajectory
+from pmsr_nn.simulation.recipe import TrackRecipe
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ROOT / "evaluate" / "fitee2023_three_trajectories.yaml"
+
+
+def tiny(tmp_path: Path, **over) -> dict:
+    """A small scenario: two 150-s cases, 4 runs in blocks of 2, EKF, UKF, SI+KF and a released MDFNN."""
+    d = {
+        "name": "tiny", "seed": 3, "mc_runs": 4, "block_runs": 2, "warmup_steps": 100,
+        "reference": {"file": str(ROOT / "evaluate/reference/paper_tables.json"),
+                      "table": "fitee2023_mdfnn.table6_methods_rmse_pos_m"},
+        "cases": [
+            {"name": "trajectory_1", "start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0,
+             "heading_deg": 20.0, "segments": [{"duration_s": 150.0}]},
+            {"name": "trajectory_3", "start_range_m": 7800.0, "start_bearing_deg": 140.0, "speed_mps": 12.0,
+             "heading_deg": 0.0, "segments": [{"duration_s": 50.0}, {"duration_s": 100.0, "across_mps2": 0.02}]},
+        ],
+        "methods": [{"name": "EKF", "kind": "ekf"}, {"name": "UKF", "kind": "ukf"}, {"name": "SI+KF", "kind": "si_kf"},
+                    {"name": "MDFNN", "kind": "learned", "checkpoint": str(ROOT / "models/released/mdfnn.pt")}],
+    }
+    d.update(over)
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def accuracy(res: dict) -> dict:
+    """Everything of a results dict except the timings and the environment."""
+    return {c: {"methods": {m: {k: v for k, v in r.items() if k != "seconds_per_run"} for m, r in v["methods"].items()},
+                "pcrb": v["pcrb"], "curves": v["curves"]} for c, v in res["cases"].items()}
+
+
+# -- scenarios and trajectories ------------------------------------------------------------------
+
+def test_shipped_scenario_loads_and_its_cases_are_the_built_in_ones():
+    sc = load_scenario(SHIPPED)
+    assert sc.cases == FITEE2023_TRAJECTORIES
+    assert [m.name for m in sc.methods] == ["EKF", "UKF", "SI+KF", "PF", "DFNN", "MDFNN", "RNN"]
+    assert sc.mc_runs == 100 and sc.noise.si() == (30.0, 2.0, math.radians(3.0))
+    for m in sc.methods:
+        if m.checkpoint:
+            assert sc.path(m.checkpoint).is_file(), m.checkpoint
+
+
+def test_designed_trajectories_follow_their_kinematics():
+    recipe = TrackRecipe()
+    dt = recipe.motion.dt_s
+    t = torch.arange(1000, dtype=torch.float64) * dt
+    steady, accel, turn = (design_trajectory(c, recipe, 60.0) for c in FITEE2023_TRAJECTORIES)
+    # steady flight: straight line at constant velocity (closed form)
+    v = steady[0, [1, 4]]
+    assert torch.allclose(steady[:, [0, 3]], steady[0, [0, 3]] + t[:, None] * v, atol=1e-6)
+    # sustained acceleration along a straight path: s = v0 t + a t^2 / 2
+    s = torch.linalg.vector_norm(accel[:, [0, 3]] - accel[0, [0, 3]], dim=-1)
+    assert torch.allclose(s, 5.0 * t + 0.5 * 0.015 * t**2, atol=1e-6)
+    # the turn: constant speed; heading change = integral of across / v (60-s linear ramp, then held)
+    speed = torch.linalg.vector_norm(turn[:, [1, 4]], dim=-1)
+    assert torch.allclose(speed, torch.full_like(speed, 12.0), atol=1e-9)
+    heading = torch.atan2(turn[-1, 1], turn[-1, 4])
+    expected = 0.02 / 12.0 * (700.0 - 1.0 - 30.0)  # the ramp loses half its length; the last sample is at 999 s
+    assert float(heading) == pytest.approx(expected, abs=2e-3)
+    # the stored acceleration is the true one: it matches a central difference of the velocity
+    dv = (turn[2:, [1, 4]] - turn[:-2, [1, 4]]) / (2 * dt)
+    assert torch.allclose(dv[400:], turn[1:-1][400:, [2, 5]], atol=1e-6)
+
+
+def test_a_trajectory_leaving_the_envelope_is_refused(tmp_path):
+    sc = load_scenario(tiny(tmp_path, cases=[{"name": "far", "start_range_m": 10500.0, "start_bearing_deg": 90.0,
+                                               "speed_mps": 20.0, "heading_deg": 90.0, "segments": [{"duration_s": 200.0}]}]))
+    with pytest.raises(ConfigError, match="leaves the recipe's envelope"):
+        prepare(sc)
+
+
+# -- the same draws for every method, and what the figures mean ----------------------------------
+
+def test_every_method_sees_the_same_draws_and_the_rmse_is_eq31(tmp_path):
+    out = tmp_path / "out"
+    res = evaluate(tiny(tmp_path), out, progress=False)
+    sc = load_scenario(tmp_path / "tiny.yaml")
+    setup = prepare(sc)
+    case = setup.cases[0]
+    zs, priors = zip(*(draw_block(setup, 0, b) for b in range(sc.n_blocks)))
+    z = torch.cat(zs)
+    x0, P0 = torch.cat([p.x for p in priors]), torch.cat([p.P for p in priors])
+    from pmsr_nn.filters import Gaussian
+
+    m = setup.models
+    x = ekf(Gaussian(x0, P0), z, m.motion, m.dt, m.q, m.model, m.R).x
+    err2 = ((x - case.truth)[..., [0, 3]] ** 2).sum(-1)  # (runs, K)
+    curve = err2.mean(0).sqrt()
+    r = res["cases"]["trajectory_1"]["methods"]["EKF"]
+    assert r["rmse_pos_m"] == pytest.approx(float(curve[100:].mean()), rel=1e-12)
+    assert r["rmse_pos_pooled_m"] == pytest.approx(float(err2[:, 100:].mean().sqrt()), rel=1e-12)
+    # the measurements are the truth plus noise of the scenario's deviations
+    resid = m.model.residual(z, case.clean)
+    std = resid.reshape(-1, resid.shape[-1]).std(0)
+    assert torch.allclose(std, m.model.std_vector(m.noise_std), rtol=0.15)  # 600 samples: 99.9 % within ~10 %
+    for f in ("results.json", "report.md", "trajectories.png", "trajectory_1_rmse.png", "trajectory_3_rmse.png"):
+        assert (out / f).is_file(), f
+    assert set(res["cases"]["trajectory_1"]["methods"]) == {"EKF", "UKF", "SI+KF", "MDFNN"}
+    assert {"pmsr_nn", "torch", "device", "threads"} <= set(res["environment"])
+    report = (out / "report.md").read_text()
+    assert "7.47" in report and "paper" in report  # the paper's EKF number for trajectory_1, labelled
+    assert res["cases"]["trajectory_1"]["methods"]["MDFNN"]["causal"] is True
+
+
+def test_same_seed_same_figures_and_shards_merge_to_the_unsharded_run(tmp_path):
+    path = tiny(tmp_path)
+    a = evaluate(path, tmp_path / "a", progress=False)
+    b = evaluate(path, tmp_path / "b", progress=False)
+    assert accuracy(a) == accuracy(b)
+    evaluate(path, tmp_path / "s1", shard=(1, 2), progress=False)
+    evaluate(path, tmp_path / "s2", shard=(2, 2), progress=False)
+    assert not (tmp_path / "s1" / "results.json").exists()
+    merged = merge([tmp_path / "s2", tmp_path / "s1"], tmp_path / "m")
+    assert accuracy(merged) == accuracy(a)  # bit for bit: the same per-block sums reduced in the same order
+    assert json.loads((tmp_path / "m" / "results.json").read_text())["mc_runs"] == 4
+    c = evaluate(tiny(tmp_path, seed=4), tmp_path / "c", progress=False)
+    assert accuracy(c) != accuracy(a)
+
+
+def test_merge_refuses_incomplete_or_mixed_shards(tmp_path):
+    path = tiny(tmp_path)
+    evaluate(path, tmp_path / "s1", shard=(1, 2), progress=False)
+    with pytest.raises(ConfigError, match="each needed exactly once"):
+        merge([tmp_path / "s1"], tmp_path / "m")
+    evaluate(tiny(tmp_path, seed=9), tmp_path / "t2", shard=(2, 2), progress=False)
+    with pytest.raises(ConfigError, match="another scenario"):
+        merge([tmp_path / "s1", tmp_path / "t2"], tmp_path / "m")
+    with pytest.raises(ConfigError, match="not a shard folder"):
+        merge([tmp_path], tmp_path / "m")
+    assert not (tmp_path / "m").exists()
+
+
+# -- bad input: one line, exit 2, nothing written -----------------------------------------------
+
+@pytest.mark.parametrize("change, extra, message", [
+    ({"methods": [{"name": "X", "kind": "kalman9000"}]}, [], "must be one of"),
+    ({"methods": [{"name": "M", "kind": "learned", "checkpoint": "nowhere.pt"}]}, [], "nowhere.pt"),
+    ({"cases": [{"name": "e", "start_range_m": 5000.0, "start_bearing_deg": 90.0, "speed_mps": 1.0,
+                 "heading_deg": 0.0, "segments": []}]}, [], "trajectory is empty"),
+    ({}, ["--shard", "3/2"], "1 <= I <= N"),
+    ({}, ["--shard", "2/3"], "only 2 block"),
+    ({}, ["--checkpoint", "EKF=x.pt"], "not a learned method"),
+    ({"methods": [{"name": "EKF", "kind": "ekf", "options": {"particles": 5}}]}, [], "unknown option"),
+])
+def test_bad_scenarios_get_one_line_errors_and_leave_nothing(tmp_path, capsys, change, extra, message):
+    path = tiny(tmp_path, **change)
+    out = tmp_path / "out"
+    assert main(["evaluate", str(path), "--out", str(out), "--quiet", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pmsr: error:") and message in err and "\n" not in err
+    assert not out.exists()
+    assert not list(tmp_path.glob("out.partial-*"))
+
+
+def test_a_checkpoint_for_another_geometry_is_refused(tmp_path):
+    recipe = yaml.safe_load((ROOT / "datasets/fitee2023_ca.yaml").read_text())
+    recipe["geometry"]["receivers"][0]["bearing_deg"] = 200.0
+    (tmp_path / "recipe.yaml").write_text(yaml.safe_dump(recipe))
+    sc = load_scenario(tiny(tmp_path, recipe=str(tmp_path / "recipe.yaml")))
+    with pytest.raises(CheckpointError, match="another sensor geometry"):
+        prepare(sc)
+
+
+def test_an_existing_output_is_not_overwritten_unless_asked(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    path = tiny(tmp_path, methods=[{"name": "EKF", "kind": "ekf"}], mc_runs=2)
+    with pytest.raises(ConfigError, match="not empty"):
+        evaluate(path, out, progress=False)
+    assert (out / "keep.txt").read_text() == "mine"
+    evaluate(path, out, progress=False, overwrite=True)
+    assert (out / "results.json").is_file() and not (out / "keep.txt").exists()
+
+
+def test_checkpoint_override_swaps_a_learned_method(tmp_path):
+    path = tiny(tmp_path, mc_runs=2)
+    res = evaluate(load_scenario(path).with_checkpoints({"MDFNN": str(ROOT / "models/released/dfnn.pt")}),
+                   tmp_path / "o", progress=False)
+    assert res["cases"]["trajectory_1"]["methods"]["MDFNN"]["model"] == "dfnn"
+
+
+def test_scenario_errors_name_the_key():
+    with pytest.raises(ConfigError, match="did you mean 'mc_runs'"):
+        scenario_from_dict({"name": "x", "mc_run": 3, "cases": [], "methods": []})
+    with pytest.raises(ConfigError, match="duplicate case"):
+        c = CaseSpec("a", 5000.0, 90.0, 1.0, 0.0, (SegmentSpec(200.0),))
+        from pmsr_nn.harness.scenario import MethodSpec, Scenario
+
+        Scenario(name="x", cases=(c, c), methods=(MethodSpec("EKF", "ekf"),))
+    assert np.isfinite(1.0)
