@@ -36,6 +36,11 @@ def paper_value(ref: dict | None, case: str, method: str, single_case: bool):
     return v if isinstance(v, (int, float)) else None
 
 
+def _span(values) -> str:
+    lo, hi = min(values), max(values)
+    return f"{lo:.2f}" if f"{lo:.2f}" == f"{hi:.2f}" else f"{lo:.2f}-{hi:.2f}"
+
+
 def _f(v, digits=2) -> str:
     if v is None:
         return "-"
@@ -79,18 +84,9 @@ def summary_table(res: dict, ref: dict | None, ref_label: str, single_case: bool
             if ref:
                 cells.append(_f(paper_value(ref, c, m, single_case)))
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
-    cells = []
-    for c in names:
-        cells.append(_f(res["cases"][c]["pcrb"]["pos_m"]))
-        if ref:
-            cells.append("-")
-    lines.append("| PCRB (filtering, per trajectory) | " + " | ".join(cells) + " |")
-    cells = []
-    for c in names:
-        cells.append(_f(res["cases"][c]["pcrb"]["q0_pos_m"]))
-        if ref:
-            cells.append("-")
-    lines.append("| PCRB with q = 0 (floor) | " + " | ".join(cells) + " |")
+    for key, label in (("pos_m", "PCRB (filtering, per trajectory)"), ("q0_pos_m", "PCRB with q = 0 (floor)")):
+        cells = [cell for c in names for cell in [_f(res["cases"][c]["pcrb"][key])] + (["-"] if ref else [])]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -98,12 +94,17 @@ def timing_table(res: dict, ref_timing: dict | None, ref_label: str) -> list[str
     cases = list(res["cases"].values())
     methods = list(cases[0]["methods"])
     mc = res["mc_runs"]
-    lines = [f"| method | seconds per run (mean over cases) | ms for {mc} runs of one case | {ref_label}: ms |",
+    lines = [f"| method | ms per run (median over cases) | ms for {mc} runs of one case | {ref_label}: ms |",
              "|---|---:|---:|---:|"]
     for m in methods:
-        s = float(np.mean([c["methods"][m]["seconds_per_run"] for c in cases]))
+        s = float(np.median([c["methods"][m]["seconds_per_run"] for c in cases]))
         ref = ref_timing.get(m) if ref_timing else None
-        lines.append(f"| {m} | {s:.4f} | {1e3 * s * mc:.0f} | {_f(ref, 1)} |")
+        lines.append(f"| {m} | {1e3 * s:.2f} | {1e3 * s * mc:.0f} | {_f(ref, 1)} |")
+    steps = cases[0]["steps"]
+    lines += ["", f"Wall-clock of whole calls on blocks of {res['settings']['block_runs']} runs x {steps} scans (all runs "
+              "of a block at once), divided by the runs; learned trackers include windowing and splicing."]
+    if ref_timing and ref_timing.get("_note"):
+        lines.append(f"{ref_label.capitalize()}: {ref_timing['_note']}.")
     return lines
 
 
@@ -137,11 +138,17 @@ def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dic
                   "The per-trajectory PCRB assumes, like the filters, that the target's acceleration wanders with "
                   "jerk PSD q; the designed trajectories have no such process noise, so a filter's error on them "
                   "lacks the part the bound reserves for it"
-                  + (f" (the flagged methods' ANEES of {min(known):.2f}-{max(known):.2f} says the same: their errors are "
+                  + (f" (the flagged methods' ANEES of {_span(known)} says the same: their errors are "
                      "smaller than their own covariances)" if known else "") +
                   ". The floor for these flights is the bound with q = 0 (last row); "
                   + ("**" + ", ".join(f"{m} on {c}" for c, m in floor) + " is below even that floor: a bug or a "
                      "mismatch to investigate.**" if floor else "no method is below it."), ""]
+    diverged = [f"{m} {r['diverged_runs']}/{r['runs']} on {c}" for c, v in res["cases"].items()
+                for m, r in v["methods"].items() if r["diverged_runs"]]
+    if diverged:
+        lines += ["**Diverged runs** (position RMSE after the warm-up above "
+                  f"{st['divergence_m']:g} m or not finite; kept in every average, see the median per run in "
+                  "results.json): " + ", ".join(diverged) + ".", ""]
     lines += ["## Per case", ""]
     for name, case in res["cases"].items():
         lines += case_table(name, case, ref, ref_label, single_case) + [""]

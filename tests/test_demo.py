@@ -1,0 +1,54 @@
+"""`pmsr demo`: the main job end to end (a shrunken budget here; the real one is marked slow)."""
+
+import json
+
+import pytest
+
+from pmsr_nn.cli import main
+from pmsr_nn.harness import demo
+
+EXPECTED = {"EKF", "UKF", "SI+KF", "MDFNN", "RNN"}
+
+
+def check_demo_folder(out, mc_runs):
+    res = json.loads((out / "evaluation" / "results.json").read_text())
+    assert res["mc_runs"] == mc_runs
+    assert set(res["cases"]) == {"trajectory_1", "trajectory_2", "trajectory_3"}
+    for case in res["cases"].values():
+        assert set(case["methods"]) == EXPECTED
+        assert case["pcrb"]["pos_m"] > 0
+        for r in case["methods"].values():
+            assert r["rmse_pos_m"] > case["pcrb"]["q0_pos_m"]  # nothing beats the floor
+    for f in ("report.md", "trajectories.png", "trajectory_1_rmse.png"):
+        assert (out / "evaluation" / f).is_file()
+    for kind in ("mdfnn", "rnn"):
+        assert (out / "train" / kind / "tracker.pt").is_file()
+
+
+def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(demo, "DEMO_DATA", {**demo.DEMO_DATA, "tracks": 12, "batch_size": 16})
+    monkeypatch.setattr(demo, "DEMO_TRAINER", {**demo.DEMO_TRAINER, "max_epochs": 1, "train_batches_per_epoch": 2,
+                                               "val_batches": 2})
+    monkeypatch.setattr(demo, "DEMO_MODELS", {"mdfnn": {"kind": "mdfnn", "hidden": [16, 12, 16], "filter_order": 5},
+                                              "rnn": {"kind": "rnn", "rnn_hidden": 8}})
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--mc-runs", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "| MDFNN |" in printed and "report" in printed
+    check_demo_folder(out, 2)
+    assert main(["demo", "--out", str(out), "--mc-runs", "1"]) == 0  # a previous demo is replaced
+    check_demo_folder(out, 1)
+    other = tmp_path / "mine"
+    other.mkdir()
+    (other / "thesis.tex").write_text("keep")
+    assert main(["demo", "--out", str(other)]) == 2
+    assert "not a pmsr demo folder" in capsys.readouterr().err
+    assert (other / "thesis.tex").read_text() == "keep"
+
+
+@pytest.mark.slow
+def test_the_real_demo(tmp_path):
+    """The README's first command with its real budget (about 2.5 minutes on 2 cores)."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out)]) == 0
+    check_demo_folder(out, 20)
