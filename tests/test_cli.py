@@ -129,13 +129,3 @@ def test_console_script_help_and_error_without_traceback(tmp_path):
     assert "Traceback" not in failed.stderr and failed.stderr.strip().count("\n") == 0
 
 
-def test_demo_writes_both_variants_and_figures(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--tracks", "24"]) == 0
-    out = capsys.readouterr().out
-    assert "variant 'envelope'" in out and "variant 'literal'" in out
-    for variant in ("envelope", "literal"):
-        assert (tmp_path / f"fitee2023_ca_{variant}" / "manifest.json").is_file()
-        png = tmp_path / f"tracks_{variant}.png"
-        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    # running it again replaces its own datasets instead of failing
-    assert main(["demo", "--out", str(tmp_path), "--tracks", "24"]) == 0
