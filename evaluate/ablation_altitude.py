@@ -318,7 +318,7 @@ def table_markdown(res: dict) -> str:
     s, paper = res["settings"], paper_reference()
     bound = res["cases"]["h=0 m"]["pcrb"]["pos_m"]
     lines = [
-        f"# Altitude ablation: planar EKF on targets at altitude h (MDFNN paper, Table 7)",
+        "# Altitude ablation: planar EKF on targets at altitude h (MDFNN paper, Table 7)",
         "",
         f"{s['tracks']} tracks x {s['steps']} steps (T = {s['dt_s']:g} s), seed {s['seed']}, {s['variant']} variant; "
         f"noise 30 m / 2 m/s / 3 deg for every track; same horizontal tracks, noise and priors at every altitude.",

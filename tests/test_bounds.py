@@ -1,7 +1,6 @@
 """PCRB: exact in the linear-Gaussian case, equal to the brute-force inverse of the trajectory's
 information matrix, and the per-trajectory form never below the information-averaged one."""
 
-from dataclasses import replace
 
 import pytest
 import torch
@@ -12,19 +11,14 @@ from pmsr_nn.filters import Gaussian, kalman_filter, rts_smoother
 from pmsr_nn.measurements import LinearMeasurementModel
 from pmsr_nn.motion import ConstantAcceleration
 from pmsr_nn.rng import seeded_generator
-from pmsr_nn.simulation.recipe import TrackRecipe
-from pmsr_nn.simulation.tracks import build_models, generate_tracks
 
 DT, Q_PSD = 1.0, 0.05
 P0 = torch.diag(torch.tensor([100.0, 5.0, 0.3] * 2, dtype=torch.float64) ** 2)
 
 
 @pytest.fixture(scope="module")
-def tracks():
-    recipe = TrackRecipe()
-    recipe = replace(recipe, window=12, motion=replace(recipe.motion, steps=12))
-    motion, model = build_models(recipe)
-    batch, _ = generate_tracks(recipe, 40, seeded_generator(9))
+def tracks(make_tracks):
+    motion, model, batch = make_tracks(steps=12, n=40, seed=9)
     return motion, model, batch.states, model.R(batch.noise_std)
 
 

@@ -1,6 +1,5 @@
 """Batched EKF / UKF against filterpy on identical inputs, the linear-Gaussian closed form, and bad input."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,19 +10,13 @@ from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import FilterError, Gaussian, SigmaPoints, ekf, kalman_filter, ukf
 from pmsr_nn.measurements import LinearMeasurementModel
 from pmsr_nn.motion import ConstantVelocity
-from pmsr_nn.rng import seeded_generator
-from pmsr_nn.simulation.recipe import TrackRecipe
-from pmsr_nn.simulation.tracks import build_models, generate_tracks
 
 DT, Q_PSD = 1.0, 1e-3
 
 
 @pytest.fixture(scope="module")
-def scenario():
-    recipe = TrackRecipe()
-    recipe = replace(recipe, window=30, motion=replace(recipe.motion, steps=30))
-    motion, model = build_models(recipe)
-    batch, _ = generate_tracks(recipe, 3, seeded_generator(11))
+def scenario(make_tracks):
+    motion, model, batch = make_tracks(steps=30, n=3, seed=11)
     R = model.R(batch.noise_std)
     g = torch.Generator().manual_seed(0)
     sd = torch.tensor([50.0, 3.0, 0.5] * 2, dtype=torch.float64)

@@ -1,6 +1,5 @@
 """Linear and unscented RTS smoothers against filterpy on identical inputs (float64)."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,8 +11,6 @@ from pmsr_nn.filters import Gaussian, SigmaPoints, kalman_filter, rts_smoother, 
 from pmsr_nn.measurements import LinearMeasurementModel
 from pmsr_nn.motion import ConstantAcceleration
 from pmsr_nn.rng import seeded_generator
-from pmsr_nn.simulation.recipe import TrackRecipe
-from pmsr_nn.simulation.tracks import build_models, generate_tracks
 
 DT, Q_PSD = 1.0, 1e-2
 
@@ -47,11 +44,8 @@ def test_rts_matches_filterpy_kalman_smoother():
 
 
 @pytest.fixture(scope="module")
-def bistatic():
-    recipe = TrackRecipe()
-    recipe = replace(recipe, window=25, motion=replace(recipe.motion, steps=25))
-    motion, model = build_models(recipe)
-    batch, _ = generate_tracks(recipe, 3, seeded_generator(5))
+def bistatic(make_tracks):
+    motion, model, batch = make_tracks(steps=25, n=3, seed=5)
     sd = torch.tensor([50.0, 3.0, 0.5] * 2)
     P0 = torch.diag(sd**2).expand(3, 6, 6).clone()
     x0 = batch.states[:, 0] + torch.randn(3, 6, generator=seeded_generator(6)) * sd

@@ -201,11 +201,8 @@ def test_fix_covariance_shapes_and_missing_pairs():
 # 3. SI+KF on generated tracks
 # ----------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def tracks():
-    recipe = TrackRecipe()
-    recipe = replace(recipe, window=60, motion=replace(recipe.motion, steps=60))
-    motion, model = build_models(recipe)
-    batch, _ = generate_tracks(recipe, 40, seeded_generator(3))
+def tracks(make_tracks):
+    motion, model, batch = make_tracks(steps=60, n=40, seed=3)
     return motion, model, batch
 
 

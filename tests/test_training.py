@@ -13,10 +13,10 @@ import torch
 import yaml
 
 from pmsr_nn.cli import main
-from pmsr_nn.errors import CheckpointError, ConfigError, MeasurementError
+from pmsr_nn.errors import CheckpointError, ConfigError
 from pmsr_nn.nets.checkpoint import read_checkpoint, save_tracker
 from pmsr_nn.nets.inference import Tracker
-from pmsr_nn.nets.training import apply_overrides, load_train_config, train
+from pmsr_nn.nets.training import apply_overrides, load_train_config
 
 TINY = {
     "name": "tiny",

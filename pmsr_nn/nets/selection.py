@@ -94,7 +94,7 @@ def select_best(cfg: TrainConfig, out: str | Path, *, members: int = 10, fresh_t
 
 def selection_table(rows: list[dict], best: int, fresh: int) -> str:
     lines = [
-        f"| member | seed | fold | epochs | val pos RMSE (m) | val vel RMSE (m/s) | fresh pos RMSE (m) | fresh vel RMSE (m/s) |",
+        "| member | seed | fold | epochs | val pos RMSE (m) | val vel RMSE (m/s) | fresh pos RMSE (m) | fresh vel RMSE (m/s) |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
