@@ -313,8 +313,13 @@ def cmd_evaluate(args) -> int:
         print(f"shard     {shard[0]}/{shard[1]} (blocks {res['blocks'][0]}..{res['blocks'][-1]}) -> {args.out} "
               f"in {time.perf_counter() - t0:.1f} s; combine all shards with 'pmsr merge'")
         return 0
-    print(f"position RMSE (m), Eq. 31 averaged after the warm-up; {res['mc_runs']} runs per case\n")
-    print_summary(res)
+    if res.get("kind") == "multitarget":
+        from .harness.multitarget_report import case_tables
+
+        print("\n".join(case_tables(res, None, "paper")))
+    else:
+        print(f"position RMSE (m), Eq. 31 averaged after the warm-up; {res['mc_runs']} runs per case\n")
+        print_summary(res)
     print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s)")
     return 0
 

@@ -33,3 +33,21 @@ def rmse_over_time(est: torch.Tensor, truth: torch.Tensor, idx: Sequence[int]) -
 def pooled_rmse(est: torch.Tensor, truth: torch.Tensor, idx: Sequence[int], start: int = 0) -> float:
     """Root of the mean squared error over runs and the steps from ``start`` on (one pooled number)."""
     return float(squared_error(est[:, start:], truth[:, start:], idx).mean().sqrt())
+
+
+def track_loss(dummy_most_probable: torch.Tensor, gate_sd: torch.Tensor, successive: int, gate_limit: float) -> torch.Tensor:
+    """The loss rule of the S-MSJPDA paper (after Ref. [38] there): a track is lost once the dummy
+    (no detection) has been its most probable association for ``successive`` scans in a row, or
+    once its gate grows past ``gate_limit`` (here: the predicted bistatic-range deviation, m).
+
+    ``dummy_most_probable`` and ``gate_sd`` are ``(B, K, T)``; returns the scan at which each
+    track was declared lost, ``(B, T)`` int64, -1 for a track never lost.
+    """
+    B, K, T = dummy_most_probable.shape
+    run = torch.zeros(B, T, dtype=torch.int64)
+    lost_at = torch.full((B, T), -1, dtype=torch.int64)
+    for k in range(K):  # K is small (scans); runs and tracks are vectorised
+        run = torch.where(dummy_most_probable[:, k], run + 1, torch.zeros_like(run))
+        hit = ((run >= successive) | (gate_sd[:, k] > gate_limit)) & (lost_at < 0)
+        lost_at = torch.where(hit, torch.full_like(lost_at, k), lost_at)
+    return lost_at

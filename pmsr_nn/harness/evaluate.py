@@ -18,9 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from ..environment import environment
+from ..config import load_yaml
 from ..errors import ConfigError
 from .report import reference_table, write_report
 from .runner import DEFINITIONS, BlockSums, Setup, describe, finalise, prepare, run_blocks, shard_blocks
+from .multitarget import (MT_DEFINITIONS, MultiTargetScenario, describe_multitarget, finalise_multitarget,
+                          is_multitarget, multitarget_from_dict, prepare_multitarget, run_multitarget)
+from .multitarget_report import write_multitarget_report
 from .scenario import Scenario, load_scenario, scenario_from_dict
 
 SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
@@ -85,6 +89,15 @@ def evaluate(scenario: Scenario | str | Path, out: Path, *, mc_runs: int | None 
              checkpoints: dict[str, str] | None = None, shard: tuple[int, int] = (1, 1), device: str = "cpu",
              progress: bool = True, overwrite: bool = False) -> dict:
     """Run a scenario (or one shard) into ``out``; returns results.json's content (or shard.json's)."""
+    if not isinstance(scenario, Scenario):
+        data = load_yaml(Path(scenario))
+        if is_multitarget(data):
+            if checkpoints:
+                raise ConfigError("a multi-target scenario has no learned methods: --checkpoint does not apply")
+            if shard != (1, 1):
+                raise ConfigError("multi-target scenarios run whole (no --shard); use fewer --mc-runs for a quick look")
+            sc = multitarget_from_dict(data, Path(scenario).parent, where=str(scenario))
+            return evaluate_multitarget(sc, out, mc_runs=mc_runs, device=device, progress=progress, overwrite=overwrite)
     sc = _load(scenario, mc_runs, checkpoints)
     blocks = shard_blocks(sc.n_blocks, shard)
     setup = prepare(sc, device)
@@ -98,6 +111,35 @@ def evaluate(scenario: Scenario | str | Path, out: Path, *, mc_runs: int | None 
         np.savez_compressed(tmp / "blocks.npz", **bs.to_arrays())
         (tmp / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
         return meta
+
+
+def evaluate_multitarget(sc: MultiTargetScenario, out: Path, *, mc_runs: int | None = None, device: str = "cpu",
+                         progress: bool = True, overwrite: bool = False) -> dict:
+    """Run a multi-target scenario (:mod:`.multitarget`) into ``out``: results.json, report.md, figures."""
+    import dataclasses
+
+    if mc_runs is not None:
+        base = sc.base_dir
+        sc = dataclasses.replace(sc, mc_runs=mc_runs)
+        object.__setattr__(sc, "base_dir", base)
+    if device != "cpu":
+        raise ConfigError("the multi-target trackers run on the CPU (their assignment step is NumPy/SciPy)")
+    setup = prepare_multitarget(sc)
+    timing, ref_info = None, {}
+    if sc.reference is not None:
+        path = sc.path(sc.reference.file)
+        timing = reference_table(path, sc.reference.timing)
+        ref_info = {"file": str(path), "timing": sc.reference.timing, "label": sc.reference.label}
+    with atomic_dir(out, overwrite) as tmp:
+        raw = run_multitarget(setup, progress=progress)
+        res = {"scenario": sc.name, "kind": "multitarget", "seed": sc.seed, "mc_runs": sc.mc_runs,
+               "environment": environment(device), "description": sc.description,
+               "settings": describe_multitarget(setup), "definitions": MT_DEFINITIONS, "reference": ref_info,
+               "cases": finalise_multitarget(setup, raw)}
+        (tmp / "results.json").write_text(json.dumps(res, indent=1, allow_nan=True) + "\n")
+        examples = {c: raw[c]["example"] for c in raw}
+        write_multitarget_report(res, tmp, examples, timing, ref_info.get("label", "paper"))
+    return res
 
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:

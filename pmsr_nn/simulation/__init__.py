@@ -1,4 +1,4 @@
-"""Simulators: the CA track generator and its recipe (clutter and detections come later)."""
+"""Simulators: the CA track generator and its recipe, and multi-target detections with clutter."""
 
 from .recipe import TrackRecipe, load_recipe
 from .tracks import TrackBatch, build_models, generate_tracks

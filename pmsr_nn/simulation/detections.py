@@ -1,0 +1,139 @@
+"""Detections with missed targets and clutter, per sensor and scan, for multi-target trackers.
+
+A *sensor* is a transmitter-receiver pair (the S-MSJPDA paper's word). At every scan each target
+is detected by each sensor with probability ``pd`` (independently), its measurement being the
+noise-free ``h(x)`` plus Gaussian noise; each sensor also reports clutter points uniform over its
+measurement box (a fixed number per scan, as in the paper's simulations, or a Poisson number).
+
+Detections of a scan and sensor are stored padded, in random order (a tracker can not learn
+anything from the position of a detection in the list), with the truth origin of each kept for
+evaluation: a target index, :data:`CLUTTER` or :data:`PADDING`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+
+from ..config import check_interval, require
+from ..errors import ConfigError
+from ..measurements import MeasurementModel
+from ..rng import standard_normal
+
+CLUTTER = -1
+PADDING = -2
+
+
+@dataclass(frozen=True)
+class ClutterSpec:
+    """Clutter of one sensor and scan: ``per_scan`` points (the exact number for ``model="fixed"``,
+    the Poisson mean for ``"poisson"``), uniform over a box of bistatic range ``range_m`` (m) and
+    ``doppler_hz`` (Hz), the same box for every sensor."""
+
+    per_scan: float = 50.0
+    model: Literal["fixed", "poisson"] = "fixed"
+    range_m: tuple[float, float] = (0.0, 150_000.0)
+    doppler_hz: tuple[float, float] = (-250.0, 250.0)
+
+    def __post_init__(self) -> None:
+        require(self.per_scan >= 0 and math.isfinite(self.per_scan), f"clutter per_scan must be >= 0, got {self.per_scan}")
+        require(self.model == "poisson" or float(self.per_scan).is_integer(),
+                f"a fixed clutter count must be a whole number, got {self.per_scan}")
+        check_interval("clutter range_m", self.range_m, nonneg=True)
+        check_interval("clutter doppler_hz", self.doppler_hz)
+        require(self.volume > 0, "the clutter box must have a positive area")
+
+    @property
+    def volume(self) -> float:
+        """Area of the measurement box (m Hz): the paper's ``V_s``."""
+        return (self.range_m[1] - self.range_m[0]) * (self.doppler_hz[1] - self.doppler_hz[0])
+
+    @property
+    def density(self) -> float:
+        """Expected clutter points per unit of measurement space (1 / (m Hz))."""
+        return self.per_scan / self.volume
+
+
+@dataclass
+class Scans:
+    """Detections of ``B`` runs over ``K`` scans from ``N`` sensors, padded to ``M`` per list.
+
+    ``z (B, K, N, M, d)`` measurements in the sensor's units (NaN where padded), ``valid (B, K, N, M)``,
+    ``origin (B, K, N, M)`` int64: index of the target that caused it, :data:`CLUTTER` or
+    :data:`PADDING`. Valid detections come first in each list.
+    """
+
+    z: torch.Tensor
+    valid: torch.Tensor
+    origin: torch.Tensor
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        B, K, N, M = self.valid.shape
+        return B, K, N, M
+
+    def target_measurements(self, n_targets: int) -> torch.Tensor:
+        """The detection each target caused, ``(B, K, T, N, d)`` (NaN where missed): what a tracker
+        that knew the true assignment would use."""
+        B, K, N, M = self.shape
+        d = self.z.shape[-1]
+        out = self.z.new_full((B, K, n_targets, N, d), float("nan"))
+        b, k, s, i = torch.nonzero(self.origin >= 0, as_tuple=True)
+        out[b, k, self.origin[b, k, s, i], s] = self.z[b, k, s, i]
+        return out
+
+
+def check_model_for_detections(model: MeasurementModel) -> None:
+    if model.layout != "pair" or tuple(model.components) != ("range", "doppler"):
+        raise ConfigError("detections are (bistatic range m, Doppler Hz) per sensor: the measurement model needs "
+                          f"components ('range', 'doppler') in layout 'pair', got {model.components} / {model.layout!r}")
+
+
+def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clutter: ClutterSpec,
+                   generator: torch.Generator | None = None) -> Scans:
+    """Detections of targets ``truth (B, K, T, n)`` (SI states) by every sensor of ``model``.
+
+    All draws for all runs at once, from ``generator``: detection (``pd``), measurement noise
+    (``model.noise_std``), clutter count and positions, and the shuffle of each list.
+    """
+    check_model_for_detections(model)
+    require(0.0 <= pd <= 1.0, f"pd must be in [0, 1], got {pd}")
+    if truth.dim() != 4:
+        raise ConfigError(f"truth must be (runs, scans, targets, state), got shape {tuple(truth.shape)}")
+    B, K, T, _ = truth.shape
+    N, d = model.n_pairs, len(model.components)
+    dtype, device = truth.dtype, truth.device
+    clean = model.h(truth).reshape(B, K, T, N, d)
+    noisy = clean + standard_normal(clean.shape, generator, dtype, device) * torch.tensor(model.noise_std, dtype=dtype, device=device)
+    detected = torch.rand((B, K, T, N), generator=generator, dtype=dtype, device=device) < pd
+    target_z = noisy.permute(0, 1, 3, 2, 4)  # (B, K, N, T, d)
+    target_ok = detected.permute(0, 1, 3, 2)
+
+    if clutter.model == "fixed":
+        counts = torch.full((B, K, N), int(clutter.per_scan), dtype=torch.int64, device=device)
+    else:
+        rate = torch.full((B, K, N), float(clutter.per_scan), dtype=dtype, device=device)
+        counts = torch.poisson(rate, generator=generator).to(torch.int64)
+    C = int(counts.max()) if counts.numel() else 0
+    lo = torch.tensor([clutter.range_m[0], clutter.doppler_hz[0]], dtype=dtype, device=device)
+    span = torch.tensor([clutter.range_m[1] - clutter.range_m[0], clutter.doppler_hz[1] - clutter.doppler_hz[0]],
+                        dtype=dtype, device=device)
+    clutter_z = lo + span * torch.rand((B, K, N, C, d), generator=generator, dtype=dtype, device=device)
+    clutter_ok = torch.arange(C, device=device) < counts.unsqueeze(-1)
+
+    z = torch.cat([target_z, clutter_z], dim=3)
+    valid = torch.cat([target_ok, clutter_ok], dim=3)
+    target_ids = torch.arange(T, device=device).expand(B, K, N, T)
+    origin = torch.cat([target_ids, torch.full((B, K, N, C), CLUTTER, dtype=torch.int64, device=device)], dim=3)
+    # Random order of the valid detections, padding last.
+    keys = torch.rand(valid.shape, generator=generator, dtype=dtype, device=device).masked_fill(~valid, 2.0)
+    order = keys.argsort(dim=-1)
+    M = int(valid.sum(-1).max()) if valid.numel() else 0
+    order = order[..., :M]
+    valid = valid.gather(-1, order)
+    origin = origin.gather(-1, order).masked_fill(~valid, PADDING)
+    z = z.gather(3, order.unsqueeze(-1).expand(*order.shape, d)).masked_fill(~valid.unsqueeze(-1), float("nan"))
+    return Scans(z, valid, origin)

@@ -1,0 +1,14 @@
+"""Multi-target trackers and the parts they share.
+
+* :mod:`.assignment`: ranked 2-D assignment (Murty) and (N+1)-D assignment by Lagrangian relaxation;
+* :mod:`.gating`: chi-square gates and Gaussian association likelihoods;
+* :mod:`.clustering`: tracks that compete for detections;
+* :mod:`.jpda`: association probabilities from ranked events;
+* :mod:`.msjpda`: S-MSJPDA, P-MSJPDA and the true-assignment reference tracker.
+"""
+
+from .assignment import SDSolution, m_best_sd, murty, sd_assign
+from .msjpda import JPDASettings, MultiTargetResult, msjpda, true_assignment_ukf
+
+__all__ = ["SDSolution", "m_best_sd", "murty", "sd_assign", "JPDASettings", "MultiTargetResult", "msjpda",
+           "true_assignment_ukf"]

@@ -1,0 +1,26 @@
+"""Clusters of tracks that compete for detections.
+
+Two tracks are in one cluster when some detection (of any sensor) falls in both gates, directly or
+through a chain of such tracks. Association events of different clusters are independent, so each
+cluster is solved on its own (a smaller assignment problem, and no events wasted on combinations
+of unrelated tracks).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
+
+
+def track_clusters(gated: np.ndarray) -> list[np.ndarray]:
+    """Clusters of tracks from a gate matrix ``gated (T, M)`` bool (detections of all sensors as
+    columns). Returns the track indices of each cluster that has at least one gated detection;
+    a track without any is left out (it can only have missed)."""
+    active = np.flatnonzero(gated.any(1))
+    if len(active) <= 1:
+        return [active] if len(active) else []
+    g = gated[active].astype(np.float64)
+    share = (g @ g.T) > 0  # (A, A): tracks with a common detection
+    n, labels = connected_components(csr_matrix(share), directed=False)
+    return [active[labels == c] for c in range(n)]

@@ -1,0 +1,257 @@
+"""Multi-sensor JPDA: association probabilities, the trackers, the loss rule."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.stats import multivariate_normal
+
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.filters import Gaussian, predict, sequential_update, ukf, unscented_moments
+from pmsr_nn.geometry import Geometry, Receiver, Transmitter
+from pmsr_nn.measurements import MeasurementModel
+from pmsr_nn.metrics import track_loss
+from pmsr_nn.motion import ConstantVelocity
+from pmsr_nn.rng import seeded_generator
+from pmsr_nn.simulation.detections import ClutterSpec, Scans, simulate_scans
+from pmsr_nn.trackers.clustering import track_clusters
+from pmsr_nn.trackers.gating import gaussian_log_likelihood
+from pmsr_nn.trackers.jpda import assignment_matrix, candidate_marginals, miss_cost, single_sensor_marginals
+from pmsr_nn.trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
+
+TX = [Transmitter((-38e3, 12e3), 93.1e6), Transmitter((26e3, 31e3), 90.9e6), Transmitter((14e3, -42e3), 99.9e6)]
+MOTION = ConstantVelocity(2)
+
+
+def _model(n_tx=3) -> MeasurementModel:
+    return MeasurementModel(Geometry.all_pairs(TX[:n_tx], [Receiver((0.0, 0.0))]), ("range", "doppler"), (1000.0, 1.0),
+                            MOTION.pos_idx, MOTION.vel_idx, layout="pair")
+
+
+def _formation(B, K, T, spacing=2000.0, seed=1, q=1.0):
+    x0 = torch.tensor([[-25e3 + spacing * 0.77 * t, 200.0, -20e3 - spacing * 0.63 * t, 244.1] for t in range(T)],
+                      dtype=torch.float64)
+    x = MOTION.sample(x0.repeat(B, 1), K, 1.0, q, seeded_generator(seed)).reshape(B, T, K, 4).transpose(1, 2)
+    return x
+
+
+def _prior(truth, seed=3, sd=(300.0, 10.0)):
+    B, K, T, n = truth.shape
+    s = torch.tensor([sd[0], sd[1]] * 2, dtype=torch.float64)
+    g = seeded_generator(seed)
+    return Gaussian(truth[:, 0] + torch.randn(B, T, n, generator=g, dtype=torch.float64) * s,
+                    torch.diag(s ** 2).expand(B, T, n, n).clone())
+
+
+# ----------------------------------------------------------------------------------- probabilities
+
+def _enumerate_single_sensor(cost: np.ndarray) -> np.ndarray:
+    """Independent exhaustive JPDA: every track takes one detection or none, detections used once."""
+    T, MT = cost.shape
+    M = MT - T
+    alpha = np.zeros((T, M + 1))
+    total = 0.0
+    for choice in itertools.product(range(-1, M), repeat=T):
+        used = [c for c in choice if c >= 0]
+        if len(used) != len(set(used)):
+            continue
+        c = sum(cost[t, M + t] if i < 0 else cost[t, i] for t, i in enumerate(choice))
+        if not np.isfinite(c):
+            continue
+        w = math.exp(-c)
+        total += w
+        for t, i in enumerate(choice):
+            alpha[t, M if i < 0 else i] += w
+    return alpha / total
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_single_sensor_marginals_equal_exhaustive_enumeration(seed):
+    rng = np.random.default_rng(seed)
+    T, M = int(rng.integers(1, 4)), int(rng.integers(0, 5))
+    det = rng.normal(0.0, 2.0, (T, M))
+    det[rng.random((T, M)) < 0.3] = np.inf  # outside the gate
+    cost = assignment_matrix(det, miss_cost(0.8))
+    expected = _enumerate_single_sensor(cost)
+    np.testing.assert_allclose(single_sensor_marginals(cost, m=10_000), expected, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(single_sensor_marginals(cost, m=None), expected, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(expected.sum(1), 1.0)
+
+
+def test_m_best_marginals_approach_the_exact_ones():
+    rng = np.random.default_rng(11)
+    cost = assignment_matrix(rng.normal(0.0, 1.0, (3, 4)), miss_cost(0.8))
+    exact = _enumerate_single_sensor(cost)
+    errors = [np.abs(single_sensor_marginals(cost, m) - exact).max() for m in (1, 5, 20, 1000)]
+    assert errors[-1] < 1e-12 and errors[0] > errors[-1]
+
+
+def _enumerate_multi(tuples, costs, n_targets):
+    """Independent exhaustive (N+1)-D JPDA over candidate lists."""
+    by_target = [np.flatnonzero(tuples[:, 0] == t) for t in range(n_targets)]
+    beta = np.zeros(len(costs))
+    total = 0.0
+    for picks in itertools.product(*by_target):
+        used = [(s, i) for p in picks for s, i in enumerate(tuples[p, 1:]) if i >= 0]
+        if len(used) != len(set(used)):
+            continue
+        w = math.exp(-sum(costs[p] for p in picks))
+        total += w
+        beta[list(picks)] += w
+    return beta / total
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_multi_sensor_marginals_equal_exhaustive_enumeration_when_m_covers_every_event(seed):
+    rng = np.random.default_rng(seed)
+    K, N, n_meas = 2, 2, [2, 2]
+    rows = []
+    for t in range(K):
+        opts = [[-1] + [i for i in range(n) if rng.random() < 0.7] for n in n_meas]
+        rows += [(t, *c) for c in itertools.product(*opts)]
+    tuples = np.array(rows)
+    costs = rng.normal(0.0, 1.5, len(tuples))
+    beta, gap = candidate_marginals(tuples, costs, n_meas, K, m=10_000, iterations=30)
+    np.testing.assert_allclose(beta, _enumerate_multi(tuples, costs, K), rtol=1e-9, atol=1e-12)
+    assert gap >= 0
+
+
+def test_gaussian_log_likelihood_matches_scipy():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(3, 2, 2))
+    S = torch.from_numpy(A @ A.transpose(0, 2, 1) + np.eye(2))
+    nu = torch.from_numpy(rng.normal(size=(3, 5, 2)))
+    d2, ll = gaussian_log_likelihood(nu, S)
+    for b in range(3):
+        ref = multivariate_normal(np.zeros(2), S[b].numpy()).logpdf(nu[b].numpy())
+        np.testing.assert_allclose(ll[b].numpy(), ref, rtol=1e-12)
+        np.testing.assert_allclose(d2[b].numpy(), np.einsum("mi,ij,mj->m", nu[b].numpy(), np.linalg.inv(S[b].numpy()),
+                                                            nu[b].numpy()), rtol=1e-10)
+
+
+def test_clusters_are_connected_components_of_shared_detections():
+    gated = np.array([[1, 0, 0, 0], [1, 1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 0]], dtype=bool)
+    clusters = sorted(sorted(c.tolist()) for c in track_clusters(gated))
+    assert clusters == [[0, 1, 2], [3]]  # track 4 gates nothing: left out
+
+
+# ----------------------------------------------------------------------------------- trackers
+
+@pytest.mark.parametrize("architecture", ["sequential", "parallel"])
+def test_one_target_one_sensor_no_clutter_pd_one_is_the_ukf(architecture):
+    model = _model(1)
+    truth = _formation(B=3, K=12, T=1)
+    scans = simulate_scans(truth, model, 1.0, ClutterSpec(per_scan=0), seeded_generator(4))
+    prior = _prior(truth)
+    settings = JPDASettings(pd=1.0, clutter_density=1e-9, gate_probability=1 - 1e-12)
+    R = model.R()
+    res = msjpda(scans, prior, MOTION, 1.0, 1.0, model, R, settings, architecture)
+    z = scans.target_measurements(1)[:, :, 0].reshape(3, 12, 2)
+    ref = ukf(Gaussian(prior.x[:, 0], prior.P[:, 0]), z, MOTION, 1.0, 1.0, model, R)
+    torch.testing.assert_close(res.x[:, :, 0], ref.x, rtol=1e-9, atol=1e-7)
+    torch.testing.assert_close(res.P[:, :, 0], ref.P, rtol=1e-9, atol=1e-7)
+
+
+def test_sequential_and_parallel_agree_with_one_sensor():
+    """With one sensor the (N+1)-D problem is the 2-D one: same events, same update."""
+    model = _model(1)
+    truth = _formation(B=2, K=8, T=3)
+    scans = simulate_scans(truth, model, 0.8, ClutterSpec(per_scan=20), seeded_generator(6))
+    prior = _prior(truth)
+    s = JPDASettings(pd=0.8, clutter_density=20 / ClutterSpec().volume, m_best=50)
+    a = msjpda(scans, prior, MOTION, 1.0, 1.0, model, model.R(), s, "sequential")
+    b = msjpda(scans, prior, MOTION, 1.0, 1.0, model, model.R(), s, "parallel")
+    torch.testing.assert_close(a.x, b.x, rtol=1e-8, atol=1e-6)
+
+
+def test_empty_all_clutter_and_crossing_scans_stay_finite():
+    model = _model()
+    # two targets whose paths cross at scan 10
+    x0 = torch.tensor([[-27e3, 250.0, -20e3, 250.0], [-22e3, -250.0, -20e3, 250.0]], dtype=torch.float64)
+    truth = MOTION.sample(x0.repeat(2, 1), 20, 1.0, 0.0, seeded_generator(0)).reshape(2, 2, 20, 4).transpose(1, 2)
+    prior = _prior(truth)
+    s = JPDASettings(pd=0.8, clutter_density=50 / ClutterSpec().volume)
+    for pd, clutter in ((0.0, 0), (0.0, 50), (0.9, 50)):  # empty scans, all clutter, crossing with clutter
+        scans = simulate_scans(truth, model, pd, ClutterSpec(per_scan=clutter), seeded_generator(8))
+        for arch in ("sequential", "parallel"):
+            res = msjpda(scans, prior, MOTION, 1.0, 1.0, model, model.R(), s, arch)
+            assert torch.isfinite(res.x).all() and torch.isfinite(res.P).all()
+            assert (torch.linalg.eigvalsh(res.P) > 0).all()
+            if pd == 0.0 and clutter == 0:  # nothing detected: the dummy is always the likeliest
+                assert res.dummy_most_probable.all()
+
+
+def test_true_assignment_reference_uses_exactly_the_targets_detections():
+    model = _model()
+    truth = _formation(B=2, K=10, T=2)
+    scans = simulate_scans(truth, model, 0.7, ClutterSpec(per_scan=30), seeded_generator(9))
+    prior = _prior(truth)
+    res = true_assignment_ukf(scans, prior, MOTION, 1.0, 1.0, model, model.R())
+    for t in range(2):
+        z = scans.target_measurements(2)[:, :, t].reshape(2, 10, 6)
+        ref = ukf(Gaussian(prior.x[:, t], prior.P[:, t]), z, MOTION, 1.0, 1.0, model, model.R())
+        torch.testing.assert_close(res.x[:, :, t], ref.x)
+
+
+def _sequential_ukf(prior: Gaussian, z: torch.Tensor, model: MeasurementModel) -> torch.Tensor:
+    """Reference: UKF with the sequential per-sensor update of pmsr_nn.filters (no association)."""
+    F, Q = MOTION.F(1.0), MOTION.Q(1.0, 1.0)
+    g, out = prior, []
+    for k in range(z.shape[1]):
+        if k:
+            g = predict(g, F, Q)
+        g, _ = sequential_update(g, z[:, k], model, model.R(), unscented_moments)
+        out.append(g.x)
+    return torch.stack(out, 1)
+
+
+def test_well_separated_targets_track_like_the_reference():
+    """No clutter, Pd 1, targets 40 km apart (no detection in a foreign gate): every association is
+    certain, so P-MSJPDA is the joint UKF and S-MSJPDA the sequential UKF of each target."""
+    model = _model()
+    truth = _formation(B=2, K=10, T=2, spacing=40e3)
+    scans = simulate_scans(truth, model, 1.0, ClutterSpec(per_scan=0), seeded_generator(2))
+    prior = _prior(truth)
+    s = JPDASettings(pd=1.0, clutter_density=1e-9, gate_probability=1 - 1e-12)  # no true detection gated out
+    ref = true_assignment_ukf(scans, prior, MOTION, 1.0, 1.0, model, model.R())
+    par = msjpda(scans, prior, MOTION, 1.0, 1.0, model, model.R(), s, "parallel")
+    torch.testing.assert_close(par.x, ref.x, rtol=1e-9, atol=1e-7)
+    seq = msjpda(scans, prior, MOTION, 1.0, 1.0, model, model.R(), s, "sequential")
+    for t in range(2):
+        z = scans.target_measurements(2)[:, :, t].reshape(2, 10, 6)
+        expected = _sequential_ukf(Gaussian(prior.x[:, t], prior.P[:, t]), z, model)
+        torch.testing.assert_close(seq.x[:, :, t], expected, rtol=1e-9, atol=1e-7)
+
+
+def test_bad_tracker_inputs():
+    model = _model()
+    truth = _formation(B=1, K=3, T=2)
+    scans = simulate_scans(truth, model, 0.9, ClutterSpec(per_scan=2), seeded_generator(0))
+    prior = _prior(truth)
+    s = JPDASettings(pd=0.9, clutter_density=1e-7)
+    with pytest.raises(ConfigError, match="prior must be"):
+        msjpda(scans, Gaussian(prior.x[0], prior.P[0]), MOTION, 1.0, 1.0, model, model.R(), s, "sequential")
+    bad = Scans(scans.z.clone(), scans.valid, scans.origin)
+    bad.z[0, 1, 0, 0, 0] = float("nan")
+    with pytest.raises(ConfigError, match="NaN"):
+        msjpda(bad, prior, MOTION, 1.0, 1.0, model, model.R(), s, "parallel")
+    with pytest.raises(ConfigError, match="sensors"):
+        msjpda(scans, prior, MOTION, 1.0, 1.0, _model(2), _model(2).R(), s, "parallel")
+    with pytest.raises(ConfigError, match="architecture"):
+        msjpda(scans, prior, MOTION, 1.0, 1.0, model, model.R(), s, "both")
+    with pytest.raises(ConfigError, match="clutter_density"):
+        JPDASettings(pd=0.9, clutter_density=0.0)
+
+
+def test_loss_rule():
+    dummy = torch.zeros(1, 10, 3, dtype=torch.bool)
+    dummy[0, 2:5, 0] = True  # 3 in a row: kept
+    dummy[0, 3:7, 1] = True  # 4 in a row: lost at scan 6
+    gate = torch.zeros(1, 10, 3)
+    gate[0, 8, 2] = 6000.0  # gate too large at scan 8
+    lost = track_loss(dummy, gate, successive=4, gate_limit=5000.0)
+    assert lost.tolist() == [[-1, 6, 8]]
