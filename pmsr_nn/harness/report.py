@@ -16,15 +16,21 @@ from ..errors import ConfigError
 
 
 def reference_table(path: Path, dotted: str) -> dict:
-    """The entry ``dotted`` (``a.b.c``) of the JSON reference file at ``path``."""
+    """The entry ``dotted`` (``a.b.c``) of the JSON reference file at ``path``; a key that itself
+    holds dots (``table_pd_0.8``) is matched whole, longest first."""
     try:
         node = json.loads(Path(path).read_text())
     except (OSError, ValueError) as exc:
         raise ConfigError(f"reference file {path}: {exc}") from None
-    for key in dotted.split("."):
-        if not isinstance(node, dict) or key not in node:
+    parts = dotted.split(".")
+    while parts:
+        for n in range(len(parts), 0, -1):
+            key = ".".join(parts[:n])
+            if isinstance(node, dict) and key in node:
+                node, parts = node[key], parts[n:]
+                break
+        else:
             raise ConfigError(f"reference file {path} has no entry {dotted!r}")
-        node = node[key]
     return node
 
 

@@ -1,0 +1,84 @@
+"""Benchmark: S-MSJPDA and P-MSJPDA run time per 50-scan Monte Carlo run (issue 6's targets).
+
+The scenario is evaluate/access2019_msjpda.yaml's nominal case (4 targets, 3 sensors, Pd 0.8, 50
+clutter points per sensor per scan). Both trackers run on the same draws in this process, so
+the P/S ratio is not disturbed by machine noise between runs. Two ways of timing:
+
+* ``serial``: one run at a time (block of 1), what the paper's MATLAB figures measure;
+* ``batched``: ``--block`` runs at once (the harness's way: the UKF and mixture algebra are batched
+  over runs, only the assignment loops over them), divided by the runs.
+
+Also the true-assignment UKF (no association at all) as the floor of what a run costs.
+
+    python benchmarks/bench_msjpda.py --runs 20 --json benchmarks/results/bench_msjpda.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from run_info import write_figures  # noqa: E402
+
+from pmsr_nn.config import load_yaml  # noqa: E402
+from pmsr_nn.filters import Gaussian  # noqa: E402
+from pmsr_nn.harness.multitarget import draw_block, multitarget_from_dict, prepare_multitarget, run_method  # noqa: E402
+from pmsr_nn.simulation.detections import Scans  # noqa: E402
+
+SCENARIO = Path(__file__).resolve().parents[1] / "evaluate" / "access2019_msjpda.yaml"
+PAPER_S = {"S-MSJPDA": 2.45, "P-MSJPDA": 30.12}  # Table 1 of the paper at Pd 0.8, MATLAB, s per run
+
+
+def _take(scans: Scans, prior: Gaussian, i: slice):
+    return Scans(scans.z[i], scans.valid[i], scans.origin[i]), Gaussian(prior.x[i], prior.P[i])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=int, default=20, help="Monte Carlo runs timed (default 20)")
+    ap.add_argument("--block", type=int, default=10, help="runs per batched call (default 10)")
+    ap.add_argument("--json", type=Path, help="write the figures here")
+    args = ap.parse_args()
+    data = load_yaml(SCENARIO)
+    data.update(mc_runs=args.runs, block_runs=args.runs)
+    sc = multitarget_from_dict(data, SCENARIO.parent)
+    setup = prepare_multitarget(sc)
+    _, scans, prior = draw_block(setup, 0, 0)  # the nominal case, all runs in one draw
+    methods = {m.name: m for m in sc.methods}
+    for m in methods.values():  # untimed warm-up
+        run_method(setup, m, *_take(scans, prior, slice(0, 1)), 0)
+    figures = {"scenario": str(SCENARIO.name), "case": sc.cases[0].name, "runs": args.runs, "block": args.block,
+               "threads": torch.get_num_threads(), "methods": {}}
+    for name, m in methods.items():
+        serial = []
+        for r in range(args.runs):
+            t0 = time.perf_counter()
+            run_method(setup, m, *_take(scans, prior, slice(r, r + 1)), 0)
+            serial.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        for start in range(0, args.runs, args.block):
+            run_method(setup, m, *_take(scans, prior, slice(start, start + args.block)), 0)
+        batched = (time.perf_counter() - t0) / args.runs
+        figures["methods"][name] = {"serial_s_per_run_mean": statistics.fmean(serial),
+                                    "serial_s_per_run_median": statistics.median(serial),
+                                    "batched_s_per_run": batched, "paper_s_per_run": PAPER_S.get(name)}
+        print(f"{name:16s} serial {statistics.fmean(serial):.3f} s/run (median {statistics.median(serial):.3f})  "
+              f"batched {batched:.3f} s/run  paper {PAPER_S.get(name, '-')}")
+    f = figures["methods"]
+    if "S-MSJPDA" in f and "P-MSJPDA" in f:
+        for how in ("serial_s_per_run_mean", "batched_s_per_run"):
+            figures[f"p_over_s_{how}"] = f["P-MSJPDA"][how] / f["S-MSJPDA"][how]
+        figures["paper_p_over_s"] = PAPER_S["P-MSJPDA"] / PAPER_S["S-MSJPDA"]
+        print(f"P/S time: serial {figures['p_over_s_serial_s_per_run_mean']:.1f}x, batched "
+              f"{figures['p_over_s_batched_s_per_run']:.1f}x (paper {figures['paper_p_over_s']:.1f}x)")
+    write_figures(figures, args.json)
+
+
+if __name__ == "__main__":
+    main()

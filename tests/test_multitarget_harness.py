@@ -1,0 +1,116 @@
+"""Multi-target scenarios through `pmsr evaluate` (pmsr_nn.harness.multitarget)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pmsr_nn.config import load_yaml
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.harness import evaluate
+from pmsr_nn.harness.multitarget import multitarget_from_dict, prepare_multitarget
+from pmsr_nn.harness.report import reference_table
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = ["access2019_msjpda.yaml", "access2019_msjpda_pd.yaml", "access2019_msjpda_clutter.yaml"]
+
+
+def _small(tmp_path: Path, **over) -> Path:
+    data = load_yaml(ROOT / "evaluate" / "access2019_msjpda.yaml")
+    data.update(mc_runs=3, block_runs=2, scans=6, converged_from_scan=2,
+                targets={**data["targets"], "count": 2}, clutter={**data["clutter"], "per_scan": 5})
+    data["cases"] = [{"name": "nominal", "reference_key": "0.8"}, {"name": "close", "spacing_m": 500.0}]
+    data["reference"]["file"] = str(ROOT / "evaluate" / "reference" / "paper_tables.json")
+    data.update(over)
+    p = tmp_path / "small.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p
+
+
+def test_small_scenario_writes_every_method_with_timing_and_loss(tmp_path):
+    res = evaluate(_small(tmp_path), tmp_path / "out", progress=False)
+    assert res["kind"] == "multitarget" and res["mc_runs"] == 3
+    for case in res["cases"].values():
+        assert set(case["methods"]) == {"S-MSJPDA", "P-MSJPDA", "true assignment"}
+        for r in case["methods"].values():
+            for key in ("rmse_pos_m", "rmse_vel_mps", "anees", "seconds_per_run", "loss_probability", "swap_probability"):
+                assert isinstance(r[key], float), key
+            assert 0 <= r["loss_probability"] <= 1 and r["seconds_per_run"] > 0
+            assert len(r["rmse_pos_per_target_m"]) == 2
+        assert len(case["curves"]["rmse_pos_m_per_target"]["S-MSJPDA"][0]) == 6
+    saved = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert saved["cases"]["nominal"]["methods"]["P-MSJPDA"]["rmse_pos_m"] == res["cases"]["nominal"]["methods"]["P-MSJPDA"]["rmse_pos_m"]
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "paper (MATLAB" in report and "| 2.45 |" in report  # the paper's S-MSJPDA time at Pd 0.8, labelled
+    assert (tmp_path / "out" / "tracks.png").is_file() and (tmp_path / "out" / "nominal_rmse_per_target.png").is_file()
+
+
+def test_same_seed_same_figures_and_blocks_independent_of_mc_runs(tmp_path):
+    a = evaluate(_small(tmp_path), tmp_path / "a", progress=False)
+    b = evaluate(_small(tmp_path), tmp_path / "b", progress=False)
+    key = lambda r: [(c, m, v["rmse_pos_m"], v["loss_probability"]) for c, case in r["cases"].items()
+                     for m, v in case["methods"].items()]
+    assert key(a) == key(b)
+    # the first block's draws do not depend on how many runs follow it
+    c = evaluate(_small(tmp_path), tmp_path / "c", mc_runs=2, progress=False)
+    d = evaluate(_small(tmp_path, mc_runs=2), tmp_path / "d", progress=False)
+    assert key(c) == key(d)
+
+
+def test_sweep_report_has_the_sweep_table(tmp_path):
+    p = _small(tmp_path, sweep="pd", cases=[{"name": "pd_0.6", "pd": 0.6, "reference_key": "0.6"},
+                                           {"name": "pd_0.9", "pd": 0.9, "reference_key": "0.9"}])
+    evaluate(p, tmp_path / "out", progress=False)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Sweep" in report and "| 0.6 |" in report and "P/S time" in report
+    assert (tmp_path / "out" / "sweep_pd.png").is_file()
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_recorded_scenarios_load_and_name_paper_keys(name):
+    path = ROOT / "evaluate" / name
+    sc = multitarget_from_dict(load_yaml(path), path.parent)
+    prepare_multitarget(sc)  # geometry and flights are valid
+    node = reference_table(sc.path(sc.reference.file), sc.reference.timing)
+    for c in sc.cases:
+        if c.reference_key is not None:
+            assert c.reference_key in node["S-MSJPDA"]
+    assert sc.mc_runs == 100 and sc.scans == 50 and sc.targets.count == 4
+
+
+def test_bad_multitarget_inputs_are_clear(tmp_path):
+    p = _small(tmp_path)
+    with pytest.raises(ConfigError, match="no --shard"):
+        evaluate(p, tmp_path / "o1", shard=(1, 2), progress=False)
+    with pytest.raises(ConfigError, match="checkpoint"):
+        evaluate(p, tmp_path / "o2", checkpoints={"S-MSJPDA": "x.pt"}, progress=False)
+    with pytest.raises(ConfigError, match="unknown key"):
+        evaluate(_small(tmp_path, clutterr=3), tmp_path / "o3", progress=False)
+    with pytest.raises(ConfigError, match="within 1 km of a sensor"):
+        evaluate(_small(tmp_path, targets={"count": 2, "centre_m": [-200.0, -300.0]}), tmp_path / "o4", progress=False)
+    assert not any(tmp_path.glob("o*"))  # nothing half-written
+
+
+def test_cli_evaluate_runs_a_multitarget_scenario(tmp_path):
+    out = tmp_path / "cli"
+    r = subprocess.run([sys.executable, "-m", "pmsr_nn.cli", "evaluate", str(_small(tmp_path)), "--mc-runs", "2",
+                        "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "S-MSJPDA" in r.stdout and "loss prob." in r.stdout and (out / "results.json").is_file()
+
+
+@pytest.mark.slow
+def test_done_when_command(tmp_path):
+    """The issue's acceptance command on the real scenario (about 10 s)."""
+    out = tmp_path / "msjpda"
+    r = subprocess.run([sys.executable, "-m", "pmsr_nn.cli", "evaluate", str(ROOT / "evaluate" / "access2019_msjpda.yaml"),
+                        "--mc-runs", "5", "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    res = json.loads((out / "results.json").read_text())
+    for r in res["cases"]["nominal"]["methods"].values():
+        assert r["seconds_per_run"] > 0 and 0 <= r["loss_probability"] <= 1
