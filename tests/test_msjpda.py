@@ -108,7 +108,7 @@ def _enumerate_multi(tuples, costs, n_targets):
 @pytest.mark.parametrize("seed", range(4))
 def test_multi_sensor_marginals_equal_exhaustive_enumeration_when_m_covers_every_event(seed):
     rng = np.random.default_rng(seed)
-    K, N, n_meas = 2, 2, [2, 2]
+    K, n_meas = 2, [2, 2]  # two targets, two sensors
     rows = []
     for t in range(K):
         opts = [[-1] + [i for i in range(n) if rng.random() < 0.7] for n in n_meas]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .report import _f, _plt
+from .report import _f, _plt, save_figure
 
 SWEEP_LABELS = {"pd": "detection probability Pd", "clutter_per_scan": "clutter points per sensor per scan",
                 "spacing_m": "spacing of the formation (m)"}
@@ -110,11 +110,7 @@ def plot_rmse_per_target(res: dict, out: Path) -> list[Path]:
         axes[0][0].set_ylabel("position RMSE (m)")
         axes[0][0].legend(fontsize=7)
         fig.suptitle(f"{case['title']}: {res['mc_runs']} runs")
-        fig.tight_layout()
-        p = out / f"{name}_rmse_per_target.png"
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
-        paths.append(p)
+        paths.append(save_figure(fig, out / f"{name}_rmse_per_target.png", dpi=100))
     return paths
 
 
@@ -133,10 +129,7 @@ def plot_tracks(res: dict, examples: dict, path: Path) -> Path:
                 ax.plot(ex[m][:, t, 0] / 1e3, ex[m][:, t, 1] / 1e3, color=f"C{j}", lw=0.9, label=m if t == 0 else None)
         ax.set(xlabel="east (km)", ylabel="north (km)", title=f"{res['cases'][name]['title']}: run 0", aspect="equal")
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def plot_sweep(res: dict, path: Path) -> Path:
@@ -153,7 +146,4 @@ def plot_sweep(res: dict, path: Path) -> Path:
         ax.set(xlabel=SWEEP_LABELS[sweep], ylabel=ylabel)
         ax.grid(True, alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)

@@ -172,6 +172,14 @@ def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dic
     return [out / "report.md", *figures]
 
 
+def save_figure(fig, path: Path, dpi: int = 110) -> Path:
+    """Lay out, write and close a matplotlib figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    _plt().close(fig)
+    return path
+
+
 def _plt():
     import matplotlib
 
@@ -199,11 +207,7 @@ def plot_rmse(res: dict, out: Path) -> list[Path]:
         ax.set(xlabel="time (s)", ylabel="position RMSE (m)", title=f"{case['title']}: {res['mc_runs']} runs")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8, ncol=2)
-        fig.tight_layout()
-        p = out / f"{name}_rmse.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        paths.append(p)
+        paths.append(save_figure(fig, out / f"{name}_rmse.png"))
     return paths
 
 
