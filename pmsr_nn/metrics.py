@@ -35,6 +35,17 @@ def pooled_rmse(est: torch.Tensor, truth: torch.Tensor, idx: Sequence[int], star
     return float(squared_error(est[:, start:], truth[:, start:], idx).mean().sqrt())
 
 
+def normalised_nees(x: torch.Tensor, P: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """NEES over the full state divided by its dimension (1 for a consistent filter): ``x, truth (..., n)``,
+    ``P (..., n, n)`` -> ``(...)``; a singular covariance is solved by least squares instead of crashing."""
+    e = (x - truth).unsqueeze(-1)
+    try:
+        sol = torch.linalg.solve(P, e)
+    except RuntimeError:  # a singular covariance somewhere: those steps are NaN, not a crash
+        sol = torch.linalg.lstsq(P, e).solution
+    return (e * sol).sum((-2, -1)) / x.shape[-1]
+
+
 def track_loss(dummy_most_probable: torch.Tensor, gate_sd: torch.Tensor, successive: int, gate_limit: float) -> torch.Tensor:
     """The loss rule of the S-MSJPDA paper (after Ref. [38] there): a track is lost once the dummy
     (no detection) has been its most probable association for ``successive`` scans in a row, or

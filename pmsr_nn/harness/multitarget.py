@@ -25,7 +25,7 @@ from ..config import from_dict, require, to_dict
 from ..errors import ConfigError
 from ..filters import Gaussian
 from ..measurements import MeasurementModel
-from ..metrics import track_loss
+from ..metrics import normalised_nees, squared_error, track_loss
 from ..motion import ConstantVelocity
 from ..rng import seeded_generator, standard_normal
 from ..simulation.detections import ClutterSpec, simulate_scans
@@ -238,11 +238,9 @@ def prepare_multitarget(sc: MultiTargetScenario) -> MTSetup:
                              motion.vel_idx, layout="pair")
     for c in sc.cases:  # every target's whole flight must stay clear of the sensors
         _, _, spacing = sc.case_settings(c)
-        x0 = sc.targets.initial_states(spacing)
         t = torch.arange(sc.scans, dtype=torch.float64) * sc.motion.dt_s
-        pos = torch.stack([x0[:, 0, None] + x0[:, 1, None] * t, x0[:, 2, None] + x0[:, 3, None] * t], -1)
-        if bool(model.near_sensor(torch.stack([pos[..., 0], torch.zeros_like(t).expand_as(pos[..., 0]), pos[..., 1],
-                                               torch.zeros_like(pos[..., 1])], -1), 1000.0).any()):
+        nominal = torch.einsum("kij,tj->tki", motion.F(t), sc.targets.initial_states(spacing))  # (T, K, 4), no noise
+        if bool(model.near_sensor(nominal, 1000.0).any()):
             raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
     return MTSetup(sc, motion, model, model.R())
 
@@ -275,10 +273,10 @@ def run_method(setup: MTSetup, spec: MTMethodSpec, scans, prior: Gaussian, case_
                   ARCHITECTURE[spec.kind])
 
 
-def _swapped(x: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+def _swapped(x: torch.Tensor, truth: torch.Tensor, pos: list[int]) -> torch.Tensor:
     """``(B, T)``: at the last scan, track ``t`` is nearer another target's truth than its own."""
-    est = x[:, -1][..., [0, 2]]
-    tru = truth[:, -1][..., [0, 2]]
+    est = x[:, -1][..., pos]
+    tru = truth[:, -1][..., pos]
     dist = torch.cdist(est, tru)  # (B, T, T)
     return dist.argmin(-1) != torch.arange(x.shape[2])
 
@@ -288,6 +286,7 @@ def run_multitarget(setup: MTSetup, progress: bool = True) -> dict:
     from tqdm.auto import tqdm
 
     sc = setup.scenario
+    pos = list(setup.motion.pos_idx)
     raw = {}
     bar = tqdm(total=len(sc.cases) * sc.n_blocks * len(sc.methods), disable=not progress, unit="method-block",
                desc=sc.name, leave=False)
@@ -309,21 +308,19 @@ def run_multitarget(setup: MTSetup, progress: bool = True) -> dict:
                 res = run_method(setup, spec, scans, prior, ci)
                 a = acc[spec.name]
                 a["seconds"] += time.perf_counter() - t0
-                err = res.x - truth
-                a["pos"] = a["pos"] + (err[..., [0, 2]] ** 2).sum(-1).sum(0).numpy()  # (K, T)
-                a["vel"] = a["vel"] + (err[..., [1, 3]] ** 2).sum(-1).sum(0).numpy()
-                e = err.unsqueeze(-1)
-                a["nees"] = a["nees"] + ((e * torch.linalg.solve(res.P, e)).sum((-2, -1)) / 4).sum(0).numpy()
+                a["pos"] = a["pos"] + squared_error(res.x, truth, pos).sum(0).numpy()  # (K, T)
+                a["vel"] = a["vel"] + squared_error(res.x, truth, setup.motion.vel_idx).sum(0).numpy()
+                a["nees"] = a["nees"] + normalised_nees(res.x, res.P, truth).sum(0).numpy()
                 lost = track_loss(res.dummy_most_probable, res.gate_range_sd_m, sc.loss.successive_scans,
                                   sc.loss.gate_range_sd_m)
                 a["lost"] += int((lost >= 0).sum())
-                a["swap"] += int(_swapped(res.x, truth).sum())
+                a["swap"] += int(_swapped(res.x, truth, pos).sum())
                 a["gap"] = max(a["gap"], res.max_duality_gap)
                 if block == 0:
-                    example[spec.name] = res.x[0][..., [0, 2]].numpy()
+                    example[spec.name] = res.x[0][..., pos].numpy()
                 bar.update()
             if block == 0:
-                example["truth"] = truth[0][..., [0, 2]].numpy()
+                example["truth"] = truth[0][..., pos].numpy()
         raw[case.name] = {"acc": acc, "example": example}
     bar.close()
     return raw

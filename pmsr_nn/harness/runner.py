@@ -29,7 +29,7 @@ from ..bounds import BoundResult, pcrb
 from ..errors import ConfigError
 from ..filters import Gaussian
 from ..measurements import wrap_angle
-from ..metrics import position_columns, squared_error, velocity_columns
+from ..metrics import normalised_nees, position_columns, squared_error, velocity_columns
 from ..nets.inference import Tracker
 from ..rng import seeded_generator, standard_normal
 from ..simulation.recipe import TrackRecipe, load_recipe
@@ -139,16 +139,6 @@ def draw_block(setup: Setup, case_index: int, block: int) -> tuple[torch.Tensor,
     return z, Gaussian(x0, P0)
 
 
-def _nees(x: torch.Tensor, P: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
-    """``(B, K)`` NEES over the full state divided by its dimension (1 for a consistent filter)."""
-    e = (x - truth).unsqueeze(-1)
-    try:
-        sol = torch.linalg.solve(P, e)
-    except RuntimeError:  # a singular covariance somewhere: those steps are NaN, not a crash
-        sol = torch.linalg.lstsq(P, e).solution
-    return (e * sol).sum((-2, -1)) / x.shape[-1]
-
-
 @dataclass
 class BlockSums:
     """Raw per-block results of a shard: ``sums[case][method][q]`` is ``(blocks, K)`` for ``q`` in
@@ -222,7 +212,7 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                     res = run_method(spec, z, prior, setup.models, setup.trackers, (sc.seed, ci, block))
                     seconds[spec.name].append(time.perf_counter() - t0)
                     se_p, se_v = squared_error(res.x, truth, pos), squared_error(res.x, truth, vel)
-                    nees = _nees(res.x, res.P, truth) if res.P is not None else torch.full_like(se_p, float("nan"))
+                    nees = normalised_nees(res.x, res.P, truth) if res.P is not None else torch.full_like(se_p, float("nan"))
                     for q, v in zip(QUANTITIES, (se_p, se_v, nees)):
                         sums[spec.name][q].append(v.sum(0).numpy())
                     run_mse[spec.name].append(se_p[:, sc.warmup_steps:].mean(1).numpy())

@@ -61,8 +61,7 @@ def single_sensor_marginals(cost: np.ndarray, m: int | None) -> np.ndarray:
     p = event_probabilities(np.array([e.cost for e in events]))
     alpha = np.zeros((T, M + 1))
     cols = np.minimum(cols, M)  # every miss column -> the last column
-    for t in range(T):
-        np.add.at(alpha[t], cols[:, t], p)
+    np.add.at(alpha, (np.arange(T), cols), p[:, None])
     return alpha
 
 

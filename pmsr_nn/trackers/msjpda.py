@@ -157,13 +157,11 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
     T = g.x.shape[1]
     mom = unscented_moments(g, model, R)  # pair layout: sensor s owns rows s*d .. s*d+d-1
     zhat = mom.z.reshape(B, T, N, d)
-    gated_t = []
-    for k in range(N):
-        blk = slice(k * d, (k + 1) * d)
-        nu = z[:, None, k] - zhat[:, :, None, k]  # (B, T, M, d); range and Doppler rows do not wrap
-        d2, _ = gaussian_log_likelihood(nu, mom.S[..., blk, blk])
-        gated_t.append((d2 <= gamma) & valid[:, None, k])
-    gated = torch.stack(gated_t, dim=2).numpy()  # (B, T, N, M)
+    # each sensor's diagonal block of the joint S, (B, T, N, d, d), gates that sensor's detections
+    S_blocks = mom.S.reshape(B, T, N, d, N, d).diagonal(dim1=2, dim2=4).permute(0, 1, 4, 2, 3)
+    nu = z.unsqueeze(1) - zhat.unsqueeze(3)  # (B, T, N, M, d); range and Doppler rows do not wrap
+    d2, _ = gaussian_log_likelihood(nu, S_blocks)
+    gated = ((d2 <= gamma) & valid.unsqueeze(1)).numpy()  # (B, T, N, M)
     inv, half_logdet = _pattern_inverses(mom.S, N, d)
     zn, zhat_n = z.numpy(), zhat.numpy()
     det_offset = math.log(2 * math.pi) * d / 2 - math.log(s.pd) + math.log(s.clutter_density)  # per detection
@@ -280,5 +278,5 @@ def true_assignment_ukf(scans: Scans, prior: Gaussian, motion: KinematicModel, d
     P = r.P.reshape(B, T, K, n, n).transpose(1, 2)
     d = len(model.components)
     missed = torch.isnan(z.reshape(B, T, K, N, d)[..., 0]).all(-1).transpose(1, 2)
-    S_rr = torch.zeros(B, K, T, dtype=x.dtype)  # not meaningful for the reference: it has no gate
-    return MultiTargetResult(x, P, missed, S_rr)
+    no_gate = torch.zeros(B, K, T, dtype=x.dtype)  # the reference has no gate, so the gate rule never fires
+    return MultiTargetResult(x, P, missed, no_gate)
