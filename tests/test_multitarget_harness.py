@@ -36,7 +36,7 @@ def test_small_scenario_writes_every_method_with_timing_and_loss(tmp_path):
     res = evaluate(_small(tmp_path), tmp_path / "out", progress=False)
     assert res["kind"] == "multitarget" and res["mc_runs"] == 3
     for case in res["cases"].values():
-        assert set(case["methods"]) == {"S-MSJPDA", "P-MSJPDA", "true assignment"}
+        assert set(case["methods"]) == {"S-MSJPDA", "P-MSJPDA", "P-MSJPDA m=100", "true assignment"}
         for r in case["methods"].values():
             for key in ("rmse_pos_m", "rmse_vel_mps", "anees", "seconds_per_run", "loss_probability", "swap_probability"):
                 assert isinstance(r[key], float), key
@@ -65,10 +65,24 @@ def test_same_seed_same_figures_and_blocks_independent_of_mc_runs(tmp_path):
 def test_sweep_report_has_the_sweep_table(tmp_path):
     p = _small(tmp_path, sweep="pd", cases=[{"name": "pd_0.6", "pd": 0.6, "reference_key": "0.6"},
                                            {"name": "pd_0.9", "pd": 0.9, "reference_key": "0.9"}])
-    evaluate(p, tmp_path / "out", progress=False)
+    data = yaml.safe_load(p.read_text())
+    data["methods"].insert(2, {"name": "P-MSJPDA m=3", "kind": "p_msjpda", "m_best": 3})
+    p.write_text(yaml.safe_dump(data))
+    res = evaluate(p, tmp_path / "out", progress=False)
     report = (tmp_path / "out" / "report.md").read_text()
-    assert "## Sweep" in report and "| 0.6 |" in report and "P/S time" in report
+    assert "## Sweep" in report and "| 0.6 |" in report and "paper (MATLAB, 4 x 3.3 GHz): P/S time" in report
     assert (tmp_path / "out" / "sweep_pd.png").is_file()
+    # every P-MSJPDA variant gets our time ratio to S-MSJPDA; paper times only for the methods the paper timed
+    head = next(line for line in report.splitlines() if line.startswith("| detection probability"))
+    cols = [c.strip() for c in head.strip("|").split("|")]
+    assert "P-MSJPDA / S-MSJPDA time" in cols and "P-MSJPDA m=3 / S-MSJPDA time" in cols
+    assert not any("paper" in c and "m=3" in c for c in cols)
+    row = next(line for line in report.splitlines() if line.startswith("| 0.6 |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    r = res["cases"]["pd_0.6"]["methods"]
+    ratio = r["P-MSJPDA m=3"]["seconds_per_run"] / r["S-MSJPDA"]["seconds_per_run"]
+    assert cells[cols.index("P-MSJPDA m=3 / S-MSJPDA time")] == f"{ratio:.1f}"
+    assert res["settings"]["methods"]["P-MSJPDA m=3"]["m_best"] == 3
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
