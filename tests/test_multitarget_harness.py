@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -17,7 +18,8 @@ from pmsr_nn.harness.multitarget import multitarget_from_dict, prepare_multitarg
 from pmsr_nn.harness.report import reference_table
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = ["access2019_msjpda.yaml", "access2019_msjpda_pd.yaml", "access2019_msjpda_clutter.yaml"]
+SCENARIOS = ["access2019_msjpda.yaml", "access2019_msjpda_pd.yaml", "access2019_msjpda_clutter.yaml",
+             "access2019_msjpda_mbest.yaml"]
 
 
 def _small(tmp_path: Path, **over) -> Path:
@@ -90,10 +92,13 @@ def test_recorded_scenarios_load_and_name_paper_keys(name):
     path = ROOT / "evaluate" / name
     sc = multitarget_from_dict(load_yaml(path), path.parent)
     prepare_multitarget(sc)  # geometry and flights are valid
-    node = reference_table(sc.path(sc.reference.file), sc.reference.timing)
-    for c in sc.cases:
-        if c.reference_key is not None:
-            assert c.reference_key in node["S-MSJPDA"]
+    if sc.reference is None:  # an ablation of ours: no paper table, so no case may name a key
+        assert all(c.reference_key is None for c in sc.cases)
+    else:
+        node = reference_table(sc.path(sc.reference.file), sc.reference.timing)
+        for c in sc.cases:
+            if c.reference_key is not None:
+                assert c.reference_key in node["S-MSJPDA"]
     assert sc.mc_runs == 100 and sc.scans == 50 and sc.targets.count == 4
 
 
@@ -128,3 +133,29 @@ def test_done_when_command(tmp_path):
     res = json.loads((out / "results.json").read_text())
     for r in res["cases"]["nominal"]["methods"].values():
         assert r["seconds_per_run"] > 0 and 0 <= r["loss_probability"] <= 1
+
+
+def _worst_runs_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("msjpda_worst_runs", ROOT / "evaluate" / "msjpda_worst_runs.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_per_run_errors_use_the_harness_draws(tmp_path):
+    mod = _worst_runs_module()
+    p = _small(tmp_path)
+    err = mod.per_run_errors(p, "nominal", blocks=2)
+    assert set(err) == {"S-MSJPDA", "P-MSJPDA", "P-MSJPDA m=100", "true assignment"}
+    assert all(e.shape == (3, 2) and np.isfinite(e).all() for e in err.values())  # 3 runs in blocks of 2, 2 targets
+    # the same draws as `pmsr evaluate`: the mean squared error over runs gives its converged RMSE
+    # when every scan from converged_from_scan on is averaged with the same weight
+    res = evaluate(p, tmp_path / "out", progress=False)
+    per_scan = np.array(res["cases"]["nominal"]["curves"]["rmse_pos_m_per_target"]["S-MSJPDA"])  # (T, K)
+    assert np.allclose((err["S-MSJPDA"] ** 2).mean(0), (per_scan[:, 2:] ** 2).mean(1), rtol=1e-9)
+    with pytest.raises(ConfigError, match="no case 'nope'"):
+        mod.per_run_errors(p, "nope", blocks=1)
+    with pytest.raises(ConfigError, match="--blocks"):
+        mod.per_run_errors(p, "nominal", blocks=9)
