@@ -1,7 +1,11 @@
 """The ``pmsr`` command.
 
-Every user error (bad recipe, bad path, bad dataset) is a :class:`~pmsr_nn.errors.PmsrError`,
-printed as one line ``pmsr: error: ...`` with exit code 2 and no traceback.
+One error path for every command: an anticipated failure (a bad recipe, path, dataset,
+checkpoint or device; a file that cannot be read or written; memory) is printed as one line
+``pmsr: error: ...`` naming the file, key or argument at fault, exit code 2. An unexpected
+exception (a bug) prints one line with a hint, exit code 1; ``--debug`` shows its traceback.
+SIGINT, SIGTERM and SIGHUP stop a command cleanly (no half-written output), with one line and
+exit code ``128 + signal``.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import PmsrError
+from .errors import Interrupted, PmsrError
 
 DEMO_DIR = Path("runs/demo")
 
@@ -45,7 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
         "evaluate trackers. Run 'pmsr COMMAND --help' for the options of a command.",
     )
     p.add_argument("--version", action="version", version=f"pmsr_nn {__version__}")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show the traceback of an unexpected error")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    _add_parser = sub.add_parser
+    sub.add_parser = lambda *a, **k: _add_parser(*a, parents=[common], **k)  # --debug after the command too
 
     s = sub.add_parser(
         "simulate",
@@ -67,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("path", type=Path, help="dataset directory")
     i.add_argument("--verify", action="store_true", help="also recompute and check every array checksum")
     i.add_argument("--plot", type=Path, metavar="PNG", help="also draw the sensors, the envelope and the first tracks")
+    i.add_argument("--overwrite", action="store_true", help="replace an existing --plot file")
 
     t = sub.add_parser(
         "train",
@@ -111,6 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--nan", choices=["error", "hold"], default="error",
                     help="a scan with a NaN: stop with an error (default) or repeat the last valid scan")
     tr.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    tr.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    tr.add_argument("--force", action="store_true",
+                    help="track measurements that fail the plausibility checks (below a baseline, azimuth outside "
+                         "[-pi, pi], far outside the training span)")
 
     e = sub.add_parser("export", help="write a dataset's measurements as CSV",
                        description="Write the measurements of a dataset (all tracks or one split) as a CSV that "
@@ -119,6 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", type=Path, required=True, help="CSV file to write")
     e.add_argument("--split", choices=["train", "val", "test"], help="only this split")
     e.add_argument("--tracks", type=_positive_int, help="at most this many tracks")
+    e.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
 
     ev = sub.add_parser(
         "evaluate",
@@ -164,17 +180,58 @@ def main(argv: list[str] | None = None) -> int:
             args.overrides = [*args.overrides, *extra]
         else:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
+                "track": cmd_track, "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge,
+                "demo": cmd_demo}
+    from .interrupts import signals_raise
+
     try:
-        commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
-                    "track": cmd_track, "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge,
-                    "demo": cmd_demo}
-        return commands[args.command](args)
-    except PmsrError as exc:
-        print(f"pmsr: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("pmsr: interrupted; nothing was left behind", file=sys.stderr)
-        return 130
+        with signals_raise():
+            return commands[args.command](args)
+    except (Interrupted, KeyboardInterrupt) as exc:
+        signum = exc.signum if isinstance(exc, Interrupted) else 2
+        kept = getattr(exc, "kept", None) or "no partial output was left behind"
+        print(f"pmsr: interrupted by {_signal_name(signum)}; {kept}", file=sys.stderr)
+        return 128 + signum
+    except Exception as exc:
+        if args.debug:
+            raise
+        code, line = describe_error(exc)
+        print(f"pmsr: error: {line}", file=sys.stderr)
+        return code
+
+
+def _signal_name(signum: int) -> str:
+    import signal
+
+    return signal.Signals(signum).name
+
+
+def describe_error(exc: BaseException) -> tuple[int, str]:
+    """``(exit code, one line)`` for an exception escaping a command: 2 for anticipated failures
+    (user input, files, resources), 1 for anything else (a bug: rerun with --debug)."""
+    import errno
+
+    if isinstance(exc, PmsrError):
+        return 2, _one_line(str(exc))
+    if isinstance(exc, OSError):
+        what = exc.strerror or str(exc) or type(exc).__name__
+        where = f": {exc.filename}" if exc.filename else ""
+        if exc.errno == errno.ENOSPC:
+            what = "no space left on the device"
+        return 2, _one_line(f"{what}{where}")
+    if isinstance(exc, UnicodeError):
+        return 2, _one_line(f"a file is not UTF-8 text ({exc})")
+    if isinstance(exc, MemoryError) or (isinstance(exc, RuntimeError) and "alloc" in str(exc).lower()):
+        return 2, "out of memory; ask for less (fewer --tracks, --mc-runs or a smaller batch)"
+    first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ""
+    return 1, (f"unexpected {type(exc).__name__}" + (f": {first}" if first else "")
+               + "; this is a bug in pmsr_nn: rerun with --debug for the traceback and report it")
+
+
+def _one_line(text: str, limit: int = 400) -> str:
+    line = " ".join(text.split())
+    return line if len(line) <= limit else line[: limit - 3] + "..."
 
 
 def cmd_simulate(args) -> int:
@@ -183,7 +240,7 @@ def cmd_simulate(args) -> int:
 
     recipe = load_recipe(args.recipe).with_overrides(tracks=args.tracks, seed=args.seed, variant=args.variant)
     t0 = time.perf_counter()
-    manifest = write_dataset(recipe, args.out, overwrite=args.overwrite, progress=not args.quiet)
+    manifest = write_dataset(recipe, args.out, overwrite=args.overwrite, progress=not args.quiet, inputs=[args.recipe])
     seconds = time.perf_counter() - t0
     if not args.quiet:
         print(summarise(args.out, manifest, seconds))
@@ -244,13 +301,26 @@ def cmd_select(args) -> int:
 
 def cmd_track(args) -> int:
     from .data.sequences import read_measurements, write_estimates
+    from .environment import resolve_device
     from .nets.inference import Tracker
+    from .outputs import check_file_target
+    from .plausibility import check_measurements
 
-    tracker = Tracker.load(args.checkpoint, device=args.device)
+    inputs = [args.input, args.checkpoint]
+    check_file_target(args.out, overwrite=args.overwrite, inputs=inputs, suffixes=(".csv", ".h5"))
+    tracker = Tracker.load(args.checkpoint, device=resolve_device(args.device))
+    if args.stride is not None and args.stride > tracker.window:
+        raise PmsrError(f"--stride {args.stride} is longer than the network's window of {tracker.window} "
+                        "samples: scans between windows would get no estimate")
     seqs = read_measurements(args.input, tracker.measurement_columns, split=args.split)
     if "geometry" in seqs.source:
         tracker.check_compatible(seqs.source["geometry"], seqs.source["columns"], seqs.source.get("dt_s"),
                                  where=f"dataset {args.input}")
+    if not args.force:
+        span = (tracker.measurement_scaler.lo, tracker.measurement_scaler.hi)
+        for i, z in enumerate(seqs.z):
+            check_measurements(z, tracker.measurement_columns, tracker.geometry, span,
+                               where=lambda b, k, i=i: f"{args.input}: track {seqs.track[i]!r}, row {int(seqs.rows[i][k]) + 1}")
     t0 = time.perf_counter()
     estimates: list = [None] * len(seqs.z)
     for _, idx in seqs.by_length():
@@ -262,7 +332,8 @@ def cmd_track(args) -> int:
     seconds = time.perf_counter() - t0
     write_estimates(args.out, seqs, estimates, tracker.state_columns,
                     {"checkpoint": str(args.checkpoint), "input": str(args.input), "pmsr_nn": __version__,
-                     "model": tracker.meta["model"]["kind"], "looks_ahead": tracker.looks_ahead})
+                     "model": tracker.meta["model"]["kind"], "looks_ahead": tracker.looks_ahead},
+                    overwrite=args.overwrite, inputs=inputs)
     steps = sum(len(z) for z in seqs.z)
     kind = "smoother (looks ahead)" if tracker.looks_ahead else "causal filter"
     print(f"tracked   {len(seqs.z)} sequence(s), {steps} scans with {tracker.meta['model']['kind']} ({kind}) in "
@@ -275,9 +346,12 @@ def cmd_export(args) -> int:
 
     import torch
 
+    from .outputs import check_file_target
+
+    check_file_target(args.out, overwrite=args.overwrite, inputs=[args.dataset], suffixes=(".csv",))
     seqs = read_dataset(args.dataset, args.split)
     z = torch.stack(seqs.z[: args.tracks] if args.tracks else seqs.z)
-    write_csv_measurements(args.out, z, seqs.source["columns"])
+    write_csv_measurements(args.out, z, seqs.source["columns"], overwrite=args.overwrite, inputs=[args.dataset])
     print(f"wrote     {len(z)} track(s) x {z.shape[1]} scans -> {args.out}")
     return 0
 
@@ -300,10 +374,12 @@ def print_summary(res: dict) -> None:
 
 
 def cmd_evaluate(args) -> int:
+    from .environment import resolve_device
     from .harness import evaluate
     from .harness.runner import parse_shard
 
     shard = parse_shard(args.shard)
+    resolve_device(args.device)
     t0 = time.perf_counter()
     res = evaluate(args.scenario, args.out, mc_runs=args.mc_runs, checkpoints=_checkpoint_overrides(args.checkpoint),
                    shard=shard, device=args.device, progress=not args.quiet, overwrite=args.overwrite)
@@ -336,16 +412,25 @@ def cmd_merge(args) -> int:
 def cmd_info(args) -> int:
     from .data.store import open_dataset
 
+    from .outputs import atomic_file, check_file_target
+
+    if args.plot:
+        check_file_target(args.plot, overwrite=args.overwrite, inputs=[args.path], what="--plot", suffixes=(".png",))
     ds = open_dataset(args.path)
-    if args.verify:
-        ds.verify()
+    try:
+        if args.verify:
+            ds.verify()
+    finally:
+        ds.close()
     print(summarise(args.path, ds.manifest))
     if args.verify:
         print("checksums: all arrays match the manifest")
     if args.plot:
         from .plots import plot_dataset_tracks
 
-        print(f"figure    {plot_dataset_tracks(args.path, args.plot)}")
+        with atomic_file(args.plot, overwrite=args.overwrite, inputs=[args.path], what="--plot", suffixes=(".png",)) as tmp:
+            plot_dataset_tracks(args.path, tmp)
+        print(f"figure    {args.plot}")
     return 0
 
 

@@ -48,3 +48,24 @@ def environment(device: str = "cpu") -> dict:
             "python": platform.python_version(), "device": dev, "threads": torch.get_num_threads(),
             "machine": f"{cpu_model()}, {os.cpu_count()} cores", "date": datetime.date.today().isoformat(),
             "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": git_commit()}
+
+
+def resolve_device(text: str) -> torch.device:
+    """``--device`` text as a torch device that exists on this machine (one-line error otherwise)."""
+    from .errors import ConfigError
+
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError, TypeError):
+        raise ConfigError(f"--device {text!r} is not a torch device (cpu, cuda, cuda:0, mps)") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(f"--device {text}: no CUDA GPU is available on this machine (use cpu)")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ConfigError(f"--device {text}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    elif dev.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise ConfigError(f"--device {text}: no Apple GPU is available on this machine (use cpu)")
+    elif dev.type != "cpu":
+        raise ConfigError(f"--device {text}: pmsr runs on cpu, cuda or mps devices")
+    return dev

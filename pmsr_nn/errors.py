@@ -27,3 +27,23 @@ class CheckpointError(PmsrError):
 
 class MeasurementError(PmsrError, ValueError):
     """Measurements given to a tracker have the wrong shape or columns, NaNs, or are too short."""
+
+
+class OutputError(PmsrError):
+    """An output path is unsafe (an input, the working directory, a folder pmsr did not write) or unwritable."""
+
+
+class Interrupted(BaseException):
+    """A signal (SIGINT, SIGTERM, SIGHUP) asked the command to stop.
+
+    A ``BaseException`` like ``KeyboardInterrupt``, so that ``except Exception`` blocks do not
+    swallow it, but not a subclass of it: Lightning turns a ``KeyboardInterrupt`` during
+    ``fit`` into ``sys.exit(1)``, which would hide the signal.
+    """
+
+    def __init__(self, signum: int):
+        import signal
+
+        self.signum = int(signum)
+        self.name = signal.Signals(signum).name
+        super().__init__(self.name)

@@ -62,8 +62,23 @@ class Geometry:
         for i, tx in enumerate(self.transmitters):
             if not (math.isfinite(tx.carrier_hz) and tx.carrier_hz > 0):
                 raise GeometryError(f"transmitter {i}: carrier_hz must be positive, got {tx.carrier_hz}")
+        for j, a in enumerate(self.receivers):
+            for k in range(j):
+                if math.dist(a.position_m, self.receivers[k].position_m) < MIN_BASELINE_M:
+                    raise GeometryError(f"receivers {k} and {j} are at the same position {list(a.position_m)}: "
+                                        "a duplicate receiver adds no information and makes the geometry degenerate")
+        for j, a in enumerate(self.transmitters):
+            for k in range(j):
+                b = self.transmitters[k]
+                # Co-sited transmitters on different carriers are real (several FM channels on one mast).
+                if math.dist(a.position_m, b.position_m) < MIN_BASELINE_M and a.carrier_hz == b.carrier_hz:
+                    raise GeometryError(f"transmitters {k} and {j} are the same illuminator (same position and "
+                                        f"carrier {a.carrier_hz:g} Hz); list it once")
         if not self.pairs:
             raise GeometryError("a geometry needs at least one transmitter-receiver pair")
+        if len(set(self.pairs)) != len(self.pairs):
+            dup = next(p for p in self.pairs if self.pairs.count(p) > 1)
+            raise GeometryError(f"pair {list(dup)} is listed twice; list each transmitter-receiver pair once")
         for i, j in self.pairs:
             if not (0 <= i < len(self.transmitters) and 0 <= j < len(self.receivers)):
                 raise GeometryError(f"pair ({i}, {j}) names a sensor that does not exist")

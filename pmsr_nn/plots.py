@@ -58,7 +58,7 @@ def plot_dataset_tracks(path: str | Path, out_png: str | Path, max_tracks: int =
     ax.legend(loc="lower left", fontsize=8)
     out_png = Path(out_png)
     fig.tight_layout()
-    fig.savefig(out_png, dpi=110)
+    fig.savefig(out_png, dpi=110, format="png")  # format given: the path may be a temporary name
     plt.close(fig)
     return out_png
 

@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from pmsr_nn.cli import main
-from pmsr_nn.errors import CheckpointError, ConfigError
+from pmsr_nn.errors import CheckpointError, ConfigError, OutputError
 from pmsr_nn.filters import ekf
 from pmsr_nn.harness import evaluate, load_scenario, merge
 from pmsr_nn.harness.runner import draw_block, prepare
@@ -146,8 +146,9 @@ def test_merge_refuses_incomplete_or_mixed_shards(tmp_path):
     evaluate(tiny(tmp_path, seed=9), tmp_path / "t2", shard=(2, 2), progress=False)
     with pytest.raises(ConfigError, match="another scenario"):
         merge([tmp_path / "s1", tmp_path / "t2"], tmp_path / "m")
+    (tmp_path / "plain").mkdir()
     with pytest.raises(ConfigError, match="not a shard folder"):
-        merge([tmp_path], tmp_path / "m")
+        merge([tmp_path / "plain"], tmp_path / "m")
     assert not (tmp_path / "m").exists()
 
 
@@ -182,16 +183,25 @@ def test_a_checkpoint_for_another_geometry_is_refused(tmp_path):
         prepare(sc)
 
 
-def test_an_existing_output_is_not_overwritten_unless_asked(tmp_path):
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "keep.txt").write_text("mine")
+def test_overwrite_replaces_only_what_evaluate_wrote(tmp_path):
+    user = tmp_path / "out"
+    user.mkdir()
+    (user / "keep.txt").write_text("mine")
     path = tiny(tmp_path, methods=[{"name": "EKF", "kind": "ekf"}], mc_runs=2)
-    with pytest.raises(ConfigError, match="not empty"):
-        evaluate(path, out, progress=False)
-    assert (out / "keep.txt").read_text() == "mine"
-    evaluate(path, out, progress=False, overwrite=True)
-    assert (out / "results.json").is_file() and not (out / "keep.txt").exists()
+    for overwrite in (False, True):  # a folder the user wrote is never replaced, --overwrite or not
+        with pytest.raises(OutputError, match="not written by pmsr"):
+            evaluate(path, user, progress=False, overwrite=overwrite)
+    assert [p.name for p in user.iterdir()] == ["keep.txt"] and (user / "keep.txt").read_text() == "mine"
+    ours = tmp_path / "ours"
+    evaluate(path, ours, progress=False)
+    with pytest.raises(OutputError, match="pass --overwrite"):
+        evaluate(path, ours, progress=False)
+    first = (ours / "results.json").read_text()
+    evaluate(path, ours, progress=False, overwrite=True)
+    assert (ours / "results.json").is_file() and (ours / ".pmsr_output.json").is_file()
+    rmse = lambda text: {c: v["methods"]["EKF"]["rmse_pos_m"] for c, v in json.loads(text)["cases"].items()}
+    assert rmse((ours / "results.json").read_text()) == rmse(first)  # the same draws, replaced whole
+    assert sorted(p.name for p in tmp_path.iterdir() if ".partial" in p.name or ".old-" in p.name) == []
 
 
 def test_checkpoint_override_swaps_a_learned_method(tmp_path):

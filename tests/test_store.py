@@ -9,7 +9,7 @@ import torch
 
 from pmsr_nn.data import WindowDataset, open_dataset, write_dataset
 from pmsr_nn.data.datamodule import TrackWindowDataModule
-from pmsr_nn.errors import DatasetError
+from pmsr_nn.errors import DatasetError, OutputError
 from pmsr_nn.simulation import tracks as tracks_module
 
 
@@ -135,7 +135,7 @@ def test_failed_run_leaves_nothing(tmp_path, small_recipe, monkeypatch):
 
 
 def test_existing_paths(tmp_path, small_recipe, dataset):
-    with pytest.raises(DatasetError, match="already exists"):
+    with pytest.raises(OutputError, match="already exists"):
         write_dataset(small_recipe, dataset, progress=False)
     write_dataset(small_recipe.with_overrides(seed=3), dataset, overwrite=True, progress=False)
     assert open_dataset(dataset).manifest["seed"] == 3

@@ -260,7 +260,7 @@ def test_select_keeps_the_member_with_the_best_fresh_track_rmse(tmp_path):
     assert [r["fold"] for r in res["members"]] == [0, 1] and [r["seed"] for r in res["members"]] == [0, 1]
     best = min(res["members"], key=lambda r: r["fresh_pos_rmse_m"])
     assert res["best"] == best["member"]
-    assert (tmp_path / "sel" / "best.pt").read_bytes() == (Path(best["run"]) / "tracker.pt").read_bytes()
+    assert (tmp_path / "sel" / "best.pt").read_bytes() == (tmp_path / "sel" / best["run"] / "tracker.pt").read_bytes()
 
 
 @pytest.mark.parametrize("name", ["smoke", "mdfnn", "dfnn", "rnn"])

@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +26,7 @@ import numpy as np
 import torch
 
 from ..errors import MeasurementError
+from ..outputs import atomic_file
 
 
 @dataclass
@@ -59,9 +59,18 @@ def _number(cell: str, where: str) -> float:
 def read_csv(path: Path, columns: list[str]) -> Sequences:
     """Read measurement rows in the order ``columns`` from a CSV file."""
     try:
-        lines = list(csv.reader(path.read_text().splitlines()))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MeasurementError(f"cannot read {path}: {exc}") from None
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise MeasurementError(f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig")  # spreadsheet programs start their CSV files with a byte-order mark
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise MeasurementError(f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line}); "
+                               "save it as UTF-8 CSV") from None
+    if "\0" in text:
+        raise MeasurementError(f"{path} is a binary file, not a CSV")
+    lines = list(csv.reader(text.splitlines()))
     lines = [ln for ln in lines if ln and any(c.strip() for c in ln)]
     if not lines:
         raise MeasurementError(f"{path} holds no rows")
@@ -76,6 +85,9 @@ def read_csv(path: Path, columns: list[str]) -> Sequences:
             raise MeasurementError(f"{path}: {len(head)} columns and no header; the checkpoint expects "
                                    f"{len(columns)} ({', '.join(columns)})")
         header = list(columns)
+    twice = sorted({c for c in header if header.count(c) > 1})
+    if twice:
+        raise MeasurementError(f"{path}: column {twice[0]!r} appears more than once in the header")
     missing = [c for c in columns if c not in header]
     unknown = [c for c in header if c not in columns and c not in ("track", "k", "time_s")]
     if missing or unknown:
@@ -121,27 +133,32 @@ def read_dataset(path: Path, split: str | None = None) -> Sequences:
 
 def read_measurements(path: str | Path, columns: list[str], split: str | None = None) -> Sequences:
     """A CSV file or a dataset directory; see the module docstring."""
+    from .store import ARRAYS, MANIFEST, is_our_dataset
+
     path = Path(path)
     if path.is_dir():
         return read_dataset(path, split)
     if not path.is_file():
         raise MeasurementError(f"no measurement file at {path}")
+    if path.name in (ARRAYS, MANIFEST) and is_our_dataset(path.parent):
+        raise MeasurementError(f"{path} is part of a dataset: give the dataset folder {path.parent} as --input")
+    if path.suffix.lower() in (".h5", ".hdf5", ".json", ".npz", ".pt", ".ckpt"):
+        raise MeasurementError(f"{path}: measurements are read from a CSV file or a dataset folder, "
+                               f"not a {path.suffix} file")
     if split is not None:
         raise MeasurementError("--split applies to a dataset directory, not to a CSV file")
     return read_csv(path, columns)
 
 
 def write_estimates(path: str | Path, seqs: Sequences, estimates: list[torch.Tensor], columns: list[str],
-                    provenance: dict) -> Path:
-    """Write estimates (one ``(K_i, dim_x)`` per sequence) as ``.csv`` or ``.h5``, atomically."""
+                    provenance: dict, *, overwrite: bool = False, inputs=()) -> Path:
+    """Write estimates (one ``(K_i, dim_x)`` per sequence) as ``.csv`` or ``.h5``, atomically.
+
+    An existing ``path`` is replaced only with ``overwrite``, and never when it is one of ``inputs``.
+    """
     path = Path(path)
-    if path.suffix not in (".csv", ".h5"):
-        raise MeasurementError(f"output {path} must end in .csv or .h5")
-    if not path.parent.exists():
-        raise MeasurementError(f"output directory {path.parent} does not exist")
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    try:
-        if path.suffix == ".csv":
+    with atomic_file(path, overwrite=overwrite, inputs=inputs, suffixes=(".csv", ".h5")) as tmp:
+        if path.suffix.lower() == ".csv":
             n = sum(len(r) for r in seqs.rows)
             out = [None] * n
             for t, rows, est in zip(seqs.track, seqs.rows, estimates):
@@ -164,18 +181,17 @@ def write_estimates(path: str | Path, seqs: Sequences, estimates: list[torch.Ten
                 h5.create_dataset("track", data=np.array(seqs.track, dtype="S"))
                 h5.attrs["columns"] = json.dumps(columns)
                 h5.attrs["provenance"] = json.dumps(provenance)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 
-def write_csv_measurements(path: str | Path, z: torch.Tensor, columns: list[str]) -> Path:
-    """Measurements ``(B, K, D)`` as a CSV with a ``track`` column (what ``pmsr track`` reads)."""
+def write_csv_measurements(path: str | Path, z: torch.Tensor, columns: list[str], *, overwrite: bool = False,
+                           inputs=()) -> Path:
+    """Measurements ``(B, K, D)`` as a CSV with a ``track`` column (what ``pmsr track`` reads), atomically."""
     path = Path(path)
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["track", *columns])
-        for b, seq in enumerate(z.tolist()):
-            w.writerows([b, *(repr(v) for v in row)] for row in seq)
+    with atomic_file(path, overwrite=overwrite, inputs=inputs, suffixes=(".csv",)) as tmp:
+        with open(tmp, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["track", *columns])
+            for b, seq in enumerate(z.tolist()):
+                w.writerows([b, *(repr(v) for v in row)] for row in seq)
     return path

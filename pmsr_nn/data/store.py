@@ -13,10 +13,11 @@ HDF5 opens in MATLAB (``h5read``) and every other language; MATLAB shows the axe
 (``K x dim x N``) because it is column-major. Arrays are chunked one track per chunk, so a window
 of one track is a single small read.
 
-Atomicity: everything is written into a hidden sibling directory ``.DIR.partial-PID`` that is
-renamed to ``DIR`` only after the last byte and the manifest are on disk. A failed or interrupted
-run removes it (a killed one leaves only the hidden ``.partial`` directory, which no reader
-accepts).
+Atomicity: everything is written through :func:`pmsr_nn.outputs.atomic_folder`, into a hidden
+sibling ``.DIR.partial-PID`` renamed to ``DIR`` only after the last byte and the manifest are on
+disk. A failed or interrupted run removes it; a killed one leaves only the hidden folder, which no
+reader accepts and the next write of ``DIR`` removes. Only a folder that is one of our datasets
+is ever replaced (``overwrite``).
 """
 
 from __future__ import annotations
@@ -61,16 +62,34 @@ def is_our_dataset(path: Path) -> bool:
         return False
 
 
-def check_output_path(out: Path, overwrite: bool) -> None:
-    """Refuse to write over anything that is not one of our datasets (and over ours unless asked)."""
+def check_output_path(out: Path, overwrite: bool, inputs=()) -> None:
+    """Refuse to write over anything that is not one of our datasets (and over ours unless asked),
+    and refuse a dataset that would not fit on the disk."""
+    from ..outputs import check_folder_target
+
     out = Path(out)
-    if out.exists() or out.is_symlink():
-        if not is_our_dataset(out):
-            raise DatasetError(f"output path {out} exists and is not a pmsr_nn dataset; choose another path")
-        if not overwrite:
-            raise DatasetError(f"dataset {out} already exists; pass --overwrite to replace it")
-    if not out.parent.exists():
-        raise DatasetError(f"parent directory {out.parent} does not exist")
+    if out.exists() and not out.is_symlink() and (not out.is_dir() or any(out.iterdir())) and not is_our_dataset(out):
+        raise DatasetError(f"output path {out} exists and is not a pmsr_nn dataset; choose another path")
+    check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=("simulate",))
+
+
+def dataset_bytes(recipe: TrackRecipe) -> int:
+    """Bytes the arrays of ``recipe``'s dataset take on disk (uncompressed)."""
+    motion, meas = build_models(recipe)
+    item = np.dtype(recipe.storage.dtype).itemsize
+    return recipe.tracks * (recipe.motion.steps * (motion.dim_x + meas.dim_z) * item + 3 * 8 + 1 + 3)
+
+
+def check_disk_space(recipe: TrackRecipe, out: Path) -> None:
+    """Refuse a dataset larger than the free space of the disk that would hold it."""
+    need = dataset_bytes(recipe)
+    anc = Path(os.path.abspath(out)).parent
+    while not anc.exists():
+        anc = anc.parent
+    free = shutil.disk_usage(anc).free
+    if need > free:
+        raise DatasetError(f"{recipe.tracks:,} tracks x {recipe.motion.steps} steps need {need / 1e9:,.1f} GB; "
+                           f"{anc} has {free / 1e9:,.1f} GB free (ask for fewer --tracks)")
 
 
 def assign_splits(recipe: TrackRecipe) -> np.ndarray:
@@ -83,31 +102,20 @@ def assign_splits(recipe: TrackRecipe) -> np.ndarray:
     return code
 
 
-def write_dataset(recipe: TrackRecipe, out: str | Path, *, overwrite: bool = False, progress: bool = True) -> dict:
+def write_dataset(recipe: TrackRecipe, out: str | Path, *, overwrite: bool = False, progress: bool = True,
+                  inputs=()) -> dict:
     """Generate the recipe's tracks chunk by chunk and write them atomically to ``out``.
 
     Memory stays bounded by ``storage.chunk_tracks`` however many tracks are asked for. Returns
-    the manifest.
+    the manifest. ``inputs``: files the command read (never written over).
     """
+    from ..outputs import atomic_folder
+
     out = Path(out)
-    check_output_path(out, overwrite)
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    try:
-        manifest = _write_into(recipe, tmp, progress)
-        if out.exists():  # overwrite of one of our datasets: swap, then remove the old one
-            old = out.parent / f".{out.name}.old-{os.getpid()}"
-            out.rename(old)
-            tmp.rename(out)
-            shutil.rmtree(old)
-        else:
-            tmp.rename(out)
-        return manifest
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    check_output_path(out, overwrite, inputs)
+    check_disk_space(recipe, out)
+    with atomic_folder(out, command="simulate", overwrite=overwrite, inputs=inputs, allow=("simulate",)) as tmp:
+        return _write_into(recipe, tmp, progress)
 
 
 def _write_into(recipe: TrackRecipe, tmp: Path, progress: bool) -> dict:

@@ -59,12 +59,19 @@ def demo_scenario(checkpoints: dict[str, Path], mc_runs: int) -> Scenario:
 
 
 def _fresh(out: Path) -> None:
-    """Start from an empty ``out``; only a previous demo's folder is cleared."""
+    """Start from an empty ``out``; only a previous demo's folder is cleared (never the working
+    directory, a parent of it, or a folder another command or the user wrote)."""
+    from ..outputs import check_target, output_kind, write_marker
+
+    check_target(out)
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise ConfigError(f"--out {out} exists and is not a folder; choose another --out")
     if out.exists() and any(out.iterdir()):
-        if not (out / DEMO_MARKER).is_file():
+        if output_kind(out) != "demo":
             raise ConfigError(f"{out} exists and is not a pmsr demo folder; choose another --out")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
+    write_marker(out, "demo", state="running")
 
 
 def run_demo(out: Path, mc_runs: int = 20, progress: bool = True, log=print) -> dict:

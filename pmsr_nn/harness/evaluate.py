@@ -3,16 +3,16 @@
 An unsharded run writes ``results.json`` (schema in DESIGN.md), ``report.md`` and PNG figures.
 A shard ``I/N`` writes ``shard.json`` and ``blocks.npz`` (the raw per-block sums); ``merge``
 checks that the shards come from one scenario and cover every block once, then writes what the
-unsharded run would have (the same figures, bit for bit, timings aside). Output folders are
-built under a temporary name and renamed when complete: a failure leaves nothing behind.
+unsharded run would have (the same figures, bit for bit, timings aside). Output folders go
+through :func:`pmsr_nn.outputs.atomic_folder`: checked before the run starts, built under a
+temporary name and renamed when complete (a failure or a signal leaves nothing behind), and
+``overwrite`` replaces only a folder an earlier ``evaluate`` or ``merge`` wrote, never an input.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
-from contextlib import contextmanager
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +20,7 @@ import numpy as np
 from ..environment import environment
 from ..config import load_yaml
 from ..errors import ConfigError
+from ..outputs import atomic_folder, check_folder_target
 from .report import reference_table, write_report
 from .runner import DEFINITIONS, BlockSums, Setup, describe, finalise, prepare, run_blocks, shard_blocks
 from .multitarget import (MT_DEFINITIONS, MultiTargetScenario, describe_multitarget, finalise_multitarget,
@@ -30,22 +31,22 @@ from .scenario import Scenario, load_scenario, scenario_from_dict
 SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
 
 
-@contextmanager
-def atomic_dir(out: Path, overwrite: bool):
-    """Yield a temporary folder that becomes ``out`` only if the block completes."""
-    out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise ConfigError(f"output folder {out} exists and is not empty (choose another --out or pass --overwrite)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
-    try:
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if out.exists():
-        shutil.rmtree(out)
-    tmp.rename(out)
+RESULT_COMMANDS = ("evaluate", "merge")
+"""Output folders an ``evaluate`` or ``merge --overwrite`` may replace."""
+
+
+def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=()):
+    """:func:`~pmsr_nn.outputs.atomic_folder` for a results folder."""
+    return atomic_folder(out, command=command, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
+
+
+def _inputs(scenario, sc) -> list[Path]:
+    """Files a scenario run reads: its YAML and every checkpoint a method names."""
+    paths = [] if isinstance(scenario, (Scenario, MultiTargetScenario)) else [Path(scenario)]
+    for m in getattr(sc, "methods", ()):
+        if getattr(m, "checkpoint", None):
+            paths.append(sc.path(m.checkpoint))
+    return paths
 
 
 def _load(scenario: Scenario | str | Path, mc_runs: int | None, checkpoints: dict[str, str] | None) -> Scenario:
@@ -89,6 +90,7 @@ def evaluate(scenario: Scenario | str | Path, out: Path, *, mc_runs: int | None 
              checkpoints: dict[str, str] | None = None, shard: tuple[int, int] = (1, 1), device: str = "cpu",
              progress: bool = True, overwrite: bool = False) -> dict:
     """Run a scenario (or one shard) into ``out``; returns results.json's content (or shard.json's)."""
+    check_folder_target(out, overwrite=overwrite, inputs=_inputs(scenario, None), allow=RESULT_COMMANDS)
     if not isinstance(scenario, Scenario):
         data = load_yaml(Path(scenario))
         if is_multitarget(data):
@@ -97,12 +99,15 @@ def evaluate(scenario: Scenario | str | Path, out: Path, *, mc_runs: int | None 
             if shard != (1, 1):
                 raise ConfigError("multi-target scenarios run whole (no --shard); use fewer --mc-runs for a quick look")
             sc = multitarget_from_dict(data, Path(scenario).parent, where=str(scenario))
-            return evaluate_multitarget(sc, out, mc_runs=mc_runs, device=device, progress=progress, overwrite=overwrite)
+            return evaluate_multitarget(sc, out, mc_runs=mc_runs, device=device, progress=progress,
+                                        overwrite=overwrite, inputs=_inputs(scenario, sc))
     sc = _load(scenario, mc_runs, checkpoints)
+    inputs = _inputs(scenario, sc)
+    check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
     blocks = shard_blocks(sc.n_blocks, shard)
     setup = prepare(sc, device)
     _references(sc)  # a bad reference entry fails now, not after the run
-    with atomic_dir(out, overwrite) as tmp:
+    with atomic_dir(out, overwrite, inputs=inputs) as tmp:
         bs = run_blocks(setup, blocks, progress=progress)
         if shard == (1, 1):
             return write_outputs(setup, bs, tmp, device)
@@ -114,7 +119,7 @@ def evaluate(scenario: Scenario | str | Path, out: Path, *, mc_runs: int | None 
 
 
 def evaluate_multitarget(sc: MultiTargetScenario, out: Path, *, mc_runs: int | None = None, device: str = "cpu",
-                         progress: bool = True, overwrite: bool = False) -> dict:
+                         progress: bool = True, overwrite: bool = False, inputs=()) -> dict:
     """Run a multi-target scenario (:mod:`.multitarget`) into ``out``: results.json, report.md, figures."""
     import dataclasses
 
@@ -130,7 +135,7 @@ def evaluate_multitarget(sc: MultiTargetScenario, out: Path, *, mc_runs: int | N
         path = sc.path(sc.reference.file)
         timing = reference_table(path, sc.reference.timing)
         ref_info = {"file": str(path), "timing": sc.reference.timing, "label": sc.reference.label}
-    with atomic_dir(out, overwrite) as tmp:
+    with atomic_dir(out, overwrite, inputs=inputs) as tmp:
         raw = run_multitarget(setup, progress=progress)
         res = {"scenario": sc.name, "kind": "multitarget", "seed": sc.seed, "mc_runs": sc.mc_runs,
                "environment": environment(device), "description": sc.description,
@@ -144,20 +149,32 @@ def evaluate_multitarget(sc: MultiTargetScenario, out: Path, *, mc_runs: int | N
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:
     """Combine shard folders of one scenario into the full results in ``out``."""
+    shards = [Path(d) for d in shards]
+    check_folder_target(out, overwrite=overwrite, inputs=shards, allow=RESULT_COMMANDS)
+    seen: dict[str, Path] = {}
+    for d in shards:
+        real = str(d.resolve())
+        if real in seen:
+            raise ConfigError(f"shard folder {d} is given twice (as {seen[real]} and {d})")
+        seen[real] = d
     metas, parts = [], []
     for d in shards:
-        d = Path(d)
+        if not d.is_dir():
+            raise ConfigError(f"{d} is not a folder; give the shard folders 'pmsr evaluate --shard' wrote")
         try:
-            meta = json.loads((d / "shard.json").read_text())
+            meta = json.loads((d / "shard.json").read_text(encoding="utf-8"))
         except (OSError, ValueError):
             raise ConfigError(f"{d} is not a shard folder of 'pmsr evaluate --shard' (no readable shard.json)") from None
-        if meta.get("format") != SHARD_FORMAT:
+        if not isinstance(meta, dict) or meta.get("format") != SHARD_FORMAT:
             raise ConfigError(f"{d}/shard.json is not a {SHARD_FORMAT} file")
+        if not isinstance(meta.get("scenario"), dict) or not isinstance(meta.get("base_dir"), str):
+            raise ConfigError(f"{d}/shard.json lacks its scenario (corrupted?)")
         try:
             with np.load(d / "blocks.npz", allow_pickle=False) as f:
                 parts.append(BlockSums.from_arrays({k: f[k] for k in f.files}))
-        except (OSError, ValueError, KeyError) as exc:
-            raise ConfigError(f"{d}/blocks.npz is missing or corrupted ({exc})") from None
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError, IndexError) as exc:
+            first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+            raise ConfigError(f"{d}/blocks.npz is missing or corrupted ({first_line})") from None
         metas.append(meta)
     first = metas[0]
     for d, m in zip(shards, metas):
@@ -182,6 +199,6 @@ def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool
         for c, per in p.example.items():
             merged.example.setdefault(c, {}).update(per)
     setup = prepare(sc, device)
-    with atomic_dir(out, overwrite) as tmp:
+    with atomic_dir(out, overwrite, command="merge", inputs=shards) as tmp:
         res = write_outputs(setup, merged, tmp, device)
     return res

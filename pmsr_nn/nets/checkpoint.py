@@ -68,16 +68,21 @@ def save_tracker(path: str | Path, meta: dict, state_dict: dict) -> Path:
 def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
     """``(meta, model config, network state_dict)`` of a checkpoint, checked to be ours and whole."""
     path = Path(path)
+    if path.is_dir():
+        raise CheckpointError(f"{path} is a folder; give its tracker.pt or a .ckpt file")
     if not path.is_file():
         raise CheckpointError(f"no checkpoint at {path}")
+    if path.stat().st_size == 0:
+        raise CheckpointError(f"{path} is empty (0 bytes): an interrupted copy?")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError) as exc:
-        raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): "
-                              f"{str(exc).splitlines()[0][:120]}") from None
     except pickle.UnpicklingError:
         raise CheckpointError(f"{path} holds objects other than tensors and plain data; "
                               "refusing to unpickle it (only pmsr_nn checkpoints are loaded)") from None
+    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, TypeError, KeyError,
+            IndexError, AttributeError, UnicodeDecodeError, MemoryError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+        raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): {first}") from None
     meta = blob.get("pmsr") if isinstance(blob, dict) else None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a pmsr_nn tracker checkpoint (no 'pmsr' block)")
@@ -92,4 +97,9 @@ def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
     net = {k[len("net."):]: v for k, v in sd.items() if k.startswith("net.")}
     if not net:
         raise CheckpointError(f"{path} holds no network weights")
+    for k, v in net.items():
+        if not isinstance(v, torch.Tensor):
+            raise CheckpointError(f"{path}: weight net.{k} is not a tensor")
+        if v.is_floating_point() and not torch.isfinite(v).all():
+            raise CheckpointError(f"{path}: weight net.{k} holds NaN or infinite values (a diverged training run?)")
     return meta, cfg, net

@@ -16,6 +16,7 @@ from pathlib import Path
 import torch
 
 from ..errors import ConfigError
+from ..outputs import atomic_folder, check_folder_target
 from ..metrics import pooled_rmse, position_columns, velocity_columns
 from .inference import Tracker
 from .training import TrainConfig, prepare_dataset, train
@@ -61,34 +62,41 @@ def score_on(tracker: Tracker, dataset: Path) -> dict:
 
 
 def select_best(cfg: TrainConfig, out: str | Path, *, members: int = 10, fresh_tracks_n: int = 20) -> dict:
-    """Train ``members`` models into ``out/member-NN``, score them, copy the best to ``out/best.pt``."""
+    """Train ``members`` models into ``out/member-NN``, score them, copy the best to ``out/best.pt``.
+
+    ``out`` is written atomically (:func:`pmsr_nn.outputs.atomic_folder`): a refused, failed or
+    interrupted selection leaves nothing behind. Paths in ``selection.json`` are relative to ``out``.
+    """
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"output folder {out} exists and is not empty; choose another --out")
     if cfg.data.fold is not None or cfg.data.folds is not None:
         raise ConfigError("select assigns the data folds itself; remove data.fold / data.folds from the config")
+    inputs = [p for p in (cfg.data.path, cfg.data.recipe) if p]
+    check_folder_target(out, overwrite=False, inputs=inputs)
     prepare_dataset(cfg.data)  # fail on a bad recipe before anything is written
-    out.mkdir(parents=True, exist_ok=True)
-    fresh = fresh_tracks(cfg, fresh_tracks_n, out / "fresh")
-    rows = []
-    for i in range(members):
-        print(f"select: member {i + 1}/{members}", flush=True)
-        data = replace(cfg.data, fold=i, folds=members) if members > 1 else cfg.data
-        member = replace(cfg, name=f"{cfg.name}-member{i:02d}", seed=cfg.seed + i, data=data)
-        run = out / f"member-{i:02d}"
-        m = train(member, run)
-        scores = score_on(Tracker.load(run / "tracker.pt"), fresh)
-        rows.append({"member": i, "seed": member.seed, "fold": data.fold, "run": str(run),
-                     "val_pos_rmse_m": m["val"]["pos_rmse_m"], "val_vel_rmse_mps": m["val"]["vel_rmse_mps"],
-                     "fresh_pos_rmse_m": scores["pos_rmse_m"], "fresh_vel_rmse_mps": scores["vel_rmse_mps"],
-                     "epochs": m["epochs"]})
-    best = min(rows, key=lambda r: r["fresh_pos_rmse_m"])
-    shutil.copyfile(Path(best["run"]) / "tracker.pt", out / "best.pt")
-    table = selection_table(rows, best["member"], fresh_tracks_n)
-    result = {"best": best["member"], "members": rows, "fresh_dataset": str(fresh), "table": table,
-              "criterion": "lowest position RMSE on the fresh tracks after the first window"}
-    (out / "selection.json").write_text(json.dumps(result, indent=2) + "\n")
-    (out / "selection.md").write_text(table + "\n")
+    with atomic_folder(out, command="select", inputs=inputs) as tmp:
+        fresh = fresh_tracks(cfg, fresh_tracks_n, tmp / "fresh")
+        rows = []
+        for i in range(members):
+            print(f"select: member {i + 1}/{members}", flush=True)
+            data = replace(cfg.data, fold=i, folds=members) if members > 1 else cfg.data
+            member = replace(cfg, name=f"{cfg.name}-member{i:02d}", seed=cfg.seed + i, data=data)
+            name = f"member-{i:02d}"
+            m = train(member, tmp / name)
+            scores = score_on(Tracker.load(tmp / name / "tracker.pt"), fresh)
+            rows.append({"member": i, "seed": member.seed, "fold": data.fold, "run": name,
+                         "val_pos_rmse_m": m["val"]["pos_rmse_m"], "val_vel_rmse_mps": m["val"]["vel_rmse_mps"],
+                         "fresh_pos_rmse_m": scores["pos_rmse_m"], "fresh_vel_rmse_mps": scores["vel_rmse_mps"],
+                         "epochs": m["epochs"]})
+        best = min(rows, key=lambda r: r["fresh_pos_rmse_m"])
+        shutil.copyfile(tmp / best["run"] / "tracker.pt", tmp / "best.pt")
+        table = selection_table(rows, best["member"], fresh_tracks_n)
+        result = {"best": best["member"], "members": rows, "fresh_dataset": "fresh", "table": table,
+                  "criterion": "lowest position RMSE on the fresh tracks after the first window",
+                  "paths": "relative to this folder"}
+        (tmp / "selection.json").write_text(json.dumps(result, indent=2) + "\n")
+        (tmp / "selection.md").write_text(table + "\n")
     return result
 
 

@@ -11,6 +11,13 @@ Run folder::
 
 An interrupted run continues from ``last.ckpt`` with ``--resume`` (same config). Every
 Lightning checkpoint carries the ``pmsr`` block, so any of them serves ``pmsr track``.
+
+Nothing is written before the whole config, the data, the window and the accelerator have been
+checked, so a refused run leaves no folder behind. The folder carries our output marker; a run
+that fails or is interrupted before its first checkpoint is removed again (nothing in it could be
+resumed), one that has a checkpoint is kept for ``--resume``. A run killed outright before its
+first checkpoint leaves a marked folder holding only its config: ``--resume`` starts it afresh.
+Every checkpoint is read with ``weights_only=True``, Lightning's resume included.
 """
 
 from __future__ import annotations
@@ -26,8 +33,9 @@ from typing import Any
 import yaml
 from lightning.pytorch.callbacks import Callback
 
-from ..config import from_dict, load_yaml, require, to_dict
+from ..config import from_dict, load_yaml, parse_yaml_value, require, to_dict
 from ..errors import ConfigError
+from ..outputs import write_marker
 from .checkpoint import save_tracker, tracker_metadata
 from .config import ModelConfig
 from .module import OptimConfig
@@ -122,10 +130,7 @@ def apply_overrides(raw: dict, overrides: list[str]) -> dict:
         key, sep, text = item.partition("=")
         if not sep or not key:
             raise ConfigError(f"override {item!r} is not KEY=VALUE (e.g. trainer.max_epochs=5)")
-        try:
-            value = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise ConfigError(f"override {item!r}: value is not valid YAML") from None
+        value = parse_yaml_value(text, where=f"override {key}")
         node = raw
         parts = key.split(".")
         for p in parts[:-1]:
@@ -180,18 +185,41 @@ def prepare_dataset(data: DataConfig, progress: bool = True) -> Path:
 
 # -- the run folder --------------------------------------------------------------------------
 
-def _check_run_folder(out: Path, resume: bool) -> None:
+def _check_run_folder(out: Path, resume: bool, inputs=()) -> None:
+    from ..outputs import check_target, output_kind
+
     if os.environ.get(_CHILD_ENV) == str(out.resolve()):
         return
+    check_target(out, inputs=inputs)
     if resume:
         if not (out / "config.yaml").is_file():
             raise ConfigError(f"cannot resume: {out} is not a pmsr training run (no config.yaml)")
-        if not (out / "checkpoints" / "last.ckpt").is_file():
-            raise ConfigError(f"cannot resume: {out}/checkpoints/last.ckpt does not exist (no checkpoint was written yet)")
+        if output_kind(out) not in (None, "train"):
+            raise ConfigError(f"cannot resume: {out} holds the output of 'pmsr {output_kind(out)}', not a training run")
+        last = out / "checkpoints" / "last.ckpt"
+        if last.exists():
+            from .checkpoint import read_checkpoint
+
+            read_checkpoint(last)  # truncated, foreign or pickled: refused here, before Lightning sees it
         return
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise ConfigError(f"--out {out} exists and is not a folder; give a new run folder")
     if out.exists() and any(out.iterdir()):
         hint = "; pass --resume to continue it" if (out / "config.yaml").is_file() else ""
         raise ConfigError(f"run folder {out} exists and is not empty{hint}, or choose another --out")
+
+
+def _check_accelerator(tc: "TrainerConfig") -> None:
+    import torch
+
+    acc = tc.accelerator.lower()
+    if acc in ("gpu", "cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"trainer.accelerator={tc.accelerator}: no CUDA GPU is available on this machine "
+                          "(use auto or cpu)")
+    if acc == "mps" and not torch.backends.mps.is_available():
+        raise ConfigError("trainer.accelerator=mps: no Apple GPU is available on this machine (use auto or cpu)")
+    if acc not in ("auto", "cpu", "gpu", "cuda", "mps", "tpu"):
+        raise ConfigError(f"trainer.accelerator: unknown accelerator {tc.accelerator!r} (auto, cpu, gpu, cuda, mps)")
 
 
 def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> dict:
@@ -209,13 +237,14 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
     from .module import TrackerModule
 
     out = Path(out)
-    _check_run_folder(out, resume)
+    _check_run_folder(out, resume, inputs=[p for p in (cfg and cfg.data.path, cfg and cfg.data.recipe) if p])
     if resume:
         stored = from_dict(TrainConfig, load_yaml(out / "config.yaml"), where=f"{out}/config.yaml")
         if cfg is not None and to_dict(cfg) != to_dict(stored):
             raise ConfigError(f"the given config differs from {out}/config.yaml; resume with the run's own config (omit CONFIG)")
         cfg = stored
     tc = cfg.trainer
+    _check_accelerator(tc)
     if tc.threads:
         torch.set_num_threads(tc.threads)
     dataset = prepare_dataset(cfg.data, progress=tc.progress)
@@ -223,13 +252,17 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
                                num_workers=cfg.data.num_workers, seed=cfg.seed,
                                fold=cfg.data.fold, folds=cfg.data.folds,
                                eval_window_stride=cfg.data.eval_window_stride)
+    for split in ("train", "val", "test"):  # a window longer than the tracks, an empty split: refused now
+        if len(dm.dataset(split)) == 0:
+            raise ConfigError(f"the {split} split of {dataset} holds no windows of {dm.window} samples; "
+                              "simulate more tracks or shorten data.window")
     meta = tracker_metadata(cfg.model, dm.manifest, dm.normalisation(), window=dm.window, seed=cfg.seed,
                             fold=cfg.data.fold, folds=cfg.data.folds, run=cfg.name)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
     module = TrackerModule(to_dict(cfg.model), to_dict(cfg.optim), meta, max_epochs=tc.max_epochs)
+    with torch.no_grad(), torch.random.fork_rng():  # a model that cannot run this window fails now, not in fit
+        module.net(torch.zeros(1, dm.window, meta["dim_z"], dtype=next(module.net.parameters()).dtype))
 
-    out.mkdir(parents=True, exist_ok=True)
-    os.environ[_CHILD_ENV] = str(out.resolve())
     ckpt_dir = out / "checkpoints"
     best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor="val/pos_rmse_m", mode="min",
                            save_top_k=1, auto_insert_metric_name=False, enable_version_counter=False)
@@ -239,33 +272,43 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
     callbacks = [best, last, history, LearningRateMonitor(logging_interval="epoch")]
     if tc.early_stopping_patience:
         callbacks.append(EarlyStopping(monitor="val/pos_rmse_m", mode="min", patience=tc.early_stopping_patience))
-    trainer = L.Trainer(
-        default_root_dir=out, max_epochs=tc.max_epochs,
-        max_time={"minutes": tc.max_time_minutes} if tc.max_time_minutes else None,
-        limit_train_batches=tc.train_batches_per_epoch or 1.0, limit_val_batches=tc.val_batches or 1.0,
-        accelerator=tc.accelerator, devices=tc.devices, strategy=tc.strategy, num_nodes=tc.num_nodes,
-        precision=tc.precision, deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
-        logger=TensorBoardLogger(save_dir=out, name="tb", version="", default_hp_metric=False),
-        callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps,
-        enable_progress_bar=tc.progress, enable_model_summary=tc.progress,
-    )
-    if trainer.is_global_zero and not resume:
-        (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
-    resumed_from = str(ckpt_dir / "last.ckpt") if resume else None
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    try:
+        trainer = L.Trainer(
+            default_root_dir=out, max_epochs=tc.max_epochs,
+            max_time={"minutes": tc.max_time_minutes} if tc.max_time_minutes else None,
+            limit_train_batches=tc.train_batches_per_epoch or 1.0, limit_val_batches=tc.val_batches or 1.0,
+            accelerator=tc.accelerator, devices=tc.devices, strategy=tc.strategy, num_nodes=tc.num_nodes,
+            precision=tc.precision, deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
+            logger=TensorBoardLogger(save_dir=out, name="tb", version="", default_hp_metric=False),
+            callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps,
+            enable_progress_bar=tc.progress, enable_model_summary=tc.progress,
+        )
+    except (MisconfigurationException, ValueError, RuntimeError) as exc:
+        raise ConfigError(f"trainer: {' '.join(str(exc).split())[:300]}") from None
+
+    # Everything is checked: only now is the run folder written.
+    created = _start_run_folder(out, cfg, write=trainer.is_global_zero and not resume)
+    resumed_from = str(ckpt_dir / "last.ckpt") if resume and (ckpt_dir / "last.ckpt").is_file() else None
+    os.environ[_CHILD_ENV] = str(out.resolve())
     t0 = time.perf_counter()
     try:
-        trainer.fit(module, datamodule=dm, ckpt_path=resumed_from)
+        trainer.fit(module, datamodule=dm, ckpt_path=resumed_from, weights_only=True)
+    except BaseException as exc:
+        _after_failed_fit(out, created, exc)
+        raise
     finally:
         os.environ.pop(_CHILD_ENV, None)  # workers have inherited it; this process must check again next time
     fit_seconds = time.perf_counter() - t0
 
     best_path = best.best_model_path or str(ckpt_dir / "last.ckpt")
-    val = trainer.validate(module, datamodule=dm, ckpt_path=best_path, verbose=False)
-    test = trainer.test(module, datamodule=dm, ckpt_path=best_path, verbose=False)
+    val = trainer.validate(module, datamodule=dm, ckpt_path=best_path, verbose=False, weights_only=True)
+    test = trainer.test(module, datamodule=dm, ckpt_path=best_path, verbose=False, weights_only=True)
     metrics = {
         "run": cfg.name,
         "dataset": str(dataset),
-        "best_checkpoint": str(Path(best_path)),
+        "best_checkpoint": os.path.relpath(best_path, out),  # relative: the run folder may be moved
         "resumed_from": resumed_from,
         "epochs": trainer.current_epoch,
         "global_step": trainer.global_step,
@@ -286,7 +329,36 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
         tmp = out / ".metrics.json.partial"
         tmp.write_text(json.dumps(metrics, indent=2) + "\n")
         os.replace(tmp, out / "metrics.json")
+        write_marker(out, "train", state="finished")
     return metrics
+
+
+def _start_run_folder(out: Path, cfg: TrainConfig, write: bool) -> bool:
+    """Create and mark the run folder (rank 0 of a new run); True when this call created it."""
+    if not write:
+        return False
+    from ..outputs import make_parents
+
+    make_parents(out)
+    created = not out.exists()
+    out.mkdir(exist_ok=True)
+    write_marker(out, "train", state="running")
+    (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
+    return created
+
+
+def _after_failed_fit(out: Path, created: bool, exc: BaseException) -> None:
+    """A new run that stopped before its first checkpoint is removed; one with a checkpoint is kept."""
+    import shutil
+
+    from ..errors import Interrupted
+
+    if (out / "checkpoints" / "last.ckpt").is_file() or (out / "checkpoints" / "best.ckpt").is_file():
+        if isinstance(exc, (Interrupted, KeyboardInterrupt)):
+            exc.kept = f"the run is kept at {out}: continue it with 'pmsr train --resume --out {out}'"
+        return
+    if created:
+        shutil.rmtree(out, ignore_errors=True)
 
 
 def _merge_history(path: Path, metrics: dict) -> None:

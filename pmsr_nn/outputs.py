@@ -1,0 +1,295 @@
+"""Safe outputs: every file and folder a ``pmsr`` command writes goes through here.
+
+Rules, in the order they are checked (each breach is an :class:`~pmsr_nn.errors.OutputError`,
+raised before anything is written):
+
+* an output is never the working directory, one of its parents, the home folder or ``/``;
+* an output is never an input of the same command, a folder holding one, or a path inside one;
+* an existing folder is replaced only with ``overwrite`` and only when it carries our marker
+  (:data:`MARKER`, written into every folder a command completes); an existing file only with
+  ``overwrite``; a symbolic link never (the link target would be what is replaced);
+* the parent folder must exist or be creatable, and be writable.
+
+Writing happens in a hidden temporary sibling ``.NAME.partial-PID`` (never inside the target),
+which is flushed to disk and renamed onto the target only when complete. A failure or a signal
+removes the temporary; a run killed outright (SIGKILL, power loss) leaves it, and the next
+command writing the same target removes it once no live process owns it. A replaced folder is
+first renamed aside (``.NAME.old-PID``), so the target is never half old, half new.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import time
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from . import __version__
+from .errors import OutputError
+
+MARKER = ".pmsr_output.json"
+"""Written into every output folder a command completes: what wrote it, and when."""
+
+PARTIAL_MARKER = ".pmsr_partial"
+"""Written first into every temporary folder, so that only our own leftovers are ever removed."""
+
+_PARTIAL = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)$")
+
+
+def _resolved(path: Path) -> Path:
+    return Path(os.path.abspath(Path(path).expanduser()))
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: alive
+        return True
+    return True
+
+
+def output_kind(path: Path) -> str | None:
+    """The ``pmsr`` command that wrote folder ``path`` (None: not ours, or not a folder).
+
+    Our marker names it; datasets and demo folders of earlier releases are known by their own
+    manifest (``simulate``) and ``demo.json`` (``demo``).
+    """
+    path = Path(path)
+    if path.is_symlink() or not path.is_dir():
+        return None
+    try:
+        marker = json.loads((path / MARKER).read_text())
+        if isinstance(marker, dict) and marker.get("format") == "pmsr_nn.output":
+            return str(marker.get("command"))
+    except (OSError, ValueError):
+        pass
+    from .data.store import is_our_dataset
+
+    if is_our_dataset(path):
+        return "simulate"
+    try:
+        return "demo" if isinstance(json.loads((path / "demo.json").read_text()), dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def is_ours(path: Path) -> bool:
+    """True when ``path`` is a folder some ``pmsr`` command wrote."""
+    return output_kind(path) is not None
+
+
+def write_marker(folder: Path, command: str, **facts) -> None:
+    """Mark ``folder`` as written by ``pmsr COMMAND`` (so a later ``--overwrite`` may replace it)."""
+    data = {"format": "pmsr_nn.output", "command": command, "pmsr_nn": __version__,
+            "written": time.strftime("%Y-%m-%dT%H:%M:%S"), **facts}
+    _write_synced(Path(folder) / MARKER, json.dumps(data, indent=1) + "\n")
+
+
+def _write_synced(path: Path, text: str) -> None:
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def check_target(out: Path, *, inputs: Iterable[Path] = (), what: str = "--out") -> Path:
+    """Refuse output paths that are never safe to write (see the module docstring).
+
+    Returns the absolute path. Does not look at whether ``out`` exists.
+    """
+    target = _resolved(out)
+    cwd = _resolved(Path.cwd())
+    if target == cwd or target in cwd.parents:
+        raise OutputError(f"{what} {out} is the working directory or a parent of it; give a new folder inside it")
+    if target == _resolved(Path.home()) or target == Path(target.anchor):
+        raise OutputError(f"{what} {out} is the home folder or the file-system root; give a new folder")
+    real = Path(os.path.realpath(target))
+    for given in inputs:
+        src = Path(os.path.realpath(_resolved(given)))
+        if real == src:
+            raise OutputError(f"{what} {out} is also an input of this command; choose another output")
+        if real in src.parents:
+            raise OutputError(f"{what} {out} holds the input {given}; choose another output")
+        if src in real.parents:
+            raise OutputError(f"{what} {out} lies inside the input {given}; choose another output")
+    return target
+
+
+def _check_parent(out: Path, what: str) -> None:
+    """The nearest existing ancestor of ``out`` must be a writable folder."""
+    anc = _resolved(out).parent
+    while not anc.exists():
+        if anc.is_symlink():
+            raise OutputError(f"{what} {out}: {anc} is a broken symbolic link")
+        anc = anc.parent
+    if not anc.is_dir():
+        raise OutputError(f"{what} {out}: {anc} is a file, not a folder")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise OutputError(f"{what} {out}: no permission to write in {anc}")
+
+
+def check_folder_target(out: Path, *, overwrite: bool, inputs: Iterable[Path] = (), what: str = "--out",
+                        allow: Iterable[str] = ()) -> None:
+    """Everything :func:`atomic_folder` checks, without writing: call it before long work.
+
+    ``allow``: commands whose marked folders this one may replace (default: any of ours).
+    """
+    out = Path(out)
+    check_target(out, inputs=inputs, what=what)
+    if out.is_symlink():
+        raise OutputError(f"{what} {out} is a symbolic link; give the real folder or a new path")
+    if out.exists():
+        if not out.is_dir():
+            raise OutputError(f"{what} {out} exists and is a file, not a folder")
+        if any(out.iterdir()):
+            kind = output_kind(out)
+            if kind is None:
+                raise OutputError(f"{what} {out} exists and was not written by pmsr (no {MARKER}); pmsr never "
+                                  "replaces what it did not write: choose another path")
+            allowed = tuple(allow)
+            if allowed and kind not in allowed:
+                raise OutputError(f"{what} {out} holds the output of 'pmsr {kind}', not of 'pmsr {allowed[0]}'; "
+                                  "choose another path")
+            if not overwrite:
+                raise OutputError(f"{what} {out} already exists; pass --overwrite to replace it")
+    _check_parent(out, what)
+
+
+def clean_stale(out: Path) -> list[Path]:
+    """Remove our temporaries for target ``out`` whose process is gone; returns what was removed."""
+    out = _resolved(out)
+    parent = out.parent
+    removed = []
+    if not parent.is_dir():
+        return removed
+    for p in parent.iterdir():
+        m = _PARTIAL.match(p.name)
+        if not m or m["name"] != out.name or _process_alive(int(m["pid"])):
+            continue
+        if p.is_dir() and not p.is_symlink() and ((p / PARTIAL_MARKER).exists() or is_ours(p)):
+            shutil.rmtree(p, ignore_errors=True)
+            removed.append(p)
+        elif p.is_file() and not p.is_symlink():
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+def make_parents(out: Path) -> list[Path]:
+    """Create the missing parents of ``out``; return them, outermost first (to undo on failure)."""
+    made = []
+    anc = _resolved(out).parent
+    missing = []
+    while not anc.exists():
+        missing.append(anc)
+        anc = anc.parent
+    for d in reversed(missing):
+        d.mkdir()
+        made.append(d)
+    return made
+
+
+def _remove_if_empty(folders: list[Path]) -> None:
+    for d in reversed(folders):
+        try:
+            d.rmdir()
+        except OSError:
+            break
+
+
+def _fsync_tree(root: Path) -> None:
+    for dirpath, _, files in os.walk(root):
+        for name in files:
+            try:
+                fd = os.open(os.path.join(dirpath, name), os.O_RDONLY)
+            except OSError:
+                continue
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+
+
+@contextmanager
+def atomic_folder(out: Path, *, command: str, overwrite: bool = False, inputs: Iterable[Path] = (),
+                  what: str = "--out", allow: Iterable[str] = (), **facts) -> Iterator[Path]:
+    """Yield a temporary folder that becomes ``out`` (with our marker) only if the block completes."""
+    out = Path(out)
+    inputs = list(inputs)
+    check_folder_target(out, overwrite=overwrite, inputs=inputs, what=what, allow=allow)
+    made = make_parents(out)
+    clean_stale(out)
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    try:
+        tmp.mkdir()
+        (tmp / PARTIAL_MARKER).touch()
+        yield tmp
+        (tmp / PARTIAL_MARKER).unlink()
+        write_marker(tmp, command, **facts)
+        _fsync_tree(tmp)
+        replace_folder(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        _remove_if_empty(made)
+        raise
+
+
+def replace_folder(src: Path, out: Path) -> None:
+    """Rename ``src`` onto ``out``; an existing ``out`` (already checked to be ours) is moved aside first."""
+    if out.is_dir() and not out.is_symlink():
+        if any(out.iterdir()):
+            old = out.parent / f".{out.name}.old-{os.getpid()}"
+            out.rename(old)
+            src.rename(out)
+            shutil.rmtree(old, ignore_errors=True)
+            return
+        out.rmdir()
+    src.rename(out)
+
+
+def check_file_target(path: Path, *, overwrite: bool, inputs: Iterable[Path] = (), what: str = "--out",
+                      suffixes: tuple[str, ...] = ()) -> None:
+    """Everything :func:`atomic_file` checks, without writing."""
+    path = Path(path)
+    check_target(path, inputs=inputs, what=what)
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise OutputError(f"{what} {path} must end in {' or '.join(suffixes)}")
+    if path.is_symlink():
+        raise OutputError(f"{what} {path} is a symbolic link; give a plain file path")
+    if path.exists():
+        if path.is_dir():
+            raise OutputError(f"{what} {path} is a folder; give a file path")
+        if not overwrite:
+            raise OutputError(f"{what} {path} already exists; pass --overwrite to replace it")
+    parent = _resolved(path).parent
+    if not parent.exists():
+        raise OutputError(f"{what} {path}: folder {path.parent} does not exist")
+    _check_parent(path, what)
+
+
+@contextmanager
+def atomic_file(path: Path, *, overwrite: bool = False, inputs: Iterable[Path] = (), what: str = "--out",
+                suffixes: tuple[str, ...] = ()) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` that replaces it (synced) only if the block completes."""
+    path = Path(path)
+    check_file_target(path, overwrite=overwrite, inputs=inputs, what=what, suffixes=suffixes)
+    clean_stale(path)
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    try:
+        yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
