@@ -42,15 +42,22 @@ _positive_int = _int_at_least(1, "positive")
 _nonneg_int = _int_at_least(0, "non-negative")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors as one ``pmsr: error:`` line, like every other error of the command."""
+
+    def error(self, message: str):
+        self.exit(2, f"pmsr: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="pmsr",
         description="Target tracking in multistatic passive radar: simulate datasets, train and "
         "evaluate trackers. Run 'pmsr COMMAND --help' for the options of a command.",
     )
     p.add_argument("--version", action="version", version=f"pmsr_nn {__version__}")
     p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
-    common = argparse.ArgumentParser(add_help=False)
+    common = _Parser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show the traceback of an unexpected error")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)

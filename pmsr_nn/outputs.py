@@ -28,7 +28,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from . import __version__
+from . import __version__, interrupts
 from .errors import OutputError
 
 MARKER = ".pmsr_output.json"
@@ -232,6 +232,7 @@ def atomic_folder(out: Path, *, command: str, overwrite: bool = False, inputs: I
         tmp.mkdir()
         (tmp / PARTIAL_MARKER).touch()
         yield tmp
+        interrupts.check()
         (tmp / PARTIAL_MARKER).unlink()
         write_marker(tmp, command, **facts)
         _fsync_tree(tmp)
@@ -285,6 +286,7 @@ def atomic_file(path: Path, *, overwrite: bool = False, inputs: Iterable[Path] =
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     try:
         yield tmp
+        interrupts.check()
         fd = os.open(tmp, os.O_RDONLY)
         try:
             os.fsync(fd)

@@ -15,6 +15,68 @@ from .store import open_dataset
 from .windows import WindowDataset
 
 
+class EpochShuffler(torch.utils.data.Sampler):
+    """Training order: the shuffle of torch's ``RandomSampler`` with a generator seeded once by
+    ``seed`` (so results equal those of earlier releases), recomputed from ``(seed, epoch)`` so
+    that a run resumed mid-epoch continues with exactly the windows the interrupted run would
+    have drawn.
+
+    Per epoch the shared generator gave: the ``DataLoader`` iterator's base seed (one int64
+    draw), then ``RandomSampler``'s permutation, and a second, unused permutation when the epoch
+    ran to its end (it closes the sampler's iterator; an epoch cut short by
+    ``train_batches_per_epoch`` never gets there): ``full_epochs`` says which. ``skip``: indices
+    to leave out at the start of the next iteration (set by a resume).
+    """
+
+    def __init__(self, n: int, seed: int, full_epochs: bool):
+        self.n, self.seed, self.draws_per_epoch = int(n), int(seed), 2 if full_epochs else 1
+        self.epoch, self.skip = 0, 0
+        self.worker_seeds = torch.Generator().manual_seed(self.seed)  # the loader's base seeds, off the global RNG
+
+    def set_epoch(self, epoch: int) -> None:  # called by Lightning at the start of every epoch
+        self.epoch = int(epoch)
+
+    def order(self, epoch: int) -> torch.Tensor:
+        g = torch.Generator().manual_seed(self.seed)
+        for e in range(epoch + 1):
+            torch.empty((), dtype=torch.int64).random_(generator=g)  # the loader iterator's base seed
+            perm = torch.randperm(self.n, generator=g)
+            if e < epoch and self.draws_per_epoch == 2:
+                torch.randperm(self.n, generator=g)
+        return perm
+
+    def __iter__(self):
+        skip, self.skip = self.skip, 0
+        yield from self.order(self.epoch)[skip:].tolist()
+
+    def __len__(self) -> int:
+        return self.n
+
+
+class ResumableLoader(DataLoader):
+    """A training ``DataLoader`` whose position Lightning stores in every checkpoint.
+
+    ``progress()`` gives the batches of the current epoch already trained on; a resumed run
+    skips them, so a run killed at any step and resumed ends with the same weights as one that
+    never stopped.
+    """
+
+    def __init__(self, *args, progress=None, epoch_batches=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.progress = progress
+        self.epoch_batches = epoch_batches  # batches an epoch trains on (train_batches_per_epoch or all)
+
+    def state_dict(self) -> dict:
+        return {"epoch": self.sampler.epoch, "batches": int(self.progress()) if self.progress else 0}
+
+    def load_state_dict(self, state: dict) -> None:
+        epoch, batches = int(state["epoch"]), int(state["batches"])
+        if self.epoch_batches is not None and batches >= self.epoch_batches:
+            epoch, batches = epoch + 1, 0  # saved on the epoch's last batch: Lightning goes on with the next epoch
+        self.sampler.set_epoch(epoch)
+        self.sampler.skip = batches * self.batch_size
+
+
 class TrackWindowDataModule(L.LightningDataModule):
     """Train / val / test windows of a dataset written by ``pmsr simulate``.
 
@@ -90,15 +152,24 @@ class TrackWindowDataModule(L.LightningDataModule):
             self.dataset(s)
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
-        g = torch.Generator().manual_seed(self.seed) if shuffle else None
         data = self.dataset(split)
         if not shuffle and self.eval_window_stride > 1:
             data = Subset(data, range(0, len(data), self.eval_window_stride))
-        return DataLoader(data, batch_size=self.batch_size, shuffle=shuffle, generator=g,
+        return DataLoader(data, batch_size=self.batch_size, shuffle=False,
                           num_workers=self.num_workers, persistent_workers=self.num_workers > 0)
 
     def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
+        data = self.dataset("train")
+        trainer = self.trainer
+        limit = trainer.limit_train_batches if trainer is not None else 1.0
+        full = limit >= 1.0 if isinstance(limit, float) else limit * self.batch_size >= len(data)
+        batches = -(-len(data) // self.batch_size)
+        epoch_batches = int(limit * batches) if isinstance(limit, float) else min(int(limit), batches)
+        progress = (lambda: trainer.fit_loop.epoch_loop.batch_progress.current.processed) if trainer else None
+        sampler = EpochShuffler(len(data), self.seed, full)
+        return ResumableLoader(data, batch_size=self.batch_size, sampler=sampler, generator=sampler.worker_seeds,
+                               num_workers=self.num_workers, persistent_workers=self.num_workers > 0,
+                               progress=progress, epoch_batches=epoch_batches)
 
     def val_dataloader(self) -> DataLoader:
         return self._loader("val", shuffle=False)

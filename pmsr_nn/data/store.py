@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .. import __version__
+from .. import __version__, interrupts
 from ..errors import DatasetError, PmsrError
 from ..rng import seeded_generator
 from ..simulation.recipe import TrackRecipe
@@ -137,6 +137,7 @@ def _write_into(recipe: TrackRecipe, tmp: Path, progress: bool) -> dict:
         }
         with tqdm(total=n, unit="track", desc=f"simulate {recipe.name}", disable=None if progress else True, leave=False) as bar:
             for c, start in enumerate(range(0, n, chunk)):
+                interrupts.check()
                 stop = min(start + chunk, n)
                 batch, st = generate_tracks(recipe, stop - start, seeded_generator(recipe.seed, _CHUNK_STREAM, c))
                 stats.add(st)

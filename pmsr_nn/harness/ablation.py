@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import from_dict
+from ..errors import ConfigError
 from .report import _f, _plt, reference_table
 from .scenario import FITEE2023_TRAJECTORIES, FixedNoiseSpec, MethodSpec, Scenario
 
@@ -60,8 +61,15 @@ def run_ablation(settings: dict[str, tuple[dict, int]], out: Path, budget: Budge
     A setting whose run folder already holds ``tracker.pt`` is not retrained (re-running a long
     ablation after an interruption continues where it stopped)."""
     from ..nets.training import train
+    from ..outputs import check_target, output_kind, write_marker
     from .evaluate import evaluate
 
+    check_target(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and output_kind(out) != "ablation":
+        raise ConfigError(f"--out {out} exists and is not an ablation folder this package wrote; an ablation only "
+                          "continues in its own folder: choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    write_marker(out, "ablation")
     rows = []
     for label, (model, window) in settings.items():
         run = out / "runs" / label

@@ -21,6 +21,7 @@ from typing import Literal
 import numpy as np
 import torch
 
+from .. import interrupts
 from ..config import from_dict, require, to_dict
 from ..errors import ConfigError
 from ..filters import Gaussian
@@ -296,6 +297,7 @@ def run_multitarget(setup: MTSetup, progress: bool = True) -> dict:
                for m in sc.methods}
         example = {}
         for block in range(sc.n_blocks):
+            interrupts.check()
             truth, scans, prior = draw_block(setup, ci, block)
             if ci == 0 and block == 0:  # untimed warm-up: one-off start-up costs stay out of the timing
                 one = Gaussian(prior.x[:1], prior.P[:1])

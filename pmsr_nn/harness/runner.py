@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .. import interrupts
 from ..bounds import BoundResult, pcrb
 from ..errors import ConfigError
 from ..filters import Gaussian
@@ -207,6 +208,7 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                 if ci == 0 and block == blocks[0]:
                     warm_up(setup, z, prior)
                 for spec in sc.methods:
+                    interrupts.check()
                     bar.set_postfix_str(f"{case.name} {spec.name}", refresh=False)
                     t0 = time.perf_counter()
                     res = run_method(spec, z, prior, setup.models, setup.trackers, (sc.seed, ci, block))

@@ -34,6 +34,7 @@ import yaml
 from lightning.pytorch.callbacks import Callback
 
 from ..config import from_dict, load_yaml, parse_yaml_value, require, to_dict
+from .. import interrupts
 from ..errors import ConfigError
 from ..outputs import write_marker
 from .checkpoint import save_tracker, tracker_metadata
@@ -389,6 +390,7 @@ class ValidationHistory(Callback):
         self._batch_t = time.perf_counter()
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        interrupts.check()  # a signal whose exception a weakref callback swallowed still stops the run
         if self._batch_t is not None:
             self._train_seconds += time.perf_counter() - self._batch_t
             self._windows += len(batch[0]) * trainer.world_size
