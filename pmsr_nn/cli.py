@@ -323,6 +323,9 @@ def cmd_track(args) -> int:
     if "geometry" in seqs.source:
         tracker.check_compatible(seqs.source["geometry"], seqs.source["columns"], seqs.source.get("dt_s"),
                                  where=f"dataset {args.input}")
+    elif seqs.source.get("dt_s") is not None and abs(seqs.source["dt_s"] - tracker.meta["dt_s"]) > 1e-6 * tracker.meta["dt_s"]:
+        raise PmsrError(f"{args.input}: time_s says the scans come every {seqs.source['dt_s']:g} s; the tracker was "
+                        f"trained at {tracker.meta['dt_s']:g} s")
     if not args.force:
         span = (tracker.measurement_scaler.lo, tracker.measurement_scaler.hi)
         for i, z in enumerate(seqs.z):

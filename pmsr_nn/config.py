@@ -68,7 +68,7 @@ class _StrictLoader(yaml.SafeLoader):
                     continue
                 key = self.construct_object(key_node)
                 if key in seen:
-                    raise ConfigError(f"{self.where}: key {_short(key)} is written twice (lines {seen[key]} and "
+                    raise ConfigError(f"{self.where}: duplicate key {_short(key)} (lines {seen[key]} and "
                                       f"{key_node.start_mark.line + 1}); keep one")
                 seen[key] = key_node.start_mark.line + 1
         return super().construct_mapping(node, deep)

@@ -64,6 +64,10 @@ def check_measurements(z: torch.Tensor, columns: list[str], geometry: Geometry,
         elif kind == "azimuth":
             bad[..., d] = v.abs() > math.pi + AZIMUTH_SLACK_RAD
             reason[d] = "an azimuth outside [-pi, pi] rad (degrees?)"
+    inf = torch.isinf(z)
+    if inf.any():
+        b, k, d = (int(i) for i in inf.nonzero()[0])
+        raise MeasurementError(f"{where(b, k)}: {columns[d]} is infinite (not a measurement; a missing scan is NaN)")
     far = torch.zeros_like(bad)
     if span is not None:
         lo, hi = (torch.as_tensor(v, dtype=torch.float64) for v in span)

@@ -7,7 +7,6 @@ gives results identical to an uninterrupted run. The kill time is drawn at rando
 after the command has started writing, so each signal lands somewhere in the real work.
 """
 
-import hashlib
 import json
 import os
 import random

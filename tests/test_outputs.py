@@ -172,8 +172,8 @@ def test_aliases_within_the_budget_still_work():
 @pytest.mark.parametrize("text, message", [
     ("a: &x [*x]\n", "refers to itself"),
     ("[" * 20_000 + "]" * 20_000, f"more than {MAX_YAML_DEPTH} levels"),
-    ("seed: 1\nseed: 2\n", "'seed' is written twice \\(lines 1 and 2\\)"),
-    ("a: {b: 1, b: 2}\n", "'b' is written twice"),
+    ("seed: 1\nseed: 2\n", "duplicate key 'seed' \\(lines 1 and 2\\)"),
+    ("a: {b: 1, b: 2}\n", "duplicate key 'b'"),
     ("a: 1\n---\nb: 2\n", "not valid YAML"),
     ("a: !!python/object/apply:os.system [ls]\n", "not valid YAML"),
 ])

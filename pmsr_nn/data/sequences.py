@@ -87,7 +87,7 @@ def read_csv(path: Path, columns: list[str]) -> Sequences:
         header = list(columns)
     twice = sorted({c for c in header if header.count(c) > 1})
     if twice:
-        raise MeasurementError(f"{path}: column {twice[0]!r} appears more than once in the header")
+        raise MeasurementError(f"{path}: duplicate column {twice[0]!r} in the header")
     missing = [c for c in columns if c not in header]
     unknown = [c for c in header if c not in columns and c not in ("track", "k", "time_s")]
     if missing or unknown:
@@ -97,19 +97,48 @@ def read_csv(path: Path, columns: list[str]) -> Sequences:
         raise MeasurementError(f"{path} has a header but no measurement rows")
     idx = [header.index(c) for c in columns]
     tcol = header.index("track") if "track" in header else None
+    time_col = header.index("time_s") if "time_s" in header else None
     values = np.empty((len(body), len(columns)))
+    times = np.full(len(body), np.nan)
     tracks: list[str] = []
     for r, row in enumerate(body):
         where = f"{path}, line {r + first}"
         if len(row) != len(header):
             raise MeasurementError(f"{where}: {len(row)} cells, the header has {len(header)}")
         values[r] = [_number(row[i], where) for i in idx]
+        if time_col is not None:
+            times[r] = _number(row[time_col], where)
         tracks.append(row[tcol].strip() if tcol is not None else "0")
     order: dict[str, list[int]] = {}
     for r, t in enumerate(tracks):
         order.setdefault(t, []).append(r)
     rows = [np.asarray(v) for v in order.values()]
-    return Sequences([torch.from_numpy(values[r]) for r in rows], list(order), rows, {"columns": list(columns)})
+    source = {"columns": list(columns)}
+    if time_col is not None:
+        source["dt_s"] = _sampling_interval(path, times, rows, list(order), first)
+    return Sequences([torch.from_numpy(values[r]) for r in rows], list(order), rows, source)
+
+
+def _sampling_interval(path: Path, times: np.ndarray, rows: list[np.ndarray], tracks: list[str], first: int) -> float | None:
+    """The one sampling interval (s) of a ``time_s`` column; refused when it is uneven or differs between tracks."""
+    dt = None
+    for t, r in zip(tracks, rows):
+        d = np.diff(times[r])
+        if len(d) == 0:
+            continue
+        if not np.isfinite(d).all() or (d <= 0).any():
+            k = int(np.flatnonzero(~(np.isfinite(d) & (d > 0)))[0])
+            raise MeasurementError(f"{path}, line {int(r[k + 1]) + first}: time_s of track {t!r} does not increase")
+        step = float(np.median(d))
+        uneven = np.abs(d - step) > 1e-6 * step + 1e-9
+        if uneven.any():
+            k = int(np.flatnonzero(uneven)[0])
+            raise MeasurementError(f"{path}, line {int(r[k + 1]) + first}: time_s of track {t!r} jumps by {d[k]:g} s "
+                                   f"where the track is sampled every {step:g} s (missed scans: give them as NaN rows)")
+        if dt is not None and abs(step - dt) > 1e-6 * dt:
+            raise MeasurementError(f"{path}: track {t!r} is sampled every {step:g} s, another every {dt:g} s")
+        dt = step
+    return dt
 
 
 def read_dataset(path: Path, split: str | None = None) -> Sequences:

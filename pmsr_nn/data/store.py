@@ -257,6 +257,41 @@ class TrackDataset:
                 raise DatasetError(f"{self.path}: array '{name}' does not match its checksum (corrupted?)")
 
 
+_MANIFEST_TYPES = {"name": str, "seed": int, "variant": str, "recipe": dict, "geometry": dict, "dtype": str,
+                   "shapes": dict, "columns": dict, "dt_s": (int, float), "window": int, "windows_per_track": int,
+                   "splits": dict, "windows": dict, "normalisation": dict, "envelope": dict, "checksums_sha256": dict}
+
+
+def _check_manifest(m: dict, path: Path) -> None:
+    """Refuse a manifest missing a key or holding a value of the wrong kind (edited or corrupted)."""
+    where = f"{path}/{MANIFEST}"
+    for key, kind in _MANIFEST_TYPES.items():
+        if key not in m:
+            raise DatasetError(f"{where} lacks '{key}' (edited or corrupted?)")
+        if not isinstance(m[key], kind) or isinstance(m[key], bool):
+            raise DatasetError(f"{where}: '{key}' has the wrong kind of value ({type(m[key]).__name__})")
+    shapes = m["shapes"]
+    for name, rank in (("states", 3), ("measurements", 3), ("noise_std", 2)):
+        s = shapes.get(name)
+        if not (isinstance(s, list) and len(s) == rank and all(isinstance(v, int) and v >= 0 for v in s)):
+            raise DatasetError(f"{where}: shapes.{name} must be a list of {rank} sizes, got {s!r:.60}")
+    if not m["dt_s"] > 0:
+        raise DatasetError(f"{where}: dt_s must be positive, got {m['dt_s']}")
+    for key in ("states", "measurements"):
+        if not isinstance(m["columns"].get(key), list) or not isinstance(m["normalisation"].get(key), dict):
+            raise DatasetError(f"{where}: columns.{key} or normalisation.{key} is missing")
+    env = m["envelope"]
+    if not all(isinstance(env.get(k), (int, float)) for k in ("fraction_left", "acceptance")) \
+            or not isinstance(env.get("fraction_left_by_criterion"), dict):
+        raise DatasetError(f"{where}: envelope statistics are missing")
+    try:
+        from ..geometry import Geometry
+
+        Geometry.from_dict(m["geometry"])
+    except PmsrError as exc:
+        raise DatasetError(f"{where}: geometry: {exc}") from None
+
+
 def open_dataset(path: str | Path) -> TrackDataset:
     """Open a dataset directory written by :func:`write_dataset`, checking it is complete and ours."""
     path = Path(path)
@@ -272,6 +307,7 @@ def open_dataset(path: str | Path) -> TrackDataset:
         raise DatasetError(f"{path} is not a pmsr_nn track dataset")
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DatasetError(f"{path} has format version {manifest.get('format_version')}; this pmsr_nn reads {FORMAT_VERSION}")
+    _check_manifest(manifest, path)
     ds = TrackDataset(path, manifest)
     try:
         f = ds.file

@@ -24,6 +24,8 @@ from ..errors import ConfigError
 from .scenario import FITEE2023_TRAJECTORIES, FixedNoiseSpec, MethodSpec, Scenario
 
 DEMO_MARKER = "demo.json"
+DEMO_CONTENTS = {DEMO_MARKER, ".pmsr_output.json", "data", "train", "evaluation"}
+"""Everything a demo folder holds: a previous demo is replaced only if it holds nothing else."""
 
 DEMO_DATA = {"tracks": 120, "window": 100, "batch_size": 128, "eval_window_stride": 20}
 """120 tracks x 1000 s: 102 for training (87 k windows), the rest for validation and test."""
@@ -69,6 +71,10 @@ def _fresh(out: Path) -> None:
     if out.exists() and any(out.iterdir()):
         if output_kind(out) != "demo":
             raise ConfigError(f"{out} exists and is not a pmsr demo folder; choose another --out")
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in DEMO_CONTENTS)
+        if foreign:
+            raise ConfigError(f"{out} holds files a demo does not write ({', '.join(foreign[:3])}); pmsr never "
+                              "deletes what it did not write: choose another --out")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     write_marker(out, "demo", state="running")

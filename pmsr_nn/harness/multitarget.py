@@ -179,7 +179,8 @@ class MultiTargetScenario:
 
     def __post_init__(self) -> None:
         require(self.mc_runs >= 1 and self.block_runs >= 1, "mc_runs and block_runs must be at least 1")
-        require(self.scans >= 2, f"scans must be at least 2, got {self.scans}")
+        require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
+        require(2 <= self.scans <= 100_000, f"scans must be in [2, 100000], got {self.scans}")
         require(0 <= self.converged_from_scan < self.scans, "converged_from_scan must be a scan index")
         require(len(self.cases) > 0 and len(self.methods) > 0, "a scenario needs cases and methods")
         for what, names in (("case", [c.name for c in self.cases]), ("method", [m.name for m in self.methods])):
@@ -187,7 +188,8 @@ class MultiTargetScenario:
             require(not dup, f"duplicate {what} name(s): {dup}")
         for c in self.cases:
             require(c.pd is None or 0 < c.pd <= 1, f"case {c.name!r}: pd must be in (0, 1]")
-            require(c.clutter_per_scan is None or c.clutter_per_scan >= 0, f"case {c.name!r}: clutter must be >= 0")
+            require(c.clutter_per_scan is None or 0 <= c.clutter_per_scan <= 100_000,
+                    f"case {c.name!r}: clutter_per_scan must be in [0, 100000] (the papers use up to 500)")
             require(c.spacing_m is None or c.spacing_m >= 0, f"case {c.name!r}: spacing_m must be >= 0")
 
     @property

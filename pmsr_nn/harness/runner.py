@@ -106,6 +106,10 @@ def prepare(sc: Scenario, device: str = "cpu") -> Setup:
             t = Tracker.load(path, device=device)
             t.check_compatible(recipe.geometry.build(2).to_dict(), list(model.labels), recipe.motion.dt_s,
                                where=f"scenario {sc.name!r}")
+            stride = spec.option("stride")
+            if stride is not None and stride > t.window:
+                raise ConfigError(f"method {spec.name!r}: stride {stride} is longer than the network's window of "
+                                  f"{t.window} samples (scans between windows would get no estimate)")
             trackers[spec.name] = t
     causal = {spec.name: is_causal(spec, trackers) for spec in sc.methods}
     cases = []

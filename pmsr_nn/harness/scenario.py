@@ -33,6 +33,28 @@ METHOD_OPTIONS: dict[str, dict[str, object]] = {
 }
 """Options each method kind accepts, with their defaults."""
 
+OPTION_RANGES: dict[str, tuple[type, float, float]] = {
+    "refine_steps": (int, 0, 100),
+    "particles": (int, 1, 1_000_000),  # a block of runs x particles x 9 states must fit in memory
+    "roughening": (float, 0.0, 10.0),
+    "stride": (int, 1, 1_000_000),
+}
+"""Type and inclusive range of every option (``stride`` may also be null: the tracker's default)."""
+
+
+def _check_option(method: str, key: str, value) -> None:
+    kind, lo, hi = OPTION_RANGES[key]
+    if value is None and key == "stride":
+        return
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not number or (kind is int and not isinstance(value, int)) or not (lo <= value <= hi):
+        raise ConfigError(f"method {method!r}: option {key} must be {'an integer' if kind is int else 'a number'} "
+                          f"in [{lo}, {hi}], got {value!r:.40}")
+
+
+MAX_CASE_DURATION_S = 100_000.0
+"""Longest trajectory of a case (about 28 h): every run holds every step of it in memory."""
+
 
 @dataclass(frozen=True)
 class SegmentSpec:
@@ -107,6 +129,8 @@ class MethodSpec:
         unknown = sorted(set(self.options) - set(allowed))
         require(not unknown, f"method {self.name!r}: unknown option(s) {unknown} for kind {self.kind!r} "
                              f"(valid: {sorted(allowed) or 'none'})")
+        for key, value in self.options.items():
+            _check_option(self.name, key, value)
 
     def option(self, key: str):
         return self.options.get(key, METHOD_OPTIONS[self.kind][key])
@@ -142,6 +166,7 @@ class Scenario:
     base_dir: str = field(default=".", init=False, compare=False)
 
     def __post_init__(self) -> None:
+        require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
         require(self.mc_runs >= 1, f"mc_runs must be at least 1, got {self.mc_runs}")
         require(self.block_runs >= 1, f"block_runs must be at least 1, got {self.block_runs}")
         require(self.warmup_steps >= 0, f"warmup_steps must be >= 0, got {self.warmup_steps}")
@@ -149,6 +174,10 @@ class Scenario:
         require(self.ramp_s >= 0, f"ramp_s must be >= 0, got {self.ramp_s}")
         require(len(self.cases) > 0, "a scenario needs at least one case")
         require(len(self.methods) > 0, "a scenario needs at least one method")
+        for c in self.cases:
+            require(c.duration_s <= MAX_CASE_DURATION_S,
+                    f"case {c.name!r}: duration {c.duration_s:.3g} s is longer than the {MAX_CASE_DURATION_S:.0f} s "
+                    "a case may last (the papers' trajectories last 1000 s)")
         for what, names in (("case", [c.name for c in self.cases]), ("method", [m.name for m in self.methods])):
             dup = sorted({n for n in names if names.count(n) > 1})
             require(not dup, f"duplicate {what} name(s): {dup}")

@@ -65,6 +65,42 @@ def save_tracker(path: str | Path, meta: dict, state_dict: dict) -> Path:
     return path
 
 
+_META_TYPES = {"model": dict, "dim_z": int, "dim_x": int, "window": int, "dt_s": (int, float), "geometry": dict,
+               "measurement_columns": list, "state_columns": list, "normalisation": dict}
+
+
+def _check_meta(meta: dict, path: Path) -> None:
+    """Refuse a ``pmsr`` block with a missing or ill-typed entry, or unusable normalisation."""
+    import math
+
+    for key, kind in _META_TYPES.items():
+        if key not in meta:
+            raise CheckpointError(f"{path}: the checkpoint's pmsr block lacks '{key}' (edited or corrupted?)")
+        if not isinstance(meta[key], kind) or isinstance(meta[key], bool):
+            raise CheckpointError(f"{path}: the checkpoint's '{key}' has the wrong kind of value")
+    if meta["window"] < 1 or meta["dim_z"] < 1 or meta["dim_x"] < 1 or not meta["dt_s"] > 0:
+        raise CheckpointError(f"{path}: the checkpoint's window, dimensions or dt_s are not positive")
+    if len(meta["measurement_columns"]) != meta["dim_z"] or len(meta["state_columns"]) != meta["dim_x"]:
+        raise CheckpointError(f"{path}: the checkpoint's columns do not match its dimensions")
+    for which, dim in (("measurements", meta["dim_z"]), ("states", meta["dim_x"])):
+        norm = meta["normalisation"].get(which)
+        lo, hi = (norm.get("min"), norm.get("max")) if isinstance(norm, dict) else (None, None)
+        ok = (isinstance(lo, list) and isinstance(hi, list) and len(lo) == len(hi) == dim
+              and all(isinstance(v, (int, float)) and math.isfinite(v) for v in lo + hi)
+              and all(b > a for a, b in zip(lo, hi)))
+        if not ok:
+            raise CheckpointError(f"{path}: the checkpoint's normalisation of the {which} is missing, not finite "
+                                  "or empty (min >= max)")
+    from ..geometry import Geometry
+
+    try:
+        Geometry.from_dict(meta["geometry"])
+    except CheckpointError:
+        raise
+    except Exception as exc:
+        raise CheckpointError(f"{path}: the checkpoint's geometry is unusable ({exc})") from None
+
+
 def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
     """``(meta, model config, network state_dict)`` of a checkpoint, checked to be ours and whole."""
     path = Path(path)
@@ -89,6 +125,7 @@ def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
     if meta.get("format_version") != FORMAT_VERSION:
         raise CheckpointError(f"{path} has checkpoint format {meta.get('format_version')}; "
                               f"this pmsr_nn reads {FORMAT_VERSION}")
+    _check_meta(meta, path)
     try:
         cfg = from_dict(ModelConfig, meta["model"], where="checkpoint model")
     except (ConfigError, KeyError) as exc:

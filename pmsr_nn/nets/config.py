@@ -10,6 +10,10 @@ from ..config import require
 Activation = Literal["tanh", "sigmoid", "relu", "gelu", "identity"]
 
 
+MAX_WIDTH = 16_384
+"""Widest layer accepted (a 16k x 16k layer already holds 268 M weights, 1 GB)."""
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Architecture of a learned tracker (``models/*.yaml``).
@@ -42,12 +46,13 @@ class ModelConfig:
     dropout: float = 0.0
 
     def __post_init__(self) -> None:
-        require(len(self.hidden) >= 1 and all(h >= 1 for h in self.hidden),
-                f"model.hidden must list at least one positive layer width, got {list(self.hidden)}")
-        require(self.filter_order >= 1, f"model.filter_order must be at least 1, got {self.filter_order}")
+        require(len(self.hidden) >= 1 and all(1 <= h <= MAX_WIDTH for h in self.hidden),
+                f"model.hidden must list at least one layer width in [1, {MAX_WIDTH}], got {list(self.hidden)[:8]}")
+        require(1 <= self.filter_order <= 10_000, f"model.filter_order must be in [1, 10000], got {self.filter_order}")
         require(self.kind != "mdfnn" or len(self.hidden) >= 2,
                 "model.hidden: an MDFNN needs at least two hidden layers (a filter layer sits between two)")
-        require(self.rnn_hidden >= 1 and self.rnn_layers >= 1, "model.rnn_hidden and model.rnn_layers must be positive")
+        require(1 <= self.rnn_hidden <= MAX_WIDTH and 1 <= self.rnn_layers <= 64,
+                f"model.rnn_hidden must be in [1, {MAX_WIDTH}] and model.rnn_layers in [1, 64]")
         require(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
 
     @property

@@ -74,7 +74,17 @@ def select_best(cfg: TrainConfig, out: str | Path, *, members: int = 10, fresh_t
         raise ConfigError("select assigns the data folds itself; remove data.fold / data.folds from the config")
     inputs = [p for p in (cfg.data.path, cfg.data.recipe) if p]
     check_folder_target(out, overwrite=False, inputs=inputs)
-    prepare_dataset(cfg.data)  # fail on a bad recipe before anything is written
+    dataset = prepare_dataset(cfg.data)  # fail on a bad recipe before anything is written
+    from ..data.store import open_dataset
+
+    ds = open_dataset(dataset)
+    try:
+        pool = len(ds.split_indices("train")) + len(ds.split_indices("val"))
+    finally:
+        ds.close()
+    if members > 1 and members > pool:
+        raise ConfigError(f"--members {members}: the {pool} train+val tracks of {dataset} cannot be cut into "
+                          f"{members} folds; ask for fewer members or simulate more tracks")
     with atomic_folder(out, command="select", inputs=inputs) as tmp:
         fresh = fresh_tracks(cfg, fresh_tracks_n, tmp / "fresh")
         rows = []

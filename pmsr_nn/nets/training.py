@@ -73,6 +73,12 @@ class DataConfig:
         require(self.path is None or self.recipe is None, "data: give either path or recipe, not both")
         require(self.batch_size >= 1, f"data.batch_size must be positive, got {self.batch_size}")
         require(self.variant in (None, "envelope", "literal"), f"data.variant must be envelope or literal, got {self.variant!r}")
+        require(self.window is None or self.window >= 1, f"data.window must be at least 1, got {self.window}")
+        require(self.eval_window_stride >= 1, f"data.eval_window_stride must be at least 1, got {self.eval_window_stride}")
+        require(self.num_workers >= 0, f"data.num_workers must be >= 0, got {self.num_workers}")
+        require(self.tracks is None or self.tracks >= 1, f"data.tracks must be at least 1, got {self.tracks}")
+        require(self.steps is None or self.steps >= 2, f"data.steps must be at least 2, got {self.steps}")
+        require(self.seed is None or self.seed >= 0, f"data.seed must be non-negative, got {self.seed}")
 
 
 @dataclass(frozen=True)
@@ -101,6 +107,14 @@ class TrainerConfig:
         require(self.max_epochs >= 1, f"trainer.max_epochs must be positive, got {self.max_epochs}")
         require(self.devices >= 1 and self.num_nodes >= 1, "trainer.devices and trainer.num_nodes must be positive")
         require(self.checkpoint_every_n_steps >= 1, "trainer.checkpoint_every_n_steps must be positive")
+        for name in ("train_batches_per_epoch", "val_batches", "threads", "early_stopping_patience"):
+            v = getattr(self, name)
+            require(v is None or v >= 1, f"trainer.{name} must be at least 1 (or null), got {v}")
+        require(self.max_time_minutes is None or self.max_time_minutes > 0,
+                f"trainer.max_time_minutes must be positive (or null), got {self.max_time_minutes}")
+        require(self.gradient_clip_val is None or self.gradient_clip_val > 0,
+                f"trainer.gradient_clip_val must be positive (or null), got {self.gradient_clip_val}")
+        require(self.log_every_n_steps >= 1, f"trainer.log_every_n_steps must be positive, got {self.log_every_n_steps}")
 
 
 @dataclass(frozen=True)
@@ -113,6 +127,9 @@ class TrainConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     trainer: TrainerConfig = field(default_factory=TrainerConfig)
+
+    def __post_init__(self) -> None:
+        require(0 <= self.seed < 2**32, f"seed must be in [0, 2^32), got {self.seed}")  # Lightning's range
 
 
 # -- loading ---------------------------------------------------------------------------------
@@ -179,8 +196,7 @@ def prepare_dataset(data: DataConfig, progress: bool = True) -> Path:
     key = hashlib.sha256(json.dumps(recipe.to_dict(), sort_keys=True).encode()).hexdigest()[:10]
     out = Path(data.cache_dir) / f"{recipe.name}-{recipe.variant}-{recipe.tracks}x{recipe.motion.steps}-{key}"
     if not is_our_dataset(out):
-        out.parent.mkdir(parents=True, exist_ok=True)
-        write_dataset(recipe, out, progress=progress)
+        write_dataset(recipe, out, progress=progress)  # creates cache_dir (and removes it again on failure)
     return out
 
 
@@ -261,6 +277,10 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
                             fold=cfg.data.fold, folds=cfg.data.folds, run=cfg.name)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
     module = TrackerModule(to_dict(cfg.model), to_dict(cfg.optim), meta, max_epochs=tc.max_epochs)
+    behind, ahead = module.net.context
+    if behind is not None and behind + ahead + 1 > dm.window:
+        raise ConfigError(f"model: each estimate reads {behind + ahead + 1} samples (filter_order and layers), more "
+                          f"than the window of {dm.window}; shorten model.filter_order or lengthen data.window")
     with torch.no_grad(), torch.random.fork_rng():  # a model that cannot run this window fails now, not in fit
         module.net(torch.zeros(1, dm.window, meta["dim_z"], dtype=next(module.net.parameters()).dtype))
 

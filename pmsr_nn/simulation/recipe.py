@@ -8,6 +8,8 @@ in that file.
 
 from __future__ import annotations
 
+import re
+
 import math
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -216,6 +218,9 @@ class TrackRecipe:
     storage: StorageSpec = StorageSpec()
 
     def __post_init__(self) -> None:
+        # The name becomes part of file names (the training cache): a plain name, never a path.
+        require(re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}", self.name) is not None,
+                f"name {self.name!r} must be a plain name of letters, digits, '.', '_' and '-' (it names files)")
         require(self.tracks >= 1, f"tracks must be at least 1, got {self.tracks}")
         require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
         m = self.motion

@@ -1,0 +1,1208 @@
+"""The fault catalogue of issue "Nothing lost, nothing hangs, one error path".
+
+Every :class:`Case` is one bad input or fault for one ``pmsr`` command, as plain data: the
+arguments (relative paths inside a sandbox, see :mod:`.sandbox`), a ``setup`` that makes the bad
+input inside the sandbox's working folder, the paths the command may write (``outputs``) and what
+a careful package SHOULD do (``expect``): ``"refuse"`` (exit code 2, one stderr line
+``pmsr: error: ...``, nothing changed, nothing left behind) or ``"ok"`` (exit code 0, nothing
+outside ``outputs`` changed). ``benchmarks/fault_census.py`` runs them as subprocesses; a pytest
+suite can run the same cases in-process.
+
+Conventions:
+
+* ``outputs`` are paths the command may create or replace *when it succeeds*. For a case that
+  must refuse, everything that existed before must be unchanged, outputs included, and nothing
+  new may remain (a signal case may keep what it declares in ``outputs``, e.g. the checkpoint of
+  an interrupted training run).
+* ``signal``: ``("SIGTERM", 1.0)`` sends the signal 1 s after the first path matching one of
+  ``signal_after`` (globs relative to the working folder; hidden names included) appears, or
+  after ``signal_fallback`` s if none does. A signalled case must end with a non-zero exit code,
+  one stderr line ``pmsr: ...``, and no ``.partial`` / ``.old-`` leftovers.
+* ``root_expect``: the expectation that applies when the census runs as root, where permission
+  bits are not enforced (a ``chmod 0o500`` folder is writable).
+* ``verify`` (``ok`` cases): ``None`` when the output is right, else a short reason (the case
+  then counts as a silent wrong answer).
+* ``klass``: the issue's class the case illustrates (data_loss / hang / traceback / silent_wrong
+  / refusal); it documents intent, the census measures the outcome.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from .sandbox import RECIPE_YAML, SCENARIO_LEARNED_YAML, SCENARIO_YAML, TRAIN_YAML
+
+COMMANDS = ("simulate", "info", "train", "select", "track", "export", "evaluate", "merge", "demo")
+DEFAULT_TIMEOUT = 60.0
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str                                   # unique, "command/slug"
+    command: str                              # one of COMMANDS (the command the user meant)
+    argv: tuple[str, ...]                     # arguments after `pmsr`, relative paths inside the sandbox
+    expect: str                               # "refuse" or "ok"
+    setup: Callable[[Path], None] | None = None
+    outputs: tuple[str, ...] = ()
+    message: str | None = None                # a substring the (post-fix) error line should contain
+    signal: tuple[str, float] | None = None   # (signal name, seconds after the trigger)
+    timeout: float = DEFAULT_TIMEOUT
+    klass: str = ""
+    signal_after: tuple[str, ...] = ()        # globs that start the signal's clock when they appear
+    signal_fallback: float = 40.0             # seconds after start when no signal_after path appears
+    root_expect: str | None = None            # expectation when running as root
+    verify: Callable[[Path], str | None] | None = None
+    note: str = ""
+
+
+# =============================================================================================
+# setup helpers: each returns a function of the sandbox's working folder
+# =============================================================================================
+
+def steps(*fns: Callable[[Path], None]) -> Callable[[Path], None]:
+    def run(root: Path) -> None:
+        for f in fns:
+            f(root)
+    return run
+
+
+def write(rel: str, text: str) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        p = root / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(text)
+    return f
+
+
+def write_bytes(rel: str, data: bytes) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        p = root / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(data)
+    return f
+
+
+def mkdir(rel: str) -> Callable[[Path], None]:
+    return lambda root: (root / rel).mkdir(parents=True, exist_ok=True)
+
+
+def remove(rel: str) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        p = root / rel
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
+    return f
+
+
+def symlink(rel: str, target: str) -> Callable[[Path], None]:
+    """A symbolic link ``rel`` -> ``target`` (target as written: relative to the link's folder, or
+    one of the fixed absolute system paths below)."""
+    assert not target.startswith("/") or target in ("/sys", "/dev/full"), target
+    return lambda root: os.symlink(target, root / rel)
+
+
+def chmod(rel: str, mode: int) -> Callable[[Path], None]:
+    return lambda root: os.chmod(root / rel, mode)
+
+
+def truncate(rel: str, keep: float = 0.5) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        p = root / rel
+        data = p.read_bytes()
+        p.write_bytes(data[: int(len(data) * keep)])
+    return f
+
+
+def copy(src: str, dst: str) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        if (root / src).is_dir():
+            shutil.copytree(root / src, root / dst, symlinks=True)
+        else:
+            shutil.copyfile(root / src, root / dst)
+    return f
+
+
+def edit_json(rel: str, fn: Callable[[object], object]) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        p = root / rel
+        data = json.loads(p.read_text())
+        new = fn(data)
+        p.write_text(json.dumps(data if new is None else new, indent=1))
+    return f
+
+
+def yaml_edit(src_text: str, dst: str, fn: Callable[[dict], None]) -> Callable[[Path], None]:
+    """Load ``src_text`` (YAML), apply ``fn`` to the mapping, write it to ``dst``."""
+    def f(root: Path) -> None:
+        import yaml
+
+        data = yaml.safe_load(src_text)
+        fn(data)
+        (root / dst).write_text(yaml.safe_dump(data, sort_keys=False))
+    return f
+
+
+def setkey(data: dict, dotted: str, value) -> None:
+    node = data
+    *path, last = dotted.split(".")
+    for k in path:
+        node = node.setdefault(k, {})
+    node[last] = value
+
+
+def yaml_set(src_text: str, dst: str, **dotted) -> Callable[[Path], None]:
+    """``src_text`` with dotted keys (``__`` stands for ``.``) set, written to ``dst``."""
+    def fn(data: dict) -> None:
+        for k, v in dotted.items():
+            setkey(data, k.replace("__", "."), v)
+    return yaml_edit(src_text, dst, fn)
+
+
+def text_sub(src_text: str, dst: str, old: str, new: str) -> Callable[[Path], None]:
+    """``src_text`` with ``old`` replaced by ``new`` (exactly once), written to ``dst``."""
+    assert src_text.count(old) == 1, old
+    return write(dst, src_text.replace(old, new))
+
+
+def alias_bomb(levels: int = 9, width: int = 9) -> str:
+    """A YAML flow list whose last element expands to ``width ** levels`` leaves ("billion laughs")."""
+    parts = ["&a0 [" + ", ".join(["lol"] * width) + "]"]
+    for i in range(1, levels):
+        parts.append(f"&a{i} [" + ", ".join([f"*a{i - 1}"] * width) + "]")
+    return "[" + ", ".join(parts) + "]"
+
+
+BOMB = alias_bomb()
+DEEP = "[" * 20000 + "]" * 20000
+
+
+def big_yaml(rel: str, head: str, mib: int = 50, key: str | None = None) -> Callable[[Path], None]:
+    """``head`` followed by ``mib`` MiB of YAML: comment lines, or (``key``) one long list of numbers."""
+    def f(root: Path) -> None:
+        with open(root / rel, "w") as out:
+            out.write(head)
+            if key is None:
+                line = "# " + "pasted log line, never meant to be here " * 4 + "\n"
+                for _ in range((mib << 20) // len(line)):
+                    out.write(line)
+            else:
+                out.write(f"{key}: [")
+                chunk = "1.5, " * 20000
+                for _ in range((mib << 20) // len(chunk)):
+                    out.write(chunk)
+                out.write("2.5]\n")
+    return f
+
+
+# -- CSV of measurements ------------------------------------------------------------------------
+
+def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
+    rows = list(csv.reader(path.read_text().splitlines()))
+    return rows[0], rows[1:]
+
+
+def _csv_text(header: list[str] | None, rows: list[list[str]], newline: str = "\n") -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator=newline)
+    if header is not None:
+        w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def csv_edit(dst: str, fn: Callable[[list[str], list[list[str]]], tuple[list[str] | None, list[list[str]]]],
+             src: str = "z.csv", newline: str = "\n", prefix: bytes = b"", encoding: str = "utf-8"):
+    """``src`` (z.csv) transformed by ``fn(header, rows) -> (header, rows)`` and written to ``dst``."""
+    def f(root: Path) -> None:
+        header, rows = _read_csv(root / src)
+        header, rows = fn(list(header), [list(r) for r in rows])
+        (root / dst).write_bytes(prefix + _csv_text(header, rows, newline).encode(encoding))
+    return f
+
+
+def map_columns(prefix: str, fn: Callable[[float], float]):
+    """An ``fn`` for :func:`csv_edit` applying ``fn`` to every column whose name starts with ``prefix``."""
+    def edit(header, rows):
+        cols = [i for i, h in enumerate(header) if h.startswith(prefix) and not h.startswith(prefix + "_rate")]
+        for r in rows:
+            for i in cols:
+                r[i] = repr(fn(float(r[i])))
+        return header, rows
+    return edit
+
+
+def set_cell(row: int, col: str, value: str):
+    def edit(header, rows):
+        rows[row][header.index(col)] = value
+        return header, rows
+    return edit
+
+
+# -- checkpoints, datasets, shards ----------------------------------------------------------------
+
+def torch_edit(src: str, dst: str, fn: Callable[[dict], object]) -> Callable[[Path], None]:
+    """Load ``src`` (a pmsr checkpoint, plain data), apply ``fn`` (may return a replacement), save as ``dst``."""
+    def f(root: Path) -> None:
+        import torch
+
+        blob = torch.load(root / src, map_location="cpu", weights_only=True)
+        new = fn(blob)
+        torch.save(blob if new is None else new, root / dst)
+    return f
+
+
+def _nan_weight(blob: dict) -> None:
+    key = next(k for k, v in blob["state_dict"].items() if v.is_floating_point() and v.ndim == 2)
+    blob["state_dict"][key].view(-1)[0] = float("nan")
+
+
+def _nan_normalisation(blob: dict) -> None:
+    blob["pmsr"]["normalisation"]["measurements"]["min"][0] = float("nan")
+
+
+def _wrong_shape(blob: dict) -> None:
+    import torch
+
+    key = next(k for k, v in blob["state_dict"].items() if v.ndim == 2)
+    w = blob["state_dict"][key]
+    blob["state_dict"][key] = torch.zeros(w.shape[0] + 1, w.shape[1])
+
+
+def _with_date(blob: dict) -> None:
+    import datetime
+
+    blob["pmsr"]["training"]["when"] = datetime.date(2024, 5, 3)
+
+
+def _foreign(blob: dict):
+    import torch
+
+    return {"weights": torch.zeros(3), "epoch": 7}
+
+
+class _Payload:
+    """Unpickled, it would create the file PWNED in the working folder (it must never be unpickled)."""
+
+    def __reduce__(self):
+        return (open, ("PWNED", "w"))
+
+
+def pickle_payload(rel: str) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        import torch
+
+        torch.save({"state_dict": {}, "epoch": 1, "payload": _Payload()}, root / rel)
+    return f
+
+
+def h5_edit(rel: str, fn: Callable[[object], None]) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        import h5py
+
+        with h5py.File(root / rel, "r+") as h5:
+            fn(h5)
+    return f
+
+
+def _bump_measurement(h5) -> None:
+    d = h5["measurements"]
+    d[0, 0, 0] = d[0, 0, 0] + 1000.0
+
+
+def _all_train(h5) -> None:
+    h5["split"][...] = 0
+
+
+def foreign_h5(rel: str) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        import h5py
+
+        (root / rel).unlink()
+        with h5py.File(root / rel, "w") as h5:
+            h5.create_dataset("foo", data=[1, 2, 3])
+    return f
+
+
+def npz_edit(rel: str, fn: Callable[[dict], dict]) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        import numpy as np
+
+        with np.load(root / rel, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        arrays = fn(arrays)
+        with open(root / rel, "wb") as out:
+            np.savez(out, **arrays)
+    return f
+
+
+def _object_blocks(arrays: dict) -> dict:
+    import numpy as np
+
+    arrays["blocks"] = np.array([{"block": 1}], dtype=object)
+    return arrays
+
+
+def _no_blocks(arrays: dict) -> dict:
+    arrays.pop("blocks")
+    return arrays
+
+
+def _move_receiver(m: dict) -> None:
+    m["geometry"]["receivers"][0]["position_m"][0] += 750.0
+
+
+# -- verifiers for ok cases ----------------------------------------------------------------------
+
+def v_files(*rels: str) -> Callable[[Path], str | None]:
+    def v(root: Path) -> str | None:
+        missing = [r for r in rels if not (root / r).is_file()]
+        return f"missing {missing}" if missing else None
+    return v
+
+
+def v_csv(rel: str, rows: int) -> Callable[[Path], str | None]:
+    """A CSV of estimates with ``rows`` data rows of finite numbers."""
+    def v(root: Path) -> str | None:
+        p = root / rel
+        if not p.is_file():
+            return f"{rel} missing"
+        header, body = _read_csv(p)
+        if len(body) != rows:
+            return f"{rel}: {len(body)} rows, expected {rows}"
+        for r in body:
+            for c in r[2:]:
+                if not math.isfinite(float(c)):
+                    return f"{rel}: non-finite value {c!r}"
+        return None
+    return v
+
+
+def v_h5(rel: str) -> Callable[[Path], str | None]:
+    def v(root: Path) -> str | None:
+        import h5py
+        import numpy as np
+
+        if not (root / rel).is_file():
+            return f"{rel} missing"
+        with h5py.File(root / rel, "r") as h5:
+            est = h5["estimates"][()]
+        return None if np.isfinite(est).all() else f"{rel}: non-finite estimates"
+    return v
+
+
+def v_manifest(rel: str, dotted: str, value) -> Callable[[Path], str | None]:
+    def v(root: Path) -> str | None:
+        p = root / rel / "manifest.json"
+        if not p.is_file():
+            return f"{p.relative_to(root)} missing"
+        node = json.loads(p.read_text())
+        for k in dotted.split("."):
+            node = node[k]
+        return None if node == value else f"{dotted} = {node!r}, expected {value!r}"
+    return v
+
+
+def v_run(rel: str, dotted: str | None = None, value=None) -> Callable[[Path], str | None]:
+    """A finished run (tracker.pt, metrics.json), optionally with a resolved config entry."""
+    def v(root: Path) -> str | None:
+        for f in ("tracker.pt", "metrics.json", "config.yaml"):
+            if not (root / rel / f).is_file():
+                return f"{rel}/{f} missing"
+        if dotted is not None:
+            import yaml
+
+            node = yaml.safe_load((root / rel / "config.yaml").read_text())
+            for k in dotted.split("."):
+                node = node[k]
+            if node != value:
+                return f"{dotted} = {node!r}, expected {value!r}"
+        return None
+    return v
+
+
+def v_results(rel: str) -> Callable[[Path], str | None]:
+    def v(root: Path) -> str | None:
+        p = root / rel / "results.json"
+        if not p.is_file():
+            return f"{rel}/results.json missing"
+        res = json.loads(p.read_text())
+        bad = [f"{c}/{m}" for c, per in res.get("cases", {}).items() for m, r in per.get("methods", {}).items()
+               if not isinstance(r.get("rmse_pos_m"), (int, float)) or not math.isfinite(r["rmse_pos_m"])]
+        return f"non-finite RMSE for {bad}" if bad else None
+    return v
+
+
+# =============================================================================================
+# the catalogue
+# =============================================================================================
+
+CASES: list[Case] = []
+
+
+def case(id: str, argv: str | tuple[str, ...] | list[str], expect: str = "refuse", **kw) -> Case:
+    import shlex
+
+    command = id.split("/", 1)[0]
+    assert command in COMMANDS, id
+    args = tuple(shlex.split(argv)) if isinstance(argv, str) else tuple(argv)
+    c = Case(id=id, command=command, argv=args, expect=expect, **kw)
+    CASES.append(c)
+    return c
+
+
+TRK = "track --checkpoint run/tracker.pt"
+LOCK = symlink("locked", "/sys")              # a folder nobody may create files in, root included
+RO = steps(mkdir("ro"), chmod("ro", 0o500))   # read-only for everyone but root
+LINK_USER = symlink("link", "user")
+FAKE_PNG = write_bytes("user/photo.png", b"\x89PNG\r\n\x1a\n" + b"my holiday photo" * 64)
+
+
+def recipe_set(dst: str = "r.yaml", **dotted):
+    return yaml_set(RECIPE_YAML, dst, **dotted)
+
+
+def scenario_set(dst: str = "s.yaml", src: str = SCENARIO_YAML, **dotted):
+    return yaml_set(src, dst, **dotted)
+
+
+def scenario_method(dst: str, method: dict, src: str = SCENARIO_YAML):
+    return yaml_edit(src, dst, lambda d: d["methods"].append(method))
+
+
+def scenario_learned_options(dst: str, options: dict):
+    def fn(d):
+        d["methods"][-1]["options"] = options
+    return yaml_edit(SCENARIO_LEARNED_YAML, dst, fn)
+
+
+def train_set(dst: str = "t.yaml", **dotted):
+    return yaml_set(TRAIN_YAML, dst, **dotted)
+
+
+# ---------------------------------------------------------------------------------------------
+# simulate
+# ---------------------------------------------------------------------------------------------
+SIM = "simulate recipe.yaml --quiet"
+
+case("simulate/out-user-overwrite", f"{SIM} --out user --overwrite", message="user", klass="data_loss")
+case("simulate/out-user-file-overwrite", f"{SIM} --out user/notes.txt --overwrite", message="notes.txt", klass="data_loss")
+case("simulate/out-cwd-overwrite", f"{SIM} --out . --overwrite", message="out", klass="data_loss")
+case("simulate/out-parent-overwrite", f"{SIM} --out .. --overwrite", message="out", klass="data_loss")
+case("simulate/out-symlink-to-user-overwrite", f"{SIM} --out link --overwrite", setup=LINK_USER, message="link",
+     klass="data_loss")
+case("simulate/out-file-overwrite", f"{SIM} --out z.csv --overwrite", message="z.csv", klass="data_loss")
+case("simulate/out-inside-file", f"{SIM} --out z.csv/x", message="z.csv", klass="traceback")
+case("simulate/out-missing-parent-ok", f"{SIM} --out nope/new", "ok", outputs=("nope",),
+     verify=v_manifest("nope/new", "recipe.tracks", 12), klass="refusal",
+     note="every command creates missing parent folders (and removes them again when it fails)")
+case("simulate/out-dataset-no-overwrite", f"{SIM} --out ds", message="--overwrite", klass="refusal")
+case("simulate/out-dataset-overwrite-ok", f"{SIM} --out ds --overwrite", "ok", outputs=("ds",),
+     verify=v_manifest("ds", "recipe.tracks", 12), klass="data_loss", note="replacing our own dataset is the documented use")
+case("simulate/out-unwritable-sysfs", f"{SIM} --out locked/pmsr-census-new", setup=LOCK, message="locked",
+     klass="traceback", note="locked -> /sys: no one may create files there, root included")
+case("simulate/out-readonly-dir", f"{SIM} --out ro/new", setup=RO, outputs=("ro/new",), message="ro",
+     root_expect="ok", klass="traceback")
+case("simulate/recipe-missing", "simulate nope.yaml --out new", message="nope.yaml", klass="refusal")
+case("simulate/recipe-is-directory", "simulate user --out new", message="user", klass="refusal")
+case("simulate/recipe-unreadable", "simulate recipe.yaml --out new --quiet", setup=chmod("recipe.yaml", 0),
+     outputs=("new",), root_expect="ok", message="recipe.yaml", klass="traceback")
+case("simulate/recipe-invalid-yaml", "simulate bad.yaml --out new", setup=write("bad.yaml", "tracks: [1, 2\n"),
+     message="yaml", klass="refusal")
+case("simulate/recipe-empty-file", "simulate empty.yaml --out new", setup=write("empty.yaml", ""),
+     message="empty.yaml", klass="refusal")
+case("simulate/recipe-top-level-list", "simulate l.yaml --out new", setup=write("l.yaml", "- 1\n- 2\n"),
+     message="mapping", klass="refusal")
+case("simulate/recipe-non-utf8", "simulate r.yaml --out new",
+     setup=write_bytes("r.yaml", RECIPE_YAML.encode() + "# réglage du récepteur\n".encode("latin-1")),
+     message="utf-8", klass="traceback")
+case("simulate/recipe-alias-bomb", "simulate r.yaml --out new",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "tracks: 12", f"tracks: {BOMB}"), message="alias", klass="hang")
+case("simulate/recipe-deep-nesting", "simulate r.yaml --out new",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "tracks: 12", f"tracks: {DEEP}"), message="r.yaml", klass="traceback")
+case("simulate/recipe-50mb", "simulate r.yaml --out new", setup=big_yaml("r.yaml", RECIPE_YAML, 50, key="junk"),
+     message="r.yaml", klass="hang", note="50 MB of numbers under an unknown key")
+case("simulate/recipe-duplicate-key", "simulate r.yaml --out new --quiet",
+     setup=write("r.yaml", RECIPE_YAML + "tracks: 24\n"), message="duplicate", klass="silent_wrong",
+     note="PyYAML keeps the last of two equal keys without a word")
+case("simulate/recipe-duplicate-receivers", "simulate r.yaml --out new --quiet",
+     setup=recipe_set(geometry__receivers=[{"baseline_m": 7560.0, "bearing_deg": 240.0},
+                                           {"baseline_m": 7560.0, "bearing_deg": 240.0},
+                                           {"baseline_m": 8280.0, "bearing_deg": 300.0}]),
+     message="receiver", klass="silent_wrong")
+case("simulate/recipe-coincident-transmitters", "simulate r.yaml --out new --quiet",
+     setup=recipe_set(geometry__transmitters=[{"position_m": [0.0, 0.0]}, {"position_m": [0.0, 0.0]}]),
+     message="transmitter", klass="silent_wrong")
+case("simulate/recipe-receiver-on-transmitter", "simulate r.yaml --out new",
+     setup=recipe_set(geometry__receivers=[{"position_m": [0.0, 0.0]}]), message="receiver", klass="refusal")
+case("simulate/recipe-receiver-position-and-baseline", "simulate r.yaml --out new",
+     setup=recipe_set(geometry__receivers=[{"position_m": [-8000.0, 0.0], "baseline_m": 8000.0, "bearing_deg": 270.0}]),
+     message="receiver", klass="refusal")
+case("simulate/recipe-unknown-key", "simulate r.yaml --out new", setup=recipe_set(trackz=5), message="trackz",
+     klass="refusal")
+case("simulate/recipe-word-for-number", "simulate r.yaml --out new", setup=recipe_set(motion__q_psd="four"),
+     message="q_psd", klass="refusal")
+case("simulate/recipe-window-longer-than-track", "simulate r.yaml --out new", setup=recipe_set(window=500),
+     message="window", klass="refusal")
+case("simulate/recipe-nan-dt", "simulate r.yaml --out new",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "dt_s: 1.0", "dt_s: .nan"), message="dt_s", klass="refusal")
+case("simulate/recipe-infinite-noise", "simulate r.yaml --out new",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "range_m: [16.0, 30.0]", "range_m: [16.0, .inf]"), message="range_m",
+     klass="refusal")
+case("simulate/recipe-negative-splits", "simulate r.yaml --out new",
+     setup=recipe_set(splits={"train": 1.2, "val": -0.1, "test": -0.1}), message="split", klass="refusal")
+case("simulate/recipe-chunk-zero", "simulate r.yaml --out new", setup=recipe_set(storage__chunk_tracks=0),
+     message="chunk_tracks", klass="refusal")
+case("simulate/recipe-negative-altitude", "simulate r.yaml --out new",
+     setup=recipe_set(dim=3, motion__initial__altitude_m=[-10.0, 0.0]), message="altitude", klass="refusal")
+case("simulate/recipe-impossible-envelope", "simulate r.yaml --out new --quiet",
+     setup=recipe_set(envelope__range_m=[200.0, 201.0]), message="envelope", klass="hang",
+     note="no track can stay inside a 1-m ring: the draws must give up with a clear error")
+case("simulate/yaml-3e-3-ok", "simulate r.yaml --out new --quiet", "ok",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "dt_s: 1.0", "dt_s: 3e-3"), outputs=("new",),
+     verify=v_manifest("new", "dt_s", 0.003), klass="silent_wrong", note="3e-3 is a float in YAML 1.2 and in every user's mind")
+case("simulate/yaml-1e-7-ok", "simulate r.yaml --out new --quiet", "ok",
+     setup=write("r.yaml", RECIPE_YAML + "envelope_variant:\n  q_psd: 1e-7\n"), outputs=("new",),
+     verify=v_manifest("new", "recipe.envelope_variant.q_psd", 1e-7), klass="silent_wrong")
+case("simulate/yaml-1E+9-ok", "simulate r.yaml --out new --quiet", "ok",
+     setup=write("r.yaml", RECIPE_YAML + "geometry:\n  transmitters:\n    - {position_m: [0.0, 0.0], carrier_hz: 1E+9}\n"),
+     outputs=("new",), verify=v_manifest("new", "recipe.geometry.transmitters", [{"position_m": [0.0, 0.0], "carrier_hz": 1e9}]),
+     klass="silent_wrong")
+case("simulate/yaml-dot5-ok", "simulate r.yaml --out new --quiet", "ok",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "splits: {train: 0.8, val: 0.1, test: 0.1}",
+                    "splits: {train: .5, val: .25, test: .25}"),
+     outputs=("new",), verify=v_manifest("new", "splits", {"train": 6, "val": 3, "test": 3}), klass="silent_wrong")
+case("simulate/tracks-huge", f"{SIM} --out new --tracks 999999999999", message="tracks", klass="hang")
+case("simulate/tracks-not-a-number", f"{SIM} --out new --tracks abc", message="--tracks", klass="refusal")
+case("simulate/seed-huge-ok", f"{SIM} --out new --seed 99999999999999999999", "ok", outputs=("new",),
+     verify=v_manifest("new", "seed", 99999999999999999999), klass="refusal",
+     note="seeds go through NumPy's SeedSequence: any non-negative integer is a valid seed")
+case("simulate/variant-unknown", f"{SIM} --out new --variant loose", message="variant", klass="refusal")
+case("simulate/typo-command", "simulat recipe.yaml --out new", message="simulat", klass="refusal")
+case("simulate/unknown-option", f"{SIM} --out new --frobnicate", message="frobnicate", klass="refusal")
+case("simulate/missing-out", "simulate recipe.yaml", message="out", klass="refusal")
+_SIG_SIM = dict(argv="simulate recipe_big.yaml --out big --quiet", signal_after=(".big.partial*", "big"),
+                klass="traceback")
+case("simulate/sigterm", _SIG_SIM["argv"], signal=("SIGTERM", 2.0), signal_after=_SIG_SIM["signal_after"],
+     klass="traceback", note="a killed simulate must not leave .big.partial-PID behind")
+case("simulate/sighup", _SIG_SIM["argv"], signal=("SIGHUP", 2.0), signal_after=_SIG_SIM["signal_after"],
+     klass="traceback", note="terminal closed")
+case("simulate/sigint", _SIG_SIM["argv"], signal=("SIGINT", 2.0), signal_after=_SIG_SIM["signal_after"],
+     klass="traceback", note="Ctrl-C")
+case("simulate/sigterm-while-overwriting", "simulate recipe_big.yaml --out ds --overwrite --quiet",
+     signal=("SIGTERM", 2.0), signal_after=(".ds.partial*",), klass="data_loss",
+     note="the dataset being replaced must survive an interrupted overwrite")
+
+# ---------------------------------------------------------------------------------------------
+# info
+# ---------------------------------------------------------------------------------------------
+case("info/user-folder", "info user", message="user", klass="refusal")
+case("info/missing", "info nope", message="nope", klass="refusal")
+case("info/a-file", "info z.csv", message="z.csv", klass="refusal")
+case("info/shard-folder", "info shard1", message="shard1", klass="refusal")
+case("info/symlink-loop", "info loop", setup=symlink("loop", "loop"), message="loop", klass="refusal")
+case("info/manifest-garbage", "info ds", setup=write("ds/manifest.json", "{not json"), message="manifest", klass="refusal")
+case("info/manifest-json-list", "info ds", setup=write("ds/manifest.json", "[]\n"), message="ds", klass="refusal")
+case("info/manifest-non-utf8", "info ds", setup=write_bytes("ds/manifest.json", b'{"format": "\xff\xfe"}'),
+     message="manifest", klass="refusal")
+case("info/manifest-is-directory", "info ds", setup=steps(remove("ds/manifest.json"), mkdir("ds/manifest.json")),
+     message="manifest", klass="refusal")
+case("info/manifest-without-envelope", "info ds", setup=edit_json("ds/manifest.json", lambda m: m.pop("envelope") and None),
+     message="envelope", klass="traceback")
+case("info/manifest-dt-is-text", "info ds", setup=edit_json("ds/manifest.json", lambda m: m.update(dt_s="1.0")),
+     message="dt_s", klass="traceback")
+case("info/manifest-shapes-not-mapping", "info ds", setup=edit_json("ds/manifest.json", lambda m: m.update(shapes="abc")),
+     message="shapes", klass="traceback")
+case("info/manifest-format-version", "info ds", setup=edit_json("ds/manifest.json", lambda m: m.update(format_version=99)),
+     message="version", klass="refusal")
+case("info/manifest-shape-mismatch", "info ds",
+     setup=edit_json("ds/manifest.json", lambda m: m["shapes"]["states"].__setitem__(0, 13)), message="states",
+     klass="refusal")
+case("info/h5-missing", "info ds", setup=remove("ds/tracks.h5"), message="tracks.h5", klass="refusal")
+case("info/h5-empty", "info ds", setup=write_bytes("ds/tracks.h5", b""), message="tracks.h5", klass="refusal")
+case("info/h5-is-directory", "info ds", setup=steps(remove("ds/tracks.h5"), mkdir("ds/tracks.h5")),
+     message="tracks.h5", klass="refusal")
+case("info/h5-foreign", "info ds", setup=foreign_h5("ds/tracks.h5"), message="tracks.h5", klass="refusal")
+case("info/h5-truncated-verify", "info ds --verify", setup=truncate("ds/tracks.h5", 0.6), message="tracks.h5",
+     klass="traceback")
+case("info/verify-corrupted-value", "info ds --verify", setup=h5_edit("ds/tracks.h5", _bump_measurement),
+     message="checksum", klass="refusal")
+case("info/verify-ok", "info ds --verify", "ok", klass="refusal")
+case("info/trailing-slash-ok", "info ds/", "ok", klass="refusal")
+case("info/plot-ok", "info ds --plot fig.png", "ok", outputs=("fig.png",), verify=v_files("fig.png"), klass="refusal")
+case("info/plot-over-user-file", "info ds --plot user/photo.png", setup=FAKE_PNG, message="photo.png", klass="data_loss")
+case("info/plot-into-directory", "info ds --plot user", message="--plot", klass="traceback")
+case("info/plot-unknown-extension", "info ds --plot fig.txt", message="fig.txt", klass="traceback")
+case("info/plot-missing-parent", "info ds --plot nope/fig.png", message="nope", klass="traceback")
+case("info/plot-inside-file", "info ds --plot z.csv/fig.png", message="z.csv", klass="traceback")
+case("info/plot-disk-full", "info ds --plot full.png", setup=symlink("full.png", "/dev/full"), outputs=("full.png",),
+     message="full.png", klass="traceback", note="full.png -> /dev/full: every write fails with ENOSPC")
+
+# ---------------------------------------------------------------------------------------------
+# train
+# ---------------------------------------------------------------------------------------------
+TR = "train train.yaml"
+
+case("train/out-user", f"{TR} --out user", message="user", klass="data_loss")
+case("train/out-user-file", f"{TR} --out user/notes.txt", message="notes.txt", klass="traceback")
+case("train/out-inside-file", f"{TR} --out z.csv/run", message="z.csv", klass="traceback")
+case("train/out-cwd", f"{TR} --out .", message="out", klass="data_loss")
+case("train/out-symlink-to-user", f"{TR} --out link", setup=LINK_USER, message="link", klass="data_loss")
+case("train/out-existing-run", f"{TR} --out run", message="--resume", klass="refusal")
+case("train/out-unwritable-sysfs", f"{TR} --out locked/pmsr-run", setup=LOCK, message="locked", klass="traceback")
+case("train/out-readonly-dir", f"{TR} --out ro/run", setup=RO, outputs=("ro/run",), root_expect="ok", message="ro",
+     klass="traceback")
+case("train/ok", f"{TR} --out run2", "ok", outputs=("run2",), verify=v_run("run2"), klass="refusal")
+case("train/ok-existing-empty-folder", f"{TR} --out empty", "ok", setup=mkdir("empty"), outputs=("empty",),
+     verify=v_run("empty"), klass="refusal")
+case("train/no-config", "train --out run2", message="config", klass="refusal")
+case("train/overrides-without-config", "train trainer.max_epochs=1 --out run2", message="config", klass="refusal")
+case("train/config-missing", "train nope.yaml --out run2", message="nope.yaml", klass="refusal")
+case("train/config-is-directory", "train user --out run2", message="user", klass="refusal")
+case("train/config-top-level-list", "train l.yaml --out run2", setup=write("l.yaml", "- 1\n"), message="mapping",
+     klass="refusal")
+case("train/config-non-utf8", "train t.yaml --out run2",
+     setup=write_bytes("t.yaml", TRAIN_YAML.encode() + "# entraîné\n".encode("latin-1")), message="utf-8",
+     klass="traceback")
+case("train/config-alias-bomb", "train t.yaml --out run2",
+     setup=text_sub(TRAIN_YAML, "t.yaml", "max_epochs: 2", f"max_epochs: {BOMB}"), message="alias", klass="hang")
+case("train/config-deep-nesting", "train t.yaml --out run2",
+     setup=text_sub(TRAIN_YAML, "t.yaml", "max_epochs: 2", f"max_epochs: {DEEP}"), message="t.yaml", klass="traceback")
+case("train/config-duplicate-key", "train t.yaml --out run2",
+     setup=text_sub(TRAIN_YAML, "t.yaml", "  max_epochs: 2\n", "  max_epochs: 2\n  max_epochs: 1\n"),
+     outputs=("run2",), message="duplicate", klass="silent_wrong")
+case("train/model-file-alias-bomb", "train t.yaml --out run2",
+     setup=steps(write("m.yaml", f"kind: mdfnn\nhidden: [16, 16]\nfilter_order: {BOMB}\n"),
+                 yaml_set(TRAIN_YAML, "t.yaml", model="m.yaml")), message="alias", klass="hang")
+case("train/model-file-non-utf8", "train t.yaml --out run2",
+     setup=steps(write_bytes("m.yaml", b"kind: mdfnn\nhidden: [16, 16]\nfilter_order: 4\n# \xe9t\xe9\n"),
+                 yaml_set(TRAIN_YAML, "t.yaml", model="m.yaml")), message="utf-8", klass="traceback")
+case("train/model-file-missing", "train t.yaml --out run2", setup=yaml_set(TRAIN_YAML, "t.yaml", model="nope.yaml"),
+     message="nope.yaml", klass="refusal")
+case("train/model-file-is-list", "train t.yaml --out run2",
+     setup=steps(write("m.yaml", "- mdfnn\n"), yaml_set(TRAIN_YAML, "t.yaml", model="m.yaml")), message="m.yaml",
+     klass="refusal")
+case("train/override-not-key-value", f"{TR} --out run2 =5", message="=5", klass="refusal")
+case("train/override-invalid-yaml", f"{TR} --out run2 trainer.max_epochs=[1", message="max_epochs", klass="refusal")
+case("train/override-unknown-key", f"{TR} --out run2 trainer.max_epoch=1", message="max_epoch", klass="refusal")
+case("train/override-section-by-scalar", f"{TR} --out run2 trainer=5", message="trainer", klass="refusal")
+case("train/override-alias-bomb", ("train", "train.yaml", "--out", "run2", f"trainer.max_epochs={BOMB}"),
+     message="alias", klass="hang")
+case("train/yaml-3e-3-override-ok", f"{TR} --out run2 optim.lr=3e-3", "ok", outputs=("run2",),
+     verify=v_run("run2", "optim.lr", 0.003), klass="silent_wrong")
+case("train/yaml-1e-7-config-ok", "train t.yaml --out run2", "ok",
+     setup=text_sub(TRAIN_YAML, "t.yaml", "  lr: 0.003\n", "  lr: 0.003\n  weight_decay: 1e-7\n"),
+     outputs=("run2",), verify=v_run("run2", "optim.weight_decay", 1e-7), klass="silent_wrong")
+case("train/yaml-dot5-override-ok", f"{TR} --out run2 optim.min_lr_ratio=.5", "ok", outputs=("run2",),
+     verify=v_run("run2", "optim.min_lr_ratio", 0.5), klass="silent_wrong")
+case("train/accelerator-gpu", f"{TR} --out run2 trainer.accelerator=gpu", message="accelerator", klass="traceback",
+     note="no GPU on this machine")
+case("train/accelerator-unknown", f"{TR} --out run2 trainer.accelerator=banana", message="accelerator", klass="traceback")
+case("train/precision-unknown", f"{TR} --out run2 trainer.precision=banana", message="precision", klass="traceback")
+case("train/strategy-unknown", f"{TR} --out run2 trainer.strategy=banana", message="strategy", klass="traceback")
+case("train/devices-zero", f"{TR} --out run2 trainer.devices=0", message="devices", klass="refusal")
+case("train/threads-negative", f"{TR} --out run2 trainer.threads=-1", message="threads", klass="traceback")
+case("train/train-batches-negative", f"{TR} --out run2 trainer.train_batches_per_epoch=-5",
+     message="train_batches_per_epoch", klass="traceback")
+case("train/val-batches-zero", f"{TR} --out run2 trainer.val_batches=0", outputs=("run2",), message="val_batches",
+     klass="silent_wrong", note="0 is read as 'all batches'")
+case("train/gradient-clip-negative", f"{TR} --out run2 trainer.gradient_clip_val=-1", outputs=("run2",),
+     message="gradient_clip_val", klass="silent_wrong")
+case("train/max-time-negative", f"{TR} --out run2 trainer.max_time_minutes=-1", outputs=("run2",),
+     message="max_time_minutes", klass="silent_wrong")
+case("train/max-epochs-zero", f"{TR} --out run2 trainer.max_epochs=0", message="max_epochs", klass="refusal")
+case("train/batch-size-zero", f"{TR} --out run2 data.batch_size=0", message="batch_size", klass="refusal")
+case("train/window-zero", f"{TR} --out run2 data.window=0", message="window", klass="traceback")
+case("train/window-longer-than-track", f"{TR} --out run2 data.window=500", message="window", klass="traceback")
+case("train/eval-stride-zero", f"{TR} --out run2 data.eval_window_stride=0", message="eval_window_stride",
+     klass="traceback")
+case("train/num-workers-negative", f"{TR} --out run2 data.num_workers=-1", message="num_workers", klass="traceback")
+case("train/fold-out-of-range", f"{TR} --out run2 data.fold=5 data.folds=2", message="fold", klass="refusal")
+case("train/data-path-user-folder", f"{TR} --out run2 data.path=user", message="user", klass="refusal")
+case("train/data-path-a-file", f"{TR} --out run2 data.path=z.csv", message="z.csv", klass="refusal")
+case("train/data-path-and-recipe", f"{TR} --out run2 data.recipe=recipe.yaml", message="recipe", klass="refusal")
+case("train/data-variant-unknown", f"{TR} --out run2 data.path=null data.variant=loose", message="variant",
+     klass="refusal")
+case("train/cache-dir-is-a-file", f"{TR} --out run2 data.path=null data.recipe=recipe.yaml data.cache_dir=z.csv",
+     message="cache_dir", klass="traceback")
+case("train/recipe-name-escapes-cache", f"{TR} --out run2 data.path=null data.recipe=esc.yaml data.cache_dir=cache",
+     setup=recipe_set("esc.yaml", name="../../escaped"), outputs=("run2", "cache"), message="name",
+     klass="silent_wrong", note="the recipe's name becomes a path: cache/../../escaped-... lands outside the working folder")
+case("train/data-tracks-huge", f"{TR} --out run2 data.path=null data.recipe=recipe.yaml data.tracks=999999999999",
+     message="tracks", klass="hang")
+case("train/data-steps-one", f"{TR} --out run2 data.path=null data.recipe=recipe.yaml data.steps=1", message="steps",
+     klass="refusal")
+case("train/model-kind-unknown", f"{TR} --out run2 model.kind=transformer", message="kind", klass="refusal")
+case("train/model-hidden-empty", f"{TR} --out run2 model.hidden=[]", message="hidden", klass="refusal")
+case("train/model-hidden-huge", f"{TR} --out run2 model.hidden=[200000,200000]", message="hidden", klass="hang",
+     note="a 40-billion-weight layer")
+case("train/model-filter-longer-than-window", f"{TR} --out run2 model.filter_order=50", outputs=("run2",),
+     message="filter_order", klass="silent_wrong", note="two filter layers of order 50 need 98 samples; the window is 20")
+case("train/model-dropout-out-of-range", f"{TR} --out run2 model.dropout=1.5", message="dropout", klass="refusal")
+case("train/seed-negative", f"{TR} --out run2 seed=-1", outputs=("run2",), message="seed", klass="silent_wrong")
+case("train/seed-huge", f"{TR} --out run2 seed=99999999999999999999", message="seed", klass="traceback")
+case("train/resume-missing-run", "train --out nope --resume", message="nope", klass="refusal")
+case("train/resume-with-other-config", f"{TR} --out run --resume trainer.max_epochs=9", message="config",
+     klass="refusal")
+case("train/resume-truncated-checkpoint", "train --out run --resume", setup=truncate("run/checkpoints/last.ckpt", 0.5),
+     message="last.ckpt", klass="traceback")
+case("train/resume-empty-checkpoint", "train --out run --resume", setup=write_bytes("run/checkpoints/last.ckpt", b""),
+     message="last.ckpt", klass="traceback")
+case("train/resume-foreign-checkpoint", "train --out run --resume",
+     setup=torch_edit("run/checkpoints/last.ckpt", "run/checkpoints/last.ckpt", _foreign), message="last.ckpt",
+     klass="traceback")
+case("train/resume-pickle-payload", "train --out run --resume", setup=pickle_payload("run/checkpoints/last.ckpt"),
+     message="last.ckpt", klass="traceback", note="unpickling would create PWNED")
+case("train/resume-checkpoint-is-directory", "train --out run --resume",
+     setup=steps(remove("run/checkpoints/last.ckpt"), mkdir("run/checkpoints/last.ckpt")), message="last.ckpt",
+     klass="refusal")
+case("train/resume-config-garbage", "train --out run --resume", setup=write("run/config.yaml", "- 1\n"),
+     message="config.yaml", klass="refusal")
+case("train/resume-config-unknown-key", "train --out run --resume",
+     setup=lambda root: (root / "run/config.yaml").write_text((root / "run/config.yaml").read_text() + "extra: 1\n"),
+     message="extra", klass="refusal")
+case("train/resume-config-missing", "train --out run --resume", setup=remove("run/config.yaml"), message="config.yaml",
+     klass="refusal")
+case("train/resume-finished-run-ok", "train --out run --resume", "ok", outputs=("run",), verify=v_run("run"),
+     klass="refusal")
+case("train/sigint-after-checkpoint", "train train_long.yaml --out run_sig", signal=("SIGINT", 1.0),
+     signal_after=("run_sig/checkpoints/last.ckpt",), outputs=("run_sig",), timeout=90,
+     klass="traceback", note="the checkpoint may stay (for --resume); one line, non-zero exit")
+case("train/sigterm-after-checkpoint", "train train_long.yaml --out run_sig", signal=("SIGTERM", 1.0),
+     signal_after=("run_sig/checkpoints/last.ckpt",), outputs=("run_sig",), timeout=90,
+     klass="traceback")
+
+# ---------------------------------------------------------------------------------------------
+# select
+# ---------------------------------------------------------------------------------------------
+SEL = "select train.yaml --members 1 --fresh-tracks 2"
+
+case("select/out-user", f"{SEL} --out user", message="user", klass="data_loss")
+case("select/out-user-file", f"{SEL} --out user/notes.txt", message="notes.txt", klass="traceback")
+case("select/out-cwd", f"{SEL} --out .", message="out", klass="data_loss")
+case("select/out-inside-file", f"{SEL} --out z.csv/sel", message="z.csv", klass="traceback")
+case("select/out-symlink-to-user", f"{SEL} --out link", setup=LINK_USER, message="link", klass="data_loss")
+case("select/out-unwritable-sysfs", f"{SEL} --out locked/sel", setup=LOCK, message="locked", klass="traceback")
+case("select/ok", "select train.yaml --members 2 --fresh-tracks 2 --out sel", "ok", outputs=("sel",),
+     verify=v_files("sel/best.pt", "sel/selection.json"), timeout=150, klass="refusal")
+case("select/fresh-tracks-huge", "select train.yaml --members 1 --fresh-tracks 999999999999 --out sel",
+     message="fresh", klass="hang")
+case("select/members-more-than-tracks", "select train.yaml --members 50 --fresh-tracks 2 --out sel",
+     message="members", klass="traceback", note="11 train+val tracks cannot be cut into 50 folds")
+case("select/config-sets-fold", f"{SEL} --out sel data.fold=0 data.folds=2", message="fold", klass="refusal")
+case("select/accelerator-gpu", f"{SEL} --out sel trainer.accelerator=gpu", message="accelerator", klass="traceback")
+case("select/data-path-user-folder", f"{SEL} --out sel data.path=user", message="user", klass="refusal")
+case("select/config-missing", "select nope.yaml --out sel", message="nope.yaml", klass="refusal")
+
+# ---------------------------------------------------------------------------------------------
+# track
+# ---------------------------------------------------------------------------------------------
+TZ = f"{TRK} --input z.csv"
+N_ROWS = 240  # z.csv: 2 tracks x 120 scans
+
+case("track/out-is-the-input", f"{TZ} --out z.csv", message="z.csv", klass="data_loss")
+case("track/out-user-csv", f"{TZ} --out user/data.csv", message="data.csv", klass="data_loss")
+case("track/out-dataset-h5", f"{TZ} --out ds/tracks.h5", message="tracks.h5", klass="data_loss")
+case("track/out-folder-named-csv", f"{TZ} --out outdir.csv", setup=mkdir("outdir.csv"), message="outdir.csv",
+     klass="traceback")
+case("track/out-inside-file", f"{TZ} --out z.csv/est.csv", message="z.csv", klass="traceback")
+case("track/out-missing-parent", f"{TZ} --out nope/est.csv", message="nope", klass="refusal")
+case("track/out-bad-suffix", f"{TZ} --out est.txt", message="est.txt", klass="refusal")
+case("track/out-unwritable-sysfs", f"{TZ} --out locked/est.csv", setup=LOCK, message="locked", klass="traceback")
+case("track/out-symlink-to-user-file", f"{TZ} --out est.csv", setup=symlink("est.csv", "user/data.csv"),
+     message="symbolic link", klass="data_loss",
+     note="an output that is a link is refused: writing through it would destroy user/data.csv, replacing it "
+          "would surprise whoever made it")
+case("track/ok-csv", f"{TZ} --out est.csv", "ok", outputs=("est.csv",), verify=v_csv("est.csv", N_ROWS), klass="refusal")
+case("track/ok-h5", f"{TZ} --out est.h5", "ok", outputs=("est.h5",), verify=v_h5("est.h5"), klass="refusal")
+case("track/ok-lightning-checkpoint", "track --checkpoint run/checkpoints/last.ckpt --input z.csv --out est.csv", "ok",
+     outputs=("est.csv",), verify=v_csv("est.csv", N_ROWS), klass="refusal")
+case("track/ok-dataset-input", f"{TRK} --input ds --out est.h5", "ok", outputs=("est.h5",), verify=v_h5("est.h5"),
+     klass="refusal")
+case("track/ok-dataset-split", f"{TRK} --input ds --split val --out est.csv", "ok", outputs=("est.csv",),
+     verify=v_csv("est.csv", 120), klass="refusal")
+case("track/ok-stride-one", f"{TZ} --out est.csv --stride 1", "ok", outputs=("est.csv",),
+     verify=v_csv("est.csv", N_ROWS), klass="refusal")
+case("track/device-unknown", f"{TZ} --out est.csv --device banana", message="device", klass="traceback")
+case("track/device-cuda-without-gpu", f"{TZ} --out est.csv --device cuda", message="cuda", klass="traceback")
+case("track/device-meta", f"{TZ} --out est.csv --device meta", message="device", klass="traceback")
+case("track/stride-longer-than-window", f"{TZ} --out est.csv --stride 100000", message="stride", klass="traceback")
+case("track/stride-zero", f"{TZ} --out est.csv --stride 0", message="--stride", klass="refusal")
+case("track/csv-utf8-bom-ok", f"{TRK} --input b.csv --out est.csv", "ok",
+     setup=csv_edit("b.csv", lambda h, r: (h, r), prefix=b"\xef\xbb\xbf"), outputs=("est.csv",),
+     verify=v_csv("est.csv", N_ROWS), klass="silent_wrong", note="Excel writes a BOM")
+case("track/csv-crlf-ok", f"{TRK} --input c.csv --out est.csv", "ok", setup=csv_edit("c.csv", lambda h, r: (h, r), newline="\r\n"),
+     outputs=("est.csv",), verify=v_csv("est.csv", N_ROWS), klass="silent_wrong")
+case("track/csv-columns-reordered-ok", f"{TRK} --input c.csv --out est.csv", "ok",
+     setup=csv_edit("c.csv", lambda h, r: (h[::-1], [row[::-1] for row in r])), outputs=("est.csv",),
+     verify=v_csv("est.csv", N_ROWS), klass="silent_wrong")
+case("track/csv-no-header-ok", f"{TRK} --input c.csv --out est.csv", "ok",
+     setup=csv_edit("c.csv", lambda h, r: (None, [row[1:] for row in r if row[0] == "0"])), outputs=("est.csv",),
+     verify=v_csv("est.csv", 120), klass="silent_wrong", note="documented: header-less with exactly the expected columns")
+case("track/csv-padded-header-ok", f"{TRK} --input c.csv --out est.csv", "ok",
+     setup=csv_edit("c.csv", lambda h, r: ([f" {c} " for c in h], r)), outputs=("est.csv",),
+     verify=v_csv("est.csv", N_ROWS), klass="silent_wrong")
+case("track/csv-tracks-interleaved-ok", f"{TRK} --input c.csv --out est.csv", "ok",
+     setup=csv_edit("c.csv", lambda h, r: (h, [x for pair in zip(r[:120], r[120:]) for x in pair])),
+     outputs=("est.csv",), verify=v_csv("est.csv", N_ROWS), klass="silent_wrong")
+case("track/csv-tracks-of-different-lengths-ok", f"{TRK} --input c.csv --out est.csv", "ok",
+     setup=csv_edit("c.csv", lambda h, r: (h, r[:180])), outputs=("est.csv",), verify=v_csv("est.csv", 180),
+     klass="silent_wrong")
+case("track/csv-nan-hold-ok", f"{TRK} --input c.csv --out est.csv --nan hold", "ok",
+     setup=csv_edit("c.csv", set_cell(5, "range_2", "nan")), outputs=("est.csv",), verify=v_csv("est.csv", N_ROWS),
+     klass="refusal")
+case("track/csv-nan", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", set_cell(5, "range_2", "")),
+     message="nan", klass="refusal")
+case("track/csv-nan-first-row-hold", f"{TRK} --input c.csv --out est.csv --nan hold",
+     setup=csv_edit("c.csv", set_cell(0, "azimuth_1", "nan")), message="nan", klass="refusal")
+case("track/csv-infinite", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", set_cell(7, "range_1", "inf")),
+     message="infinite", klass="refusal")
+case("track/csv-values-1e300", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", map_columns("range", lambda v: 1e300)),
+     outputs=("est.csv",), message="range", klass="silent_wrong")
+case("track/csv-values-1e30", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", map_columns("range", lambda v: v * 1e26)),
+     outputs=("est.csv",), message="range", klass="silent_wrong")
+case("track/csv-azimuth-in-degrees", f"{TRK} --input c.csv --out est.csv",
+     setup=csv_edit("c.csv", map_columns("azimuth", math.degrees)), outputs=("est.csv",), message="azimuth",
+     klass="silent_wrong")
+case("track/csv-negative-ranges", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", map_columns("range", lambda v: -v)),
+     outputs=("est.csv",), message="range", klass="silent_wrong")
+case("track/csv-range-below-baseline", f"{TRK} --input c.csv --out est.csv",
+     setup=csv_edit("c.csv", map_columns("range", lambda v: v - 14000.0)), outputs=("est.csv",), message="range",
+     klass="silent_wrong", note="bistatic range |p-tx|+|p-rx| cannot be shorter than the 7.5-8.3 km baseline")
+case("track/csv-duplicate-column", f"{TRK} --input c.csv --out est.csv",
+     setup=csv_edit("c.csv", lambda h, r: (h + ["range_1"], [row + ["0.0"] for row in r])), outputs=("est.csv",),
+     message="duplicate", klass="silent_wrong")
+case("track/csv-time-column-not-uniform", f"{TRK} --input c.csv --out est.csv",
+     setup=csv_edit("c.csv", lambda h, r: (h + ["time_s"], [row + [str(2.0 * (i % 120))] for i, row in enumerate(r)])),
+     outputs=("est.csv",), message="time_s", klass="silent_wrong", note="sampled every 2 s; the tracker was trained at 1 s")
+case("track/csv-too-short", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", lambda h, r: (h, r[:10])),
+     message="window", klass="refusal")
+case("track/csv-empty", f"{TRK} --input c.csv --out est.csv", setup=write("c.csv", ""), message="c.csv", klass="refusal")
+case("track/csv-header-only", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", lambda h, r: (h, [])),
+     message="c.csv", klass="refusal")
+case("track/csv-ragged-row", f"{TRK} --input c.csv --out est.csv",
+     setup=csv_edit("c.csv", lambda h, r: (h, r[:3] + [r[3][:-2]] + r[4:])), message="line", klass="refusal")
+case("track/csv-text-cell", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", set_cell(9, "range_rate_2", "fast")),
+     message="fast", klass="refusal")
+case("track/csv-missing-column", f"{TRK} --input c.csv --out est.csv",
+     setup=csv_edit("c.csv", lambda h, r: (h[:-1], [row[:-1] for row in r])), message="azimuth_3", klass="refusal")
+case("track/csv-extra-column", f"{TRK} --input c.csv --out est.csv",
+     setup=csv_edit("c.csv", lambda h, r: (h + ["notes"], [row + ["ok"] for row in r])), message="notes", klass="refusal")
+case("track/csv-semicolons", f"{TRK} --input c.csv --out est.csv",
+     setup=lambda root: (root / "c.csv").write_text((root / "z.csv").read_text().replace(",", ";")), message="c.csv",
+     klass="refusal")
+case("track/csv-non-utf8", f"{TRK} --input c.csv --out est.csv",
+     setup=lambda root: (root / "c.csv").write_bytes((root / "z.csv").read_bytes() + "0,x,é\n".encode("latin-1")),
+     message="utf-8", klass="refusal")
+case("track/csv-unreadable", f"{TZ} --out est.csv", setup=chmod("z.csv", 0), outputs=("est.csv",), root_expect="ok",
+     message="z.csv", klass="refusal")
+case("track/input-dataset-h5-file", f"{TRK} --input ds/tracks.h5 --out est.csv", message="tracks.h5", klass="silent_wrong")
+case("track/input-dataset-manifest", f"{TRK} --input ds/manifest.json --out est.csv", message="manifest.json",
+     klass="silent_wrong")
+case("track/input-user-folder", f"{TRK} --input user --out est.csv", message="user", klass="refusal")
+case("track/input-missing", f"{TRK} --input nope.csv --out est.csv", message="nope.csv", klass="refusal")
+case("track/split-with-csv", f"{TZ} --out est.csv --split val", message="--split", klass="refusal")
+case("track/input-other-geometry", f"{TRK} --input ds --out est.csv",
+     setup=edit_json("ds/manifest.json", _move_receiver), message="geometry", klass="refusal")
+case("track/input-other-dt", f"{TRK} --input ds --out est.csv",
+     setup=edit_json("ds/manifest.json", lambda m: m.update(dt_s=2.0)), message="dt", klass="refusal")
+case("track/checkpoint-missing", "track --checkpoint nope.pt --input z.csv --out est.csv", message="nope.pt", klass="refusal")
+case("track/checkpoint-is-directory", "track --checkpoint user --input z.csv --out est.csv", message="user", klass="refusal")
+case("track/checkpoint-is-text", "track --checkpoint z.csv --input z.csv --out est.csv", message="z.csv", klass="refusal")
+case("track/checkpoint-empty", "track --checkpoint e.pt --input z.csv --out est.csv", setup=write_bytes("e.pt", b""),
+     message="e.pt", klass="refusal")
+case("track/checkpoint-truncated", "track --checkpoint t.pt --input z.csv --out est.csv",
+     setup=steps(copy("run/tracker.pt", "t.pt"), truncate("t.pt", 0.5)), message="t.pt", klass="refusal")
+case("track/checkpoint-with-pickled-object", "track --checkpoint o.pt --input z.csv --out est.csv",
+     setup=torch_edit("run/tracker.pt", "o.pt", _with_date), message="o.pt", klass="refusal")
+case("track/checkpoint-foreign", "track --checkpoint f.pt --input z.csv --out est.csv",
+     setup=torch_edit("run/tracker.pt", "f.pt", _foreign), message="f.pt", klass="refusal")
+case("track/checkpoint-nan-weights", "track --checkpoint nan.pt --input z.csv --out est.csv",
+     setup=torch_edit("run/tracker.pt", "nan.pt", _nan_weight), outputs=("est.csv",), message="nan", klass="silent_wrong")
+case("track/checkpoint-nan-normalisation", "track --checkpoint nan.pt --input z.csv --out est.csv",
+     setup=torch_edit("run/tracker.pt", "nan.pt", _nan_normalisation), outputs=("est.csv",), message="normalisation",
+     klass="silent_wrong")
+case("track/checkpoint-format-version", "track --checkpoint v.pt --input z.csv --out est.csv",
+     setup=torch_edit("run/tracker.pt", "v.pt", lambda b: b["pmsr"].update(format_version=2)), message="format",
+     klass="refusal")
+case("track/checkpoint-without-window", "track --checkpoint w.pt --input z.csv --out est.csv",
+     setup=torch_edit("run/tracker.pt", "w.pt", lambda b: b["pmsr"].pop("window") and None), message="window",
+     klass="traceback")
+case("track/checkpoint-wrong-shapes", "track --checkpoint s.pt --input z.csv --out est.csv",
+     setup=torch_edit("run/tracker.pt", "s.pt", _wrong_shape), message="s.pt", klass="refusal")
+
+# ---------------------------------------------------------------------------------------------
+# export
+# ---------------------------------------------------------------------------------------------
+case("export/out-user-file", "export ds --out user/notes.txt", message="notes.txt", klass="data_loss")
+case("export/out-dataset-manifest", "export ds --out ds/manifest.json", message="manifest.json", klass="data_loss")
+case("export/out-symlink-to-user-file", "export ds --out x.csv", setup=symlink("x.csv", "user/data.csv"),
+     outputs=("x.csv",), message="x.csv", klass="data_loss", note="open() follows the link into user/data.csv")
+case("export/out-folder", "export ds --out user", message="user", klass="traceback")
+case("export/out-inside-file", "export ds --out z.csv/x.csv", message="z.csv", klass="traceback")
+case("export/out-missing-parent", "export ds --out nope/x.csv", message="nope", klass="traceback")
+case("export/out-unwritable-sysfs", "export ds --out locked/x.csv", setup=LOCK, message="locked", klass="traceback")
+case("export/out-disk-full", "export ds --out full.csv", setup=symlink("full.csv", "/dev/full"), outputs=("full.csv",),
+     message="full.csv", klass="traceback", note="full.csv -> /dev/full: ENOSPC on write")
+case("export/out-readonly-dir", "export ds --out ro/x.csv", setup=RO, outputs=("ro/x.csv",), root_expect="ok",
+     message="ro", klass="traceback")
+case("export/ok", "export ds --out out.csv", "ok", outputs=("out.csv",), verify=v_csv("out.csv", 12 * 120), klass="refusal")
+case("export/ok-split", "export ds --split test --out t.csv", "ok", outputs=("t.csv",), verify=v_csv("t.csv", 120),
+     klass="refusal")
+case("export/tracks-huge-ok", "export ds --out out.csv --tracks 999999999999", "ok", outputs=("out.csv",),
+     verify=v_csv("out.csv", 12 * 120), klass="refusal", note="--tracks is 'at most'")
+case("export/split-empty", "export ds --out out.csv --split val", setup=h5_edit("ds/tracks.h5", _all_train),
+     message="val", klass="refusal")
+case("export/dataset-user-folder", "export user --out out.csv", message="user", klass="refusal")
+case("export/dataset-missing", "export nope --out out.csv", message="nope", klass="refusal")
+case("export/dataset-is-csv", "export z.csv --out out.csv", message="z.csv", klass="refusal")
+case("export/h5-truncated", "export ds --out out.csv", setup=truncate("ds/tracks.h5", 0.6), message="tracks.h5",
+     klass="traceback")
+case("export/manifest-without-columns", "export ds --out out.csv",
+     setup=edit_json("ds/manifest.json", lambda m: m.pop("columns") and None), message="columns", klass="traceback")
+
+# ---------------------------------------------------------------------------------------------
+# evaluate
+# ---------------------------------------------------------------------------------------------
+EV = "evaluate sc.yaml --quiet"
+
+case("evaluate/out-user-overwrite", f"{EV} --out user --overwrite", message="user", klass="data_loss")
+case("evaluate/out-cwd-overwrite", f"{EV} --out . --overwrite", message="out", klass="data_loss")
+case("evaluate/out-parent-overwrite", f"{EV} --out .. --overwrite", message="out", klass="data_loss")
+case("evaluate/out-empty-string-overwrite", ("evaluate", "sc.yaml", "--quiet", "--out", "", "--overwrite"),
+     message="out", klass="data_loss", note="Path('') is the working folder")
+case("evaluate/out-user-subfolder-overwrite", f"{EV} --out user/sub --overwrite", message="user/sub", klass="data_loss")
+case("evaluate/out-user-subfolder", f"{EV} --out user/sub", message="user/sub", klass="refusal")
+case("evaluate/out-symlink-to-user-overwrite", f"{EV} --out link --overwrite", setup=LINK_USER, message="link",
+     klass="data_loss")
+case("evaluate/out-dataset-overwrite", f"{EV} --out ds --overwrite", message="ds", klass="data_loss")
+case("evaluate/out-training-run-overwrite", f"{EV} --out run --overwrite", message="run", klass="data_loss")
+case("evaluate/out-file-overwrite", f"{EV} --out z.csv --overwrite", message="z.csv", klass="data_loss")
+case("evaluate/out-file", f"{EV} --out z.csv", message="z.csv", klass="refusal")
+case("evaluate/out-inside-file", f"{EV} --out z.csv/x", message="z.csv", klass="traceback")
+case("evaluate/out-unwritable-sysfs", f"{EV} --out locked/ev", setup=LOCK, message="locked", klass="traceback")
+case("evaluate/out-readonly-dir", f"{EV} --out ro/ev", setup=RO, outputs=("ro/ev",), root_expect="ok", message="ro",
+     klass="traceback")
+case("evaluate/ok", f"{EV} --out out", "ok", outputs=("out",), verify=v_results("out"), klass="refusal")
+case("evaluate/ok-overwrite-previous-result", f"{EV} --out ev --overwrite", "ok", outputs=("ev",),
+     verify=v_results("ev"), klass="data_loss")
+case("evaluate/ok-existing-empty-folder", f"{EV} --out empty", "ok", setup=mkdir("empty"), outputs=("empty",),
+     verify=v_results("empty"), klass="refusal")
+case("evaluate/ok-new-parent-folders", f"{EV} --out a/b/c", "ok", outputs=("a",), verify=v_results("a/b/c"),
+     klass="refusal")
+case("evaluate/ok-learned", "evaluate sc_learned.yaml --quiet --out out", "ok", outputs=("out",),
+     verify=v_results("out"), klass="refusal")
+case("evaluate/ok-lightning-checkpoint", "evaluate sc_learned.yaml --quiet --out out --checkpoint MDFNN=run/checkpoints/last.ckpt",
+     "ok", outputs=("out",), verify=v_results("out"), klass="refusal")
+case("evaluate/shard-garbage", f"{EV} --out out --shard abc", message="shard", klass="refusal")
+case("evaluate/shard-zero", f"{EV} --out out --shard 0/2", message="shard", klass="refusal")
+case("evaluate/shard-more-than-blocks", f"{EV} --out out --shard 1/3", message="shard", klass="refusal")
+case("evaluate/shard-negative", f"{EV} --out out --shard -1/2", message="shard", klass="refusal")
+case("evaluate/mc-runs-huge", f"{EV} --out out --mc-runs 999999999999", message="mc-runs", klass="hang")
+case("evaluate/checkpoint-for-classical-method", f"{EV} --out out --checkpoint EKF=run/tracker.pt", message="EKF",
+     klass="refusal")
+case("evaluate/checkpoint-unknown-method", f"{EV} --out out --checkpoint NOPE=run/tracker.pt", message="NOPE",
+     klass="refusal")
+case("evaluate/checkpoint-without-name", f"{EV} --out out --checkpoint run/tracker.pt", message="--checkpoint",
+     klass="refusal")
+case("evaluate/checkpoint-missing-file", "evaluate sc_learned.yaml --quiet --out out --checkpoint MDFNN=nope.pt",
+     message="nope.pt", klass="refusal")
+case("evaluate/checkpoint-nan-weights", "evaluate sc_learned.yaml --quiet --out out --checkpoint MDFNN=nan.pt",
+     setup=torch_edit("run/tracker.pt", "nan.pt", _nan_weight), outputs=("out",), message="nan", klass="silent_wrong")
+case("evaluate/learned-stride-zero", "evaluate s.yaml --quiet --out out", setup=scenario_learned_options("s.yaml", {"stride": 0}),
+     outputs=("out",), message="stride", klass="silent_wrong", note="0 is read as 'default stride'")
+case("evaluate/learned-stride-huge", "evaluate s.yaml --quiet --out out",
+     setup=scenario_learned_options("s.yaml", {"stride": 100000}), message="stride", klass="traceback")
+case("evaluate/device-unknown", f"{EV} --out out --device banana", outputs=("out",), message="device", klass="silent_wrong")
+case("evaluate/device-cuda-without-gpu", f"{EV} --out out --device cuda", message="cuda", klass="traceback")
+case("evaluate/scenario-alias-bomb", "evaluate s.yaml --out out",
+     setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", f"seed: {BOMB}"), message="alias", klass="hang")
+case("evaluate/scenario-deep-nesting", "evaluate s.yaml --out out",
+     setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", f"seed: {DEEP}"), message="s.yaml", klass="traceback")
+case("evaluate/scenario-50mb", "evaluate s.yaml --out out", setup=big_yaml("s.yaml", SCENARIO_YAML, 50, key="description"),
+     message="s.yaml", klass="hang")
+case("evaluate/scenario-non-utf8", "evaluate s.yaml --out out",
+     setup=write_bytes("s.yaml", SCENARIO_YAML.encode() + "description: trajectoire d'été\n".encode("latin-1")),
+     message="utf-8", klass="traceback")
+case("evaluate/scenario-duplicate-key", "evaluate s.yaml --quiet --out out",
+     setup=write("s.yaml", SCENARIO_YAML + "seed: 4\n"), outputs=("out",), message="duplicate", klass="silent_wrong")
+case("evaluate/scenario-top-level-list", "evaluate l.yaml --out out", setup=write("l.yaml", "- 1\n"), message="mapping",
+     klass="refusal")
+case("evaluate/scenario-missing", "evaluate nope.yaml --out out", message="nope.yaml", klass="refusal")
+case("evaluate/scenario-is-directory", "evaluate user --out out", message="user", klass="refusal")
+case("evaluate/scenario-is-csv", "evaluate z.csv --out out", message="z.csv", klass="refusal")
+case("evaluate/yaml-3e1-noise-ok", "evaluate s.yaml --quiet --out out", "ok",
+     setup=text_sub(SCENARIO_YAML, "s.yaml", "range_m: 30.0", "range_m: 3e1"), outputs=("out",),
+     verify=v_results("out"), klass="silent_wrong")
+case("evaluate/yaml-dot5-ramp-ok", "evaluate s.yaml --quiet --out out", "ok",
+     setup=write("s.yaml", SCENARIO_YAML + "ramp_s: .5\n"), outputs=("out",), verify=v_results("out"), klass="silent_wrong")
+case("evaluate/method-kind-unknown", "evaluate s.yaml --out out",
+     setup=scenario_method("s.yaml", {"name": "X", "kind": "magic"}), message="kind", klass="refusal")
+case("evaluate/method-option-unknown", "evaluate s.yaml --out out",
+     setup=scenario_method("s.yaml", {"name": "X", "kind": "ekf", "options": {"gain": 2}}), message="gain", klass="refusal")
+case("evaluate/pf-particles-zero", "evaluate s.yaml --quiet --out out",
+     setup=scenario_method("s.yaml", {"name": "PF", "kind": "particle_filter", "options": {"particles": 0}}),
+     message="particles", klass="traceback")
+case("evaluate/pf-particles-text", "evaluate s.yaml --quiet --out out",
+     setup=scenario_method("s.yaml", {"name": "PF", "kind": "particle_filter", "options": {"particles": "many"}}),
+     message="particles", klass="traceback")
+case("evaluate/pf-particles-huge", "evaluate s.yaml --quiet --out out",
+     setup=scenario_method("s.yaml", {"name": "PF", "kind": "particle_filter", "options": {"particles": 200000000}}),
+     message="particles", klass="hang")
+case("evaluate/pf-roughening-negative", "evaluate s.yaml --quiet --out out",
+     setup=scenario_method("s.yaml", {"name": "PF", "kind": "particle_filter", "options": {"particles": 100, "roughening": -1.0}}),
+     outputs=("out",), message="roughening", klass="silent_wrong")
+case("evaluate/sikf-refine-negative", "evaluate s.yaml --quiet --out out",
+     setup=scenario_method("s.yaml", {"name": "SI", "kind": "si_kf", "options": {"refine_steps": -2}}),
+     outputs=("out",), message="refine_steps", klass="silent_wrong")
+case("evaluate/case-outside-envelope", "evaluate s.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: d["cases"][0].update(start_range_m=10900.0, heading_deg=90.0,
+                                                                             start_bearing_deg=90.0)),
+     message="envelope", klass="refusal")
+case("evaluate/case-no-segments", "evaluate s.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: d["cases"][0].update(segments=[])), message="segments",
+     klass="refusal")
+case("evaluate/case-duration-huge", "evaluate s.yaml --quiet --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: d["cases"][0].update(segments=[{"duration_s": 100000000.0}])),
+     message="duration", klass="hang")
+case("evaluate/case-duration-below-one-step", "evaluate s.yaml --quiet --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: d["cases"][0].update(segments=[{"duration_s": 0.5}])),
+     message="0.5", klass="traceback")
+case("evaluate/warmup-longer-than-case", "evaluate s.yaml --out out", setup=scenario_set(warmup_steps=10000),
+     message="warmup", klass="refusal")
+case("evaluate/block-runs-zero", "evaluate s.yaml --out out", setup=scenario_set(block_runs=0), message="block_runs",
+     klass="refusal")
+case("evaluate/duplicate-case-names", "evaluate s.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: d["cases"].append(dict(d["cases"][0]))), message="duplicate",
+     klass="refusal")
+case("evaluate/recipe-missing", "evaluate s.yaml --out out", setup=scenario_set(recipe="nope.yaml"), message="nope.yaml",
+     klass="refusal")
+case("evaluate/recipe-3d", "evaluate s.yaml --out out",
+     setup=steps(recipe_set("r3.yaml", dim=3), scenario_set(recipe="r3.yaml")), message="planar", klass="refusal")
+case("evaluate/recipe-duplicate-receivers", "evaluate s.yaml --quiet --out out",
+     setup=steps(recipe_set("rd.yaml", geometry__receivers=[{"baseline_m": 7560.0, "bearing_deg": 240.0},
+                                                            {"baseline_m": 7560.0, "bearing_deg": 240.0}]),
+                 scenario_set(recipe="rd.yaml")),
+     outputs=("out",), message="receiver", klass="silent_wrong")
+case("evaluate/reference-file-missing", "evaluate s.yaml --out out",
+     setup=scenario_set(reference={"file": "nope.json", "table": "a.b"}), message="nope.json", klass="refusal")
+case("evaluate/reference-table-missing", "evaluate s.yaml --out out",
+     setup=steps(write("ref.json", '{"a": {"c": 1}}'), scenario_set(reference={"file": "ref.json", "table": "a.b"})),
+     message="a.b", klass="refusal")
+case("evaluate/seed-negative", "evaluate s.yaml --quiet --out out", setup=scenario_set(seed=-1), outputs=("out",),
+     message="seed", klass="silent_wrong")
+case("evaluate/noise-zero", "evaluate s.yaml --out out", setup=scenario_set(noise={"range_m": 0.0}), message="noise",
+     klass="refusal")
+case("evaluate/multitarget-with-shard", "evaluate mt.yaml --out out --shard 1/2",
+     setup=write("mt.yaml", "kind: multitarget\nname: mt\n"), message="shard", klass="refusal")
+_SIG_EV = ("evaluate sc_big.yaml --quiet --out big", ("big.partial*", ".big.partial*", "big"))
+case("evaluate/sigterm", _SIG_EV[0], signal=("SIGTERM", 2.0), signal_after=_SIG_EV[1], klass="traceback",
+     note="a killed evaluate must not leave big.partial-XXXX behind")
+case("evaluate/sighup", _SIG_EV[0], signal=("SIGHUP", 2.0), signal_after=_SIG_EV[1], klass="traceback")
+case("evaluate/sigint", _SIG_EV[0], signal=("SIGINT", 2.0), signal_after=_SIG_EV[1], klass="traceback")
+case("evaluate/sigterm-while-overwriting", "evaluate sc_big.yaml --quiet --out ev --overwrite", signal=("SIGTERM", 2.0),
+     signal_after=("ev.partial*", ".ev.partial*"), klass="data_loss",
+     note="the previous result must survive an interrupted overwrite")
+
+# ---------------------------------------------------------------------------------------------
+# merge
+# ---------------------------------------------------------------------------------------------
+MG = "merge shard1 shard2"
+
+case("merge/out-is-an-input-overwrite", f"{MG} --out shard1 --overwrite", message="shard1", klass="data_loss")
+case("merge/out-is-an-input", f"{MG} --out shard1", message="shard1", klass="refusal")
+case("merge/out-user-overwrite", f"{MG} --out user --overwrite", message="user", klass="data_loss")
+case("merge/out-cwd-overwrite", f"{MG} --out . --overwrite", message="out", klass="data_loss")
+case("merge/out-file-overwrite", f"{MG} --out z.csv --overwrite", message="z.csv", klass="data_loss")
+case("merge/out-symlink-to-user-overwrite", f"{MG} --out link --overwrite", setup=LINK_USER, message="link",
+     klass="data_loss")
+case("merge/out-inside-file", f"{MG} --out z.csv/m", message="z.csv", klass="traceback")
+case("merge/out-unwritable-sysfs", f"{MG} --out locked/m", setup=LOCK, message="locked", klass="traceback")
+case("merge/ok", f"{MG} --out m", "ok", outputs=("m",), verify=v_results("m"), klass="refusal")
+case("merge/ok-shards-reversed", "merge shard2 shard1 --out m", "ok", outputs=("m",), verify=v_results("m"),
+     klass="refusal")
+case("merge/ok-overwrite-previous-result", f"{MG} --out ev --overwrite", "ok", outputs=("ev",), verify=v_results("ev"),
+     klass="data_loss")
+case("merge/same-shard-twice", "merge shard1 shard1 --out m", message="shard1", klass="refusal")
+case("merge/same-shard-via-symlink", "merge shard1 alias shard2 --out m", setup=symlink("alias", "shard1"),
+     message="alias", klass="refusal")
+case("merge/missing-shard", "merge shard1 --out m", message="blocks", klass="refusal")
+case("merge/shard-given-three-times", "merge shard1 shard2 shard2 --out m", message="shard2", klass="refusal")
+case("merge/not-a-shard", "merge shard1 user --out m", message="user", klass="refusal")
+case("merge/shard-folder-missing", "merge shard1 nope --out m", message="nope", klass="refusal")
+case("merge/full-result-not-a-shard", "merge ev --out m", message="ev", klass="refusal")
+case("merge/npz-truncated", f"{MG} --out m", setup=truncate("shard2/blocks.npz", 0.5), message="blocks.npz",
+     klass="traceback")
+case("merge/npz-empty", f"{MG} --out m", setup=write_bytes("shard2/blocks.npz", b""), message="blocks.npz",
+     klass="traceback")
+case("merge/npz-missing", f"{MG} --out m", setup=remove("shard2/blocks.npz"), message="blocks.npz", klass="refusal")
+case("merge/npz-pickled-object", f"{MG} --out m", setup=npz_edit("shard2/blocks.npz", _object_blocks),
+     message="blocks.npz", klass="refusal")
+case("merge/npz-without-blocks", f"{MG} --out m", setup=npz_edit("shard2/blocks.npz", _no_blocks),
+     message="blocks.npz", klass="refusal")
+case("merge/json-garbage", f"{MG} --out m", setup=write("shard2/shard.json", "{{{"), message="shard.json", klass="refusal")
+case("merge/json-list", f"{MG} --out m", setup=write("shard2/shard.json", "[1, 2]"), message="shard.json",
+     klass="traceback")
+case("merge/json-without-scenario", f"{MG} --out m", setup=edit_json("shard2/shard.json", lambda m: m.pop("scenario") and None),
+     message="shard.json", klass="traceback")
+case("merge/json-non-utf8", f"{MG} --out m", setup=write_bytes("shard2/shard.json", b'{"format": "\xe9"}'),
+     message="shard.json", klass="refusal")
+case("merge/json-wrong-format", f"{MG} --out m", setup=edit_json("shard2/shard.json", lambda m: m.update(format="x/9")),
+     message="shard.json", klass="refusal")
+case("merge/json-other-scenario", f"{MG} --out m",
+     setup=edit_json("shard2/shard.json", lambda m: m["scenario"].update(seed=99)), message="scenario", klass="refusal")
+case("merge/no-shards", "merge --out m", message="shards", klass="refusal")
+
+# ---------------------------------------------------------------------------------------------
+# demo (only cases that must be refused before any training starts)
+# ---------------------------------------------------------------------------------------------
+case("demo/out-user", "demo --out user", message="user", klass="data_loss")
+case("demo/out-user-file", "demo --out user/notes.txt", message="notes.txt", klass="traceback")
+case("demo/out-inside-file", "demo --out z.csv/d", message="z.csv", klass="traceback")
+case("demo/out-cwd", "demo --out .", message="out", klass="data_loss")
+case("demo/out-parent", "demo --out ..", message="out", klass="data_loss")
+case("demo/out-dataset", "demo --out ds", message="ds", klass="data_loss")
+case("demo/out-training-run", "demo --out run", message="run", klass="data_loss")
+case("demo/out-symlink-to-user", "demo --out link", setup=LINK_USER, message="link", klass="data_loss")
+case("demo/out-unwritable-sysfs", "demo --out locked/demo", setup=LOCK, message="locked", klass="traceback")
+case("demo/out-folder-with-marker-and-user-files", "demo --out fake",
+     setup=steps(write("fake/demo.json", '{"started": "2024-05-03 10:00:00"}\n'),
+                 write("fake/thesis.tex", "\\chapter{Results}  % three months of work\n")),
+     message="thesis.tex", timeout=30, klass="data_loss",
+     note="a demo.json marker does not make the user's thesis.tex a demo output")
+
+
+SLOW: set[str] = set()
+"""Cases too slow for the default test run (each trains, evaluates or fills memory for seconds);
+``tests/test_bad_input.py`` runs them in the slow tier. Chosen from the census timings."""
+
+
+def by_id() -> dict[str, Case]:
+    return {c.id: c for c in CASES}
+
+
+def _check() -> None:
+    ids = [c.id for c in CASES]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    assert not dup, f"duplicate case ids: {dup}"
+    for c in CASES:
+        assert c.expect in ("refuse", "ok"), c.id
+        assert c.root_expect in (None, "refuse", "ok"), c.id
+        assert c.command in COMMANDS, c.id
+        for a in c.argv:
+            assert not a.startswith("/"), f"{c.id}: absolute path {a!r}"
+            assert ".." not in Path(a).parts or a == "..", f"{c.id}: {a!r} leaves the sandbox"
+        if c.signal is not None:
+            assert c.signal[0] in ("SIGTERM", "SIGHUP", "SIGINT"), c.id
+
+
+_check()
