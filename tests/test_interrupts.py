@@ -66,6 +66,16 @@ def check_stopped(rc, err, sig, kept=None):
     assert (kept or "no partial output was left behind") in lines[0]
 
 
+def interrupt_writing(cwd: Path, argv: list[str], out: str, sig, delay: tuple[float, float]) -> int:
+    """Start ``pmsr ARGV --out OUT``, send ``sig`` a random time after its temporary folder
+    appears, check how it stopped and that ``OUT`` does not exist; return the process id."""
+    p = pmsr([*argv, "--out", out, "--quiet"], cwd)
+    rc, err = kill_when(p, lambda: any(f".{out}.partial-" in n.name for n in cwd.iterdir()), sig, rng.uniform(*delay))
+    check_stopped(rc, err, sig)
+    assert not (cwd / out).exists()
+    return p.pid
+
+
 def checksums(dataset):
     return json.loads((Path(dataset) / "manifest.json").read_text())["checksums_sha256"]
 
@@ -83,11 +93,8 @@ def recipe(tmp_path_factory):
 @pytest.mark.parametrize("sig", SIGNALS, ids=lambda s: signal.Signals(s).name)
 def test_simulate_killed_at_random_leaves_nothing_and_reruns_identically(recipe, sig):
     cwd = recipe
-    p = pmsr(["simulate", "r.yaml", "--out", "ds", "--quiet"], cwd)
-    rc, err = kill_when(p, lambda: any(".ds.partial-" in n.name for n in cwd.iterdir()), sig, rng.uniform(0.2, 1.5))
-    check_stopped(rc, err, sig)
-    assert not (cwd / "ds").exists()
-    assert partials(cwd) == ([] if sig != signal.SIGKILL else [f".ds.partial-{p.pid}"])
+    pid = interrupt_writing(cwd, ["simulate", "r.yaml"], "ds", sig, (0.2, 1.5))
+    assert partials(cwd) == ([] if sig != signal.SIGKILL else [f".ds.partial-{pid}"])
     finish(["simulate", "r.yaml", "--out", "ds", "--quiet"], cwd)
     assert partials(cwd) == [] and checksums(cwd / "ds") == checksums(cwd / "reference")
     finish(["simulate", "r.yaml", "--out", "ds", "--overwrite", "--quiet"], cwd)  # replaced whole, nothing aside
@@ -123,10 +130,7 @@ def evaluation(tmp_path_factory):
 @pytest.mark.parametrize("sig", SIGNALS, ids=lambda s: signal.Signals(s).name)
 def test_evaluate_killed_at_random_leaves_nothing_and_reruns_identically(evaluation, sig):
     cwd = evaluation
-    p = pmsr(["evaluate", "sc.yaml", "--out", "ev", "--quiet"], cwd)
-    rc, err = kill_when(p, lambda: any(".ev.partial-" in n.name for n in cwd.iterdir()), sig, rng.uniform(0.5, 2.0))
-    check_stopped(rc, err, sig)
-    assert not (cwd / "ev").exists()
+    interrupt_writing(cwd, ["evaluate", "sc.yaml"], "ev", sig, (0.5, 2.0))
     finish(["evaluate", "sc.yaml", "--out", "ev", "--quiet"], cwd)
     assert partials(cwd) == []
     assert accuracy(cwd / "ev" / "results.json") == accuracy(cwd / "reference" / "results.json")

@@ -62,7 +62,7 @@ def is_our_dataset(path: Path) -> bool:
         return False
 
 
-def check_output_path(out: Path, overwrite: bool, inputs=()) -> None:
+def check_output_path(out: Path, overwrite: bool, inputs=(), what: str = "--out") -> None:
     """Refuse to write over anything that is not one of our datasets (and over ours unless asked),
     and refuse a dataset that would not fit on the disk."""
     from ..outputs import check_folder_target
@@ -70,7 +70,7 @@ def check_output_path(out: Path, overwrite: bool, inputs=()) -> None:
     out = Path(out)
     if out.exists() and not out.is_symlink() and (not out.is_dir() or any(out.iterdir())) and not is_our_dataset(out):
         raise DatasetError(f"output path {out} exists and is not a pmsr_nn dataset; choose another path")
-    check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=("simulate",))
+    check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=("simulate",), what=what)
 
 
 def dataset_bytes(recipe: TrackRecipe) -> int:
@@ -103,7 +103,7 @@ def assign_splits(recipe: TrackRecipe) -> np.ndarray:
 
 
 def write_dataset(recipe: TrackRecipe, out: str | Path, *, overwrite: bool = False, progress: bool = True,
-                  inputs=()) -> dict:
+                  inputs=(), what: str = "--out") -> dict:
     """Generate the recipe's tracks chunk by chunk and write them atomically to ``out``.
 
     Memory stays bounded by ``storage.chunk_tracks`` however many tracks are asked for. Returns
@@ -112,9 +112,9 @@ def write_dataset(recipe: TrackRecipe, out: str | Path, *, overwrite: bool = Fal
     from ..outputs import atomic_folder
 
     out = Path(out)
-    check_output_path(out, overwrite, inputs)
+    check_output_path(out, overwrite, inputs, what)
     check_disk_space(recipe, out)
-    with atomic_folder(out, command="simulate", overwrite=overwrite, inputs=inputs, allow=("simulate",)) as tmp:
+    with atomic_folder(out, command="simulate", overwrite=overwrite, inputs=inputs, allow=("simulate",), what=what) as tmp:
         return _write_into(recipe, tmp, progress)
 
 

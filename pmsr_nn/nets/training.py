@@ -196,7 +196,8 @@ def prepare_dataset(data: DataConfig, progress: bool = True) -> Path:
     key = hashlib.sha256(json.dumps(recipe.to_dict(), sort_keys=True).encode()).hexdigest()[:10]
     out = Path(data.cache_dir) / f"{recipe.name}-{recipe.variant}-{recipe.tracks}x{recipe.motion.steps}-{key}"
     if not is_our_dataset(out):
-        write_dataset(recipe, out, progress=progress)  # creates cache_dir (and removes it again on failure)
+        # creates cache_dir (and removes it again on failure)
+        write_dataset(recipe, out, progress=progress, what=f"data.cache_dir {data.cache_dir}: dataset")
     return out
 
 
