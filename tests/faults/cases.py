@@ -1181,11 +1181,6 @@ case("demo/out-folder-with-marker-and-user-files", "demo --out fake",
      note="a demo.json marker does not make the user's thesis.tex a demo output")
 
 
-SLOW: set[str] = set()
-"""Cases too slow for the default test run (each trains, evaluates or fills memory for seconds);
-``tests/test_bad_input.py`` runs them in the slow tier. Chosen from the census timings."""
-
-
 def by_id() -> dict[str, Case]:
     return {c.id: c for c in CASES}
 
