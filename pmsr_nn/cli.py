@@ -23,8 +23,8 @@ from .errors import Interrupted, PmsrError
 DEMO_DIR = Path("runs/demo")
 
 
-def _int_at_least(minimum: int, what: str):
-    """An argparse type: an integer >= ``minimum`` with a one-line error otherwise."""
+def _int_at_least(minimum: int, what: str, maximum: int | None = None):
+    """An argparse type: an integer in ``[minimum, maximum]`` with a one-line error otherwise."""
 
     def parse(text: str) -> int:
         try:
@@ -33,6 +33,8 @@ def _int_at_least(minimum: int, what: str):
             value = None
         if value is None or value < minimum:
             raise argparse.ArgumentTypeError(f"expected a {what} integer, got {text!r}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"at most {maximum:,}, got {value:,}")
         return value
 
     return parse
@@ -40,6 +42,7 @@ def _int_at_least(minimum: int, what: str):
 
 _positive_int = _int_at_least(1, "positive")
 _nonneg_int = _int_at_least(0, "non-negative")
+_mc_runs = _int_at_least(1, "positive", maximum=10_000_000)  # MAX_MC_RUNS of the scenarios
 
 
 class _Parser(argparse.ArgumentParser):
@@ -152,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ev.add_argument("scenario", type=Path, help="scenario YAML, e.g. evaluate/fitee2023_three_trajectories.yaml")
     ev.add_argument("--out", type=Path, required=True, help="output folder (new or empty unless --overwrite)")
-    ev.add_argument("--mc-runs", type=_positive_int, help="Monte Carlo runs per case (overrides the scenario's)")
+    ev.add_argument("--mc-runs", type=_mc_runs, help="Monte Carlo runs per case (overrides the scenario's)")
     ev.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
                     help="use this checkpoint for learned method NAME (repeatable)")
     ev.add_argument("--shard", default="1/1", metavar="I/N", help="run the I-th of N slices of the runs (default 1/1: all)")
@@ -175,7 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
         "trajectories, print the comparison table and write the report (OUT/evaluation/report.md).",
     )
     d.add_argument("--out", type=Path, default=DEMO_DIR, help=f"output folder (default {DEMO_DIR}; a previous demo there is replaced)")
-    d.add_argument("--mc-runs", type=_positive_int, default=20, help="Monte Carlo runs per trajectory (default 20)")
+    d.add_argument("--mc-runs", type=_mc_runs, default=20, help="Monte Carlo runs per trajectory (default 20)")
     return p
 
 

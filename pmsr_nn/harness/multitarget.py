@@ -178,7 +178,8 @@ class MultiTargetScenario:
     base_dir: str = field(default=".", init=False, compare=False)
 
     def __post_init__(self) -> None:
-        require(self.mc_runs >= 1 and self.block_runs >= 1, "mc_runs and block_runs must be at least 1")
+        require(1 <= self.mc_runs <= 10_000_000 and self.block_runs >= 1,
+                f"mc_runs must be in [1, 10,000,000] and block_runs at least 1, got {self.mc_runs:,} and {self.block_runs}")
         require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
         require(2 <= self.scans <= 100_000, f"scans must be in [2, 100000], got {self.scans}")
         require(0 <= self.converged_from_scan < self.scans, "converged_from_scan must be a scan index")

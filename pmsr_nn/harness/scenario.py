@@ -52,6 +52,9 @@ def _check_option(method: str, key: str, value) -> None:
                           f"in [{lo}, {hi}], got {value!r:.40}")
 
 
+MAX_MC_RUNS = 10_000_000
+"""Most Monte Carlo runs of a scenario (the papers use 100; per-run results are kept in memory)."""
+
 MAX_CASE_DURATION_S = 100_000.0
 """Longest trajectory of a case (about 28 h): every run holds every step of it in memory."""
 
@@ -167,7 +170,7 @@ class Scenario:
 
     def __post_init__(self) -> None:
         require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
-        require(self.mc_runs >= 1, f"mc_runs must be at least 1, got {self.mc_runs}")
+        require(1 <= self.mc_runs <= MAX_MC_RUNS, f"mc_runs must be in [1, {MAX_MC_RUNS:,}], got {self.mc_runs:,}")
         require(self.block_runs >= 1, f"block_runs must be at least 1, got {self.block_runs}")
         require(self.warmup_steps >= 0, f"warmup_steps must be >= 0, got {self.warmup_steps}")
         require(self.divergence_m > 0, f"divergence_m must be positive, got {self.divergence_m}")

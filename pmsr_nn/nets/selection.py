@@ -25,21 +25,30 @@ FRESH_SEED_OFFSET = 1_000_003
 """Fresh tracks use ``recipe seed + FRESH_SEED_OFFSET``: a random stream no training set draws from."""
 
 
-def fresh_tracks(cfg: TrainConfig, tracks: int, out: Path) -> Path:
-    """Simulate ``tracks`` tracks of the training recipe with an unused seed into ``out``."""
-    from ..data.store import write_dataset
+def fresh_recipe(cfg: TrainConfig, tracks: int):
+    """The training recipe with ``tracks`` tracks and a seed no training set draws from."""
     from ..simulation.recipe import SplitSpec
     from .training import resolve_recipe
 
     if cfg.data.path is not None:
         from ..data.store import open_dataset
 
-        recipe = open_dataset(cfg.data.path).recipe()
+        ds = open_dataset(cfg.data.path)
+        try:
+            recipe = ds.recipe()
+        finally:
+            ds.close()
     else:
         recipe = resolve_recipe(cfg.data)
     # Only evaluated, never trained on: the split labels are irrelevant, all tracks are scored.
-    recipe = recipe.with_overrides(tracks=tracks, seed=recipe.seed + FRESH_SEED_OFFSET, splits=SplitSpec(1.0, 0.0, 0.0))
-    write_dataset(recipe, out, progress=False)
+    return recipe.with_overrides(tracks=tracks, seed=recipe.seed + FRESH_SEED_OFFSET, splits=SplitSpec(1.0, 0.0, 0.0))
+
+
+def fresh_tracks(cfg: TrainConfig, tracks: int, out: Path) -> Path:
+    """Simulate ``tracks`` tracks of the training recipe with an unused seed into ``out``."""
+    from ..data.store import write_dataset
+
+    write_dataset(fresh_recipe(cfg, tracks), out, progress=False, what="--fresh-tracks: dataset")
     return out
 
 
@@ -85,6 +94,9 @@ def select_best(cfg: TrainConfig, out: str | Path, *, members: int = 10, fresh_t
     if members > 1 and members > pool:
         raise ConfigError(f"--members {members}: the {pool} train+val tracks of {dataset} cannot be cut into "
                           f"{members} folds; ask for fewer members or simulate more tracks")
+    from ..data.store import check_disk_space
+
+    check_disk_space(fresh_recipe(cfg, fresh_tracks_n), out)
     with atomic_folder(out, command="select", inputs=inputs) as tmp:
         fresh = fresh_tracks(cfg, fresh_tracks_n, tmp / "fresh")
         rows = []
