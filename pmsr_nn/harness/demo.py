@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from ..config import from_dict
-from ..errors import ConfigError
+from ..errors import ConfigError, Interrupted
 from .scenario import FITEE2023_TRAJECTORIES, FixedNoiseSpec, MethodSpec, Scenario
 
 DEMO_MARKER = "demo.json"
@@ -81,11 +81,19 @@ def _fresh(out: Path) -> None:
 
 
 def run_demo(out: Path, mc_runs: int = 20, progress: bool = True, log=print) -> dict:
+    out = Path(out)
+    _fresh(out)
+    try:
+        return _run(out, mc_runs, progress, log)
+    except (Interrupted, KeyboardInterrupt) as exc:  # the folder stays marked as a demo: the next demo replaces it
+        exc.kept = f"the unfinished demo in {out} is replaced by the next 'pmsr demo --out {out}'"
+        raise
+
+
+def _run(out: Path, mc_runs: int, progress: bool, log) -> dict:
     from ..nets.training import train
     from .evaluate import evaluate
 
-    out = Path(out)
-    _fresh(out)
     t_start = time.perf_counter()
     (out / DEMO_MARKER).write_text(json.dumps({"started": time.strftime("%Y-%m-%d %H:%M:%S")}) + "\n")
     checkpoints, train_seconds = {}, {}

@@ -1179,6 +1179,9 @@ case("demo/out-folder-with-marker-and-user-files", "demo --out fake",
                  write("fake/thesis.tex", "\\chapter{Results}  % three months of work\n")),
      message="thesis.tex", timeout=30, klass="data_loss",
      note="a demo.json marker does not make the user's thesis.tex a demo output")
+case("demo/sigterm-during-training", "demo --out dm --mc-runs 2", signal=("SIGTERM", 2.0),
+     signal_after=("dm/train",), outputs=("dm",), timeout=120, klass="traceback",
+     note="the unfinished demo folder stays (marked) and the line says the next demo replaces it")
 
 
 def by_id() -> dict[str, Case]:
