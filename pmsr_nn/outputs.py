@@ -11,9 +11,11 @@ raised before anything is written):
 * the parent folder must exist or be creatable, and be writable.
 
 Writing happens in a hidden temporary sibling ``.NAME.partial-PID`` (never inside the target),
-which is flushed to disk and renamed onto the target only when complete. A failure or a signal
-removes the temporary; a run killed outright (SIGKILL, power loss) leaves it, and the next
-command writing the same target removes it once no live process owns it. A replaced folder is
+which is flushed to disk and renamed onto the target only when complete, after the target is
+checked again. A failure or a signal removes the temporary; a run killed outright (SIGKILL,
+power loss) leaves it, and the next command writing the same target removes it once no live
+process owns it (a temporary folder carries a marker that proves it is ours; a temporary file
+cannot, and is left for the user). A replaced folder is
 first renamed aside (``.NAME.old-PID``), so the target is never half old, half new.
 """
 
@@ -107,11 +109,11 @@ def check_target(out: Path, *, inputs: Iterable[Path] = (), what: str = "--out")
     """
     target = _resolved(out)
     cwd = _resolved(Path.cwd())
-    if target == cwd or target in cwd.parents:
+    real, real_cwd = Path(os.path.realpath(target)), Path(os.path.realpath(cwd))
+    if target == cwd or target in cwd.parents or real == real_cwd or real in real_cwd.parents:
         raise OutputError(f"{what} {out} is the working directory or a parent of it; give a new folder inside it")
     if target == _resolved(Path.home()) or target == Path(target.anchor):
         raise OutputError(f"{what} {out} is the home folder or the file-system root; give a new folder")
-    real = Path(os.path.realpath(target))
     for given in inputs:
         src = Path(os.path.realpath(_resolved(given)))
         if real == src:
@@ -164,7 +166,8 @@ def check_folder_target(out: Path, *, overwrite: bool, inputs: Iterable[Path] = 
 
 
 def clean_stale(out: Path) -> list[Path]:
-    """Remove our temporaries for target ``out`` whose process is gone; returns what was removed."""
+    """Remove our temporary folders for target ``out`` whose process is gone (each carries our
+    partial or output marker); returns what was removed."""
     out = _resolved(out)
     parent = out.parent
     removed = []
@@ -174,11 +177,9 @@ def clean_stale(out: Path) -> list[Path]:
         m = _PARTIAL.match(p.name)
         if not m or m["name"] != out.name or _process_alive(int(m["pid"])):
             continue
+        # A folder proves it is ours by its marker; a file cannot, so a stale temporary file stays.
         if p.is_dir() and not p.is_symlink() and ((p / PARTIAL_MARKER).exists() or is_ours(p)):
             shutil.rmtree(p, ignore_errors=True)
-            removed.append(p)
-        elif p.is_file() and not p.is_symlink():
-            p.unlink(missing_ok=True)
             removed.append(p)
     return removed
 
@@ -197,7 +198,7 @@ def make_parents(out: Path) -> list[Path]:
     return made
 
 
-def _remove_if_empty(folders: list[Path]) -> None:
+def remove_if_empty(folders: list[Path]) -> None:
     for d in reversed(folders):
         try:
             d.rmdir()
@@ -229,17 +230,23 @@ def atomic_folder(out: Path, *, command: str, overwrite: bool = False, inputs: I
     clean_stale(out)
     tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
     try:
-        tmp.mkdir()
+        tmp.mkdir()  # fails if the name exists: then nothing below may remove it
+    except OSError as exc:
+        remove_if_empty(made)
+        raise OutputError(f"{what} {out}: cannot create the temporary folder {tmp} ({exc.strerror})") from None
+    try:
         (tmp / PARTIAL_MARKER).touch()
         yield tmp
         interrupts.check()
+        # The work may have taken hours: what is at ``out`` now must still be ours to replace.
+        check_folder_target(out, overwrite=overwrite, inputs=inputs, what=what, allow=allow)
         (tmp / PARTIAL_MARKER).unlink()
         write_marker(tmp, command, **facts)
         _fsync_tree(tmp)
         replace_folder(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
-        _remove_if_empty(made)
+        remove_if_empty(made)
         raise
 
 
@@ -282,8 +289,9 @@ def atomic_file(path: Path, *, overwrite: bool = False, inputs: Iterable[Path] =
     """Yield a temporary path beside ``path`` that replaces it (synced) only if the block completes."""
     path = Path(path)
     check_file_target(path, overwrite=overwrite, inputs=inputs, what=what, suffixes=suffixes)
-    clean_stale(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    if tmp.exists() or tmp.is_symlink():
+        raise OutputError(f"{what} {path}: the temporary name {tmp} is taken; remove it if it is not yours")
     try:
         yield tmp
         interrupts.check()

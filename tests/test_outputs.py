@@ -120,6 +120,34 @@ def test_a_killed_writer_leaves_a_partial_that_the_next_write_removes(cwd):
     assert clean_stale(cwd / "res") == []
 
 
+def test_a_taken_temporary_name_is_never_written_or_removed(cwd):
+    pid = os.getpid()
+    (cwd / f".res.partial-{pid}").mkdir()
+    (cwd / f".res.partial-{pid}" / "x").write_text("someone's")
+    (cwd / f".z.csv.partial-{pid}").write_text("someone's")
+    before = tree(cwd)
+    with pytest.raises(OutputError, match="cannot create the temporary folder"):
+        with atomic_folder(cwd / "res", command="evaluate"):
+            pass
+    with pytest.raises(OutputError, match="temporary name .* is taken"):
+        with atomic_file(cwd / "z.csv"):
+            pass
+    assert tree(cwd) == before
+
+
+def test_what_appeared_at_the_target_during_the_work_is_kept(cwd):
+    with pytest.raises(OutputError, match="not written by pmsr"):
+        with atomic_folder(cwd / "res", command="evaluate") as tmp:
+            (tmp / "a.txt").write_text("1")
+            (cwd / "res").mkdir()  # the user makes the folder while the work runs
+            (cwd / "res" / "mine.txt").write_text("mine")
+    assert (cwd / "res" / "mine.txt").read_text() == "mine" and partial_names(cwd) == []
+
+
+def partial_names(folder):
+    return [p.name for p in folder.iterdir() if ".partial-" in p.name or ".old-" in p.name]
+
+
 def test_atomic_file_refuses_existing_folders_and_unasked_overwrites(cwd):
     (cwd / "z.csv").write_text("old")
     with pytest.raises(OutputError, match="already exists"):

@@ -159,3 +159,24 @@ def test_open_refuses_incomplete_or_foreign(dataset, damage):
         (dataset / "tracks.h5").unlink()
     with pytest.raises(DatasetError):
         open_dataset(dataset)
+
+
+@pytest.mark.parametrize("batches", [None, 3])
+def test_epoch_shuffler_equals_torch_random_sampler(batches):
+    """The training order equals what a shuffled DataLoader with one seeded generator gives epoch
+    after epoch (full epochs, or the first ``batches`` of each), in any order of epochs asked."""
+    from itertools import islice
+
+    from torch.utils.data import DataLoader
+
+    from pmsr_nn.data.datamodule import EpochShuffler
+
+    n, bs, seed = 50, 8, 7
+    loader = DataLoader(list(range(n)), batch_size=bs, shuffle=True, generator=torch.Generator().manual_seed(seed))
+    want = []
+    for _ in range(5):
+        got = list(islice(iter(loader), batches)) if batches else list(loader)
+        want.append(torch.cat(got).tolist())
+    s = EpochShuffler(n, seed, full_epochs=batches is None)
+    for epoch in (0, 1, 2, 3, 4, 2, 0, 4):  # forwards, then back (a resume), then forwards again
+        assert s.order(epoch)[: len(want[epoch])].tolist() == want[epoch]

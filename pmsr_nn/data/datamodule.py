@@ -32,17 +32,28 @@ class EpochShuffler(torch.utils.data.Sampler):
         self.n, self.seed, self.draws_per_epoch = int(n), int(seed), 2 if full_epochs else 1
         self.epoch, self.skip = 0, 0
         self.worker_seeds = torch.Generator().manual_seed(self.seed)  # the loader's base seeds, off the global RNG
+        self._start = (0, torch.Generator().manual_seed(self.seed).get_state())  # generator state at an epoch's start
 
     def set_epoch(self, epoch: int) -> None:  # called by Lightning at the start of every epoch
         self.epoch = int(epoch)
 
     def order(self, epoch: int) -> torch.Tensor:
-        g = torch.Generator().manual_seed(self.seed)
-        for e in range(epoch + 1):
+        e, state = self._start
+        g = torch.Generator()
+        if e <= epoch:
+            g.set_state(state)  # go on from the last epoch computed (one epoch's draws, not all before it)
+        else:
+            e = 0
+            g.manual_seed(self.seed)
+        while True:
             torch.empty((), dtype=torch.int64).random_(generator=g)  # the loader iterator's base seed
             perm = torch.randperm(self.n, generator=g)
-            if e < epoch and self.draws_per_epoch == 2:
+            if e == epoch:
+                break
+            if self.draws_per_epoch == 2:
                 torch.randperm(self.n, generator=g)
+            e += 1
+            self._start = (e, g.get_state())
         return perm
 
     def __iter__(self):

@@ -355,32 +355,37 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
     return metrics
 
 
-def _start_run_folder(out: Path, cfg: TrainConfig, write: bool) -> bool:
-    """Create and mark the run folder (rank 0 of a new run); True when this call created it."""
+def _start_run_folder(out: Path, cfg: TrainConfig, write: bool) -> list[Path]:
+    """Create and mark the run folder (rank 0 of a new run); the folders this call created
+    (parents first, the run folder last), none when it existed."""
     if not write:
-        return False
+        return []
     from ..outputs import make_parents
 
-    make_parents(out)
-    created = not out.exists()
+    made = make_parents(out)
+    if not out.exists():
+        made.append(out)
     out.mkdir(exist_ok=True)
     write_marker(out, "train", state="running")
     (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
-    return created
+    return made
 
 
-def _after_failed_fit(out: Path, created: bool, exc: BaseException) -> None:
-    """A new run that stopped before its first checkpoint is removed; one with a checkpoint is kept."""
+def _after_failed_fit(out: Path, created: list[Path], exc: BaseException) -> None:
+    """A new run that stopped before its first checkpoint is removed (only the folders this call
+    created, and only while the run folder carries our train marker); one with a checkpoint is kept."""
     import shutil
 
     from ..errors import Interrupted
+    from ..outputs import output_kind, remove_if_empty
 
     if (out / "checkpoints" / "last.ckpt").is_file() or (out / "checkpoints" / "best.ckpt").is_file():
         if isinstance(exc, (Interrupted, KeyboardInterrupt)):
             exc.kept = f"the run is kept at {out}: continue it with 'pmsr train --resume --out {out}'"
         return
-    if created:
+    if created and created[-1] == out and output_kind(out) == "train":
         shutil.rmtree(out, ignore_errors=True)
+        remove_if_empty(created[:-1])
 
 
 def _merge_history(path: Path, metrics: dict) -> None:
