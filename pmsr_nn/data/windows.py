@@ -28,7 +28,8 @@ def windows_per_track(steps: int, window: int) -> int:
 
 
 class WindowDataset(Dataset):
-    """(measurement window, state window) pairs of one split, normalised to [-1, 1] by default.
+    """(input window, target window) pairs of one split: by default the measurement and state
+    windows normalised to [-1, 1]; with a ``representation``, what that network reads and predicts.
 
     Item ``i`` is window ``i % windows_per_track`` of the split's track ``i // windows_per_track``:
     ``z (window, dim_z)`` and ``x (window, dim_x)`` as float32 (``dtype``). The scalers fitted on
@@ -38,9 +39,12 @@ class WindowDataset(Dataset):
 
     def __init__(self, dataset: TrackDataset | str, split: str, window: int | None = None,
                  normalise: bool = True, dtype: torch.dtype = torch.float32, in_memory: bool | None = None,
-                 tracks: np.ndarray | None = None, scalers: tuple[MinMaxScaler, MinMaxScaler] | None = None):
+                 tracks: np.ndarray | None = None, scalers: tuple[MinMaxScaler, MinMaxScaler] | None = None,
+                 representation=None):
         """``tracks`` (file indices) replaces the split's own tracks and ``scalers``
-        (measurements, states) the manifest's statistics, for cross-validation folds."""
+        (measurements, states) the manifest's statistics, for cross-validation folds.
+        ``representation`` (:class:`~pmsr_nn.nets.representation.Representation`) turns each
+        track into network inputs and targets; none: the min-max normalised rows (the paper's)."""
         self.data = open_dataset(dataset) if not isinstance(dataset, TrackDataset) else dataset
         man = self.data.manifest
         self.split = split
@@ -58,13 +62,17 @@ class WindowDataset(Dataset):
         )
         if in_memory is None:
             in_memory = row_bytes * len(self.tracks) <= IN_MEMORY_LIMIT_BYTES
+        self.representation = representation if normalise else None
         self._cache = None
+        self._encoded = False
         if in_memory and len(self.tracks):
             f = self.data.file
-            self._cache = (
-                torch.from_numpy(f["measurements"][self.tracks]),
-                torch.from_numpy(f["states"][self.tracks]),
-            )
+            z = torch.from_numpy(f["measurements"][self.tracks])
+            x = torch.from_numpy(f["states"][self.tracks])
+            if self.representation is not None:  # whole tracks encoded once (local features read k - 1)
+                u, y = self.representation.encode(z, x)
+                z, x, self._encoded = u.to(dtype), y.to(dtype), True
+            self._cache = (z, x)
 
     def __len__(self) -> int:
         return len(self.tracks) * self.per_track
@@ -76,7 +84,13 @@ class WindowDataset(Dataset):
         return int(self.tracks[i // self.per_track]), i % self.per_track
 
     def _finish(self, z: torch.Tensor, x: torch.Tensor):
+        if self._encoded:
+            return z, x
         z, x = z.to(torch.float64), x.to(torch.float64)
+        if self.representation is not None:  # a window read from disk, with one scan before it when it has one
+            u, y = self.representation.encode(z[None], x[None])
+            lead = len(z) - self.window
+            return u[0, lead:].to(self.dtype), y[0, lead:].to(self.dtype)
         if self.normalise:
             z, x = self.measurement_scaler.normalise(z), self.state_scaler.normalise(x)
         return z.to(self.dtype), x.to(self.dtype)
@@ -88,6 +102,8 @@ class WindowDataset(Dataset):
             row = i // self.per_track
             return self._finish(self._cache[0][row, sl], self._cache[1][row, sl])
         f = self.data.file
+        if self.representation is not None and self.representation.extra_context:
+            sl = slice(max(0, start - self.representation.extra_context), start + self.window)
         return self._finish(torch.from_numpy(f["measurements"][track, sl]), torch.from_numpy(f["states"][track, sl]))
 
     def __getitems__(self, indices):

@@ -20,7 +20,8 @@ class ModelConfig:
 
     ``kind``: ``mdfnn`` (hidden layers with FIR filter layers between them, Eqs. 21-27),
     ``dfnn`` (the same hidden layers without filter layers: the ablation of Table 3) or ``rnn``
-    (a recurrent baseline, Gao et al. 2018). Defaults are Table 2 of the MDFNN paper: hidden
+    (a recurrent baseline, Gao et al. 2018) or ``kalmannet`` (the EKF's structure with a gain
+    from a GRU of ``rnn_hidden`` units, :mod:`pmsr_nn.nets.kalmannet`). Defaults are Table 2 of the MDFNN paper: hidden
     layers of 384, 225 and 540 nodes, filter layers of 384 and 225 (the width of the hidden
     layer each one filters), filter order M = 20.
 
@@ -31,9 +32,16 @@ class ModelConfig:
     ``output_activation``: the paper's Eq. 27 applies ``f_h`` (tanh) to the output. Targets are
     normalised to [-1, 1] on the training split, so a test state at the edge of that range sits
     where tanh saturates; ``identity`` is the default and ``tanh`` the paper's choice.
+
+    ``inputs`` / ``output``: what the network reads and what its output means
+    (:mod:`pmsr_nn.nets.representation`): ``measurements`` / ``state`` are the paper's
+    (min-max normalised rows in, normalised state out); ``local_fixes`` reads per-scan state
+    fixes in a translation-invariant, standardised form and ``residual`` predicts the correction
+    to the scan's state fix (the output layer then starts at zero, so an untrained network
+    returns the fixes).
     """
 
-    kind: Literal["mdfnn", "dfnn", "rnn"] = "mdfnn"
+    kind: Literal["mdfnn", "dfnn", "rnn", "kalmannet"] = "mdfnn"
     hidden: tuple[int, ...] = (384, 225, 540)
     filter_order: int = 20
     filter_window: Literal["causal", "centred"] = "causal"
@@ -44,6 +52,8 @@ class ModelConfig:
     rnn_hidden: int = 256
     rnn_layers: int = 1
     dropout: float = 0.0
+    inputs: Literal["measurements", "local_fixes", "measurements_and_fixes"] = "measurements"
+    output: Literal["state", "residual"] = "state"
 
     def __post_init__(self) -> None:
         require(len(self.hidden) >= 1 and all(1 <= h <= MAX_WIDTH for h in self.hidden),
@@ -54,6 +64,15 @@ class ModelConfig:
         require(1 <= self.rnn_hidden <= MAX_WIDTH and 1 <= self.rnn_layers <= 64,
                 f"model.rnn_hidden must be in [1, {MAX_WIDTH}] and model.rnn_layers in [1, 64]")
         require(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
+        kalmannet = self.kind == "kalmannet"
+        require(kalmannet == (self.inputs == "measurements_and_fixes") and (not kalmannet or self.output == "residual"),
+                "model: kind kalmannet goes with inputs: measurements_and_fixes and output: residual (and only it "
+                f"reads measurements_and_fixes); got kind {self.kind}, inputs {self.inputs}, output {self.output}")
+
+    def input_dim(self, dim_z: int, dim_x: int) -> int:
+        """Width of the network's input: the measurement rows, 3 features per axis of local fixes,
+        or the measurement rows followed by the state fix (KalmanNet)."""
+        return {"local_fixes": 3 * (dim_x // 3), "measurements_and_fixes": dim_z + dim_x}.get(self.inputs, dim_z)
 
     @property
     def looks_ahead(self) -> bool:

@@ -22,6 +22,7 @@ from ..geometry import Geometry
 from .checkpoint import read_checkpoint
 from .config import ModelConfig
 from .networks import build_network
+from .representation import Representation
 
 
 def splice_plan(steps: int, window: int, stride: int, context: tuple[int | None, int]):
@@ -80,12 +81,14 @@ class Tracker:
         norm = meta["normalisation"]
         self.measurement_scaler = MinMaxScaler.from_dict(norm["measurements"])
         self.state_scaler = MinMaxScaler.from_dict(norm["states"])
+        self.representation = Representation.from_meta(meta, model, where=source)
 
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "Tracker":
         """Load a ``tracker.pt`` or any Lightning checkpoint of a run (never unpickles objects)."""
         meta, cfg, state = read_checkpoint(path)
-        net = build_network(cfg, meta["dim_z"], meta["dim_x"]).float()
+        rep = Representation.from_meta(meta, cfg, where=str(path))
+        net = build_network(cfg, meta["dim_z"], meta["dim_x"], rep, meta["dt_s"]).float()
         try:
             net.load_state_dict(state)
         except RuntimeError as exc:
@@ -95,7 +98,9 @@ class Tracker:
 
     @property
     def context(self) -> tuple[int | None, int]:
-        return self.net.context
+        """(behind, ahead): scans either side of ``k`` the estimate at ``k`` reads (inputs included)."""
+        behind, ahead = self.net.context
+        return (None if behind is None else behind + self.representation.extra_context), ahead
 
     @property
     def looks_ahead(self) -> bool:
@@ -157,18 +162,20 @@ class Tracker:
         stride = stride or self.default_stride()
         if stride < 1:
             raise MeasurementError(f"stride must be at least 1, got {stride}")
-        starts, which, offset = splice_plan(K, self.window, stride, self.context)
+        starts, which, offset = splice_plan(K, self.window, stride, self.net.context)
         p = next(self.net.parameters())
         device = p.device
-        zn = self.measurement_scaler.normalise(z).to(p.dtype)
+        rep = self.representation
+        fixes = rep.fixes(z) if rep.needs_fixes else None
+        zn = rep.features(z, fixes).to(p.dtype)  # whole sequences: a window's first inputs read the scan before it
         t = starts[:, None] + torch.arange(self.window)  # (W, window)
         windows = zn[:, t]  # (B, W, window, dim_z)
-        flat = windows.reshape(-1, self.window, z.shape[-1])
+        flat = windows.reshape(-1, self.window, zn.shape[-1])
         out = torch.cat([self.net(flat[i : i + windows_per_batch].to(device)).cpu()
                          for i in range(0, len(flat), windows_per_batch)])
         out = out.reshape(B, len(starts), self.window, -1)
         est = out[:, which, offset]  # (B, K, dim_x)
-        est = self.state_scaler.denormalise(est.to(torch.float64))
+        est = rep.states(est, rep.base(z, fixes))
         return est[0] if single else est
 
 

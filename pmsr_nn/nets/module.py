@@ -12,6 +12,7 @@ from ..config import from_dict, require
 from ..data.normalise import MinMaxScaler
 from .config import ModelConfig
 from .networks import build_network
+from .representation import Representation
 
 
 @dataclass(frozen=True)
@@ -21,8 +22,11 @@ class OptimConfig:
     ``schedule``: ``cosine`` anneals from ``lr`` to ``lr * min_lr_ratio`` over ``max_epochs``;
     ``plateau`` divides the rate by 5 after ``plateau_patience`` validations without a better
     position RMSE; ``none`` keeps it fixed. ``loss``: ``normalised`` is Eq. 29 (mean squared
-    error of the [-1, 1]-normalised states); ``physical`` is the mean squared error in SI units
-    (m, m/s, m/s^2), which weights position most.
+    error of the [-1, 1]-normalised states; with ``output: residual``, of the correction in units
+    of the fix's own error); ``physical`` is the mean squared error in SI units (m, m/s, m/s^2),
+    which weights position most. ``acceleration_weight`` multiplies the acceleration columns'
+    share of either loss: acceleration is barely observable from a few scans, and at weight 1 its
+    irreducible error dominates the gradient of a normalised loss (``evaluate/RESULTS.md``).
     """
 
     lr: float = 1.0e-3
@@ -31,8 +35,10 @@ class OptimConfig:
     min_lr_ratio: float = 0.01
     plateau_patience: int = 3
     loss: Literal["normalised", "physical"] = "normalised"
+    acceleration_weight: float = 1.0
 
     def __post_init__(self) -> None:
+        require(0 <= self.acceleration_weight <= 1e3, f"optim.acceleration_weight must be in [0, 1000], got {self.acceleration_weight}")
         require(self.lr > 0, f"optim.lr must be positive, got {self.lr}")
         require(self.weight_decay >= 0, "optim.weight_decay must be non-negative")
         require(0 <= self.min_lr_ratio <= 1, "optim.min_lr_ratio must be in [0, 1]")
@@ -56,13 +62,18 @@ class TrackerModule(L.LightningModule):
         self.meta = meta
         self.max_epochs = max_epochs
         # Networks train in float32 whatever torch's default dtype (Lightning's precision then applies).
-        self.net = build_network(self.model_cfg, meta["dim_z"], meta["dim_x"]).float()
+        rep = Representation.from_meta(meta, self.model_cfg, where="training metadata")
+        self.net = build_network(self.model_cfg, meta["dim_z"], meta["dim_x"], rep, meta["dt_s"]).float()
         scaler = MinMaxScaler.from_dict(meta["normalisation"]["states"])
         self.register_buffer("state_lo", scaler.lo.float(), persistent=False)
         self.register_buffer("state_span", scaler.span.float(), persistent=False)
+        self.register_buffer("out_scale", rep.scale.float(), persistent=False)
         dim = meta["dim_x"] // 3
         self.pos_idx = [3 * i for i in range(dim)]
         self.vel_idx = [3 * i + 1 for i in range(dim)]
+        weights = torch.ones(meta["dim_x"])
+        weights[[3 * i + 2 for i in range(dim)]] = self.optim_cfg.acceleration_weight
+        self.register_buffer("loss_weights", weights * meta["dim_x"] / weights.sum().clamp_min(1e-12), persistent=False)
         self._sums: dict[str, torch.Tensor] = {}
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
@@ -72,10 +83,18 @@ class TrackerModule(L.LightningModule):
         """Normalised states -> SI units (float32 is ample: 1e-7 relative of 10 km is 1 mm)."""
         return (x_norm + 1.0) * 0.5 * self.state_span + self.state_lo
 
+    def error_si(self, pred: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """Estimation error in SI units of outputs ``pred`` against targets ``y`` (the base cancels)."""
+        if self.model_cfg.output == "state":
+            return self.physical(pred) - self.physical(y)
+        return (pred - y) * self.out_scale
+
     def _loss(self, pred: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        if self.optim_cfg.loss == "physical":
-            return torch.mean((self.physical(pred) - self.physical(x)) ** 2)
-        return torch.mean((pred - x) ** 2)
+        err = self.error_si(pred, x) if self.optim_cfg.loss == "physical" else pred - x
+        sq = err**2
+        if self.optim_cfg.acceleration_weight != 1.0:
+            sq = sq * self.loss_weights
+        return torch.mean(sq)
 
     def training_step(self, batch, batch_idx):
         z, x = batch
@@ -87,7 +106,7 @@ class TrackerModule(L.LightningModule):
         z, x = batch
         pred = self(z)
         self.log(f"{stage}/loss", self._loss(pred, x), batch_size=len(z), sync_dist=True)
-        err = self.physical(pred) - self.physical(x)
+        err = self.error_si(pred.float(), x)
         add = {
             "pos": err[..., self.pos_idx].pow(2).sum(-1).sum(),
             "vel": err[..., self.vel_idx].pow(2).sum(-1).sum(),

@@ -89,8 +89,21 @@ class RecurrentTracker(nn.Module):
         return self.out_act(self.out(h))
 
 
-def build_network(cfg: ModelConfig, dim_z: int, dim_x: int) -> nn.Module:
-    """The network ``cfg`` describes, for ``dim_z`` measurements and ``dim_x`` states."""
-    if cfg.kind == "rnn":
-        return RecurrentTracker(cfg, dim_z, dim_x)
-    return FeedforwardTracker(cfg, dim_z, dim_x)
+def build_network(cfg: ModelConfig, dim_z: int, dim_x: int, representation=None, dt: float | None = None) -> nn.Module:
+    """The network ``cfg`` describes, for ``dim_z`` measurement rows and ``dim_x`` states.
+
+    Its input width follows ``cfg.inputs``; with ``output: residual`` the read-out starts at zero
+    (an untrained network returns the base, the state fixes, exactly). A KalmanNet also needs
+    its ``representation`` (measurement model and scales) and the sampling interval ``dt`` (s)."""
+    dim_in = cfg.input_dim(dim_z, dim_x)
+    if cfg.kind == "kalmannet":
+        from .kalmannet import KalmanNetTracker
+
+        if representation is None or dt is None:
+            raise ValueError("a KalmanNet needs the representation and dt it was trained with")
+        return KalmanNetTracker(cfg, representation.model, dt, representation.noise_scale, representation.residual_scale)
+    net = RecurrentTracker(cfg, dim_in, dim_x) if cfg.kind == "rnn" else FeedforwardTracker(cfg, dim_in, dim_x)
+    if cfg.output == "residual":
+        nn.init.zeros_(net.out.weight)
+        nn.init.zeros_(net.out.bias)
+    return net

@@ -269,7 +269,7 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
     dm = TrackWindowDataModule(dataset, window=cfg.data.window, batch_size=cfg.data.batch_size,
                                num_workers=cfg.data.num_workers, seed=cfg.seed,
                                fold=cfg.data.fold, folds=cfg.data.folds,
-                               eval_window_stride=cfg.data.eval_window_stride)
+                               eval_window_stride=cfg.data.eval_window_stride, model=cfg.model)
     for split in ("train", "val", "test"):  # a window longer than the tracks, an empty split: refused now
         if len(dm.dataset(split)) == 0:
             raise ConfigError(f"the {split} split of {dataset} holds no windows of {dm.window} samples; "
@@ -283,7 +283,8 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
         raise ConfigError(f"model: each estimate reads {behind + ahead + 1} samples (filter_order and layers), more "
                           f"than the window of {dm.window}; shorten model.filter_order or lengthen data.window")
     with torch.no_grad(), torch.random.fork_rng():  # a model that cannot run this window fails now, not in fit
-        module.net(torch.zeros(1, dm.window, meta["dim_z"], dtype=next(module.net.parameters()).dtype))
+        module.net(torch.zeros(1, dm.window, cfg.model.input_dim(meta["dim_z"], meta["dim_x"]),
+                               dtype=next(module.net.parameters()).dtype))
 
     ckpt_dir = out / "checkpoints"
     best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor="val/pos_rmse_m", mode="min",
