@@ -1,0 +1,120 @@
+"""A KalmanNet-style tracker: the EKF's predict/update structure with a learned gain.
+
+After Revach et al., "KalmanNet: Neural network aided Kalman filtering for partially known
+dynamics", IEEE TSP 70, 2022 (our own code). Per scan ``k``::
+
+    x_pred = F x_{k-1}                       known CA motion (the recipe's dt)
+    nu     = z_k - h(x_pred)                 known bistatic measurement model, angles wrapped
+    K_k    = gain(features_k)                a GRU replaces the covariance recursion
+    x_k    = x_pred + K_k nu
+
+The gain network reads the four features of KalmanNet's second architecture, each scaled to
+O(1): the observation difference ``z_k - z_{k-1}`` and the innovation ``nu`` (per measurement
+row, divided by that row's noise deviation on the training split), the forward evolution
+difference ``x_{k-1} - x_{k-2}`` and the forward update difference ``x_{k-1} - x_pred_{k-1}``
+(divided by the state-fix error deviation per state column). Its output ``G (n, m)`` is the gain
+in those units, ``K = diag(s_x) G diag(1 / s_z)``: the physical gain of a 10 km-range scene is
+~1e-3 m per m, far from what a network's output layer starts at.
+
+The filter starts at each sequence's first state fix (:mod:`pmsr_nn.filters.fixes`; acceleration
+zero), so, like every learned tracker, it reads only measurements. The network's inputs are the
+measurements in SI units followed by the state fixes (``inputs: measurements_and_fixes``) and its
+outputs the correction to the fix (``output: residual``), so it trains, checkpoints and tracks
+through the same code as the MDFNN. :class:`EKFGain` puts the EKF's own gain in the network's
+place: the tests check that the structure then reproduces :func:`~pmsr_nn.filters.ekf`.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ..measurements import MeasurementModel
+from ..motion import ConstantAcceleration
+from .config import ModelConfig
+
+
+class KalmanNetTracker(nn.Module):
+    """``u (B, T, m + n) -> y (B, T, n)``: measurements (SI) and state fixes in, correction to the
+    fix (in units of ``state_scale``) out. Causal with unbounded memory (``context == (None, 0)``)."""
+
+    def __init__(self, cfg: ModelConfig, model: MeasurementModel, dt: float, noise_scale: torch.Tensor,
+                 state_scale: torch.Tensor):
+        super().__init__()
+        self.cfg = cfg
+        self.model = model
+        m, n = model.dim_z, len(state_scale)
+        self.m, self.n = m, n
+        motion = ConstantAcceleration(spatial_dim=n // 3)
+        self.register_buffer("F", motion.F(dt, torch.float32))
+        self.register_buffer("s_z", noise_scale.float())
+        self.register_buffer("s_x", state_scale.float())
+        self.register_buffer("angles", model.angle_mask)
+        width = cfg.rnn_hidden
+        self.inp = nn.Sequential(nn.Linear(2 * m + 2 * n, width), nn.ReLU())
+        self.gru = nn.GRUCell(width, width)
+        self.out = nn.Linear(width, n * m)
+        nn.init.zeros_(self.out.weight)  # a zero gain at the start: the filter coasts on the first fix
+        nn.init.zeros_(self.out.bias)
+
+    @property
+    def context(self) -> tuple[int | None, int]:
+        return None, 0
+
+    def _residual(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        d = a - b
+        return torch.where(self.angles, torch.remainder(d + torch.pi, 2 * torch.pi) - torch.pi, d)
+
+    def learned_gain(self, features: torch.Tensor, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(K (B, n, m) in SI, new hidden state)`` from ``features (B, 2m + 2n)``."""
+        hidden = self.gru(self.inp(features), hidden)
+        G = self.out(hidden).view(-1, self.n, self.m)
+        return self.s_x[:, None] * G / self.s_z, hidden
+
+    def filter(self, z: torch.Tensor, fix0: torch.Tensor, gain=None) -> torch.Tensor:
+        """Filtered states ``(B, T, n)`` (SI) of ``z (B, T, m)`` started at ``fix0 (B, n)``.
+
+        ``gain``: None for the network; else a callable ``(x_pred, nu) -> K (B, n, m)`` (e.g.
+        :class:`EKFGain`) that replaces it."""
+        B, T, _ = z.shape
+        x = fix0
+        x_prev, x_pred_prev = x, x
+        hidden = z.new_zeros(B, self.gru.hidden_size) if gain is None else None
+        F = self.F.to(z.dtype)
+        out = [x]
+        for k in range(1, T):
+            x_pred = x @ F.T
+            nu = self._residual(z[:, k], self.model.h(x_pred))
+            if gain is None:
+                feats = torch.cat([self._residual(z[:, k], z[:, k - 1]) / self.s_z, nu / self.s_z,
+                                   (x - x_prev) / self.s_x, (x - x_pred_prev) / self.s_x], -1)
+                K, hidden = self.learned_gain(feats.to(self.s_x.dtype), hidden)
+                K = K.to(z.dtype)
+            else:
+                K = gain(x_pred, nu)
+            x_prev, x_pred_prev = x, x_pred
+            x = x_pred + (K @ nu.unsqueeze(-1)).squeeze(-1)
+            out.append(x)
+        return torch.stack(out, 1)
+
+    def forward(self, u: torch.Tensor) -> torch.Tensor:
+        z, fix = u[..., : self.m], u[..., self.m :]
+        x = self.filter(z, fix[:, 0])
+        return (x - fix) / self.s_x
+
+
+class EKFGain:
+    """The EKF's gain in KalmanNet's place: carries ``P`` through ``P = F P F^T + Q`` and
+    ``K = P H^T (H P H^T + R)^-1``, ``P = P - K S K^T`` (the update of :mod:`pmsr_nn.filters`)."""
+
+    def __init__(self, P0: torch.Tensor, F: torch.Tensor, Q: torch.Tensor, model: MeasurementModel, R: torch.Tensor):
+        self.P, self.F, self.Q, self.model, self.R = P0, F, Q, model, R
+
+    def __call__(self, x_pred: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
+        P = self.F @ self.P @ self.F.T + self.Q
+        H = self.model.jacobian(x_pred)
+        S = H @ P @ H.transpose(-1, -2) + self.R
+        K = torch.linalg.solve(S, H @ P).transpose(-1, -2)  # P H^T S^-1 (S, P symmetric)
+        P = P - K @ S @ K.transpose(-1, -2)
+        self.P = 0.5 * (P + P.transpose(-1, -2))
+        return K
