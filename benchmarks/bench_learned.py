@@ -31,7 +31,20 @@ from pmsr_nn.rng import seeded_generator  # noqa: E402
 from pmsr_nn.simulation.recipe import TrackRecipe  # noqa: E402
 from pmsr_nn.simulation.tracks import build_models, generate_tracks  # noqa: E402
 
-MODELS = {"MDFNN": ModelConfig(), "DFNN": ModelConfig(kind="dfnn"), "LSTM-256": ModelConfig(kind="rnn")}
+MODELS = {"MDFNN": ModelConfig(), "DFNN": ModelConfig(kind="dfnn"), "LSTM-256": ModelConfig(kind="rnn"),
+          "MDFNN-local": ModelConfig(filter_taps="per_channel", inputs="local_fixes", output="residual"),
+          "KalmanNet": ModelConfig(kind="kalmannet", rnn_hidden=64, inputs="measurements_and_fixes", output="residual")}
+"""Table 2's MDFNN (paper inputs, then window-local inputs and residual output), the DFNN, the LSTM
+and the KalmanNet-style tracker of ``models/kalmannet.yaml``."""
+
+
+def _kalmannet(cfg: ModelConfig):
+    """A KalmanNet for the built-in recipe (its scales do not change the cost)."""
+    from pmsr_nn.nets.kalmannet import KalmanNetTracker
+
+    recipe = TrackRecipe()
+    _, model = build_models(recipe)
+    return KalmanNetTracker(cfg, model, recipe.motion.dt_s, torch.ones(9), torch.ones(6))
 
 
 def sync(device: str) -> None:
@@ -41,15 +54,25 @@ def sync(device: str) -> None:
 
 def training_throughput(cfg: ModelConfig, batch: int, window: int, steps: int, device: str, precision: str) -> float:
     torch.manual_seed(0)
-    net = build_network(cfg, 9, 6).to(device)
+    net = (_kalmannet(cfg) if cfg.kind == "kalmannet" else build_network(cfg, 9, 6)).float().to(device)
     opt = torch.optim.Adam(net.parameters(), 1e-3)
-    z = torch.rand(batch, window, 9, device=device) * 2 - 1
+    z = torch.rand(batch, window, cfg.input_dim(9, 6), device=device) * 2 - 1
+    if cfg.kind == "kalmannet":  # measurements of a real scene (SI) and their state fixes
+        recipe = TrackRecipe()
+        _, model = build_models(recipe)
+        b, _ = generate_tracks(recipe.with_overrides(tracks=20), 4, seeded_generator(0))
+        from pmsr_nn.filters.fixes import state_fixes
+
+        zz = b.measurements.unfold(1, window, window).transpose(-1, -2).reshape(-1, window, 9)
+        zz = zz[torch.arange(batch) % len(zz)]
+        z = torch.cat([zz, state_fixes(zz, model, 6)], -1).float().to(device)
     x = torch.rand(batch, window, 6, device=device) * 2 - 1
-    autocast = torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=precision == "bf16" and device.startswith("cuda"))
+    autocast = torch.autocast(device_type="cuda" if device.startswith("cuda") else "cpu", dtype=torch.bfloat16,
+                              enabled=precision == "bf16")
 
     def step():
         with autocast:
-            loss = ((net(z) - x) ** 2).mean()
+            loss = ((net(z).float() - x) ** 2).mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -106,7 +129,8 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--window", type=int, default=100)
     p.add_argument("--steps", type=int, default=10, help="timed optimiser steps per model")
-    p.add_argument("--precision", choices=["32", "bf16"], default="32")
+    p.add_argument("--precision", choices=["32", "bf16", "both"], default="both",
+                   help="training precision; both: every model in float32 and in bf16 autocast, in the same run")
     p.add_argument("--tracks", type=int, default=200)
     p.add_argument("--track-steps", type=int, default=1000)
     p.add_argument("--checkpoint", help="MDFNN checkpoint for the inference timing (default: untrained Table-2 MDFNN)")
@@ -119,10 +143,15 @@ def main(argv=None) -> int:
                "precision": a.precision, "training_windows_per_s": {}}
     if a.device.startswith("cuda"):
         figures["gpu"] = torch.cuda.get_device_name(0)
+    precisions = ["32", "bf16"] if a.precision == "both" else [a.precision]
     for name, cfg in MODELS.items():
-        w = training_throughput(cfg, a.batch, a.window, a.steps, a.device, a.precision)
-        figures["training_windows_per_s"][name] = round(w, 1)
-        print(f"train {name:<9} {w:10.1f} windows/s")
+        for prec in precisions:
+            w = training_throughput(cfg, a.batch, a.window, a.steps, a.device, prec)
+            key = name if prec == "32" else f"{name} bf16"
+            figures["training_windows_per_s"][key] = round(w, 1)
+            print(f"train {key:<16} {w:10.1f} windows/s")
+    base = figures["training_windows_per_s"].get("MDFNN")
+    figures["training_speed_over_mdfnn_fp32"] = {k: round(v / base, 2) for k, v in figures["training_windows_per_s"].items()} if base else None
     inf = inference_vs_ukf(a.tracks, a.track_steps, a.device, a.checkpoint)
     figures["inference"] = inf
     print(f"track MDFNN {inf['mdfnn_track_steps_per_s']:.3g} track-steps/s, UKF {inf['ukf_track_steps_per_s']:.3g} "

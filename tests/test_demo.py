@@ -7,7 +7,7 @@ import pytest
 from pmsr_nn.cli import main
 from pmsr_nn.harness import demo
 
-EXPECTED = {"EKF", "UKF", "SI+KF", "MDFNN", "RNN"}
+EXPECTED = {"EKF", "UKF", "SI+KF", "MDFNN", "KalmanNet"}
 
 
 def check_demo_folder(out, mc_runs):
@@ -21,7 +21,7 @@ def check_demo_folder(out, mc_runs):
             assert r["rmse_pos_m"] > case["pcrb"]["q0_pos_m"]  # nothing beats the floor
     for f in ("report.md", "trajectories.png", "trajectory_1_rmse.png"):
         assert (out / "evaluation" / f).is_file()
-    for kind in ("mdfnn", "rnn"):
+    for kind in ("mdfnn", "kalmannet"):
         assert (out / "train" / kind / "tracker.pt").is_file()
 
 
@@ -29,8 +29,10 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
     monkeypatch.setattr(demo, "DEMO_DATA", {**demo.DEMO_DATA, "tracks": 12, "batch_size": 16})
     monkeypatch.setattr(demo, "DEMO_TRAINER", {**demo.DEMO_TRAINER, "max_epochs": 1, "train_batches_per_epoch": 2,
                                                "val_batches": 2})
-    monkeypatch.setattr(demo, "DEMO_MODELS", {"mdfnn": {"kind": "mdfnn", "hidden": [16, 12, 16], "filter_order": 5},
-                                              "rnn": {"kind": "rnn", "rnn_hidden": 8}})
+    monkeypatch.setattr(demo, "DEMO_BUDGET", {})
+    monkeypatch.setattr(demo, "DEMO_MODELS", {
+        "mdfnn": {**demo.DEMO_MODELS["mdfnn"], "hidden": [16, 12, 16], "filter_order": 5},
+        "kalmannet": {**demo.DEMO_MODELS["kalmannet"], "rnn_hidden": 4}})
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--mc-runs", "2"]) == 0
     printed = capsys.readouterr().out
@@ -52,3 +54,9 @@ def test_the_real_demo(tmp_path):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out)]) == 0
     check_demo_folder(out, 20)
+    res = json.loads((out / "evaluation" / "results.json").read_text())
+    for case in res["cases"].values():  # issue 17: the demo's learned rows within 3x the EKF
+        ekf = case["methods"]["EKF"]["rmse_pos_m"]
+        for name in ("MDFNN", "KalmanNet"):
+            assert case["methods"][name]["rmse_pos_m"] < 3 * ekf, (name, case["methods"][name]["rmse_pos_m"], ekf)
+    assert json.loads((out / "demo.json").read_text())["total_seconds"] < 300
