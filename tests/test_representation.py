@@ -150,3 +150,31 @@ def test_new_representations_train_checkpoint_and_track(tmp_path, model):
         full = rep.states(t.net(rep.features(b.measurements).float()), rep.base(b.measurements))
         torch.testing.assert_close(est, full, rtol=0, atol=1e-3)
         assert t.context == (2 * 4 + 1, 0)
+
+
+def test_clipped_innovations_bound_an_outliers_influence(tracks):
+    """With innovation_clip = 5, a 1000-sigma range outlier moves the filter exactly as a 60-sigma
+    one does (both are clipped to 5 sigma in the update and to 50 sigma in the features)."""
+    recipe, _, model, b = tracks
+    cfg = ModelConfig(kind="kalmannet", inputs="measurements_and_fixes", output="residual", rnn_hidden=8,
+                      gain_scale=0.1, innovation_clip=5.0)
+    torch.manual_seed(0)
+    s_z = torch.tensor([30.0] * 3 + [2.0] * 3 + [0.05] * 3)
+    net = KalmanNetTracker(cfg, model, recipe.motion.dt_s, s_z, torch.tensor([50.0, 5, 0.1] * 2)).double()
+    torch.nn.init.normal_(net.out.weight, std=0.1)  # a non-zero gain
+    z = b.measurements[:2, :60].clone()
+    fix0 = state_fixes(z[:, :1], model, 6)[:, 0]
+    with torch.no_grad():
+        big, small = z.clone(), z.clone()
+        big[:, 30, 0] += 1000 * 30.0
+        small[:, 30, 0] += 60 * 30.0
+        x_big, x_small, x_clean = (net.filter(v, fix0) for v in (big, small, z))
+    torch.testing.assert_close(x_big, x_small, rtol=0, atol=1e-9)
+    assert (x_big[:, 31:] - x_clean[:, 31:]).abs().max() > 1e-3  # the outlier does act, boundedly
+
+
+def test_kalmannet_options_are_checked():
+    with pytest.raises(Exception, match="kalmannet"):
+        ModelConfig(kind="kalmannet", inputs="measurements", output="residual")
+    with pytest.raises(Exception, match="innovation_clip"):
+        ModelConfig(kind="kalmannet", inputs="measurements_and_fixes", output="residual", innovation_clip=0.0)

@@ -39,6 +39,11 @@ class ModelConfig:
     fixes in a translation-invariant, standardised form and ``residual`` predicts the correction
     to the scan's state fix (the output layer then starts at zero, so an untrained network
     returns the fixes).
+
+    ``gain_scale`` and ``innovation_clip`` (KalmanNet only): the network's gain output is multiplied
+    by ``gain_scale`` (a smaller first step of the optimiser on the gain, so the filter stays stable
+    while it learns), and each innovation row is clipped to ``innovation_clip`` deviations before
+    the update (bounded influence of range outliers; null: no clipping).
     """
 
     kind: Literal["mdfnn", "dfnn", "rnn", "kalmannet"] = "mdfnn"
@@ -54,6 +59,8 @@ class ModelConfig:
     dropout: float = 0.0
     inputs: Literal["measurements", "local_fixes", "measurements_and_fixes"] = "measurements"
     output: Literal["state", "residual"] = "state"
+    gain_scale: float = 1.0
+    innovation_clip: float | None = None
 
     def __post_init__(self) -> None:
         require(len(self.hidden) >= 1 and all(1 <= h <= MAX_WIDTH for h in self.hidden),
@@ -64,6 +71,9 @@ class ModelConfig:
         require(1 <= self.rnn_hidden <= MAX_WIDTH and 1 <= self.rnn_layers <= 64,
                 f"model.rnn_hidden must be in [1, {MAX_WIDTH}] and model.rnn_layers in [1, 64]")
         require(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
+        require(0 < self.gain_scale <= 1e3, f"model.gain_scale must be in (0, 1000], got {self.gain_scale}")
+        require(self.innovation_clip is None or self.innovation_clip > 0,
+                f"model.innovation_clip must be positive (or null), got {self.innovation_clip}")
         kalmannet = self.kind == "kalmannet"
         require(kalmannet == (self.inputs == "measurements_and_fixes") and (not kalmannet or self.output == "residual"),
                 "model: kind kalmannet goes with inputs: measurements_and_fixes and output: residual (and only it "

@@ -68,7 +68,7 @@ class KalmanNetTracker(nn.Module):
     def learned_gain(self, features: torch.Tensor, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(K (B, n, m) in SI, new hidden state)`` from ``features (B, 2m + 2n)``."""
         hidden = self.gru(self.inp(features), hidden)
-        G = self.out(hidden).view(-1, self.n, self.m)
+        G = self.out(hidden).view(-1, self.n, self.m) * self.cfg.gain_scale
         return self.s_x[:, None] * G / self.s_z, hidden
 
     def filter(self, z: torch.Tensor, fix0: torch.Tensor, gain=None) -> torch.Tensor:
@@ -86,8 +86,13 @@ class KalmanNetTracker(nn.Module):
             x_pred = x @ F.T
             nu = self._residual(z[:, k], self.model.h(x_pred))
             if gain is None:
+                if self.cfg.innovation_clip is not None:  # bounded influence of an outlier (Huber-like)
+                    c = self.cfg.innovation_clip * self.s_z
+                    nu = torch.maximum(torch.minimum(nu, c), -c)
                 feats = torch.cat([self._residual(z[:, k], z[:, k - 1]) / self.s_z, nu / self.s_z,
                                    (x - x_prev) / self.s_x, (x - x_pred_prev) / self.s_x], -1)
+                if self.cfg.innovation_clip is not None:
+                    feats = feats.clamp(-10 * self.cfg.innovation_clip, 10 * self.cfg.innovation_clip)
                 K, hidden = self.learned_gain(feats.to(self.s_x.dtype), hidden)
                 K = K.to(z.dtype)
             else:
