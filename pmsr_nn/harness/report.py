@@ -114,6 +114,39 @@ def timing_table(res: dict, ref_timing: dict | None, ref_label: str) -> list[str
     return lines
 
 
+def _g(v) -> str:
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)
+
+
+def tuning_tables(res: dict) -> list[str]:
+    """One table per method with tuned options: every grid point's position RMSE on the tuning
+    tracks, the chosen point in bold (empty when no option was tuned)."""
+    tuned = {m: s["tuning"] for m, s in res["settings"]["methods"].items() if "tuning" in s}
+    if not tuned:
+        return []
+    first = next(iter(tuned.values()))
+    lines = ["## Tuned options", "",
+             f"Options marked `tuned` were chosen by a grid search on {first['tracks']} tracks of {first['steps']} steps "
+             f"drawn from the training recipe `{Path(first['recipe']).name}` (seed {first['seed']}, apart from the "
+             "evaluation's draws), measured with this scenario's noise: the point with the lowest position RMSE after "
+             f"the warm-up ({first['warmup_steps']} steps, Eq. 31) is used (bold).", ""]
+    for name, t in tuned.items():
+        keys = t["options"]
+        chosen = ", ".join(f"{k} = {_g(t['chosen'][k])}" for k in keys)
+        lines += [f"**{name}**: {chosen} (RMSE {_f(t['rmse_pos_m'])} m on the tuning tracks; {len(t['points'])} points, "
+                  f"{t['seconds']:.0f} s)"
+                  + (f". **At the edge of its grid: {', '.join(t['at_grid_edge'])}** (the best value may lie beyond it)"
+                     if t.get("at_grid_edge") else ""), "",
+                  "| " + " | ".join(keys) + " | pos RMSE (m) |", "|" + "---:|" * (len(keys) + 1)]
+        for p in t["points"]:
+            cells = [_g(p[k]) for k in keys] + [_f(p["rmse_pos_m"])]
+            if all(p[k] == t["chosen"][k] for k in keys):
+                cells = [f"**{c}**" for c in cells]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
 def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dict | None, ref_timing: dict | None,
                  ref_label: str = "paper") -> list[Path]:
     """Write ``out/report.md`` and the figures; returns the files written."""
@@ -123,7 +156,9 @@ def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dic
     lines = [f"# {res['scenario']}: {res['mc_runs']} Monte Carlo runs per case, seed {res['seed']}", ""]
     if res.get("description"):
         lines += [res["description"].strip(), ""]
-    lines += [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg; "
+    outliers = (f" ({100 * st['noise']['range_outlier_prob']:g} % of range errors with {st['noise']['range_outlier_scale']:g}x "
+                "the deviation; the filters assume the nominal one)" if "range_outlier_prob" in st["noise"] else "")
+    lines += [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg{outliers}; "
               f"recipe `{Path(st['recipe']).name}` ({st['variant']} variant, dt {st['dt_s']} s, q {st['q_psd']:g} m^2/s^5). "
               f"Position RMSE = {res['definitions']['rmse_pos_m']} (warm-up {st['warmup_steps']} steps). "
               "The pooled RMSE is given beside it; it weighs late, large errors more.", "",
@@ -155,6 +190,7 @@ def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dic
         lines += ["**Diverged runs** (position RMSE after the warm-up above "
                   f"{st['divergence_m']:g} m or not finite; kept in every average, see the median per run in "
                   "results.json): " + ", ".join(diverged) + ".", ""]
+    lines += tuning_tables(res)
     lines += ["## Per case", ""]
     for name, case in res["cases"].items():
         lines += case_table(name, case, ref, ref_label, single_case) + [""]

@@ -34,9 +34,9 @@ from ..metrics import normalised_nees, position_columns, squared_error, velocity
 from ..nets.inference import Tracker
 from ..rng import seeded_generator, standard_normal
 from ..simulation.recipe import TrackRecipe, load_recipe
-from ..simulation.tracks import MEASUREMENT_COMPONENTS, build_models
+from ..simulation.tracks import MEASUREMENT_COMPONENTS, apply_range_outliers, build_models, range_rows
 from .methods import Models, is_causal, run_method
-from .scenario import Scenario
+from .scenario import FixedNoiseSpec, MethodSpec, Scenario
 from .trajectories import check_inside, design_trajectory
 
 QUANTITIES = ("pos", "vel", "nees")
@@ -57,7 +57,9 @@ class Case:
 
 @dataclass
 class Setup:
-    """Everything a scenario run needs, resolved and checked before anything is written."""
+    """Everything a scenario run needs, resolved and checked before anything is written;
+    ``methods`` are the scenario's with tuned options resolved, ``tuning`` the grid searches
+    (method name -> record, :func:`~.tuning.tune`)."""
 
     scenario: Scenario
     recipe: TrackRecipe
@@ -66,6 +68,13 @@ class Setup:
     cases: list[Case]
     trackers: dict[str, Tracker]
     causal: dict[str, bool]
+    methods: tuple[MethodSpec, ...] = ()
+    tuning: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # the methods as run: the scenario's, with every 'tuned' option replaced by its choice
+        if not self.methods:
+            self.methods = self.scenario.methods
 
 
 def parse_shard(text: str) -> tuple[int, int]:
@@ -111,6 +120,12 @@ def prepare(sc: Scenario, device: str = "cpu") -> Setup:
                 raise ConfigError(f"method {spec.name!r}: stride {stride} is longer than the network's window of "
                                   f"{t.window} samples (scans between windows would get no estimate)")
             trackers[spec.name] = t
+        if spec.kind == "imm":
+            try:
+                import pmsr_nn.filters.imm  # noqa: F401
+            except ImportError:
+                raise ConfigError(f"method {spec.name!r}: kind imm needs pmsr_nn.filters.imm, which this "
+                                  "installation lacks") from None
     causal = {spec.name: is_causal(spec, trackers) for spec in sc.methods}
     cases = []
     for c in sc.cases:
@@ -126,7 +141,29 @@ def prepare(sc: Scenario, device: str = "cpu") -> Setup:
         bound = pcrb(truth[None], motion, models.dt, models.q, model, R, P0)
         bound_q0 = pcrb(truth[None], motion, models.dt, 0.0, model, R, P0)
         cases.append(Case(c.name, c.title or c.name, truth, model.h(truth), bound, bound_q0))
-    return Setup(sc, recipe, models, prior_sd, cases, trackers, causal)
+    methods, tuning = sc.methods, {}
+    if any(m.tuned() for m in sc.methods):  # last: the slowest check, after every quick one
+        from .tuning import tune
+
+        methods, tuning = tune(sc, recipe, models, prior_sd)
+    return Setup(sc, recipe, models, prior_sd, cases, trackers, causal, methods, tuning)
+
+
+def draw_runs(clean: torch.Tensor, start: torch.Tensor, b: int, models: Models, prior_sd: torch.Tensor,
+              noise: FixedNoiseSpec, g: torch.Generator) -> tuple[torch.Tensor, Gaussian]:
+    """Measurements ``(b, K, m)`` of ``b`` runs around noise-free ``clean`` (``(K, m)``, shared, or
+    ``(b, K, m)``) and their initiation priors around true initial states ``start`` (``(n,)`` or
+    ``(b, n)``), in this order from ``g``: measurement noise, prior offsets, then (only with
+    outliers) one uniform per range measurement."""
+    noise_draw = standard_normal((b, *clean.shape[-2:]), g)
+    z = clean + noise_draw * models.model.std_vector(models.noise_std)
+    angles = models.model.angle_mask
+    z = torch.where(angles, wrap_angle(z), z)
+    n = start.shape[-1]
+    x0 = start + standard_normal((b, n), g) * prior_sd
+    P0 = torch.diag(prior_sd**2).expand(b, n, n).clone()
+    z = apply_range_outliers(z, clean, range_rows(models.model), noise.range_outlier_prob, noise.range_outlier_scale, g)
+    return z, Gaussian(x0, P0)
 
 
 def draw_block(setup: Setup, case_index: int, block: int) -> tuple[torch.Tensor, Gaussian]:
@@ -134,14 +171,7 @@ def draw_block(setup: Setup, case_index: int, block: int) -> tuple[torch.Tensor,
     sc, case = setup.scenario, setup.cases[case_index]
     b = len(sc.block_runs_range(block))
     g = seeded_generator(sc.seed, case_index, block)
-    noise = standard_normal((b, *case.clean.shape), g)
-    z = case.clean + noise * setup.models.model.std_vector(setup.models.noise_std)
-    angles = setup.models.model.angle_mask
-    z = torch.where(angles, wrap_angle(z), z)
-    n = case.truth.shape[-1]
-    x0 = case.truth[0] + standard_normal((b, n), g) * setup.prior_sd
-    P0 = torch.diag(setup.prior_sd**2).expand(b, n, n).clone()
-    return z, Gaussian(x0, P0)
+    return draw_runs(case.clean, case.truth[0], b, setup.models, setup.prior_sd, sc.noise, g)
 
 
 @dataclass
@@ -187,7 +217,7 @@ def warm_up(setup: Setup, z: torch.Tensor, prior: Gaussian) -> None:
     """One untimed call of every method on one run, so that one-off start-up costs (library
     loading, allocator growth) do not land in the first block's timing."""
     one = Gaussian(prior.x[:1], prior.P[:1])
-    for spec in setup.scenario.methods:
+    for spec in setup.methods:
         run_method(spec, z[:1], one, setup.models, setup.trackers, (setup.scenario.seed, 1 << 30))
 
 
@@ -197,21 +227,21 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
 
     sc = setup.scenario
     out = BlockSums(list(blocks))
-    bar = tqdm(total=len(setup.cases) * len(blocks) * len(sc.methods), disable=not progress, unit="method-block",
+    bar = tqdm(total=len(setup.cases) * len(blocks) * len(setup.methods), disable=not progress, unit="method-block",
                desc=f"{sc.name}", leave=False)
     with torch.no_grad():
         for ci, case in enumerate(setup.cases):
             n = case.truth.shape[-1]
             pos, vel = position_columns(n), velocity_columns(n)
-            sums = {m.name: {q: [] for q in QUANTITIES} for m in sc.methods}
-            run_mse = {m.name: [] for m in sc.methods}
-            seconds = {m.name: [] for m in sc.methods}
+            sums = {m.name: {q: [] for q in QUANTITIES} for m in setup.methods}
+            run_mse = {m.name: [] for m in setup.methods}
+            seconds = {m.name: [] for m in setup.methods}
             for block in blocks:
                 z, prior = draw_block(setup, ci, block)
                 truth = case.truth.expand(len(z), -1, -1)
                 if ci == 0 and block == blocks[0]:
                     warm_up(setup, z, prior)
-                for spec in sc.methods:
+                for spec in setup.methods:
                     interrupts.check()
                     bar.set_postfix_str(f"{case.name} {spec.name}", refresh=False)
                     t0 = time.perf_counter()
@@ -306,9 +336,12 @@ def describe(setup: Setup) -> dict:
     sc, r = setup.scenario, setup.recipe
     return {"recipe": str(sc.path(sc.recipe)) if sc.recipe else "built-in FITEE 2023 CA recipe", "variant": r.variant, "dt_s": r.motion.dt_s, "q_psd": setup.models.q,
             "noise": {"range_m": sc.noise.range_m, "range_rate_mps": sc.noise.range_rate_mps,
-                      "azimuth_deg": sc.noise.azimuth_deg},
+                      "azimuth_deg": sc.noise.azimuth_deg,
+                      **({"range_outlier_prob": sc.noise.range_outlier_prob,
+                          "range_outlier_scale": sc.noise.range_outlier_scale} if sc.noise.has_outliers else {})},
             "measurement_components": list(MEASUREMENT_COMPONENTS), "prior_sd": setup.prior_sd.tolist(),
             "prior": "per run: mean = truth at step 0 + a draw from N(0, P0), P0 = diag(prior_sd^2); the PCRB uses P0",
             "warmup_steps": sc.warmup_steps, "divergence_m": sc.divergence_m, "block_runs": sc.block_runs,
             "methods": {m.name: {"kind": m.kind, **({"checkpoint": str(sc.path(m.checkpoint))} if m.checkpoint else {}),
-                                 **m.options} for m in sc.methods}}
+                                 **m.options, **({"tuning": setup.tuning[m.name]} if m.name in setup.tuning else {})}
+                        for m in sc.methods}}

@@ -5,7 +5,9 @@ Table 1 envelope), overrides its measurement noise with fixed deviations, and li
 
 * ``cases``: fixed true trajectories (:class:`CaseSpec`, drawn by :mod:`.trajectories`), each
   seen by every method through the same ``mc_runs`` measurement-noise draws;
-* ``methods``: classical filters and learned trackers with their settings (:class:`MethodSpec`).
+* ``methods``: classical filters and learned trackers with their settings (:class:`MethodSpec`);
+  an option of a classical filter set to ``tuned`` is chosen by a grid search on training tracks
+  (``tuning``, :class:`TuningSpec`, run by :mod:`.tuning`) before anything is written.
 
 Paths (recipe, checkpoints, reference file) are relative to the scenario file.
 """
@@ -20,12 +22,17 @@ from typing import Literal
 
 from ..config import from_dict, load_yaml, require
 from ..errors import ConfigError
+from ..simulation.recipe import check_outliers
 
-MethodKind = Literal["ekf", "ukf", "si_kf", "particle_filter", "learned"]
+MethodKind = Literal["ekf", "ukf", "imm", "si_kf", "particle_filter", "learned"]
 
 METHOD_OPTIONS: dict[str, dict[str, object]] = {
-    "ekf": {},
-    "ukf": {},
+    # q: jerk PSD (m^2/s^5) of the filter's CA model; null = the recipe's q
+    "ekf": {"q": None},
+    "ukf": {"q": None},
+    # two CA modes (EKF moments): quiet (null = the recipe's q) and manoeuvring, and the
+    # probability of staying in a mode per step (diagonal of the 2x2 Markov matrix)
+    "imm": {"q_quiet": None, "q_manoeuvre": 1.0, "stay": 0.95},
     # refine_steps 0 is the paper's plain spherical interpolation
     "si_kf": {"refine_steps": 0},
     "particle_filter": {"particles": 2000, "roughening": 0.2},
@@ -38,18 +45,38 @@ OPTION_RANGES: dict[str, tuple[type, float, float]] = {
     "particles": (int, 1, 1_000_000),  # a block of runs x particles x 9 states must fit in memory
     "roughening": (float, 0.0, 10.0),
     "stride": (int, 1, 1_000_000),
+    "q": (float, 0.0, 1.0e6),
+    "q_quiet": (float, 0.0, 1.0e6),
+    "q_manoeuvre": (float, 0.0, 1.0e6),
+    "stay": (float, 0.0, 1.0),
 }
-"""Type and inclusive range of every option (``stride`` may also be null: the tracker's default)."""
+"""Type and inclusive range of every option (``stride``, ``q`` and ``q_quiet`` may also be null:
+the tracker's or the recipe's value)."""
+
+NULLABLE = ("stride", "q", "q_quiet")
+"""Options whose null means a default taken elsewhere (the tracker's stride, the recipe's q)."""
+
+TUNABLE = ("q", "q_quiet", "q_manoeuvre", "stay")
+"""Options that may be ``tuned`` (chosen from ``tuning.<option>_grid``), in grid order."""
+
+MAX_TUNING_TRACKS = 500
+"""Most tuning tracks (one filter call holds all of them: 500 IMM runs of 1000 steps take ~0.2 GB)."""
+
+MAX_TUNING_POINTS = 1000
+"""Most grid points one method's search may have (the product of its tuned options' grids)."""
 
 
 def _check_option(method: str, key: str, value) -> None:
     kind, lo, hi = OPTION_RANGES[key]
-    if value is None and key == "stride":
+    if value is None and key in NULLABLE:
+        return
+    if value == "tuned" and key in TUNABLE:
         return
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if not number or (kind is int and not isinstance(value, int)) or not (lo <= value <= hi):
+        extra = " or 'tuned'" if key in TUNABLE else ""
         raise ConfigError(f"method {method!r}: option {key} must be {'an integer' if kind is int else 'a number'} "
-                          f"in [{lo}, {hi}], got {value!r:.40}")
+                          f"in [{lo}, {hi}]{extra}, got {value!r:.40}")
 
 
 MAX_MC_RUNS = 10_000_000
@@ -99,14 +126,23 @@ class CaseSpec:
 
 @dataclass(frozen=True)
 class FixedNoiseSpec:
-    """Measurement deviations used for every run (the paper's Section 4: 30 m, 2 m/s, 3 deg)."""
+    """Measurement deviations used for every run (the paper's Section 4: 30 m, 2 m/s, 3 deg); with
+    probability ``range_outlier_prob`` (per range measurement, pair and scan) a range error's
+    deviation is ``range_outlier_scale`` times ``range_m``. The filters' ``R`` is the nominal one."""
 
     range_m: float = 30.0
     range_rate_mps: float = 2.0
     azimuth_deg: float = 3.0
+    range_outlier_prob: float = 0.0
+    range_outlier_scale: float = 10.0
 
     def __post_init__(self) -> None:
         require(min(self.range_m, self.range_rate_mps, self.azimuth_deg) > 0, "noise deviations must be positive")
+        check_outliers("noise", self.range_outlier_prob, self.range_outlier_scale)
+
+    @property
+    def has_outliers(self) -> bool:
+        return self.range_outlier_prob > 0
 
     def si(self) -> tuple[float, float, float]:
         return self.range_m, self.range_rate_mps, math.radians(self.azimuth_deg)
@@ -138,6 +174,42 @@ class MethodSpec:
     def option(self, key: str):
         return self.options.get(key, METHOD_OPTIONS[self.kind][key])
 
+    def tuned(self) -> list[str]:
+        """Options set to ``tuned``, in :data:`TUNABLE` order."""
+        return [k for k in TUNABLE if self.options.get(k) == "tuned"]
+
+
+@dataclass(frozen=True)
+class TuningSpec:
+    """The grid search behind options set to ``tuned``: ``tracks`` truth tracks drawn from
+    ``recipe`` (the training recipe, relative to the scenario file; null = the scenario's) with
+    generator stream ``seed``, measured with the scenario's fixed noise (outliers included); each
+    method runs once per point of the product of its tuned options' grids (``<option>_grid``),
+    and the point with the lowest position RMSE after the warm-up is used."""
+
+    tracks: int = 50
+    seed: int = 12345
+    recipe: str | None = None
+    q_grid: tuple[float, ...] = ()
+    q_quiet_grid: tuple[float, ...] = ()
+    q_manoeuvre_grid: tuple[float, ...] = ()
+    stay_grid: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        require(1 <= self.tracks <= MAX_TUNING_TRACKS, f"tuning.tracks must be in [1, {MAX_TUNING_TRACKS}], "
+                                                       f"got {self.tracks}")
+        require(self.seed >= 0, f"tuning.seed must be non-negative, got {self.seed}")
+        for key in TUNABLE:
+            grid = self.grid(key)
+            _, lo, hi = OPTION_RANGES[key]
+            for v in grid:
+                require(lo <= v <= hi, f"tuning.{key}_grid: values must be in [{lo}, {hi}], got {v}")
+            dup = sorted({v for v in grid if grid.count(v) > 1})
+            require(not dup, f"tuning.{key}_grid holds {dup} more than once")
+
+    def grid(self, key: str) -> tuple[float, ...]:
+        return getattr(self, f"{key}_grid")
+
 
 @dataclass(frozen=True)
 class ReferenceSpec:
@@ -165,6 +237,7 @@ class Scenario:
     divergence_m: float = 1000.0
     ramp_s: float = 60.0
     reference: ReferenceSpec | None = None
+    tuning: TuningSpec | None = None
     description: str = ""
     base_dir: str = field(default=".", init=False, compare=False)
 
@@ -184,6 +257,19 @@ class Scenario:
         for what, names in (("case", [c.name for c in self.cases]), ("method", [m.name for m in self.methods])):
             dup = sorted({n for n in names if names.count(n) > 1})
             require(not dup, f"duplicate {what} name(s): {dup}")
+        for m in self.methods:
+            tuned = m.tuned()
+            if not tuned:
+                continue
+            require(self.tuning is not None, f"method {m.name!r}: option {tuned[0]} is 'tuned' but the scenario has "
+                                             "no tuning section")
+            points = 1
+            for key in tuned:
+                require(len(self.tuning.grid(key)) > 0, f"method {m.name!r}: option {key} is 'tuned' but "
+                                                        f"tuning.{key}_grid is empty")
+                points *= len(self.tuning.grid(key))
+            require(points <= MAX_TUNING_POINTS, f"method {m.name!r}: {points} grid points to try, more than "
+                                                 f"{MAX_TUNING_POINTS}; use smaller grids")
 
     def path(self, relative: str) -> Path:
         """``relative`` resolved against the scenario file's folder (absolute paths unchanged)."""
@@ -225,9 +311,16 @@ class Scenario:
         return new
 
     def to_dict(self) -> dict:
+        """Plain data; options added later (tuning, range outliers) are left out while off, so an
+        older scenario's shard files stay as they were."""
         from ..config import to_dict
 
-        return to_dict(self)
+        d = to_dict(self)
+        if self.tuning is None:
+            del d["tuning"]
+        if not self.noise.has_outliers and self.noise.range_outlier_scale == 10.0:
+            del d["noise"]["range_outlier_prob"], d["noise"]["range_outlier_scale"]
+        return d
 
 
 FITEE2023_TRAJECTORIES = (

@@ -1,5 +1,6 @@
 """Fixed true trajectories from a :class:`~.scenario.CaseSpec`: start, speed, heading, and
-segments of along-track / cross-track acceleration.
+segments of along-track / cross-track acceleration (the kinematics of
+:mod:`pmsr_nn.simulation.flight`, shared with the simulator's manoeuvring tracks).
 
 The acceleration a segment asks for is reached through a linear ramp of ``ramp_s`` seconds
 from the previous segment's value (a jerk-limited manoeuvre onset rather than a step, which no
@@ -16,6 +17,7 @@ import torch
 
 from ..errors import ConfigError
 from ..motion import ConstantAcceleration
+from ..simulation.flight import ca_sample, flight_substep
 from ..simulation.recipe import TrackRecipe
 from ..simulation.tracks import build_models, envelope_violations
 from .scenario import CaseSpec
@@ -59,19 +61,11 @@ def design_trajectory(case: CaseSpec, recipe: TrackRecipe, ramp_s: float) -> tor
     for k in range(K):
         for s in range(SUBSTEPS if k else 0):
             along, across = commanded_acceleration(case, t, ramp_s)
-            # speed and heading (clockwise from north) change; position follows the velocity
-            v_new = max(0.0, v + along * h)
-            if v > 1e-9:
-                psi += across / v * h
-            x += 0.5 * (v + v_new) * math.sin(psi) * h
-            y += 0.5 * (v + v_new) * math.cos(psi) * h
-            v = v_new
+            x, y, v, psi = flight_substep(x, y, v, psi, along, across, h)
             t += h
         t = k * dt  # no drift of the clock over many sub-steps
         along, across = commanded_acceleration(case, t, ramp_s)
-        s_, c_ = math.sin(psi), math.cos(psi)
-        ax, ay = along * s_ + across * c_, along * c_ - across * s_
-        out.append([x, v * s_, ax, y, v * c_, ay])
+        out.append(ca_sample(x, y, v, psi, along, across))
     return torch.tensor(out, dtype=torch.float64)
 
 

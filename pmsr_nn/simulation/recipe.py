@@ -103,8 +103,53 @@ class InitialStateSpec:
 
 
 @dataclass(frozen=True)
+class ManoeuvreSpec:
+    """Drone manoeuvres on top of the CA track (``motion.manoeuvres``; absent = none).
+
+    Between quiet stretches (uniform in ``quiet_s``) a track flies episodes: with probability
+    ``turn_probability`` a coordinated turn (lateral acceleration uniform in ``turn_accel_mps2``,
+    random side, for a duration uniform in ``turn_s``; capped at ``max_turn_rate_deg_s`` x speed),
+    otherwise a speed change (along-track, uniform in ``speed_change_mps2``, random sign, for
+    ``speed_change_s``; shortened so the commanded speed ends inside ``speed_mps``, skipped if it
+    is already at that edge). Each episode's acceleration is ramped in and out over ``ramp_s``;
+    ``substeps`` integration sub-steps per sampling interval. Units: s, m/s, m/s^2, deg/s.
+    """
+
+    quiet_s: tuple[float, float] = (30.0, 200.0)
+    turn_probability: float = 0.5
+    turn_accel_mps2: tuple[float, float] = (1.0, 4.0)
+    turn_s: tuple[float, float] = (10.0, 60.0)
+    max_turn_rate_deg_s: float = 20.0
+    speed_change_mps2: tuple[float, float] = (0.5, 2.0)
+    speed_change_s: tuple[float, float] = (5.0, 20.0)
+    speed_mps: tuple[float, float] = (3.0, 24.0)
+    ramp_s: float = 2.0
+    substeps: int = 20
+
+    def validate(self) -> None:
+        w = "motion.manoeuvres"
+        require(math.isfinite(self.ramp_s) and self.ramp_s > 0, f"{w}.ramp_s must be positive, got {self.ramp_s}")
+        check_interval(f"{w}.quiet_s", self.quiet_s, positive=True)
+        require(self.quiet_s[0] >= self.ramp_s, f"{w}.quiet_s must be at least ramp_s ({self.ramp_s} s) so episodes "
+                                                f"do not overlap, got {list(self.quiet_s)}")
+        require(0.0 <= self.turn_probability <= 1.0, f"{w}.turn_probability must be in [0, 1], got {self.turn_probability}")
+        check_interval(f"{w}.turn_accel_mps2", self.turn_accel_mps2, nonneg=True)
+        check_interval(f"{w}.turn_s", self.turn_s, nonneg=True)
+        require(self.max_turn_rate_deg_s > 0, f"{w}.max_turn_rate_deg_s must be positive, got {self.max_turn_rate_deg_s}")
+        check_interval(f"{w}.speed_change_mps2", self.speed_change_mps2, positive=True)
+        check_interval(f"{w}.speed_change_s", self.speed_change_s, nonneg=True)
+        check_interval(f"{w}.speed_mps", self.speed_mps, nonneg=True)
+        require(1 <= self.substeps <= 1000, f"{w}.substeps must be in [1, 1000], got {self.substeps}")
+
+
+MAX_EPISODES = 10_000
+"""Most manoeuvre episodes a track may need (quiet stretches and episodes too short otherwise)."""
+
+
+@dataclass(frozen=True)
 class MotionSpec:
-    """CA motion: interval ``dt_s``, ``steps`` samples per track, jerk PSD ``q_psd`` (m^2/s^5)."""
+    """CA motion: interval ``dt_s``, ``steps`` samples per track, jerk PSD ``q_psd`` (m^2/s^5),
+    optional drone ``manoeuvres`` flown on top of it (:class:`ManoeuvreSpec`)."""
 
     model: Literal["ca"] = "ca"
     dt_s: float = 1.0
@@ -112,15 +157,20 @@ class MotionSpec:
     q_psd: float = 4.0
     q_psd_vertical: float = 0.0
     initial: InitialStateSpec = InitialStateSpec()
+    manoeuvres: ManoeuvreSpec | None = None
 
 
 @dataclass(frozen=True)
 class NoiseSpec:
-    """Per-track measurement noise deviations, each drawn uniformly from its interval."""
+    """Per-track measurement noise deviations, each drawn uniformly from its interval; with
+    probability ``range_outlier_prob`` (independently per range measurement, pair and scan) a
+    range error's deviation is ``range_outlier_scale`` times the track's (heavy tails)."""
 
     range_m: tuple[float, float] = (16.0, 30.0)
     range_rate_mps: tuple[float, float] = (2.0, 4.0)
     azimuth_deg: tuple[float, float] = (0.6, 3.0)
+    range_outlier_prob: float = 0.0
+    range_outlier_scale: float = 10.0
 
     def intervals_si(self) -> list[tuple[float, float]]:
         """Intervals in SI units (m, m/s, rad), in measurement-component order."""
@@ -130,6 +180,13 @@ class NoiseSpec:
     def validate(self) -> None:
         for name, iv in (("range_m", self.range_m), ("range_rate_mps", self.range_rate_mps), ("azimuth_deg", self.azimuth_deg)):
             check_interval(f"noise.{name}", iv, positive=True)
+        check_outliers("noise", self.range_outlier_prob, self.range_outlier_scale)
+
+
+def check_outliers(where: str, prob: float, scale: float) -> None:
+    """One-line errors for a range-outlier probability outside [0, 1] or a scale below 1."""
+    require(0.0 <= prob <= 1.0, f"{where}.range_outlier_prob must be in [0, 1], got {prob}")
+    require(scale >= 1.0, f"{where}.range_outlier_scale must be at least 1 (it multiplies the deviation), got {scale}")
 
 
 @dataclass(frozen=True)
@@ -235,6 +292,13 @@ class TrackRecipe:
         require(self.min_sensor_distance_m >= 0, "min_sensor_distance_m must be non-negative")
         require(self.storage.chunk_tracks >= 1, "storage.chunk_tracks must be at least 1")
         m.initial.validate()
+        if m.manoeuvres is not None:
+            require(self.dim == 2, "motion.manoeuvres: manoeuvring tracks are planar; use dim 2")
+            m.manoeuvres.validate()
+            shortest = m.manoeuvres.quiet_s[0] + min(m.manoeuvres.turn_s[0], m.manoeuvres.speed_change_s[0])
+            require((m.steps - 1) * m.dt_s / shortest < MAX_EPISODES,
+                    f"motion.manoeuvres: quiet stretches and episodes as short as {shortest} s need more than "
+                    f"{MAX_EPISODES} episodes per track; lengthen them")
         self.noise.validate()
         self.envelope.validate()
         self.envelope_variant.validate()
@@ -273,7 +337,14 @@ class TrackRecipe:
             raise ConfigError(f"recipe: {exc}") from None
 
     def to_dict(self) -> dict:
-        return to_dict(self)
+        """Plain data; options added after the first datasets (manoeuvres, range outliers) are
+        left out while off, so a recipe without them keeps its manifest and training-cache key."""
+        d = to_dict(self)
+        if self.motion.manoeuvres is None:
+            del d["motion"]["manoeuvres"]
+        if self.noise.range_outlier_prob == 0.0 and self.noise.range_outlier_scale == 10.0:
+            del d["noise"]["range_outlier_prob"], d["noise"]["range_outlier_scale"]
+        return d
 
 
 def load_recipe(path) -> TrackRecipe:

@@ -16,6 +16,14 @@ Two variants (``recipe.variant``):
 
 In both variants a track passing within ``min_sensor_distance_m`` of a sensor is redrawn: the
 range-rate is undefined on top of a sensor (see :mod:`pmsr_nn.measurements`).
+
+With ``motion.manoeuvres`` (planar recipes) a track is the CA track above plus drone manoeuvres:
+the flight of :mod:`.flight` (quiet stretches, coordinated turns, speed changes) from the drawn
+position and velocity, plus the CA process started at zero position and velocity with the drawn
+acceleration and the recipe's jerk PSD (linear, so it adds). The envelope variant's noise-free
+pre-screen then uses the flight plus the drawn acceleration's drift. With
+``noise.range_outlier_prob > 0`` some range errors are scaled up (:func:`apply_range_outliers`).
+Both off, the draws are exactly those of a recipe without the options.
 """
 
 from __future__ import annotations
@@ -28,6 +36,7 @@ import torch
 from ..errors import ConfigError
 from ..measurements import MeasurementModel
 from ..motion import ConstantAcceleration
+from .flight import draw_schedule, integrate_manoeuvres
 from .recipe import TrackRecipe
 
 MEASUREMENT_COMPONENTS = ("range", "range_rate", "azimuth")
@@ -132,6 +141,66 @@ def envelope_violations(recipe: TrackRecipe, states: torch.Tensor, motion: Const
     }
 
 
+def range_rows(model: MeasurementModel) -> torch.Tensor:
+    """Indices of the bistatic-range rows of ``model``'s measurement vector."""
+    return torch.tensor([i for i, label in enumerate(model.labels) if label.rsplit("_", 1)[0] == "range"],
+                        dtype=torch.long)
+
+
+def apply_range_outliers(z: torch.Tensor, clean: torch.Tensor, rows: torch.Tensor, prob: float, scale: float,
+                         g: torch.Generator) -> torch.Tensor:
+    """Heavy-tailed range errors: each range measurement of ``z (..., K, m)`` (rows ``rows``) is,
+    with probability ``prob`` and independently, moved to ``clean + scale * (z - clean)`` (its
+    error's deviation times ``scale``); ``clean`` broadcasts against ``z``. Draws one uniform per
+    range measurement from ``g``, and nothing at all when ``prob`` is 0 (``z`` returned as is)."""
+    if prob <= 0.0:
+        return z
+    zr = z[..., rows]
+    cr = clean[..., rows].expand_as(zr)
+    hit = torch.rand(zr.shape, generator=g, dtype=torch.float64) < prob
+    z = z.clone()
+    z[..., rows] = torch.where(hit, cr + scale * (zr - cr), zr)
+    return z
+
+
+def _manoeuvring(recipe: TrackRecipe, x0: torch.Tensor, g: torch.Generator) -> torch.Tensor:
+    """Noise-free manoeuvring flights ``(B, K, 6)`` from initial states ``x0 (B, 6)`` (position and
+    velocity; the drawn acceleration is added by the caller's CA part)."""
+    mot, man = recipe.motion, recipe.motion.manoeuvres
+    schedule = draw_schedule(man, torch.hypot(x0[:, 1], x0[:, 4]), (mot.steps - 1) * mot.dt_s, g)
+    return integrate_manoeuvres(x0, schedule, mot.steps, mot.dt_s, man.ramp_s, man.substeps)
+
+
+def _acceleration_only(x0: torch.Tensor, motion: ConstantAcceleration) -> torch.Tensor:
+    """``x0`` with position and velocity zeroed (the CA part added to a manoeuvring flight)."""
+    a0 = torch.zeros_like(x0)
+    a0[:, list(motion.acc_idx)] = x0[:, list(motion.acc_idx)]
+    return a0
+
+
+MAX_FLIGHTS_PER_ROUND = 2048
+"""Most manoeuvring flights integrated at once (about 100 kB each for 1000 samples)."""
+
+MIN_FLIGHTS_PER_ROUND = 256
+"""Fewest: a round's cost is nearly that of its time loop whatever the batch, so rounds are big."""
+
+
+def _manoeuvre_round(need: int, missing: int, stats: DrawStats, envelope: bool) -> tuple[int, int]:
+    """Manoeuvring tracks: how many stage-1 survivors to collect (``want``: enough for ``need``
+    kept tracks at the stage-2 rate seen so far) and how many initial states to draw for
+    ``missing`` more survivors (``batch``, at the stage-1 rate seen so far). The kept tracks (the
+    first accepted in draw order) are distributed alike whatever the sizes, but which draws they
+    come from depends on them: changing this rule changes the tracks a seed gives."""
+    if not envelope:
+        return min(need, MAX_FLIGHTS_PER_ROUND), min(missing, MAX_FLIGHTS_PER_ROUND)
+    pass1 = stats.initial_passed / stats.initial_drawn if stats.initial_drawn else 0.25
+    kept = stats.sampled - stats.rejected_envelope - stats.rejected_near_sensor
+    pass2 = kept / stats.sampled if stats.sampled else 0.75
+    want = min(max(need, math.ceil(1.2 * need / max(pass2, 0.05))), MAX_FLIGHTS_PER_ROUND)
+    batch = min(max(MIN_FLIGHTS_PER_ROUND, math.ceil(1.2 * missing / max(pass1, 0.01))), MAX_FLIGHTS_PER_ROUND)
+    return want, batch
+
+
 def _concat(parts: list[TrackBatch]) -> TrackBatch:
     return TrackBatch(
         torch.cat([p.states for p in parts]),
@@ -167,39 +236,66 @@ def generate_tracks(recipe: TrackRecipe, n: int, g: torch.Generator) -> tuple[Tr
     if envelope:
         times = torch.arange(0, mot.steps, NOMINAL_GRID_STEPS, dtype=torch.float64) * mot.dt_s
         grid_F = motion.F(times)  # (G, dim_x, dim_x)
+    manoeuvres = mot.manoeuvres is not None
+    if manoeuvres:
+        all_F = motion.F(torch.arange(mot.steps, dtype=torch.float64) * mot.dt_s)  # (K, dim_x, dim_x)
     while have < n:
         need = n - have
         # Stage 1 (envelope variant): collect `need` initial states whose noise-free path
-        # x(t) = F(t) x0 stays inside on the coarse grid. Drawing 4x at a time keeps the number
+        # x(t) = F(t) x0 stays inside on the coarse grid (with manoeuvres: the flight plus the
+        # drift of the drawn acceleration, at every sample). Drawing 4x at a time keeps the number
         # of small batches down; surplus candidates are discarded (and counted).
-        x0_parts, got = [], 0
-        while got < need:
+        want, batch = need, need if not envelope else 4 * need
+        if manoeuvres:  # a round of flights costs ~1 s whatever its size: size rounds from the rates seen so far
+            want, batch = _manoeuvre_round(need, need, stats, envelope)
+        x0_parts, flight_parts, got = [], [], 0
+        while got < want:
             if stats.initial_drawn >= budget:
                 raise ConfigError(
                     f"only {stats.acceptance:.2%} of drawn tracks are acceptable ({stats.initial_drawn} "
                     f"drawn for {n}); the envelope cannot be met with these motion parameters"
                 )
-            x0 = draw_initial_states(recipe, need if not envelope else 4 * need, g)
+            if manoeuvres and got:
+                batch = _manoeuvre_round(need, want - got, stats, envelope)[1]
+            x0 = draw_initial_states(recipe, batch, g)
             stats.initial_drawn += len(x0)
+            flight = _manoeuvring(recipe, x0, g) if manoeuvres else None
             if envelope:
-                nominal = torch.einsum("gij,bj->bgi", grid_F, x0)
-                x0 = x0[~_any(envelope_violations(recipe, nominal, motion))]
+                if manoeuvres:
+                    nominal = flight + torch.einsum("gij,bj->bgi", all_F, _acceleration_only(x0, motion))
+                else:
+                    nominal = torch.einsum("gij,bj->bgi", grid_F, x0)
+                inside = ~_any(envelope_violations(recipe, nominal, motion))
+                x0 = x0[inside]
+                flight = flight[inside] if manoeuvres else None
             stats.initial_passed += len(x0)
             x0_parts.append(x0)
+            flight_parts.append(flight)
             got += len(x0)
-        x0 = torch.cat(x0_parts)[:need]
+        # every survivor of a manoeuvring round goes on (their flights are paid for), else `need`
+        take = min(got, MAX_FLIGHTS_PER_ROUND) if manoeuvres else need
+        x0 = torch.cat(x0_parts)[:take]
         step = DrawStats(sampled=len(x0))
-        states = motion.sample(x0, mot.steps, mot.dt_s, q, generator=g)
+        if manoeuvres:
+            states = torch.cat(flight_parts)[:take] + motion.sample(_acceleration_only(x0, motion), mot.steps,
+                                                                    mot.dt_s, q, generator=g)
+        else:
+            states = motion.sample(x0, mot.steps, mot.dt_s, q, generator=g)
         viol = envelope_violations(recipe, states, motion)
         keep = ~_any(viol) if envelope else torch.ones(len(x0), dtype=torch.bool)
         step.rejected_envelope = int((~keep).sum())
         near = meas.near_sensor(states[keep], recipe.min_sensor_distance_m).any(-1)
         step.rejected_near_sensor = int(near.sum())
         keep[keep.clone()] = ~near
+        if take > need:  # surplus accepted candidates (manoeuvres) are discarded unused
+            keep &= keep.cumsum(0) <= need
         if bool(keep.any()):
             states = states[keep] if not bool(keep.all()) else states
             std = torch.stack([_uniform(iv, len(states), g) for iv in recipe.noise.intervals_si()], dim=-1)
             z = meas.sample(states, std, generator=g)
+            if recipe.noise.range_outlier_prob > 0:
+                z = apply_range_outliers(z, meas.h(states), range_rows(meas), recipe.noise.range_outlier_prob,
+                                         recipe.noise.range_outlier_scale, g)
             parts.append(TrackBatch(states, z, std, {k: v[keep] for k, v in viol.items()}))
             have += len(states)
         stats.add(step)
