@@ -49,7 +49,6 @@ class KalmanNetTracker(nn.Module):
         self.register_buffer("F", motion.F(dt, torch.float32))
         self.register_buffer("s_z", noise_scale.float())
         self.register_buffer("s_x", state_scale.float())
-        self.register_buffer("angles", model.angle_mask)
         width = cfg.rnn_hidden
         self.inp = nn.Sequential(nn.Linear(2 * m + 2 * n, width), nn.ReLU())
         self.gru = nn.GRUCell(width, width)
@@ -60,10 +59,6 @@ class KalmanNetTracker(nn.Module):
     @property
     def context(self) -> tuple[int | None, int]:
         return None, 0
-
-    def _residual(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        d = a - b
-        return torch.where(self.angles, torch.remainder(d + torch.pi, 2 * torch.pi) - torch.pi, d)
 
     def learned_gain(self, features: torch.Tensor, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(K (B, n, m) in SI, new hidden state)`` from ``features (B, 2m + 2n)``."""
@@ -84,12 +79,12 @@ class KalmanNetTracker(nn.Module):
         out = [x]
         for k in range(1, T):
             x_pred = x @ F.T
-            nu = self._residual(z[:, k], self.model.h(x_pred))
+            nu = self.model.residual(z[:, k], self.model.h(x_pred))
             if gain is None:
                 if self.cfg.innovation_clip is not None:  # bounded influence of an outlier (Huber-like)
                     c = self.cfg.innovation_clip * self.s_z
                     nu = torch.maximum(torch.minimum(nu, c), -c)
-                feats = torch.cat([self._residual(z[:, k], z[:, k - 1]) / self.s_z, nu / self.s_z,
+                feats = torch.cat([self.model.residual(z[:, k], z[:, k - 1]) / self.s_z, nu / self.s_z,
                                    (x - x_prev) / self.s_x, (x - x_pred_prev) / self.s_x], -1)
                 if self.cfg.innovation_clip is not None:
                     feats = feats.clamp(-10 * self.cfg.innovation_clip, 10 * self.cfg.innovation_clip)
