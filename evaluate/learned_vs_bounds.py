@@ -39,20 +39,6 @@ from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.tracks import build_models
 
 
-def memory_of(tracker: Tracker) -> int:
-    """Fewest past scans (the current one included) any estimate of ``tracker`` reads."""
-    behind, _ = tracker.context
-    if behind is None:  # recurrent: the splice guarantees window - stride samples of history
-        return tracker.window - tracker.default_stride() + 1
-    return behind + 1
-
-
-def training_spread(tracker: Tracker) -> torch.Tensor:
-    """Covariance ``(n, n)`` of a uniform spread over the training states' ranges."""
-    s = tracker.state_scaler
-    return torch.diag((s.hi - s.lo).clamp_min(1e-6) ** 2 / 12.0).to(torch.float64)
-
-
 def run(trackers: dict[str, Tracker], dataset: Path, split: str, seed: int, max_tracks: int | None) -> dict:
     ds = open_dataset(dataset)
     try:
@@ -92,9 +78,9 @@ def run(trackers: dict[str, Tracker], dataset: Path, split: str, seed: int, max_
     bound = pcrb(truth, motion, dt, q, model, R, torch.diag(sd**2), form="per_trajectory")
     memory_bounds = {}
     for name, t in trackers.items():
-        L = memory_of(t)
+        L = t.memory()
         if L not in memory_bounds:
-            memory_bounds[L] = finite_memory_pcrb(truth, motion, dt, q, model, R, training_spread(t), memory=L)
+            memory_bounds[L] = finite_memory_pcrb(truth, motion, dt, q, model, R, t.training_spread(), memory=L)
     seconds["bounds"] = time.perf_counter() - t0
 
     def avg(curve: torch.Tensor) -> float:
@@ -124,7 +110,7 @@ def run(trackers: dict[str, Tracker], dataset: Path, split: str, seed: int, max_
                "below_bound": ratio + 2 * ratio_se < 1.0}
         row["over_bound"] = row["position_rmse_m"] / row["bound_position_m"]
         if name in trackers:
-            L = memory_of(trackers[name])
+            L = trackers[name].memory()
             mb = memory_bounds[L]
             row.update({"memory_scans": L, "memory_bound_position_m": avg(mb.position_rmse()),
                         "memory_bound_velocity_mps": avg(mb.velocity_rmse()),

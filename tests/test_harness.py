@@ -219,3 +219,40 @@ def test_scenario_errors_name_the_key():
         from pmsr_nn.harness.scenario import MethodSpec, Scenario
 
         Scenario(name="x", cases=(c, c), methods=(MethodSpec("EKF", "ekf"),))
+
+
+def test_learned_rows_get_their_finite_memory_bound_seed_summary_and_paired_margin(tmp_path):
+    """Two 'seeds' (the released MDFNN and DFNN under one name): each row's finite-memory bound is
+    the filtering PCRB of only the scans it reads, recomputed here window by window with the plain
+    PCRB; the seed group's figures are the rows' mean and extremes."""
+    from pmsr_nn.bounds import pcrb
+    from pmsr_nn.nets.inference import Tracker
+
+    methods = [{"name": "EKF", "kind": "ekf"}, {"name": "UKF", "kind": "ukf"},
+               {"name": "NN [seed 0]", "kind": "learned", "checkpoint": str(ROOT / "models/released/mdfnn.pt")},
+               {"name": "NN [seed 1]", "kind": "learned", "checkpoint": str(ROOT / "models/released/dfnn.pt")}]
+    path = tiny(tmp_path, methods=methods, mc_runs=2, block_runs=1)
+    res = evaluate(path, tmp_path / "o", progress=False)
+    setup = prepare(load_scenario(path))
+    case, w = setup.cases[1], 100
+    m = setup.models
+    rows = res["cases"][case.name]["methods"]
+    for name, ckpt, scans in (("NN [seed 0]", "mdfnn.pt", 39), ("NN [seed 1]", "dfnn.pt", 1)):
+        t = Tracker.load(ROOT / "models/released" / ckpt)
+        assert rows[name]["memory_scans"] == scans
+        per_step = [float(pcrb(case.truth[None, k - scans + 1 : k + 1], m.motion, m.dt, m.q, m.model, m.R,
+                               t.training_spread(), smoothing=False).position_rmse()[-1])
+                    for k in range(w, len(case.truth))]
+        assert rows[name]["memory_bound_pos_m"] == pytest.approx(sum(per_step) / len(per_step), rel=1e-9)
+        assert rows[name]["over_memory_bound"] == pytest.approx(rows[name]["rmse_pos_m"] / rows[name]["memory_bound_pos_m"])
+    g = res["cases"][case.name]["seed_groups"]["NN"]
+    a, b = rows["NN [seed 0]"]["rmse_pos_m"], rows["NN [seed 1]"]["rmse_pos_m"]
+    assert g["seeds"] == 2 and g["rmse_pos_m"]["mean"] == pytest.approx((a + b) / 2)
+    assert (g["rmse_pos_m"]["min"], g["rmse_pos_m"]["max"]) == (min(a, b), max(a, b))
+    (comp,) = res["cases"][case.name]["comparisons"]
+    best = min(("EKF", "UKF"), key=lambda n: rows[n]["rmse_pos_m"])
+    assert comp["learned"] == "NN" and comp["seeds"] == 2 and comp["classical"] == best and comp["runs"] == 2
+    assert comp["margin_m"] < 0  # networks ~100 m against an EKF's ~10 m
+    report = (tmp_path / "o" / "report.md").read_text()
+    for heading in ("finite-memory bound", "over training seeds", "best classical method"):
+        assert heading in report

@@ -288,3 +288,13 @@ def test_learned_vs_bounds_study_runs_on_a_tiny_run(run, tmp_path, capsys):
     assert res["bounds"]["memory_9"]["position_m"] >= res["bounds"]["filtering"]["position_m"]
     assert not rows["TINY"]["below_bound"] and rows["TINY"]["over_memory_bound"] > 1
     assert (tmp_path / "rmse.png").stat().st_size > 0 and "finite-memory" in capsys.readouterr().out
+
+
+def test_precision_auto_uses_bfloat16_only_where_it_is_native(monkeypatch):
+    from pmsr_nn.nets import training
+
+    monkeypatch.setattr(training, "native_bf16", lambda accelerator: True)
+    assert training.resolve_precision("auto") == "bf16-mixed"
+    monkeypatch.setattr(training, "native_bf16", lambda accelerator: False)
+    assert training.resolve_precision("auto", "cpu") == "32-true"
+    assert training.resolve_precision("bf16-mixed") == "bf16-mixed"  # an explicit choice is kept

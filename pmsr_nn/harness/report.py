@@ -96,6 +96,71 @@ def summary_table(res: dict, ref: dict | None, ref_label: str, single_case: bool
     return lines
 
 
+def learned_tables(res: dict) -> list[str]:
+    """Learned trackers against their finite-memory bounds, over training seeds, and against the
+    best classical method on the same runs (empty without learned methods)."""
+    cases = res["cases"]
+    names = list(cases)
+    first = next(iter(cases.values()))
+    learned = [m for m, r in first["methods"].items() if "memory_bound_pos_m" in r]
+    lines = []
+    if learned:
+        lines += ["## Learned trackers against their finite-memory bound", "",
+                  "The filtering PCRB of only the scans each estimate reads, with the training states' spread as "
+                  "prior (`memory_bound_pos_m` below): the best any network of that shape could do.", "",
+                  "| method | scans read | " + " | ".join(f"{c}: bound (m) | {c}: RMSE / bound | {c}: MSE / bound^2"
+                                                          for c in names) + " |",
+                  "|---|---:|" + "---:|---:|---:|" * len(names)]
+        for m in learned:
+            cells = []
+            for c in names:
+                r = cases[c]["methods"][m]
+                mse = f"{r['mse_over_memory_bound']:.2f} +- {r['mse_over_memory_bound_se']:.2f}"
+                cells += [_f(r["memory_bound_pos_m"]), _f(r["over_memory_bound"]),
+                          f"**{mse}** (below!)" if r["below_memory_bound"] else mse]
+            lines.append(f"| {m} | {first['methods'][m]['memory_scans']} | " + " | ".join(cells) + " |")
+        below = [f"{m} on {c}" for c in names for m in learned if cases[c]["methods"][m]["below_memory_bound"]]
+        lines += ["", "MSE / bound^2: mean over runs of the run's mean squared position error over the bound's mean "
+                  "square, +- its standard error; flagged when more than two standard errors below 1.", "",
+                  ("**Below the finite-memory bound: " + ", ".join(below) + ". The bound's prior is the spread of the "
+                   "training states; a flight at the centre of what the network learned (e.g. no acceleration, where "
+                   "the training tracks have a little) can sit below it, so compare with the q = 0 floor above; "
+                   "otherwise it is a bug or test tracks the training set held, to investigate.**")
+                  if below else "No learned tracker is below its finite-memory bound.", ""]
+    groups = first.get("seed_groups", {})
+    if groups:
+        lines += ["## Learned trackers over training seeds", "",
+                  "Each seed is its own row above (`NAME [seed k]`); here their mean, with the spread (min-max) "
+                  "over seeds, and the mean ratio to the filtering PCRB and to the finite-memory bound.", "",
+                  "| method | seeds | " + " | ".join(f"{c}: pos RMSE (m) | {c}: / PCRB | {c}: / memory bound"
+                                                      for c in names) + " |",
+                  "|---|---:|" + "---:|---:|---:|" * len(names)]
+        for base, g in groups.items():
+            cells = []
+            for c in names:
+                e = cases[c]["seed_groups"][base]
+                st = e["rmse_pos_m"]
+                cells += [f"{st['mean']:.2f} ({st['min']:.2f}-{st['max']:.2f})", _f(e["over_bound"]["mean"]),
+                          _f(e["over_memory_bound"]["mean"]) if "over_memory_bound" in e else "-"]
+            lines.append(f"| {base} | {g['seeds']} | " + " | ".join(cells) + " |")
+        lines.append("")
+    if first.get("comparisons"):
+        lines += ["## Learned trackers against the best classical method, on the same runs", "",
+                  "Margin = mean over runs of (classical - learned) per-run position RMSE after the warm-up, in m "
+                  "(positive: the learned tracker is better; a seed group counts as the mean of its seeds per run), "
+                  "+- its Monte Carlo standard error.", "",
+                  "| learned | " + " | ".join(f"{c}: best classical | {c}: margin (m)" for c in names) + " |",
+                  "|---|" + "---|---:|" * len(names)]
+        for i, comp in enumerate(first["comparisons"]):
+            cells = []
+            for c in names:
+                k = cases[c]["comparisons"][i]
+                cells += [k["classical"], f"{k['margin_m']:+.2f} +- {k['se_m']:.2f}"]
+            lines.append(f"| {comp['learned']} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
 def timing_table(res: dict, ref_timing: dict | None, ref_label: str) -> list[str]:
     cases = list(res["cases"].values())
     methods = list(cases[0]["methods"])
@@ -190,6 +255,7 @@ def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dic
         lines += ["**Diverged runs** (position RMSE after the warm-up above "
                   f"{st['divergence_m']:g} m or not finite; kept in every average, see the median per run in "
                   "results.json): " + ", ".join(diverged) + ".", ""]
+    lines += learned_tables(res)
     lines += tuning_tables(res)
     lines += ["## Per case", ""]
     for name, case in res["cases"].items():

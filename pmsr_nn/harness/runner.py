@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from .. import interrupts
-from ..bounds import BoundResult, pcrb
+from ..bounds import BoundResult, finite_memory_pcrb, pcrb
 from ..errors import ConfigError
 from ..filters import Gaussian
 from ..measurements import wrap_angle
@@ -36,6 +36,7 @@ from ..rng import seeded_generator, standard_normal
 from ..simulation.recipe import TrackRecipe, load_recipe
 from ..simulation.tracks import MEASUREMENT_COMPONENTS, apply_range_outliers, build_models, range_rows
 from .methods import Models, is_causal, run_method
+from .seeds import comparisons, summarise_seeds
 from .scenario import FixedNoiseSpec, MethodSpec, Scenario
 from .trajectories import check_inside, design_trajectory
 
@@ -45,7 +46,8 @@ QUANTITIES = ("pos", "vel", "nees")
 @dataclass
 class Case:
     """A case ready to run: truth ``(K, n)``, noise-free measurements ``(K, m)``, its bound under
-    the recipe's q and the bound with q = 0 (no process noise: the designed flights have none)."""
+    the recipe's q, the bound with q = 0 (no process noise: the designed flights have none) and,
+    per causal learned method, its finite-memory bound (:func:`memory_bounds`)."""
 
     name: str
     title: str
@@ -53,6 +55,7 @@ class Case:
     clean: torch.Tensor
     bound: BoundResult
     bound_q0: BoundResult
+    memory_bounds: dict[str, tuple[int, BoundResult]] = field(default_factory=dict)
 
 
 @dataclass
@@ -140,13 +143,35 @@ def prepare(sc: Scenario, device: str = "cpu") -> Setup:
         P0 = torch.diag(prior_sd**2)
         bound = pcrb(truth[None], motion, models.dt, models.q, model, R, P0)
         bound_q0 = pcrb(truth[None], motion, models.dt, 0.0, model, R, P0)
-        cases.append(Case(c.name, c.title or c.name, truth, model.h(truth), bound, bound_q0))
+        cases.append(Case(c.name, c.title or c.name, truth, model.h(truth), bound, bound_q0,
+                          memory_bounds(truth, sc.methods, trackers, causal, models)))
     methods, tuning = sc.methods, {}
     if any(m.tuned() for m in sc.methods):  # last: the slowest check, after every quick one
         from .tuning import tune
 
         methods, tuning = tune(sc, recipe, models, prior_sd)
     return Setup(sc, recipe, models, prior_sd, cases, trackers, causal, methods, tuning)
+
+
+def memory_bounds(truth: torch.Tensor, methods, trackers: dict[str, Tracker], causal: dict[str, bool],
+                  models: Models) -> dict[str, tuple[int, BoundResult]]:
+    """Per causal learned method, the filtering bound of only the scans its estimates read
+    (:meth:`Tracker.memory` at the method's stride) with the training states' spread as prior:
+    no network of that shape can beat it, whatever its training. ``truth (K, n)``; returns
+    ``name -> (scans read, bound)``; methods that share both share one computation."""
+    out, cache = {}, {}
+    for spec in methods:
+        if spec.kind != "learned" or not causal[spec.name]:
+            continue
+        t = trackers[spec.name]
+        stride = spec.option("stride")
+        L, P0 = min(t.memory(None if stride is None else int(stride)), len(truth)), t.training_spread()
+        key = (L, tuple(torch.diagonal(P0).tolist()))
+        if key not in cache:
+            cache[key] = L, finite_memory_pcrb(truth[None], models.motion, models.dt, models.q, models.model,
+                                               models.R, P0, memory=L)
+        out[spec.name] = cache[key]
+    return out
 
 
 def draw_runs(clean: torch.Tensor, start: torch.Tensor, b: int, models: Models, prior_sd: torch.Tensor,
@@ -295,11 +320,24 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
             if spec.kind == "learned":
                 t = setup.trackers[spec.name]
                 row.update({"checkpoint": t.source, "model": t.meta["model"]["kind"], "window": t.window})
+                if spec.name in case.memory_bounds:
+                    scans, mb = case.memory_bounds[spec.name]
+                    curve = mb.position_rmse().numpy()[w:]
+                    mem = float(curve.mean())
+                    # per run: mean squared error over the bound's mean square; "below" only when the
+                    # mean ratio is more than two Monte Carlo standard errors under 1
+                    ratio = bs.run_mse[case.name][spec.name] / float((curve**2).mean())
+                    se = float(ratio.std(ddof=1) / np.sqrt(len(ratio))) if len(ratio) > 1 else float("inf")
+                    row.update({"memory_scans": scans, "memory_bound_pos_m": mem, "over_memory_bound": rmse / mem,
+                                "mse_over_memory_bound": float(ratio.mean()), "mse_over_memory_bound_se": se,
+                                "below_memory_bound": bool(ratio.mean() + 2 * se < 1)})
             methods[spec.name] = row
             curves[spec.name] = rmse_p.tolist()
         cases[case.name] = {
             "title": case.title, "steps": len(case.truth),
             "methods": methods,
+            "seed_groups": summarise_seeds(methods),
+            "comparisons": comparisons(methods, {n: np.sqrt(bs.run_mse[case.name][n]) for n in methods}),
             "truth_pos_m": case.truth[:, position_columns(case.truth.shape[-1])].tolist(),
             "pcrb": {"pos_m": float(bounds["filtering"][0][w:].mean()), "vel_mps": float(bounds["filtering"][1][w:].mean()),
                      "smoothing_pos_m": float(bounds["smoothing"][0][w:].mean()),
@@ -322,8 +360,18 @@ DEFINITIONS = {
     "pcrb": "per-trajectory posterior Cramer-Rao bound of the case's true trajectory under the recipe's CA model and "
             "q, the scenario's measurement deviations and the initiation prior P0; averaged like rmse_pos_m",
     "bound": "the bound a method is compared with: filtering for a causal method, smoothing for one that looks ahead",
+    "memory_bound_pos_m": "finite-memory bound of a causal learned tracker: the filtering PCRB of only the memory_scans "
+                          "scans its estimate at each step reads (an MDFNN's filter taps, a recurrent network's splice), "
+                          "with the spread of its training states as prior; averaged like rmse_pos_m. No tracker of "
+                          "that shape can beat it on average; below_memory_bound flags a mean per-run ratio of squared "
+                          "error to the bound's mean square (mse_over_memory_bound) more than two standard errors under 1",
     "pcrb_q0": "the same bound with q = 0: the floor for an estimator that knew the target flies without process "
                "noise (the designed trajectories have none; exact CA for trajectories with constant acceleration)",
+    "seed_groups": "learned methods named 'BASE [seed k]' (one training seed each) summarised per BASE: mean, "
+                   "standard deviation over seeds, min and max of rmse_pos_m and of its ratios to the bounds",
+    "comparisons": "each learned tracker (a seed group: the mean over its seeds per run) against the case's best "
+                   "non-learned method on the same runs: margin_m = mean over runs of (classical - learned) per-run "
+                   "position RMSE after the warm-up (positive: the learned tracker is better), se_m its standard error",
     "diverged_runs": "runs whose position RMSE after the warm-up exceeds divergence_m or is not finite; "
                      "they are kept in every average",
     "seconds_per_run": "wall-clock seconds of the method per Monte Carlo run, measured in this run (whole block "

@@ -118,6 +118,22 @@ class Tracker:
     def geometry(self) -> Geometry:
         return Geometry.from_dict(self.meta["geometry"])
 
+    def memory(self, stride: int | None = None) -> int:
+        """Fewest past scans (the current one included) any estimate reads when tracking with
+        ``stride`` (default :meth:`default_stride`): for a recurrent network the splice guarantees
+        ``window - stride`` scans of history."""
+        behind, _ = self.context
+        if behind is None:
+            return self.window - (stride or self.default_stride()) + 1
+        return behind + 1
+
+    def training_spread(self) -> torch.Tensor:
+        """Covariance ``(n, n)`` (float64, SI) of a uniform spread over the training states' ranges:
+        what the network knows of a state before it reads any scan (the prior of its
+        finite-memory bound, :func:`pmsr_nn.bounds.finite_memory_pcrb`)."""
+        s = self.state_scaler
+        return torch.diag((s.hi - s.lo).clamp_min(1e-6) ** 2 / 12.0).to(torch.float64)
+
     def default_stride(self) -> int:
         behind, ahead = self.context
         if behind is None:

@@ -81,6 +81,26 @@ class DataConfig:
         require(self.seed is None or self.seed >= 0, f"data.seed must be non-negative, got {self.seed}")
 
 
+def native_bf16(accelerator: str) -> bool:
+    """Whether bfloat16 matrix products run natively here: a CUDA GPU that has them, or a CPU with
+    AVX512-BF16 / AMX (oneDNN's check). Without them CPU bfloat16 is emulated, ~10-30x slower."""
+    import torch
+
+    if accelerator in ("auto", "gpu", "cuda") and torch.cuda.is_available():
+        return torch.cuda.is_bf16_supported()
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a build without oneDNN: assume emulation
+        return False
+
+
+def resolve_precision(precision: str, accelerator: str = "auto") -> str:
+    """``auto``: ``bf16-mixed`` where :func:`native_bf16`, else ``32-true``; anything else as given."""
+    if precision != "auto":
+        return precision
+    return "bf16-mixed" if native_bf16(accelerator) else "32-true"
+
+
 @dataclass(frozen=True)
 class TrainerConfig:
     """Lightning ``Trainer`` settings. ``train_batches_per_epoch`` caps an epoch (a fresh random
@@ -303,7 +323,7 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
             max_time={"minutes": tc.max_time_minutes} if tc.max_time_minutes else None,
             limit_train_batches=tc.train_batches_per_epoch or 1.0, limit_val_batches=tc.val_batches or 1.0,
             accelerator=tc.accelerator, devices=tc.devices, strategy=tc.strategy, num_nodes=tc.num_nodes,
-            precision=tc.precision, deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
+            precision=resolve_precision(tc.precision, tc.accelerator), deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
             logger=TensorBoardLogger(save_dir=out, name="tb", version="", default_hp_metric=False),
             callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps,
             enable_progress_bar=tc.progress, enable_model_summary=tc.progress,
