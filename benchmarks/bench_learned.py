@@ -33,9 +33,12 @@ from pmsr_nn.simulation.tracks import build_models, generate_tracks  # noqa: E40
 
 MODELS = {"MDFNN": ModelConfig(), "DFNN": ModelConfig(kind="dfnn"), "LSTM-256": ModelConfig(kind="rnn"),
           "MDFNN-local": ModelConfig(filter_taps="per_channel", inputs="local_fixes", output="residual"),
+          "MDFNN-local-compact": ModelConfig(hidden=(128, 96, 128), filter_taps="per_channel", inputs="local_fixes",
+                                             output="residual"),
           "KalmanNet": ModelConfig(kind="kalmannet", rnn_hidden=64, inputs="measurements_and_fixes", output="residual")}
-"""Table 2's MDFNN (paper inputs, then window-local inputs and residual output), the DFNN, the LSTM
-and the KalmanNet-style tracker of ``models/kalmannet.yaml``."""
+"""Table 2's MDFNN (paper inputs, then window-local inputs and residual output), the compact local
+MDFNN of ``models/mdfnn_local.yaml``, the DFNN, the LSTM and the KalmanNet-style tracker of
+``models/kalmannet.yaml``."""
 
 
 def _kalmannet(cfg: ModelConfig):

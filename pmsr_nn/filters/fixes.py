@@ -57,6 +57,14 @@ def state_fixes(z: torch.Tensor, model: MeasurementModel, dim_x: int, refine_ste
     return torch.where(ok[..., None], x, torch.full_like(x, float("nan")))
 
 
+def hold_last_valid(x: torch.Tensor, bad: torch.Tensor) -> torch.Tensor:
+    """``x (B, K, D)`` with each row where ``bad (B, K)`` replaced by the last row before it that is
+    not bad (vectorised: a running maximum of valid indices). Row 0 must be valid."""
+    K = x.shape[1]
+    idx = torch.where(bad, torch.zeros((), dtype=torch.long), torch.arange(K, device=x.device).expand_as(bad)).cummax(1).values
+    return x.gather(1, idx[..., None].expand_as(x))
+
+
 def hold_missing_fixes(s: torch.Tensor) -> torch.Tensor:
     """Fixes ``(B, K, n)`` with NaN rows replaced by the last valid one (a sequence must start
     with a valid fix; :class:`MeasurementError` otherwise)."""
@@ -67,6 +75,4 @@ def hold_missing_fixes(s: torch.Tensor) -> torch.Tensor:
         b = int(bad[:, 0].nonzero()[0])
         raise MeasurementError(f"sequence {b}: the first scan's ranges give no position fix "
                                "(too few valid ranges or a degenerate geometry)")
-    K = s.shape[1]
-    idx = torch.where(bad, torch.zeros((), dtype=torch.long), torch.arange(K, device=s.device).expand_as(bad)).cummax(1).values
-    return s.gather(1, idx[..., None].expand_as(s))
+    return hold_last_valid(s, bad)

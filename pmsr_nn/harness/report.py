@@ -96,6 +96,13 @@ def summary_table(res: dict, ref: dict | None, ref_label: str, single_case: bool
     return lines
 
 
+def _wide_head(lead: dict[str, str], names, per_case: dict[str, str]) -> list[str]:
+    """Header and separator of a table with the ``lead`` columns, then the ``per_case`` columns
+    for every case (column label -> markdown alignment, e.g. ``---:``)."""
+    cols = {**lead, **{f"{c}: {label}": a for c in names for label, a in per_case.items()}}
+    return ["| " + " | ".join(cols) + " |", "|" + "".join(f"{a}|" for a in cols.values())]
+
+
 def learned_tables(res: dict) -> list[str]:
     """Learned trackers against their finite-memory bounds, over training seeds, and against the
     best classical method on the same runs (empty without learned methods)."""
@@ -108,9 +115,8 @@ def learned_tables(res: dict) -> list[str]:
         lines += ["## Learned trackers against their finite-memory bound", "",
                   "The filtering PCRB of only the scans each estimate reads, with the training states' spread as "
                   "prior (`memory_bound_pos_m` below): the best any network of that shape could do.", "",
-                  "| method | scans read | " + " | ".join(f"{c}: bound (m) | {c}: RMSE / bound | {c}: MSE / bound^2"
-                                                          for c in names) + " |",
-                  "|---|---:|" + "---:|---:|---:|" * len(names)]
+                  *_wide_head({"method": "---", "scans read": "---:"}, names,
+                              {"bound (m)": "---:", "RMSE / bound": "---:", "MSE / bound^2": "---:"})]
         for m in learned:
             cells = []
             for c in names:
@@ -132,9 +138,8 @@ def learned_tables(res: dict) -> list[str]:
         lines += ["## Learned trackers over training seeds", "",
                   "Each seed is its own row above (`NAME [seed k]`); here their mean, with the spread (min-max) "
                   "over seeds, and the mean ratio to the filtering PCRB and to the finite-memory bound.", "",
-                  "| method | seeds | " + " | ".join(f"{c}: pos RMSE (m) | {c}: / PCRB | {c}: / memory bound"
-                                                      for c in names) + " |",
-                  "|---|---:|" + "---:|---:|---:|" * len(names)]
+                  *_wide_head({"method": "---", "seeds": "---:"}, names,
+                              {"pos RMSE (m)": "---:", "/ PCRB": "---:", "/ memory bound": "---:"})]
         for base, g in groups.items():
             cells = []
             for c in names:
@@ -149,8 +154,7 @@ def learned_tables(res: dict) -> list[str]:
                   "Margin = mean over runs of (classical - learned) per-run position RMSE after the warm-up, in m "
                   "(positive: the learned tracker is better; a seed group counts as the mean of its seeds per run), "
                   "+- its Monte Carlo standard error.", "",
-                  "| learned | " + " | ".join(f"{c}: best classical | {c}: margin (m)" for c in names) + " |",
-                  "|---|" + "---|---:|" * len(names)]
+                  *_wide_head({"learned": "---"}, names, {"best classical": "---", "margin (m)": "---:"})]
         for i, comp in enumerate(first["comparisons"]):
             cells = []
             for c in names:

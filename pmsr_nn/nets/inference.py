@@ -18,6 +18,7 @@ import torch
 
 from ..data.normalise import MinMaxScaler
 from ..errors import CheckpointError, MeasurementError
+from ..filters.fixes import hold_last_valid
 from ..geometry import Geometry
 from .checkpoint import read_checkpoint
 from .config import ModelConfig
@@ -64,9 +65,7 @@ def fill_missing(z: torch.Tensor, policy: str) -> torch.Tensor:
     if bad[:, 0].any():
         b = int(bad[:, 0].nonzero()[0])
         raise MeasurementError(f"sequence {b} starts with a NaN row; there is no earlier scan to hold")
-    K = z.shape[1]
-    idx = torch.where(bad, torch.zeros((), dtype=torch.long), torch.arange(K).expand_as(bad)).cummax(dim=1).values
-    return z.gather(1, idx[..., None].expand_as(z))
+    return hold_last_valid(z, bad)
 
 
 class Tracker:
