@@ -54,7 +54,8 @@ def accuracy(res: dict) -> dict:
 def test_shipped_scenario_loads_and_its_cases_are_the_built_in_ones():
     sc = load_scenario(SHIPPED)
     assert sc.cases == FITEE2023_TRAJECTORIES
-    assert [m.name for m in sc.methods] == ["EKF", "UKF", "SI+KF", "PF", "DFNN", "MDFNN", "RNN"]
+    seeds = [f"{n} [seed {k}]" for n in ("MDFNN local", "KalmanNet") for k in range(3)]
+    assert [m.name for m in sc.methods] == ["EKF", "UKF", "SI+KF", "PF", "DFNN", "MDFNN", "RNN", *seeds]
     assert sc.mc_runs == 100 and sc.noise.si() == (30.0, 2.0, math.radians(3.0))
     for m in sc.methods:
         if m.checkpoint:
