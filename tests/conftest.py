@@ -37,3 +37,19 @@ def make_tracks():
         return motion, model, batch
 
     return make
+
+
+PRIOR_SD = (50.0, 3.0, 0.5)
+"""Per-axis position (m), velocity (m/s) and acceleration (m/s^2) deviations of the test priors."""
+
+
+def perturbed_prior(states0: torch.Tensor, seed: int = 0):
+    """A Gaussian prior per track around the true first states ``(B, 6)`` (planar CA): the mean is
+    the truth plus a draw of deviation :data:`PRIOR_SD`, the covariance that deviation squared."""
+    from pmsr_nn.filters import Gaussian
+
+    B = states0.shape[0]
+    sd = torch.tensor(PRIOR_SD * 2, dtype=torch.float64)
+    g = torch.Generator().manual_seed(seed)
+    x0 = states0 + torch.randn(B, 6, generator=g, dtype=torch.float64) * sd
+    return Gaussian(x0, torch.diag(sd**2).expand(B, 6, 6).clone())

@@ -4,6 +4,8 @@
 import numpy as np
 import pytest
 import torch
+
+from conftest import perturbed_prior
 from filterpy.kalman import ExtendedKalmanFilter, KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from pmsr_nn.errors import ConfigError
@@ -18,11 +20,7 @@ DT, Q_PSD = 1.0, 1e-3
 def scenario(make_tracks):
     motion, model, batch = make_tracks(steps=30, n=3, seed=11)
     R = model.R(batch.noise_std)
-    g = torch.Generator().manual_seed(0)
-    sd = torch.tensor([50.0, 3.0, 0.5] * 2, dtype=torch.float64)
-    P0 = torch.diag(sd**2).expand(3, 6, 6).clone()
-    x0 = batch.states[:, 0] + torch.randn(3, 6, generator=g, dtype=torch.float64) * sd
-    return motion, model, batch.measurements, R, Gaussian(x0, P0)
+    return motion, model, batch.measurements, R, perturbed_prior(batch.states[:, 0])
 
 
 def _wrap_residual(angles):

@@ -5,6 +5,8 @@ mode detection on a manoeuvring track, missing measurements and bad input."""
 import numpy as np
 import pytest
 import torch
+
+from conftest import perturbed_prior
 from filterpy.kalman import IMMEstimator, KalmanFilter
 
 from pmsr_nn.errors import ConfigError
@@ -29,13 +31,10 @@ def scenario(make_tracks):
     """Three bistatic CA tracks (9 measurements per step), a perturbed prior and some missing data."""
     motion, model, batch = make_tracks(steps=40, n=3, seed=5)
     R = model.R(batch.noise_std)
-    g = torch.Generator().manual_seed(0)
-    sd = torch.tensor([50.0, 3.0, 0.5] * 2, dtype=torch.float64)
-    x0 = batch.states[:, 0] + torch.randn(3, 6, generator=g, dtype=torch.float64) * sd
     z = batch.measurements.clone()
     z[1, 6] = float("nan")  # a whole scan missing
     z[2, 9, :3] = float("nan")  # the ranges of one scan missing
-    return motion, model, z, R, Gaussian(x0, torch.diag(sd**2).expand(3, 6, 6).clone())
+    return motion, model, z, R, perturbed_prior(batch.states[:, 0])
 
 
 # --------------------------------------------------------------------------- exact reductions
