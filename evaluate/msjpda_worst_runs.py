@@ -22,7 +22,8 @@ import torch
 
 from pmsr_nn.config import load_yaml
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.multitarget import draw_block, multitarget_from_dict, prepare_multitarget, run_method
+from pmsr_nn.harness.multitarget import multitarget_from_dict
+from pmsr_nn.harness.runner import call_method, draw_block, prepare
 from pmsr_nn.metrics import squared_error
 
 
@@ -36,15 +37,15 @@ def per_run_errors(path: Path, case: str, blocks: int, iterations: int | None = 
         raise ConfigError(f"no case {case!r} in {path} (cases: {', '.join(names)})")
     if not 1 <= blocks <= sc.n_blocks:
         raise ConfigError(f"--blocks must be 1..{sc.n_blocks}, got {blocks}")
-    setup = prepare_multitarget(sc)
-    ci, pos, k0 = names.index(case), list(setup.motion.pos_idx), sc.converged_from_scan
-    out: dict[str, list] = {m.name: [] for m in sc.methods}
+    setup = prepare(sc)
+    ci, pos, k0 = names.index(case), list(setup.models.motion.pos_idx), sc.converged_from_scan
+    out: dict[str, list] = {m.name: [] for m in setup.methods}
     with torch.no_grad():
         for block in range(blocks):
-            truth, scans, prior = draw_block(setup, ci, block)
-            for m in sc.methods:
-                res = run_method(setup, m, scans, prior, ci)
-                out[m.name].append(squared_error(res.x, truth, pos)[:, k0:].mean(1).sqrt().numpy())
+            truth, products = draw_block(setup, ci, block)
+            for m in setup.methods:
+                est = call_method(setup, m, setup.cases[ci], products, (sc.seed, ci, block))
+                out[m.name].append(squared_error(est.x, truth.x, pos)[:, k0:].mean(1).sqrt().numpy())
     return {k: np.concatenate(v) for k, v in out.items()}
 
 

@@ -382,10 +382,15 @@ def _checkpoint_overrides(items: list[str]) -> dict[str, str]:
 
 
 def print_summary(res: dict) -> None:
-    """The methods x cases position-RMSE table of a results.json."""
-    from .harness.report import summary_table
+    """The methods x cases position-RMSE table of a results.json, and the multi-target tables where
+    a case has several targets."""
+    from .harness.report import multi_target_tables, summary_table
 
+    print(f"position RMSE (m), Eq. 31 averaged after the warm-up; {res['mc_runs']} runs per case\n")
     print("\n".join(summary_table(res, None, "", False)))
+    mt = [line for line in multi_target_tables(res, None, "paper") if not line.startswith("![")]
+    if mt:
+        print("\n" + "\n".join(mt).rstrip())
 
 
 def cmd_evaluate(args) -> int:
@@ -404,13 +409,7 @@ def cmd_evaluate(args) -> int:
         print(f"shard     {shard[0]}/{shard[1]} (blocks {res['blocks'][0]}..{res['blocks'][-1]}) -> {args.out} "
               f"in {time.perf_counter() - t0:.1f} s; combine all shards with 'pmsr merge'")
         return 0
-    if res.get("kind") == "multitarget":
-        from .harness.multitarget_report import case_tables
-
-        print("\n".join(case_tables(res, None, "paper")))
-    else:
-        print(f"position RMSE (m), Eq. 31 averaged after the warm-up; {res['mc_runs']} runs per case\n")
-        print_summary(res)
+    print_summary(res)
     print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s)")
     return 0
 
@@ -454,8 +453,7 @@ def cmd_demo(args) -> int:
 
     _quiet_lightning()
     res = run_demo(args.out, mc_runs=args.mc_runs)
-    print(f"\nposition RMSE (m), Eq. 31 averaged over steps {res['settings']['warmup_steps']}.. ; "
-          f"{res['mc_runs']} runs per trajectory; bold = below its own bound\n")
+    print("\nbold = below its own bound")
     print_summary(res)
     print(f"\nreport    {args.out / 'evaluation' / 'report.md'}   ({res['demo']['total_seconds'] / 60:.1f} min in all)")
     print("full study: pmsr evaluate evaluate/fitee2023_three_trajectories.yaml --out runs/eval")

@@ -86,6 +86,6 @@ def test_bad_inputs():
     with pytest.raises(ConfigError, match="lower end"):
         ClutterSpec(range_m=(5.0, 1.0))
     motion = ConstantVelocity(2)
-    rr = MeasurementModel(_model().geometry, ("range", "range_rate"), (1.0, 1.0), motion.pos_idx, motion.vel_idx, layout="pair")
-    with pytest.raises(ConfigError, match="range', 'doppler"):
+    rr = MeasurementModel(_model().geometry, ("doppler", "range"), (1.0, 1.0), motion.pos_idx, motion.vel_idx, layout="pair")
+    with pytest.raises(ConfigError, match="starting with 'range'"):
         simulate_scans(truth, rr, 0.5, ClutterSpec(), seeded_generator(0))

@@ -13,7 +13,7 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import CheckpointError, ConfigError, OutputError
 from pmsr_nn.filters import ekf
 from pmsr_nn.harness import evaluate, load_scenario, merge
-from pmsr_nn.harness.runner import draw_block, prepare
+from pmsr_nn.harness.runner import prepare, stream_block as draw_block
 from pmsr_nn.harness.scenario import FITEE2023_TRAJECTORIES, CaseSpec, SegmentSpec, scenario_from_dict
 from pmsr_nn.harness.trajectories import design_trajectory
 from pmsr_nn.simulation.recipe import TrackRecipe
@@ -106,13 +106,13 @@ def test_every_method_sees_the_same_draws_and_the_rmse_is_eq31(tmp_path):
 
     m = setup.models
     x = ekf(Gaussian(x0, P0), z, m.motion, m.dt, m.q, m.model, m.R).x
-    err2 = ((x - case.truth)[..., [0, 3]] ** 2).sum(-1)  # (runs, K)
+    err2 = ((x - case.truth.x[:, 0])[..., [0, 3]] ** 2).sum(-1)  # (runs, K)
     curve = err2.mean(0).sqrt()
     r = res["cases"]["trajectory_1"]["methods"]["EKF"]
     assert r["rmse_pos_m"] == pytest.approx(float(curve[100:].mean()), rel=1e-12)
     assert r["rmse_pos_pooled_m"] == pytest.approx(float(err2[:, 100:].mean().sqrt()), rel=1e-12)
     # the measurements are the truth plus noise of the scenario's deviations
-    resid = m.model.residual(z, case.clean)
+    resid = m.model.residual(z, m.model.h(case.truth.x[:, 0]))
     std = resid.reshape(-1, resid.shape[-1]).std(0)
     assert torch.allclose(std, m.model.std_vector(m.noise_std), rtol=0.15)  # 600 samples: 99.9 % within ~10 %
     for f in ("results.json", "report.md", "trajectories.png", "trajectory_1_rmse.png", "trajectory_3_rmse.png"):
@@ -156,7 +156,7 @@ def test_merge_refuses_incomplete_or_mixed_shards(tmp_path):
 # -- bad input: one line, exit 2, nothing written -----------------------------------------------
 
 @pytest.mark.parametrize("change, extra, message", [
-    ({"methods": [{"name": "X", "kind": "kalman9000"}]}, [], "must be one of"),
+    ({"methods": [{"name": "X", "kind": "kalman9000"}]}, [], "unknown method kind"),
     ({"methods": [{"name": "M", "kind": "learned", "checkpoint": "nowhere.pt"}]}, [], "nowhere.pt"),
     ({"cases": [{"name": "e", "start_range_m": 5000.0, "start_bearing_deg": 90.0, "speed_mps": 1.0,
                  "heading_deg": 0.0, "segments": []}]}, [], "trajectory is empty"),
@@ -241,9 +241,9 @@ def test_learned_rows_get_their_finite_memory_bound_seed_summary_and_paired_marg
     for name, ckpt, scans in (("NN [seed 0]", "mdfnn.pt", 39), ("NN [seed 1]", "dfnn.pt", 1)):
         t = Tracker.load(ROOT / "models/released" / ckpt)
         assert rows[name]["memory_scans"] == scans
-        per_step = [float(pcrb(case.truth[None, k - scans + 1 : k + 1], m.motion, m.dt, m.q, m.model, m.R,
+        per_step = [float(pcrb(case.truth.x[None, k - scans + 1 : k + 1, 0], m.motion, m.dt, m.q, m.model, m.R,
                                t.training_spread(), smoothing=False).position_rmse()[-1])
-                    for k in range(w, len(case.truth))]
+                    for k in range(w, case.steps)]
         assert rows[name]["memory_bound_pos_m"] == pytest.approx(sum(per_step) / len(per_step), rel=1e-9)
         assert rows[name]["over_memory_bound"] == pytest.approx(rows[name]["rmse_pos_m"] / rows[name]["memory_bound_pos_m"])
     g = res["cases"][case.name]["seed_groups"]["NN"]

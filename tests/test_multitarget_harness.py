@@ -44,12 +44,14 @@ def test_small_scenario_writes_every_method_with_timing_and_loss(tmp_path):
                 assert isinstance(r[key], float), key
             assert 0 <= r["loss_probability"] <= 1 and r["seconds_per_run"] > 0
             assert len(r["rmse_pos_per_target_m"]) == 2
-        assert len(case["curves"]["rmse_pos_m_per_target"]["S-MSJPDA"][0]) == 6
+        assert len(case["curves"]["rmse_pos_m"]["S-MSJPDA"][0]) == 6
+        assert case["methods"]["P-MSJPDA"]["max_duality_gap"] >= 0 and "max_duality_gap" not in case["methods"]["S-MSJPDA"]
     saved = json.loads((tmp_path / "out" / "results.json").read_text())
     assert saved["cases"]["nominal"]["methods"]["P-MSJPDA"]["rmse_pos_m"] == res["cases"]["nominal"]["methods"]["P-MSJPDA"]["rmse_pos_m"]
     report = (tmp_path / "out" / "report.md").read_text()
     assert "paper (MATLAB" in report and "| 2.45 |" in report  # the paper's S-MSJPDA time at Pd 0.8, labelled
-    assert (tmp_path / "out" / "tracks.png").is_file() and (tmp_path / "out" / "nominal_rmse_per_target.png").is_file()
+    for f in ("trajectories.png", "nominal_rmse.png", "nominal_set_metrics.png"):
+        assert (tmp_path / "out" / f).is_file(), f
 
 
 def test_same_seed_same_figures_and_blocks_independent_of_mc_runs(tmp_path):
@@ -104,8 +106,8 @@ def test_recorded_scenarios_load_and_name_paper_keys(name):
 
 def test_bad_multitarget_inputs_are_clear(tmp_path):
     p = _small(tmp_path)
-    with pytest.raises(ConfigError, match="no --shard"):
-        evaluate(p, tmp_path / "o1", shard=(1, 2), progress=False)
+    with pytest.raises(ConfigError, match="3 shards but only 2 block"):
+        evaluate(p, tmp_path / "o1", shard=(1, 3), progress=False)
     with pytest.raises(ConfigError, match="checkpoint"):
         evaluate(p, tmp_path / "o2", checkpoints={"S-MSJPDA": "x.pt"}, progress=False)
     with pytest.raises(ConfigError, match="unknown key"):
@@ -153,7 +155,7 @@ def test_per_run_errors_use_the_harness_draws(tmp_path):
     # the same draws as `pmsr evaluate`: the mean squared error over runs gives its converged RMSE
     # when every scan from converged_from_scan on is averaged with the same weight
     res = evaluate(p, tmp_path / "out", progress=False)
-    per_scan = np.array(res["cases"]["nominal"]["curves"]["rmse_pos_m_per_target"]["S-MSJPDA"])  # (T, K)
+    per_scan = np.array(res["cases"]["nominal"]["curves"]["rmse_pos_m"]["S-MSJPDA"])  # (T, K)
     assert np.allclose((err["S-MSJPDA"] ** 2).mean(0), (per_scan[:, 2:] ** 2).mean(1), rtol=1e-9)
     with pytest.raises(ConfigError, match="no case 'nope'"):
         mod.per_run_errors(p, "nope", blocks=1)

@@ -16,8 +16,8 @@ from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ekf
 from pmsr_nn.harness import evaluate, load_scenario
 from pmsr_nn.harness import runner, tuning
-from pmsr_nn.harness.methods import run_method
-from pmsr_nn.harness.runner import draw_block, prepare
+from pmsr_nn.methods.single_target import run_single as run_method
+from pmsr_nn.harness.runner import prepare, stream_block as draw_block
 from pmsr_nn.harness.scenario import MethodSpec, scenario_from_dict
 from pmsr_nn.harness.trajectories import check_inside, design_trajectory
 from pmsr_nn.metrics import squared_error
@@ -60,7 +60,7 @@ def test_draws_without_outliers_are_those_of_before(monkeypatch):
     # Hash of draw_block(prepare(fitee2023_three_trajectories.yaml with its EKF only), case c, block 1)
     # for c = 0, 1, 2 (z, prior mean, prior covariance as float64 bytes, sha256, first 16 hex digits),
     # computed at commit 2ef52e8, before range outliers existed.
-    monkeypatch.setattr(runner, "pcrb", lambda *a, **k: None)  # the bounds take long and draw nothing
+    monkeypatch.setattr(runner, "case_bounds", lambda *a, **k: None)  # the bounds take long and draw nothing
     sc = load_scenario(ROOT / "evaluate" / "fitee2023_three_trajectories.yaml")
     setup = prepare(sc.replace(methods=sc.methods[:1]))
     h = hashlib.sha256()
@@ -72,7 +72,7 @@ def test_draws_without_outliers_are_those_of_before(monkeypatch):
 
 
 def test_outliers_scale_some_range_errors_and_nothing_else(tmp_path, monkeypatch):
-    monkeypatch.setattr(runner, "pcrb", lambda *a, **k: None)  # not needed for the draws
+    monkeypatch.setattr(runner, "case_bounds", lambda *a, **k: None)  # not needed for the draws
     p, scale = 0.2, 10.0
     base = scenario_from_dict({**scenario(ROOT / "datasets/fitee2023_ca.yaml", mc_runs=50, block_runs=50),
                                "methods": [{"name": "EKF", "kind": "ekf"}]}, tmp_path)
@@ -84,7 +84,7 @@ def test_outliers_scale_some_range_errors_and_nothing_else(tmp_path, monkeypatch
     others = torch.ones(za.shape[-1], dtype=torch.bool)
     others[rows] = False
     assert torch.equal(za[..., others], zb[..., others])
-    clean = setup_a.cases[0].clean[..., rows]
+    clean = setup_a.models.model.h(setup_a.cases[0].truth.x[:, 0])[..., rows]
     ea, eb = za[..., rows] - clean, zb[..., rows] - clean
     hit = eb != ea
     assert torch.allclose(eb[hit], scale * ea[hit], rtol=1e-9, atol=1e-9)

@@ -1,5 +1,9 @@
-"""Multi-target scenarios (``kind: multitarget``): a formation of targets seen through missed
+"""Multi-target studies (``kind: multitarget``): a formation of targets seen through missed
 detections and clutter, every multi-target tracker on the same Monte Carlo draws.
+
+This module holds only the study's YAML schema and :func:`prepare_multitarget`, which turns it
+into the runner's :class:`~.runner.Setup` (a sampled truth, detections, the methods through
+their registered kinds); :mod:`.runner` runs it and :mod:`.report` writes it like any scenario.
 
 This is the simulation study of Section IV of the S-MSJPDA paper: a few targets flying in parallel,
 range + Doppler from every transmitter-receiver pair, trackers started at the truth plus noise.
@@ -12,30 +16,24 @@ Cases vary the detection probability, the clutter count and the spacing of the f
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
 import torch
 
-from .. import interrupts
 from ..config import from_dict, require, to_dict
 from ..errors import ConfigError
-from ..filters import Gaussian
 from ..measurements import MeasurementModel
-from ..metrics import normalised_nees, squared_error, track_loss
+from ..methods import Models, method_kind
 from ..motion import ConstantVelocity
-from ..rng import seeded_generator, standard_normal
-from ..simulation.detections import ClutterSpec, simulate_scans
+from ..simulation.detections import ClutterSpec
+from ..simulation.products import SampledTruth, SensorSetup
 from ..simulation.recipe import GeometrySpec, ReceiverSpec, TransmitterSpec
-from ..trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
-
-MTMethodKind = Literal["s_msjpda", "p_msjpda", "true_assignment"]
-ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
-
+from .runner import DEFINITIONS, Case, LossRule, Setup
+from .scenario import MethodSpec, SetMetricSpec
 
 @dataclass(frozen=True)
 class FormationSpec:
@@ -106,12 +104,19 @@ class LossSpec:
 
 @dataclass(frozen=True)
 class MTMethodSpec:
+    """A tracker of the study: ``kind`` a registered method kind that reads detections
+    (:mod:`pmsr_nn.methods`); ``m_best`` overrides the scenario's ``tracker.m_best``."""
+
     name: str
-    kind: MTMethodKind
+    kind: str
     m_best: int | None = None  # None: the scenario's tracker.m_best
 
     def __post_init__(self) -> None:
         require(bool(self.name) and "/" not in self.name, f"method name {self.name!r} must be non-empty, without '/'")
+        kind = method_kind(self.kind)
+        require(kind.reads == "detections", f"method {self.name!r}: kind {self.kind} reads {kind.reads}; a multi-target "
+                                            "study runs trackers of detections (put it in a designed scenario)")
+        require(self.m_best is None or "m_best" in kind.options, f"method {self.name!r}: kind {self.kind} has no m_best")
 
 
 @dataclass(frozen=True)
@@ -175,6 +180,7 @@ class MultiTargetScenario:
     converged_from_scan: int = 10
     sweep: Literal["none", "pd", "clutter_per_scan", "spacing_m"] = "none"
     reference: MTReferenceSpec | None = None
+    set_metrics: SetMetricSpec = SetMetricSpec()
     base_dir: str = field(default=".", init=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -197,8 +203,15 @@ class MultiTargetScenario:
     def n_blocks(self) -> int:
         return math.ceil(self.mc_runs / self.block_runs)
 
-    def block_size(self, block: int) -> int:
-        return min(self.mc_runs, (block + 1) * self.block_runs) - block * self.block_runs
+    def block_runs_range(self, block: int) -> range:
+        return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
+
+    def with_mc_runs(self, mc_runs: int | None) -> "MultiTargetScenario":
+        if mc_runs is None:
+            return self
+        new = dataclasses.replace(self, mc_runs=mc_runs)
+        object.__setattr__(new, "base_dir", self.base_dir)
+        return new
 
     def path(self, relative: str) -> Path:
         p = Path(relative).expanduser()
@@ -206,15 +219,17 @@ class MultiTargetScenario:
 
     def case_settings(self, case: MTCaseSpec) -> tuple[float, ClutterSpec, float]:
         """``(pd, clutter, spacing_m)`` of a case."""
-        from dataclasses import replace
-
         pd = self.pd if case.pd is None else case.pd
-        clutter = self.clutter if case.clutter_per_scan is None else replace(self.clutter, per_scan=case.clutter_per_scan)
+        clutter = self.clutter if case.clutter_per_scan is None else dataclasses.replace(self.clutter,
+                                                                                         per_scan=case.clutter_per_scan)
         spacing = self.targets.spacing_m if case.spacing_m is None else case.spacing_m
         return pd, clutter, spacing
 
     def to_dict(self) -> dict:
-        return to_dict(self)
+        d = to_dict(self)
+        if self.set_metrics == SetMetricSpec():
+            del d["set_metrics"]
+        return d
 
 
 def is_multitarget(data: dict) -> bool:
@@ -227,160 +242,76 @@ def multitarget_from_dict(data: dict, base_dir: str | Path = ".", where: str = "
     return sc
 
 
-@dataclass
-class MTSetup:
-    scenario: MultiTargetScenario
-    motion: ConstantVelocity
-    model: MeasurementModel
-    R: torch.Tensor
+def _methods(sc: MultiTargetScenario) -> tuple[MethodSpec, ...]:
+    """The study's trackers as :class:`~.scenario.MethodSpec` with the tracker section's options."""
+    out = []
+    for m in sc.methods:
+        options = {k: v for k, v in (("m_best", m.m_best or sc.tracker.m_best),
+                                     ("gate_probability", sc.tracker.gate_probability),
+                                     ("relaxation_iterations", sc.tracker.relaxation_iterations))
+                   if k in method_kind(m.kind).options}
+        out.append(MethodSpec(m.name, m.kind, options=options))
+    return tuple(out)
 
 
-def prepare_multitarget(sc: MultiTargetScenario) -> MTSetup:
+def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
+    """The study as a runner :class:`~.runner.Setup`: per case a formation flying CV with process
+    noise (drawn per run), seen through detections with the case's Pd and clutter."""
+    if device != "cpu":
+        raise ConfigError("the multi-target trackers run on the CPU (their assignment step is NumPy/SciPy)")
     geometry = sc.geometry.build(2)
     motion = ConstantVelocity(2)
     model = MeasurementModel(geometry, ("range", "doppler"), (sc.noise.range_m, sc.noise.doppler_hz), motion.pos_idx,
                              motion.vel_idx, layout="pair")
+    models = Models(motion, model, sc.motion.dt_s, sc.motion.q, model.R(), torch.tensor(model.noise_std, dtype=torch.float64))
+    methods = _methods(sc)
+    kinds = {m.name: method_kind(m.kind) for m in methods}
+    cases = []
     for c in sc.cases:  # every target's whole flight must stay clear of the sensors
-        _, _, spacing = sc.case_settings(c)
+        pd, clutter, spacing = sc.case_settings(c)
+        x0 = sc.targets.initial_states(spacing)
         t = torch.arange(sc.scans, dtype=torch.float64) * sc.motion.dt_s
-        nominal = torch.einsum("kij,tj->tki", motion.F(t), sc.targets.initial_states(spacing))  # (T, K, 4), no noise
+        nominal = torch.einsum("kij,tj->tki", motion.F(t), x0)  # (T, K, 4), no noise
         if bool(model.near_sensor(nominal, 1000.0).any()):
             raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
-    return MTSetup(sc, motion, model, model.R())
+        prior = c.prior or sc.prior
+        sensing = SensorSetup(model, prior.sd(), detection_model=model, pd=pd, clutter=clutter)
+        truth = SampledTruth(x0, motion, sc.scans, sc.motion.dt_s, sc.motion.q)
+        alive = truth.alive
+        scored = alive & (torch.arange(sc.scans) >= sc.converged_from_scan)[:, None]
+        for spec in methods:
+            if kinds[spec.name].check:
+                kinds[spec.name].check(spec, alive, None, c.name)
+        info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
+                "reference_key": c.reference_key}
+        cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored,
+                          [f"target {i + 1}" for i in range(sc.targets.count)], info))
+    definitions = {k: v for k, v in DEFINITIONS.items() if k not in MT_LEFT_OUT}
+    definitions.update(MT_DEFINITIONS)
+    return Setup(sc, models, cases, methods, kinds, {m.name: None for m in methods}, {m.name: True for m in methods},
+                 "per_block", (sc.set_metrics.c_m, sc.set_metrics.p), describe_multitarget(sc, model, methods),
+                 definitions, geometry, loss=LossRule(sc.loss.successive_scans, sc.loss.gate_range_sd_m))
 
 
-def draw_block(setup: MTSetup, case_index: int, block: int):
-    """Truth ``(b, K, T, 4)``, detections and the initiation prior ``(b, T, 4)`` of one block."""
-    sc = setup.scenario
-    pd, clutter, spacing = sc.case_settings(sc.cases[case_index])
-    g = seeded_generator(sc.seed, case_index, block)
-    b, T = sc.block_size(block), sc.targets.count
-    x0 = sc.targets.initial_states(spacing).expand(b, T, 4).reshape(b * T, 4)
-    truth = setup.motion.sample(x0, sc.scans, sc.motion.dt_s, sc.motion.q, g).reshape(b, T, sc.scans, 4).transpose(1, 2)
-    scans = simulate_scans(truth, setup.model, pd, clutter, g)
-    sd = (sc.cases[case_index].prior or sc.prior).sd()
-    prior = Gaussian(truth[:, 0] + standard_normal((b, T, 4), g) * sd, torch.diag(sd**2).expand(b, T, 4, 4).clone())
-    return truth, scans, prior
-
-
-def run_method(setup: MTSetup, spec: MTMethodSpec, scans, prior: Gaussian, case_index: int):
-    sc = setup.scenario
-    pd, clutter, _ = sc.case_settings(sc.cases[case_index])
-    if spec.kind == "true_assignment":
-        return true_assignment_ukf(scans, prior, setup.motion, sc.motion.dt_s, sc.motion.q, setup.model, setup.R)
-    # a tracker needs a positive clutter density even where none was simulated
-    density = max(clutter.density, 1e-3 / clutter.volume)
-    settings = JPDASettings(pd=pd, clutter_density=density, m_best=spec.m_best or sc.tracker.m_best,
-                            gate_probability=sc.tracker.gate_probability,
-                            relaxation_iterations=sc.tracker.relaxation_iterations)
-    return msjpda(scans, prior, setup.motion, sc.motion.dt_s, sc.motion.q, setup.model, setup.R, settings,
-                  ARCHITECTURE[spec.kind])
-
-
-def _swapped(x: torch.Tensor, truth: torch.Tensor, pos: list[int]) -> torch.Tensor:
-    """``(B, T)``: at the last scan, track ``t`` is nearer another target's truth than its own."""
-    est = x[:, -1][..., pos]
-    tru = truth[:, -1][..., pos]
-    dist = torch.cdist(est, tru)  # (B, T, T)
-    return dist.argmin(-1) != torch.arange(x.shape[2])
-
-
-def run_multitarget(setup: MTSetup, progress: bool = True) -> dict:
-    """Every method on every case and block; the raw per-case sums."""
-    from tqdm.auto import tqdm
-
-    sc = setup.scenario
-    pos = list(setup.motion.pos_idx)
-    raw = {}
-    bar = tqdm(total=len(sc.cases) * sc.n_blocks * len(sc.methods), disable=not progress, unit="method-block",
-               desc=sc.name, leave=False)
-    torch.set_grad_enabled(False)
-    for ci, case in enumerate(sc.cases):
-        acc = {m.name: {"pos": 0.0, "vel": 0.0, "nees": 0.0, "lost": 0, "swap": 0, "seconds": 0.0, "gap": 0.0}
-               for m in sc.methods}
-        example = {}
-        for block in range(sc.n_blocks):
-            interrupts.check()
-            truth, scans, prior = draw_block(setup, ci, block)
-            if ci == 0 and block == 0:  # untimed warm-up: one-off start-up costs stay out of the timing
-                one = Gaussian(prior.x[:1], prior.P[:1])
-                first = type(scans)(scans.z[:1], scans.valid[:1], scans.origin[:1])
-                for spec in sc.methods:
-                    run_method(setup, spec, first, one, ci)
-            for spec in sc.methods:
-                bar.set_postfix_str(f"{case.name} {spec.name}", refresh=False)
-                t0 = time.perf_counter()
-                res = run_method(setup, spec, scans, prior, ci)
-                a = acc[spec.name]
-                a["seconds"] += time.perf_counter() - t0
-                a["pos"] = a["pos"] + squared_error(res.x, truth, pos).sum(0).numpy()  # (K, T)
-                a["vel"] = a["vel"] + squared_error(res.x, truth, setup.motion.vel_idx).sum(0).numpy()
-                a["nees"] = a["nees"] + normalised_nees(res.x, res.P, truth).sum(0).numpy()
-                lost = track_loss(res.dummy_most_probable, res.gate_range_sd_m, sc.loss.successive_scans,
-                                  sc.loss.gate_range_sd_m)
-                a["lost"] += int((lost >= 0).sum())
-                a["swap"] += int(_swapped(res.x, truth, pos).sum())
-                a["gap"] = max(a["gap"], res.max_duality_gap)
-                if block == 0:
-                    example[spec.name] = res.x[0][..., pos].numpy()
-                bar.update()
-            if block == 0:
-                example["truth"] = truth[0][..., pos].numpy()
-        raw[case.name] = {"acc": acc, "example": example}
-    bar.close()
-    return raw
-
+MT_LEFT_OUT = ("rmse_pos_pooled_m", "pcrb", "bound", "memory_bound_pos_m", "pcrb_q0", "seed_groups", "comparisons",
+               "diverged_runs")
+"""Definitions of figures a multi-target study has not (no designed flights, no learned methods)."""
 
 MT_DEFINITIONS = {
     "rmse_pos_m": "Eq. 22 of the S-MSJPDA paper per target and scan (root of the mean over runs of the squared "
                   "position error), averaged over targets and over scans converged_from_scan..K-1",
     "rmse_pos_all_scans_m": "the paper's position accuracy: the same, averaged over all scans",
-    "loss_probability": "fraction of (run, target) tracks declared lost by the paper's rule (dummy most probable at "
-                        "every sensor for successive_scans scans in a row, or predicted bistatic-range deviation "
-                        "above gate_range_sd_m); a lost track keeps being tracked and stays in the RMSE",
-    "swap_probability": "fraction of (run, target) tracks nearer another target's truth than their own at the last scan",
     "anees": "mean over runs, targets and scans >= converged_from_scan of the NEES / 4",
-    "seconds_per_run": "wall-clock seconds per Monte Carlo run (a block of runs is processed at once and timed as a "
-                       "whole, divided by its runs); all targets, all scans",
-    "max_duality_gap": "largest duality gap (event cost minus Lagrangian lower bound, in nats: the event found is at least "
-                       "exp(-gap) times as probable as the best) of the (N+1)-D assignments of P-MSJPDA",
 }
 
 
-def finalise_multitarget(setup: MTSetup, raw: dict) -> dict:
-    sc = setup.scenario
-    R, k0, T = sc.mc_runs, sc.converged_from_scan, sc.targets.count
-    cases = {}
-    for c in sc.cases:
-        pd, clutter, spacing = sc.case_settings(c)
-        methods, curves = {}, {}
-        for spec in sc.methods:
-            a = raw[c.name]["acc"][spec.name]
-            rmse = np.sqrt(a["pos"] / R)  # (K, T)
-            methods[spec.name] = {
-                "kind": spec.kind,
-                "rmse_pos_m": float(rmse[k0:].mean()), "rmse_vel_mps": float(np.sqrt(a["vel"] / R)[k0:].mean()),
-                "anees": float((a["nees"] / R)[k0:].mean()), "seconds_per_run": a["seconds"] / R,
-                "rmse_pos_all_scans_m": float(rmse.mean()),
-                "rmse_pos_per_target_m": rmse[k0:].mean(0).tolist(),
-                "loss_probability": a["lost"] / (R * T), "swap_probability": a["swap"] / (R * T),
-                "max_duality_gap": a["gap"] if spec.kind == "p_msjpda" else None, "runs": R,
-            }
-            curves[spec.name] = rmse.T.tolist()  # per target: (K,)
-        cases[c.name] = {"title": c.title or c.name, "pd": pd, "clutter_per_scan": clutter.per_scan,
-                         "spacing_m": spacing, "prior": to_dict(c.prior or sc.prior), "reference_key": c.reference_key, "methods": methods,
-                         "curves": {"rmse_pos_m_per_target": curves},
-                         "pcrb": None}
-    return cases
-
-
-def describe_multitarget(setup: MTSetup) -> dict:
-    sc = setup.scenario
-    g = setup.model.geometry
+def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, methods) -> dict:
+    g = model.geometry
     return {"dt_s": sc.motion.dt_s, "q": sc.motion.q, "scans": sc.scans, "targets": to_dict(sc.targets),
             "noise": to_dict(sc.noise), "clutter": to_dict(sc.clutter), "clutter_volume_m_hz": sc.clutter.volume,
             "prior": to_dict(sc.prior), "tracker": to_dict(sc.tracker), "loss": to_dict(sc.loss),
-            "converged_from_scan": sc.converged_from_scan, "sweep": sc.sweep, "block_runs": sc.block_runs,
+            "converged_from_scan": sc.converged_from_scan, "warmup_steps": sc.converged_from_scan, "sweep": sc.sweep,
+            "block_runs": sc.block_runs, "set_metrics": to_dict(sc.set_metrics),
             "transmitters": [{"position_m": list(t.position_m), "carrier_hz": t.carrier_hz} for t in g.transmitters],
             "receivers": [list(r.position_m) for r in g.receivers],
-            "methods": {m.name: {"kind": m.kind, "m_best": m.m_best or sc.tracker.m_best} for m in sc.methods}}
+            "methods": {m.name: {"kind": m.kind, "reads": method_kind(m.kind).reads, **m.options} for m in methods}}

@@ -86,10 +86,12 @@ def summary_table(res: dict, ref: dict | None, ref_label: str, single_case: bool
         for c in names:
             r = res["cases"][c]["methods"][m]
             v = _f(r["rmse_pos_m"])
-            cells.append(f"**{v}**" if r["below_bound"] else v)
+            cells.append(f"**{v}**" if r.get("below_bound") else v)
             if ref:
                 cells.append(_f(paper_value(ref, c, m, single_case)))
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    if any(c.get("pcrb") is None for c in res["cases"].values()):
+        return lines
     for key, label in (("pos_m", "PCRB (filtering, per trajectory)"), ("q0_pos_m", "PCRB with q = 0 (floor)")):
         cells = [cell for c in names for cell in [_f(res["cases"][c]["pcrb"][key])] + (["-"] if ref else [])]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
@@ -174,10 +176,11 @@ def timing_table(res: dict, ref_timing: dict | None, ref_label: str) -> list[str
     for m in methods:
         s = float(np.median([c["methods"][m]["seconds_per_run"] for c in cases]))
         ref = ref_timing.get(m) if ref_timing else None
+        ref = ref if isinstance(ref, (int, float)) else None  # a study's per-case times go in its own table
         lines.append(f"| {m} | {1e3 * s:.2f} | {1e3 * s * mc:.0f} | {_f(ref, 1)} |")
     steps = cases[0]["steps"]
     lines += ["", f"Wall-clock of whole calls on blocks of {res['settings']['block_runs']} runs x {steps} scans (all runs "
-              "of a block at once), divided by the runs; learned trackers include windowing and splicing."]
+              "of a block at once, all targets), divided by the runs; learned trackers include windowing and splicing."]
     if ref_timing and ref_timing.get("_note"):
         lines.append(f"{ref_label.capitalize()}: {ref_timing['_note']}.")
     return lines
@@ -216,22 +219,144 @@ def tuning_tables(res: dict) -> list[str]:
     return lines
 
 
-def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dict | None, ref_timing: dict | None,
+SWEEP_LABELS = {"pd": "detection probability Pd", "clutter_per_scan": "clutter points per sensor per scan",
+                "spacing_m": "spacing of the formation (m)"}
+
+
+def _paper_seconds(timing: dict | None, method: str, key: str | None):
+    """A study's run time of ``method`` for the case keyed ``key`` in the paper's table (seconds)."""
+    if not timing or key is None:
+        return None
+    v = timing.get(method, {})
+    v = v.get(key) if isinstance(v, dict) else None
+    return v if isinstance(v, (int, float)) else None
+
+
+def _case_heading(name: str, case: dict) -> str:
+    if "pd" in case:  # a multi-target study's case
+        return (f"### {case['title']} (`{name}`: Pd {case['pd']}, {case['clutter_per_scan']:g} clutter per sensor per "
+                f"scan, spacing {case['spacing_m']:g} m)")
+    lives = ", ".join(f"{t['name']} scans {t['first_scan']}-{t['end_scan'] - 1}" for t in case.get("lives", []))
+    return f"### {case['title']} (`{name}`, {case['steps']} steps{': ' + lives if lives else ''})"
+
+
+def multi_target_tables(res: dict, timing: dict | None, label: str) -> list[str]:
+    """Per multi-target case: position RMSE (overall and per target), OSPA, GOSPA and its parts,
+    cardinality error, label switches, swaps, the loss rule, and run time (the paper's beside)."""
+    lines = []
+    for name, case in res["cases"].items():
+        rows = case["methods"]
+        if "ospa_m" not in next(iter(rows.values())):
+            continue
+        key = case.get("reference_key")
+        paper = timing is not None and key is not None
+        lines += [_case_heading(name, case), "",
+                  "| method | reads | pos RMSE (m) | pos RMSE, all scans (m) | per target (m) | per target, assigned (m) | "
+                  "OSPA (m) | GOSPA (m): % localisation / missed / false | mean abs. cardinality error | label switches / run | "
+                  "swap prob. | loss prob. | s / run |" + (f" {label}: s / run |" if paper else ""),
+                  "|---|---|" + "---:|" * 2 + "---|---|" + "---:|" * 7 + ("---:|" if paper else "")]
+        for m, r in rows.items():
+            per = " / ".join(f"{v:.0f}" for v in r["rmse_pos_per_target_m"])
+            assigned = " / ".join("-" if v is None else f"{v:.0f}" for v in r["rmse_pos_assigned_per_target_m"])
+            split = (f"{_f(r['gospa_m'], 1)}: " + " / ".join(f"{100 * r[f'gospa_{p}_share']:.0f}"
+                                                              for p in ("localisation", "missed", "false")))
+            line = (f"| {m} | {res['settings']['methods'][m].get('reads', '-')} | {_f(r['rmse_pos_m'], 1)} | "
+                    f"{_f(r['rmse_pos_all_scans_m'], 1)} | {per} | {assigned} | {_f(r['ospa_m'], 1)} | {split} | "
+                    f"{_f(r['cardinality_mean_abs_error'], 3)} | {_f(r['label_switches_per_run'], 2)} | "
+                    f"{_f(r['swap_probability'], 3)} | {_f(r.get('loss_probability'), 3)} | {_f(r['seconds_per_run'], 3)} |")
+            if paper:
+                line += f" {_f(_paper_seconds(timing, m, key))} |"
+            lines.append(line)
+        gaps = {m: r["max_duality_gap"] for m, r in rows.items() if "max_duality_gap" in r}
+        if gaps:
+            lines += ["", "Largest duality gap of the relaxed assignments: "
+                      + ", ".join(f"{m} {v:.3g} nats" for m, v in gaps.items()) + "."]
+        if "pcrb" in case and case["pcrb"] is not None:
+            lines += ["", f"PCRB (filtering, per target from its birth, clean streams): {_f(case['pcrb']['pos_m'])} m."]
+        lines += ["", f"![OSPA, cardinality and RMSE vs time]({name}_set_metrics.png)", ""]
+    return lines
+
+
+def sweep_table(res: dict, timing: dict | None, label: str) -> list[str]:
+    """One row per case: RMSE, loss and time of every method; the paper's times for the methods it
+    timed (matched by name); and the time ratio of every P-MSJPDA variant to the first S-MSJPDA."""
+    sweep = res["settings"]["sweep"]
+    first = next(iter(res["cases"].values()))["methods"]
+    methods = list(first)
+    timed = [m for m in methods if timing and m in timing]
+    s_ref = next((m for m in methods if first[m]["kind"] == "s_msjpda"), None)
+    parallel = [m for m in methods if first[m]["kind"] == "p_msjpda"] if s_ref else []
+    paper_ratio = "P-MSJPDA" in timed and "S-MSJPDA" in timed
+    head = "| " + SWEEP_LABELS[sweep] + " | " + " | ".join(f"{m}: RMSE (m) | {m}: OSPA (m) | {m}: loss | {m}: s/run"
+                                                          for m in methods)
+    head += "".join(f" | {label}: {m} s/run" for m in timed)
+    head += "".join(f" | {m} / {s_ref} time" for m in parallel)
+    head += f" | {label}: P/S time |" if paper_ratio else " |"
+    lines = [head, "|" + "---:|" * (head.count("|") - 1)]
+    for case in res["cases"].values():
+        r = case["methods"]
+        row = f"| {case[sweep]:g} | " + " | ".join(
+            f"{_f(r[m]['rmse_pos_m'], 1)} | {_f(r[m]['ospa_m'], 1)} | {_f(r[m].get('loss_probability'), 3)} | "
+            f"{_f(r[m]['seconds_per_run'], 3)}" for m in methods)
+        row += "".join(f" | {_f(_paper_seconds(timing, m, case['reference_key']))}" for m in timed)
+        row += "".join(f" | {r[m]['seconds_per_run'] / r[s_ref]['seconds_per_run']:.1f}" for m in parallel)
+        if paper_ratio:
+            p, s = (_paper_seconds(timing, m, case["reference_key"]) for m in ("P-MSJPDA", "S-MSJPDA"))
+            row += f" | {_f(p / s if p and s else None, 1)}"
+        lines.append(row + " |")
+    return lines + [""]
+
+
+def _setting_lines(res: dict) -> list[str]:
+    """What was simulated, in one paragraph."""
+    st = res["settings"]
+    if "scans" in st:  # a multi-target study
+        tx = ", ".join(f"({p['position_m'][0] / 1e3:g}, {p['position_m'][1] / 1e3:g}) km at {p['carrier_hz'] / 1e6:g} MHz"
+                       for p in st["transmitters"])
+        tr = st["methods"]
+        m_best = sorted({v["m_best"] for v in tr.values() if "m_best" in v})
+        return [f"{st['scans']} scans of {st['dt_s']} s. Transmitters {tx}; receiver at {st['receivers'][0]}. Noise: range "
+                f"{st['noise']['range_m']} m, Doppler {st['noise']['doppler_hz']} Hz. Clutter: {st['clutter']['model']}, "
+                f"uniform over range {st['clutter']['range_m']} m x Doppler {st['clutter']['doppler_hz']} Hz. Trackers: "
+                f"UKF moments, m = {', '.join(map(str, m_best))} best events, gate probability "
+                f"{st['tracker']['gate_probability']}, CV with q = {st['q']} m^2/s^4 (the truth's). Loss rule: "
+                f"{st['loss']['successive_scans']} scans dummy-most-probable, or predicted range deviation > "
+                f"{st['loss']['gate_range_sd_m']:g} m. OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
+                f"{st['set_metrics']['p']:g}. Position RMSE = {res['definitions']['rmse_pos_m']}.", ""]
+    outliers = (f" ({100 * st['noise']['range_outlier_prob']:g} % of range errors with {st['noise']['range_outlier_scale']:g}x "
+                "the deviation; the filters assume the nominal one)" if "range_outlier_prob" in st["noise"] else "")
+    lines = [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg{outliers}; "
+             f"recipe `{Path(st['recipe']).name}` ({st['variant']} variant, dt {st['dt_s']} s, q {st['q_psd']:g} m^2/s^5). "
+             f"Position RMSE = {res['definitions']['rmse_pos_m']} (warm-up {st['warmup_steps']} steps). "
+             "The pooled RMSE is given beside it; it weighs late, large errors more."]
+    if "detections" in st:
+        d = st["detections"]
+        lines.append(f"Detections: every one of the {d['sensors']} transmitter-receiver pairs detects each living target "
+                     f"with probability {d['pd']} and reports {d['clutter_per_scan']:g} clutter points per scan "
+                     f"({d['clutter_model']}) uniform over {' x '.join(d['components'])}; the single-target methods read "
+                     "each target's own clean stream (association known). Random streams: "
+                     f"{st.get('random_streams', 'per_block')}; OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, "
+                     f"order {st['set_metrics']['p']:g}.")
+    return [" ".join(lines), ""]
+
+
+def write_report(res: dict, out: Path, examples: dict, geometry, ref: dict | None, ref_timing: dict | None,
                  ref_label: str = "paper") -> list[Path]:
-    """Write ``out/report.md`` and the figures; returns the files written."""
+    """Write ``out/report.md`` and the figures of any scenario; returns the files written."""
     single_case = bool(ref) and not any(isinstance(v, dict) for v in ref.values())
-    figures = plot_rmse(res, out) + [plot_trajectories(res, examples, recipe_geometry, out / "trajectories.png")]
-    env, st = res["environment"], res["settings"]
+    cases = res["cases"]
+    designed = all(c.get("pcrb") is not None for c in cases.values())
+    sweep = res["settings"].get("sweep", "none")
+    figures = plot_rmse(res, out) + plot_set_metrics(res, out)
+    figures.append(plot_trajectories(res, examples, geometry, out / "trajectories.png"))
+    if sweep != "none":
+        figures.append(plot_sweep(res, out / f"sweep_{sweep}.png"))
+    env = res["environment"]
     lines = [f"# {res['scenario']}: {res['mc_runs']} Monte Carlo runs per case, seed {res['seed']}", ""]
     if res.get("description"):
         lines += [res["description"].strip(), ""]
-    outliers = (f" ({100 * st['noise']['range_outlier_prob']:g} % of range errors with {st['noise']['range_outlier_scale']:g}x "
-                "the deviation; the filters assume the nominal one)" if "range_outlier_prob" in st["noise"] else "")
-    lines += [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg{outliers}; "
-              f"recipe `{Path(st['recipe']).name}` ({st['variant']} variant, dt {st['dt_s']} s, q {st['q_psd']:g} m^2/s^5). "
-              f"Position RMSE = {res['definitions']['rmse_pos_m']} (warm-up {st['warmup_steps']} steps). "
-              "The pooled RMSE is given beside it; it weighs late, large errors more.", "",
-              "## Position RMSE (m)" + (", ours beside the paper's" if ref else ""), ""]
+    lines += _setting_lines(res)
+    lines += ["## Position RMSE (m)" + (", ours beside the paper's" if ref else ""), ""]
     lines += summary_table(res, ref, ref_label, single_case)
     lines.append("")
     if ref:
@@ -239,7 +364,38 @@ def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dic
         lines += [f"Columns marked *{ref_label}* are the paper's numbers, read from `{Path(info['file']).name}` "
                   f"(`{info['table']}`) for reference only; the paper's trajectories are not given numerically, so "
                   "they compare in order of magnitude and ranking, not digit by digit.", ""]
-    flagged = [(c, m) for c, v in res["cases"].items() for m, r in v["methods"].items() if r["below_bound"]]
+    lines += _flags(res)
+    if sweep != "none":
+        lines += ["## Sweep", "", *sweep_table(res, ref_timing, ref_label)]
+    mt = multi_target_tables(res, ref_timing if not designed else None, ref_label)
+    if mt:
+        lines += ["## Multi-target figures", "", *mt]
+    lines += learned_tables(res) if designed else []
+    lines += tuning_tables(res)
+    if designed:
+        lines += ["## Per case", ""]
+        for name, case in cases.items():
+            lines += case_table(name, case, ref, ref_label, single_case) + [""]
+            lines += [f"![RMSE vs time]({name}_rmse.png)", ""]
+        lines += ["Causal methods are compared with the filtering bound, methods that look ahead with the smoothing "
+                  "bound. Diverged runs are counted and kept in the averages.", ""]
+    elif sweep == "none":
+        lines += ["## RMSE per target vs time", ""] + [f"![{n}]({n}_rmse.png)" for n in cases] + [""]
+    lines += ["## Trajectories", "", "![trajectories](trajectories.png)", "",
+              "## Run time (measured in this run)", ""]
+    lines += timing_table(res, ref_timing, ref_label)
+    lines += ["", f"Environment: pmsr_nn {env['pmsr_nn']}, torch {env['torch']}, {env['machine']}, device {env['device']}, "
+              f"{env['threads']} threads, {env['date']}, commit {env['commit']}. Command: `{env['command']}`.", "",
+              "## Definitions", ""]
+    lines += [f"- `{k}`: {v}" for k, v in res["definitions"].items()]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    return [out / "report.md", *figures]
+
+
+def _flags(res: dict) -> list[str]:
+    """Honesty flags: methods below their bound (and below the q = 0 floor), diverged runs."""
+    st, lines = res["settings"], []
+    flagged = [(c, m) for c, v in res["cases"].items() for m, r in v["methods"].items() if r.get("below_bound")]
     if flagged:
         floor = [(c, m) for c, m in flagged if res["cases"][c]["methods"][m]["below_q0_bound"]]
         anees = [res["cases"][c]["methods"][m]["anees"] for c, m in flagged]
@@ -254,28 +410,12 @@ def write_report(res: dict, out: Path, examples: dict, recipe_geometry, ref: dic
                   + ("**" + ", ".join(f"{m} on {c}" for c, m in floor) + " is below even that floor: a bug or a "
                      "mismatch to investigate.**" if floor else "no method is below it."), ""]
     diverged = [f"{m} {r['diverged_runs']}/{r['runs']} on {c}" for c, v in res["cases"].items()
-                for m, r in v["methods"].items() if r["diverged_runs"]]
+                for m, r in v["methods"].items() if r.get("diverged_runs")]
     if diverged:
         lines += ["**Diverged runs** (position RMSE after the warm-up above "
                   f"{st['divergence_m']:g} m or not finite; kept in every average, see the median per run in "
                   "results.json): " + ", ".join(diverged) + ".", ""]
-    lines += learned_tables(res)
-    lines += tuning_tables(res)
-    lines += ["## Per case", ""]
-    for name, case in res["cases"].items():
-        lines += case_table(name, case, ref, ref_label, single_case) + [""]
-        lines += [f"![RMSE vs time]({name}_rmse.png)", ""]
-    lines += ["Causal methods are compared with the filtering bound, methods that look ahead with the smoothing bound. "
-              "Diverged runs are counted and kept in the averages.", "",
-              "## Trajectories", "", "![trajectories](trajectories.png)", "",
-              "## Run time (measured in this run)", ""]
-    lines += timing_table(res, ref_timing, ref_label)
-    lines += ["", f"Environment: pmsr_nn {env['pmsr_nn']}, torch {env['torch']}, {env['machine']}, device {env['device']}, "
-              f"{env['threads']} threads, {env['date']}, commit {env['commit']}. Command: `{env['command']}`.", "",
-              "## Definitions", ""]
-    lines += [f"- `{k}`: {v}" for k, v in res["definitions"].items()]
-    (out / "report.md").write_text("\n".join(lines) + "\n")
-    return [out / "report.md", *figures]
+    return lines
 
 
 def save_figure(fig, path: Path, dpi: int = 110) -> Path:
@@ -295,52 +435,126 @@ def _plt():
     return plt
 
 
+def _per_target(curve) -> list:
+    """A curve as a list of per-target curves (one target: ``[curve]``)."""
+    return curve if curve and isinstance(curve[0], list) else [curve]
+
+
 def plot_rmse(res: dict, out: Path) -> list[Path]:
-    """One figure per case: position RMSE vs step for every method, with the PCRB (Fig. 9 analogue)."""
+    """One figure per case: position RMSE vs time of every method with the PCRB (Fig. 9 analogue);
+    with several targets one panel per target (Fig. 3 of the S-MSJPDA paper). A study with a
+    sweep has its sweep figure instead."""
+    if res["settings"].get("sweep", "none") != "none":
+        return []
+    plt = _plt()
+    paths = []
+    dt = res["settings"]["dt_s"]
+    warmup = res["settings"].get("warmup_steps", 0)
+    for name, case in res["cases"].items():
+        cv = case["curves"]
+        rmse = {m: _per_target(c) for m, c in cv["rmse_pos_m"].items()}
+        T = len(next(iter(rmse.values())))
+        fig, axes = plt.subplots(1, T, figsize=(8, 4.8) if T == 1 else (3.6 * T, 3.6), sharey=True, squeeze=False)
+        names = case.get("targets", [])
+        for i, ax in enumerate(axes[0]):
+            t = np.arange(case["steps"]) * dt
+            for m, per in rmse.items():
+                ax.semilogy(t, per[i], lw=1.2, label=m)
+            if "pcrb_pos_m" in cv:
+                ax.semilogy(t, _per_target(cv["pcrb_pos_m"])[i], "k--", lw=1.4, label="PCRB (filtering)")
+                ax.semilogy(t, _per_target(cv["pcrb_q0_pos_m"])[i], "--", color="grey", lw=1.0, label="PCRB, q = 0 (floor)")
+                if any(not r["causal"] for r in case["methods"].values()):
+                    ax.semilogy(t, _per_target(cv["pcrb_smoothing_pos_m"])[i], "k:", lw=1.4, label="PCRB (smoothing)")
+            if T == 1:
+                ax.axvline(warmup * dt, color="grey", lw=0.8)
+            ax.set(xlabel="time (s)", title=f"{case['title']}: {res['mc_runs']} runs" if T == 1 else
+                   (names[i] if i < len(names) else f"target {i + 1}"))
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0][0].set_ylabel("position RMSE (m)")
+        axes[0][0].legend(fontsize=8 if T == 1 else 6, ncol=2 if T == 1 else 1)
+        if T > 1:
+            fig.suptitle(f"{case['title']}: {res['mc_runs']} runs")
+        paths.append(save_figure(fig, out / f"{name}_rmse.png", dpi=110 if T == 1 else 100))
+    return paths
+
+
+def plot_set_metrics(res: dict, out: Path) -> list[Path]:
+    """Per multi-target case: OSPA, estimated cardinality (with the truth's) and position RMSE
+    over targets vs time, every method."""
     plt = _plt()
     paths = []
     dt = res["settings"]["dt_s"]
     for name, case in res["cases"].items():
-        fig, ax = plt.subplots(figsize=(8, 4.8))
+        cv = case["curves"]
+        if "set" not in cv:
+            continue
         t = np.arange(case["steps"]) * dt
-        for m, curve in case["curves"]["rmse_pos_m"].items():
-            ax.semilogy(t, curve, lw=1.2, label=m)
-        ax.semilogy(t, case["curves"]["pcrb_pos_m"], "k--", lw=1.4, label="PCRB (filtering)")
-        ax.semilogy(t, case["curves"]["pcrb_q0_pos_m"], "--", color="grey", lw=1.0, label="PCRB, q = 0 (floor)")
-        if any(not r["causal"] for r in case["methods"].values()):
-            ax.semilogy(t, case["curves"]["pcrb_smoothing_pos_m"], "k:", lw=1.4, label="PCRB (smoothing)")
-        ax.axvline(res["settings"]["warmup_steps"] * dt, color="grey", lw=0.8)
-        ax.set(xlabel="time (s)", ylabel="position RMSE (m)", title=f"{case['title']}: {res['mc_runs']} runs")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8, ncol=2)
-        paths.append(save_figure(fig, out / f"{name}_rmse.png"))
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.0))
+        for m, c in cv["set"].items():
+            axes[0].plot(t, c["ospa_m"], lw=1.1, label=m)
+            axes[1].plot(t, c["cardinality"], lw=1.1, label=m)
+            per = np.asarray(_per_target(cv["rmse_pos_m"][m]), dtype=float)
+            with np.errstate(invalid="ignore"):
+                mean_sq = np.nanmean(per**2, axis=0) if np.isfinite(per).any() else per[0]
+            axes[2].semilogy(t, np.sqrt(mean_sq), lw=1.1, label=m)
+        axes[1].step(t, cv["cardinality_truth"], "k", where="post", lw=1.6, label="truth")
+        for ax, ylabel in zip(axes, (f"OSPA (m, c = {res['settings']['set_metrics']['c_m']:g} m)",
+                                     "mean number of tracks", "position RMSE over living targets (m)")):
+            ax.set(xlabel="time (s)", ylabel=ylabel)
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0].legend(fontsize=7)
+        fig.suptitle(f"{case['title']}: {res['mc_runs']} runs")
+        paths.append(save_figure(fig, out / f"{name}_set_metrics.png", dpi=100))
     return paths
 
 
 def plot_trajectories(res: dict, examples: dict, geometry, path: Path) -> Path:
-    """Sensors, every case's true trajectory and one run's estimates (Fig. 8 / 12 analogue)."""
+    """Sensors and every case's true paths, then per case run 0's truth and each method's
+    estimates (Fig. 8 / 12 analogue)."""
     plt = _plt()
     names = list(res["cases"])
-    fig, axes = plt.subplots(1, len(names) + 1, figsize=(4.2 * (len(names) + 1), 4.4))
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(4.2 * (len(names) + 1), 4.4), squeeze=False)
+    axes = axes[0]
     ax0 = axes[0]
     for tx in geometry.transmitters:
         ax0.plot(tx.position_m[0] / 1e3, tx.position_m[1] / 1e3, "k^", ms=9)
     for rx in geometry.receivers:
         ax0.plot(rx.position_m[0] / 1e3, rx.position_m[1] / 1e3, "bv", ms=7)
-    for name in names:
-        truth = np.asarray(res["cases"][name]["truth_pos_m"])
-        ax0.plot(truth[:, 0] / 1e3, truth[:, 1] / 1e3, lw=1.6, label=name)
-        ax0.plot(truth[0, 0] / 1e3, truth[0, 1] / 1e3, "ko", ms=3)
+    for j, name in enumerate(names):
+        truth = np.asarray(examples.get(name, {}).get("truth", np.zeros((0, 1, 2))))
+        for t in range(truth.shape[1]):
+            ax0.plot(truth[:, t, 0] / 1e3, truth[:, t, 1] / 1e3, color=f"C{j}", lw=1.6, label=name if t == 0 else None)
     ax0.set(xlabel="east (km)", ylabel="north (km)", title="sensors (^ Tx, v Rx) and true trajectories", aspect="equal")
     ax0.legend(fontsize=7)
     for ax, name in zip(axes[1:], names):
-        truth = np.asarray(res["cases"][name]["truth_pos_m"])
-        ax.plot(truth[:, 0] / 1e3, truth[:, 1] / 1e3, "k", lw=2.2, label="truth")
-        for m, est in examples.get(name, {}).items():
-            ax.plot(est[:, 0] / 1e3, est[:, 1] / 1e3, lw=0.8, label=m)
+        ex = examples.get(name, {})
+        truth = np.asarray(ex.get("truth", np.zeros((0, 1, 2))))
+        for t in range(truth.shape[1]):
+            ax.plot(truth[:, t, 0] / 1e3, truth[:, t, 1] / 1e3, "k", lw=2.2, label="truth" if t == 0 else None)
+        for j, m in enumerate(k for k in ex if k != "truth"):
+            est = np.asarray(ex[m])
+            est = est[:, None] if est.ndim == 2 else est
+            for t in range(est.shape[1]):
+                ax.plot(est[:, t, 0] / 1e3, est[:, t, 1] / 1e3, color=f"C{j}", lw=0.8, label=m if t == 0 else None)
         ax.set(xlabel="east (km)", title=f"{res['cases'][name]['title']}: run 0", aspect="equal")
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
+
+
+def plot_sweep(res: dict, path: Path) -> Path:
+    """Figs. 4-7 analogue: accuracy, OSPA, loss and swap probabilities and run time against the swept quantity."""
+    plt = _plt()
+    sweep = res["settings"]["sweep"]
+    cases = list(res["cases"].values())
+    xs = [c[sweep] for c in cases]
+    keys = ("rmse_pos_m", "ospa_m", "loss_probability", "swap_probability", "seconds_per_run")
+    fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 3.8))
+    for m in cases[0]["methods"]:
+        for ax, key in zip(axes, keys):
+            ax.plot(xs, [c["methods"][m].get(key, np.nan) for c in cases], "o-", ms=3, label=m)
+    for ax, ylabel in zip(axes, ("position RMSE, converged (m)", "OSPA, converged (m)", "loss probability (paper's rule)",
+                                 "swap probability (last scan)", "seconds per run (ours)")):
+        ax.set(xlabel=SWEEP_LABELS[sweep], ylabel=ylabel)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7)
+    return save_figure(fig, path, dpi=100)

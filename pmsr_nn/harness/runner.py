@@ -1,24 +1,26 @@
 """Run a scenario: every method on the same Monte Carlo draws, in blocks, shardable.
 
-Monte Carlo runs are processed in *blocks* of ``scenario.block_runs`` runs. Every random draw of
-a block (measurement noise, the prior's offset, a particle filter's draws) comes from a
-generator seeded by ``(seed, case, block)``, and every method runs on a whole block at once, so
-a block's numbers do not depend on which other blocks run beside it. A shard ``I/N`` runs a
-contiguous slice of the blocks; :func:`finalise` reduces the per-block sums in block order,
-which is why shards merged give exactly (bit for bit) the unsharded figures.
+One runner for every scenario. A prepared :class:`Setup` holds cases (:class:`Case`: a truth
+source with the targets' births and deaths, how it is sensed, its bounds) and methods (a
+:class:`~.scenario.MethodSpec` each, run through its registered kind, :mod:`pmsr_nn.methods`).
+Per case and block of ``block_runs`` runs the runner draws the truth, makes each sensor product
+the methods read (:mod:`pmsr_nn.simulation.products`), calls every method on the whole block and
+keeps the block's sums (:mod:`.scoring`).
 
-Per block and method the raw sums kept are, per step ``k`` (``(K,)`` each):
-
-* ``pos`` / ``vel``: sum over the block's runs of the squared position / velocity error (m^2, m^2/s^2);
-* ``nees``: sum over runs of the NEES over the full state divided by its dimension (NaN for a
-  method without covariances);
-
-plus per run the mean squared position error after the warm-up (``run_mse``) and the block's
-wall-clock seconds per method.
+Random streams: with ``per_block`` (the default, and the only choice of the older studies) one
+generator seeded by ``(seed, case, block)`` gives the truth, then the product, then the initiation
+prior. With ``per_product`` each product has its own generator ``(seed, case, block, stream)``
+and the initiation prior one more, ``(seed, case, block, INIT_STREAM)``, shared by all products:
+every method starts from the same tracks, and adding a method of another product changes no
+other method's draws. A method that draws (the particle filter) has ``(seed, case, block,
+crc32(name))``. A block's numbers therefore do not depend on which other blocks run beside it: a
+shard ``I/N`` runs a contiguous slice of the blocks, and :func:`finalise` reduces the blocks in
+order, which is why merged shards give the unsharded figures bit for bit.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -26,58 +28,112 @@ import numpy as np
 import torch
 
 from .. import interrupts
-from ..bounds import BoundResult, finite_memory_pcrb, pcrb
+from ..bounds import finite_memory_pcrb, pcrb
 from ..errors import ConfigError
-from ..filters import Gaussian
-from ..measurements import wrap_angle
-from ..metrics import normalised_nees, position_columns, squared_error, velocity_columns
-from ..nets.inference import Tracker
-from ..rng import seeded_generator, standard_normal
+from ..measurements import MeasurementModel
+from ..methods import MethodCall, MethodKind, Models, method_kind
+from ..rng import seeded_generator
+from ..simulation.products import DesignedTruth, PRODUCTS, SampledTruth, SensorSetup, Truth
 from ..simulation.recipe import TrackRecipe, load_recipe
-from ..simulation.tracks import MEASUREMENT_COMPONENTS, apply_range_outliers, build_models, range_rows
-from .methods import Models, is_causal, run_method
+from ..simulation.tracks import MEASUREMENT_COMPONENTS, build_models
+from . import scoring
+from .scenario import MethodSpec, Scenario
 from .seeds import comparisons, summarise_seeds
-from .scenario import FixedNoiseSpec, MethodSpec, Scenario
 from .trajectories import check_inside, design_trajectory
 
-QUANTITIES = ("pos", "vel", "nees")
+INIT_STREAM = 0x696E6974
+"""Last seed word of the initiation prior's generator under ``random_streams: per_product`` ('init')."""
+
+
+@dataclass
+class Bounds:
+    """PCRB curves of a designed case, each ``(K, N)`` numpy (NaN where a target is not alive):
+    filtering and smoothing position / velocity RMSE bounds under the recipe's q, and the
+    position bounds with q = 0 (the designed flights have no process noise)."""
+
+    pos: np.ndarray
+    vel: np.ndarray
+    smoothing_pos: np.ndarray
+    smoothing_vel: np.ndarray
+    q0_pos: np.ndarray
+    q0_smoothing_pos: np.ndarray
 
 
 @dataclass
 class Case:
-    """A case ready to run: truth ``(K, n)``, noise-free measurements ``(K, m)``, its bound under
-    the recipe's q, the bound with q = 0 (no process noise: the designed flights have none) and,
-    per causal learned method, its finite-memory bound (:func:`memory_bounds`)."""
+    """A case ready to run. ``truth`` draws the true states of a block; ``alive (K, N)`` and
+    ``scored (K, N)`` (alive and past the target's warm-up) say where each target counts;
+    ``info`` is recorded beside the figures (the case's settings); ``bounds`` and, per causal
+    learned method, ``memory_bounds`` (``name -> (scans read, (K, N) curve)``) exist for designed
+    flights only."""
 
     name: str
     title: str
-    truth: torch.Tensor
-    clean: torch.Tensor
-    bound: BoundResult
-    bound_q0: BoundResult
-    memory_bounds: dict[str, tuple[int, BoundResult]] = field(default_factory=dict)
+    truth: DesignedTruth | SampledTruth
+    sensing: SensorSetup
+    alive: torch.Tensor
+    scored: torch.Tensor
+    targets: list[str]
+    info: dict = field(default_factory=dict)
+    bounds: Bounds | None = None
+    memory_bounds: dict = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        return self.alive.shape[0]
+
+    @property
+    def multi_target(self) -> bool:
+        return self.alive.shape[1] > 1
+
+
+@dataclass
+class LossRule:
+    """The S-MSJPDA paper's track-loss rule (:func:`~pmsr_nn.metrics.track_loss`)."""
+
+    successive_scans: int = 4
+    gate_range_sd_m: float = 5000.0
 
 
 @dataclass
 class Setup:
-    """Everything a scenario run needs, resolved and checked before anything is written;
-    ``methods`` are the scenario's with tuned options resolved, ``tuning`` the grid searches
-    (method name -> record, :func:`~.tuning.tune`)."""
+    """Everything a scenario run needs, resolved and checked before anything is written.
 
-    scenario: Scenario
-    recipe: TrackRecipe
+    ``scenario`` is the scenario as given (its ``to_dict`` names a shard's origin); ``methods``
+    are its methods with tuned options resolved (``tuning``: the grid searches,
+    :func:`~.tuning.tune`); ``kinds`` and ``resources`` their registered kinds and what each
+    kind's ``load`` prepared (a learned method's tracker); ``settings`` and ``definitions`` go into
+    ``results.json``; ``geometry`` draws the sensors in the figures.
+    """
+
+    scenario: object
     models: Models
-    prior_sd: torch.Tensor
     cases: list[Case]
-    trackers: dict[str, Tracker]
+    methods: tuple[MethodSpec, ...]
+    kinds: dict[str, MethodKind]
+    resources: dict
     causal: dict[str, bool]
-    methods: tuple[MethodSpec, ...] = ()
+    random_streams: str
+    set_metric: tuple[float, float]
+    settings: dict
+    definitions: dict
+    geometry: object
+    loss: LossRule | None = None
+    divergence_m: float | None = None
     tuning: dict = field(default_factory=dict)
+    recipe: TrackRecipe | None = None
+    prior_sd: torch.Tensor | None = None
 
-    def __post_init__(self) -> None:
-        # the methods as run: the scenario's, with every 'tuned' option replaced by its choice
-        if not self.methods:
-            self.methods = self.scenario.methods
+    @property
+    def products(self) -> list[str]:
+        """Product kinds the methods read, in registration order."""
+        reads = {k.reads for k in self.kinds.values()}
+        return [p for p in PRODUCTS if p in reads]
+
+    @property
+    def trackers(self) -> dict:
+        """Learned methods' trackers by method name."""
+        return {m.name: self.resources[m.name] for m in self.methods if self.kinds[m.name].needs_checkpoint}
 
 
 def parse_shard(text: str) -> tuple[int, int]:
@@ -100,126 +156,272 @@ def shard_blocks(n_blocks: int, shard: tuple[int, int]) -> range:
     return range((i - 1) * n_blocks // n, i * n_blocks // n)
 
 
-def prepare(sc: Scenario, device: str = "cpu") -> Setup:
-    """Resolve the recipe, design and check the trajectories, load and check every checkpoint,
-    compute each case's PCRB. Every user error surfaces here, before any output is written."""
+# ------------------------------------------------------------------ preparing a designed scenario
+
+
+class _Context:
+    """What a method kind's ``load`` may read: paths, device, the scenario's geometry and labels."""
+
+    def __init__(self, sc: Scenario, recipe: TrackRecipe, model: MeasurementModel, device: str):
+        self.path, self.device = sc.path, device
+        self.geometry = recipe.geometry.build(2).to_dict()
+        self.labels, self.dt = list(model.labels), recipe.motion.dt_s
+        self.where = f"scenario {sc.name!r}"
+
+
+def _lives(case, dt: float) -> tuple[int, list[tuple[int, int]]]:
+    """Scans ``K`` of a case and each target's ``(first, end)`` scan (end exclusive)."""
+    spans = []
+    for t in case.flights():
+        first = int(math.ceil(t.birth_s / dt - 1e-9))
+        steps = int(math.floor((t.end_s - first * dt) / dt + 1e-9))
+        spans.append((first, first + steps))
+    return max(e for _, e in spans), spans
+
+
+def design_case(c, recipe: TrackRecipe, ramp_s: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """True states ``(K, N, 6)`` (NaN where a target is not alive) and ``alive (K, N)`` of a case;
+    every target's flight is checked against the recipe's envelope and sensors."""
+    dt = recipe.motion.dt_s
+    K, spans = _lives(c, dt)
+    flights = c.flights()
+    x = torch.full((K, len(flights), 6), float("nan"), dtype=torch.float64)
+    alive = torch.zeros(K, len(flights), dtype=torch.bool)
+    for i, (t, (k0, k1)) in enumerate(zip(flights, spans)):
+        where = c.name if not c.targets else f"{c.name}/{t.name}"
+        if k1 - k0 < 2:
+            raise ConfigError(f"case {where!r}: the trajectory is empty ({t.end_s - t.birth_s:g} s at dt = {dt} s: "
+                              f"{k1 - k0} scan(s), at least 2 needed)")
+        truth = design_trajectory(t, recipe, ramp_s)[: k1 - k0]
+        check_inside(truth, recipe, where)
+        x[k0:k1, i], alive[k0:k1, i] = truth, True
+    return x, alive
+
+
+def _scored(alive: torch.Tensor, warmup: int, case: str, targets: list[str]) -> torch.Tensor:
+    """``alive`` minus each target's first ``warmup`` scans (a one-line error if none is left)."""
+    since_birth = torch.cumsum(alive.to(torch.int64), 0)
+    scored = alive & (since_birth > warmup)
+    short = [targets[i] for i in range(alive.shape[1]) if not bool(scored[:, i].any())]
+    if short:
+        which = f"case {case!r} has {int(alive.sum())} steps" if len(targets) == 1 else \
+            f"case {case!r}: target(s) {short} live {[int(alive[:, targets.index(s)].sum()) for s in short]} steps"
+        raise ConfigError(f"{which}; warmup_steps {warmup} leaves none to average")
+    return scored
+
+
+def _per_target(x: torch.Tensor, alive: torch.Tensor, fn) -> list[tuple[int, int, object]]:
+    """``fn(truth (1, L, n))`` for each target over its life: ``[(first, end, result), ...]``."""
+    out = []
+    for t in range(alive.shape[1]):
+        on = torch.nonzero(alive[:, t]).flatten()
+        k0, k1 = int(on[0]), int(on[-1]) + 1
+        out.append((k0, k1, fn(x[k0:k1, t][None])))
+    return out
+
+
+def _curves(parts, K: int, get) -> np.ndarray:
+    """``(K, N)`` from per-target curves ``get(result) (L,)`` placed at their lives (NaN elsewhere)."""
+    out = np.full((K, len(parts)), np.nan)
+    for t, (k0, k1, r) in enumerate(parts):
+        out[k0:k1, t] = get(r)
+    return out
+
+
+def case_bounds(x: torch.Tensor, alive: torch.Tensor, models: Models, P0: torch.Tensor) -> Bounds:
+    """Per-trajectory PCRB of each target over its life (:class:`Bounds`)."""
+    m = models
+    full = _per_target(x, alive, lambda tr: pcrb(tr, m.motion, m.dt, m.q, m.model, m.R, P0))
+    q0 = _per_target(x, alive, lambda tr: pcrb(tr, m.motion, m.dt, 0.0, m.model, m.R, P0))
+    K = alive.shape[0]
+    return Bounds(_curves(full, K, lambda b: b.position_rmse().numpy()), _curves(full, K, lambda b: b.velocity_rmse().numpy()),
+                  _curves(full, K, lambda b: b.position_rmse("smoothing").numpy()),
+                  _curves(full, K, lambda b: b.velocity_rmse("smoothing").numpy()),
+                  _curves(q0, K, lambda b: b.position_rmse().numpy()),
+                  _curves(q0, K, lambda b: b.position_rmse("smoothing").numpy()))
+
+
+def memory_bounds(x: torch.Tensor, alive: torch.Tensor, methods, resources: dict, causal: dict[str, bool],
+                  models: Models) -> dict[str, tuple[int, np.ndarray]]:
+    """Per causal learned method, the filtering bound of only the scans its estimates read
+    (:meth:`Tracker.memory` at the method's stride) with the training states' spread as prior: no
+    network of that shape can beat it, whatever its training. Returns ``name -> (scans read,
+    (K, N) curve)``; methods that share both share one computation."""
+    out, cache = {}, {}
+    m = models
+    for spec in methods:
+        if not method_kind(spec.kind).needs_checkpoint or not causal[spec.name]:
+            continue
+        t = resources[spec.name]
+        stride = spec.option("stride")
+        L, P0 = t.memory(None if stride is None else int(stride)), t.training_spread()
+        key = (L, tuple(torch.diagonal(P0).tolist()))
+        if key not in cache:
+            parts = _per_target(x, alive, lambda tr: finite_memory_pcrb(tr, m.motion, m.dt, m.q, m.model, m.R, P0,
+                                                                       memory=min(L, tr.shape[1])))
+            cache[key] = min(L, alive.shape[0]), _curves(parts, alive.shape[0], lambda b: b.position_rmse().numpy())
+        out[spec.name] = cache[key]
+    return out
+
+
+def _models(sc: Scenario, recipe: TrackRecipe) -> tuple[Models, MeasurementModel | None]:
+    """The per-target stream models (the recipe's CA motion and q, the scenario's fixed noise) and,
+    where the scenario makes detections, the detection model (pair layout)."""
+    import dataclasses
+
+    motion, nominal = build_models(recipe)
+    noise = sc.noise.si()
+    model = dataclasses.replace(nominal, noise_std=noise)
+    noise_std = torch.tensor(noise, dtype=torch.float64)
+    models = Models(motion, model, recipe.motion.dt_s, recipe.effective_motion().q_psd, model.R(), noise_std)
+    detection_model = None
+    if sc.detections is not None:
+        by_name = dict(zip(MEASUREMENT_COMPONENTS, noise))
+        comps = tuple(sc.detections.components)
+        detection_model = MeasurementModel(model.geometry, comps, tuple(by_name[c] for c in comps), motion.pos_idx,
+                                           motion.vel_idx, layout="pair")
+    return models, detection_model
+
+
+def prepare(sc, device: str = "cpu") -> Setup:
+    """Resolve, design and check everything a scenario needs (every user error surfaces here,
+    before any output is written): a :class:`~.scenario.Scenario` here, a multi-target study
+    through :func:`.multitarget.prepare_multitarget`."""
+    if not isinstance(sc, Scenario):
+        from .multitarget import prepare_multitarget
+
+        return prepare_multitarget(sc, device)
     recipe = load_recipe(sc.path(sc.recipe)) if sc.recipe else TrackRecipe()
     if recipe.dim != 2:
         raise ConfigError(f"scenario {sc.name!r}: the harness evaluates planar (dim 2) recipes")
-    motion, model = build_models(recipe)
-    noise_std = torch.tensor(sc.noise.si(), dtype=torch.float64)
-    R = model.R(noise_std)
-    models = Models(motion, model, recipe.motion.dt_s, recipe.effective_motion().q_psd, R, noise_std)
+    models, detection_model = _models(sc, recipe)
     prior_sd = recipe.initiation_prior_sd()
-    trackers = {}
-    for spec in sc.methods:
-        if spec.kind == "learned":
-            path = sc.path(spec.checkpoint)
-            t = Tracker.load(path, device=device)
-            t.check_compatible(recipe.geometry.build(2).to_dict(), list(model.labels), recipe.motion.dt_s,
-                               where=f"scenario {sc.name!r}")
-            stride = spec.option("stride")
-            if stride is not None and stride > t.window:
-                raise ConfigError(f"method {spec.name!r}: stride {stride} is longer than the network's window of "
-                                  f"{t.window} samples (scans between windows would get no estimate)")
-            trackers[spec.name] = t
-        if spec.kind == "imm":
-            try:
-                import pmsr_nn.filters.imm  # noqa: F401
-            except ImportError:
-                raise ConfigError(f"method {spec.name!r}: kind imm needs pmsr_nn.filters.imm, which this "
-                                  "installation lacks") from None
-    causal = {spec.name: is_causal(spec, trackers) for spec in sc.methods}
+    kinds = {m.name: method_kind(m.kind) for m in sc.methods}
+    context = _Context(sc, recipe, models.model, device)
+    resources = {m.name: kinds[m.name].load(m, context) if kinds[m.name].load else None for m in sc.methods}
+    causal = {m.name: bool(kinds[m.name].causal(resources[m.name])) for m in sc.methods}
+    det = sc.detections
+    sensing = SensorSetup(models.model, prior_sd, sc.noise.range_outlier_prob, sc.noise.range_outlier_scale,
+                          detection_model, det.pd if det else None, det.clutter if det else None)
     cases = []
     for c in sc.cases:
-        truth = design_trajectory(c, recipe, sc.ramp_s)
-        check_inside(truth, recipe, c.name)
-        K = len(truth)
-        if sc.warmup_steps >= K:
-            raise ConfigError(f"case {c.name!r} has {K} steps; warmup_steps {sc.warmup_steps} leaves none to average")
-        for name, t in trackers.items():
-            if t.window > K:
-                raise ConfigError(f"case {c.name!r} has {K} steps, fewer than {name}'s window of {t.window}")
-        P0 = torch.diag(prior_sd**2)
-        bound = pcrb(truth[None], motion, models.dt, models.q, model, R, P0)
-        bound_q0 = pcrb(truth[None], motion, models.dt, 0.0, model, R, P0)
-        cases.append(Case(c.name, c.title or c.name, truth, model.h(truth), bound, bound_q0,
-                          memory_bounds(truth, sc.methods, trackers, causal, models)))
+        x, alive = design_case(c, recipe, sc.ramp_s)
+        targets = [t.name for t in c.flights()]
+        scored = _scored(alive, sc.warmup_steps, c.name, targets)
+        if detection_model is not None and bool(detection_model.near_sensor(x[alive], recipe.min_sensor_distance_m).any()):
+            raise ConfigError(f"case {c.name!r}: a target passes within {recipe.min_sensor_distance_m} m of a sensor")
+        for spec in sc.methods:
+            if kinds[spec.name].check:
+                kinds[spec.name].check(spec, alive, resources[spec.name], c.name)
+        bounds = case_bounds(x, alive, models, torch.diag(prior_sd**2))
+        mb = memory_bounds(x, alive, sc.methods, resources, causal, models)
+        info = {"lives": [{"name": t.name, "first_scan": int(k0), "end_scan": int(k1)}
+                            for t, (k0, k1) in zip(c.flights(), _lives(c, models.dt)[1])]}
+        cases.append(Case(c.name, c.title or c.name, DesignedTruth(x, alive), sensing, alive, scored, targets, info,
+                          bounds, mb))
     methods, tuning = sc.methods, {}
     if any(m.tuned() for m in sc.methods):  # last: the slowest check, after every quick one
         from .tuning import tune
 
         methods, tuning = tune(sc, recipe, models, prior_sd)
-    return Setup(sc, recipe, models, prior_sd, cases, trackers, causal, methods, tuning)
+    settings = describe(sc, recipe, models, prior_sd, tuning, detection_model)
+    return Setup(sc, models, cases, methods, kinds, resources, causal, sc.random_streams,
+                 (sc.set_metrics.c_m, sc.set_metrics.p), settings, DEFINITIONS, recipe.geometry.build(2),
+                 divergence_m=sc.divergence_m, tuning=tuning, recipe=recipe, prior_sd=prior_sd)
 
 
-def memory_bounds(truth: torch.Tensor, methods, trackers: dict[str, Tracker], causal: dict[str, bool],
-                  models: Models) -> dict[str, tuple[int, BoundResult]]:
-    """Per causal learned method, the filtering bound of only the scans its estimates read
-    (:meth:`Tracker.memory` at the method's stride) with the training states' spread as prior:
-    no network of that shape can beat it, whatever its training. ``truth (K, n)``; returns
-    ``name -> (scans read, bound)``; methods that share both share one computation."""
-    out, cache = {}, {}
-    for spec in methods:
-        if spec.kind != "learned" or not causal[spec.name]:
-            continue
-        t = trackers[spec.name]
-        stride = spec.option("stride")
-        L, P0 = min(t.memory(None if stride is None else int(stride)), len(truth)), t.training_spread()
-        key = (L, tuple(torch.diagonal(P0).tolist()))
-        if key not in cache:
-            cache[key] = L, finite_memory_pcrb(truth[None], models.motion, models.dt, models.q, models.model,
-                                               models.R, P0, memory=L)
-        out[spec.name] = cache[key]
-    return out
+# ------------------------------------------------------------------ running blocks
 
 
-def draw_runs(clean: torch.Tensor, start: torch.Tensor, b: int, models: Models, prior_sd: torch.Tensor,
-              noise: FixedNoiseSpec, g: torch.Generator) -> tuple[torch.Tensor, Gaussian]:
-    """Measurements ``(b, K, m)`` of ``b`` runs around noise-free ``clean`` (``(K, m)``, shared, or
-    ``(b, K, m)``) and their initiation priors around true initial states ``start`` (``(n,)`` or
-    ``(b, n)``), in this order from ``g``: measurement noise, prior offsets, then (only with
-    outliers) one uniform per range measurement."""
-    noise_draw = standard_normal((b, *clean.shape[-2:]), g)
-    z = clean + noise_draw * models.model.std_vector(models.noise_std)
-    angles = models.model.angle_mask
-    z = torch.where(angles, wrap_angle(z), z)
-    n = start.shape[-1]
-    x0 = start + standard_normal((b, n), g) * prior_sd
-    P0 = torch.diag(prior_sd**2).expand(b, n, n).clone()
-    z = apply_range_outliers(z, clean, range_rows(models.model), noise.range_outlier_prob, noise.range_outlier_scale, g)
-    return z, Gaussian(x0, P0)
-
-
-def draw_block(setup: Setup, case_index: int, block: int) -> tuple[torch.Tensor, Gaussian]:
-    """Measurements ``(b, K, m)`` and the initiation prior of the runs of one block."""
+def draw_block(setup: Setup, case_index: int, block: int) -> tuple[Truth, dict]:
+    """The truth of one block's runs and every product its methods read (``name -> product``)."""
     sc, case = setup.scenario, setup.cases[case_index]
     b = len(sc.block_runs_range(block))
     g = seeded_generator(sc.seed, case_index, block)
-    return draw_runs(case.clean, case.truth[0], b, setup.models, setup.prior_sd, sc.noise, g)
+    truth = case.truth.draw(b, g)
+    products = {}
+    for name in setup.products:
+        kind = PRODUCTS[name]
+        if setup.random_streams == "per_block":
+            products[name] = kind.make(case.sensing, truth, g, g)
+        else:
+            products[name] = kind.make(case.sensing, truth, seeded_generator(sc.seed, case_index, block, kind.stream),
+                                       seeded_generator(sc.seed, case_index, block, INIT_STREAM))
+    return truth, products
+
+
+def stream_block(setup: Setup, case_index: int, block: int):
+    """Measurements ``z (b, K, m)`` and initiation prior (``x (b, n)``) of one block of a
+    one-target case: what a single-target filter called directly reads (tests, benchmarks)."""
+    from ..filters import Gaussian
+
+    if setup.cases[case_index].multi_target:
+        raise ValueError(f"case {setup.cases[case_index].name!r} has several targets; use draw_block")
+    _, products = draw_block(setup, case_index, block)
+    s = products["measurements"]
+    return s.z[:, 0], Gaussian(s.prior.x[:, 0], s.prior.P[:, 0])
+
+
+def call_method(setup: Setup, spec: MethodSpec, case: Case, products: dict, seed: tuple[int, ...]):
+    """One method on one block through its registered kind: :class:`~pmsr_nn.trackers.base.Estimates`."""
+    kind = setup.kinds[spec.name]
+    call = MethodCall(spec, products[kind.reads], case.alive, setup.models, case.sensing, setup.resources[spec.name], seed)
+    return kind.run(call)
+
+
+def _first_runs(products: dict, b: int = 1) -> dict:
+    """The products of the first ``b`` runs (a cheap call for the warm-up)."""
+    from ..filters import Gaussian
+    from ..simulation.detections import Scans
+
+    out = {}
+    for name, p in products.items():
+        prior = Gaussian(p.prior.x[:b], p.prior.P[:b])
+        if hasattr(p, "scans"):
+            out[name] = type(p)(Scans(p.scans.z[:b], p.scans.valid[:b], p.scans.origin[:b]), prior)
+        else:
+            out[name] = type(p)(p.z[:b], prior)
+    return out
 
 
 @dataclass
 class BlockSums:
-    """Raw per-block results of a shard: ``sums[case][method][q]`` is ``(blocks, K)`` for ``q`` in
-    :data:`QUANTITIES`, ``run_mse[case][method]`` ``(runs,)``, ``seconds[case][method]`` ``(blocks,)``,
-    ``example[case][method]`` the position estimates ``(K, 2)`` of run 0 (shard holding block 0 only)."""
+    """Raw per-block results of a shard: ``sums[case][method][q]`` stacks the blocks' sums of
+    quantity ``q`` (:mod:`.scoring`; those in :data:`.scoring.PER_RUN` concatenate the runs),
+    ``seconds[case][method]`` ``(blocks,)``, ``example[case][method]`` run 0's position
+    estimates ``(K, N, 2)`` (only a shard holding block 0 has them; ``truth`` too)."""
 
     blocks: list[int]
     sums: dict = field(default_factory=dict)
-    run_mse: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
     example: dict = field(default_factory=dict)
 
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        out = {"blocks": np.asarray(self.blocks, dtype=np.int64)}
+    def add(self, case: str, method: str, values: dict[str, np.ndarray], seconds: float) -> None:
+        per = self.sums.setdefault(case, {}).setdefault(method, {})
+        for q, v in values.items():
+            per.setdefault(q, []).append(np.asarray(v, dtype=np.float64))
+        self.seconds.setdefault(case, {}).setdefault(method, []).append(seconds)
+
+    def stacked(self) -> "BlockSums":
+        """Lists of blocks joined into arrays (sums stacked, per-run quantities concatenated)."""
+        out = BlockSums(self.blocks, example=self.example)
         for c, per in self.sums.items():
+            for m, qs in per.items():
+                out.sums.setdefault(c, {})[m] = {q: (np.concatenate(v) if q in scoring.PER_RUN else np.stack(v))
+                                                 if isinstance(v, list) else v for q, v in qs.items()}
+                s = self.seconds[c][m]
+                out.seconds.setdefault(c, {})[m] = np.asarray(s, dtype=np.float64)
+        return out
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        bs = self.stacked()
+        out = {"blocks": np.asarray(bs.blocks, dtype=np.int64)}
+        for c, per in bs.sums.items():
             for m, qs in per.items():
                 for q, a in qs.items():
                     out[f"sums/{c}/{m}/{q}"] = a
-                out[f"run_mse/{c}/{m}"] = self.run_mse[c][m]
-                out[f"seconds/{c}/{m}"] = self.seconds[c][m]
-        for c, per in self.example.items():
+                out[f"seconds/{c}/{m}"] = bs.seconds[c][m]
+        for c, per in bs.example.items():
             for m, a in per.items():
                 out[f"example/{c}/{m}"] = a
         return out
@@ -232,18 +434,41 @@ class BlockSums:
             if kind == "sums":
                 c, m, q = rest
                 bs.sums.setdefault(c, {}).setdefault(m, {})[q] = np.asarray(arrays[key])
-            elif kind in ("run_mse", "seconds", "example"):
+            elif kind in ("seconds", "example"):
                 c, m = rest
                 getattr(bs, kind).setdefault(c, {})[m] = np.asarray(arrays[key])
         return bs
 
+    @classmethod
+    def concatenate(cls, parts: list["BlockSums"]) -> "BlockSums":
+        """Shards (each :meth:`stacked`) in block order into one."""
+        parts = sorted(parts, key=lambda p: p.blocks[0] if p.blocks else -1)
+        out = cls([b for p in parts for b in p.blocks])
+        for p in parts:
+            for c, per in p.sums.items():
+                for m, qs in per.items():
+                    dst = out.sums.setdefault(c, {}).setdefault(m, {})
+                    for q, a in qs.items():
+                        dst[q] = a if q not in dst else np.concatenate([dst[q], a])
+                    sec = out.seconds.setdefault(c, {})
+                    sec[m] = p.seconds[c][m] if m not in sec else np.concatenate([sec[m], p.seconds[c][m]])
+            for c, per in p.example.items():
+                out.example.setdefault(c, {}).update(per)
+        return out
 
-def warm_up(setup: Setup, z: torch.Tensor, prior: Gaussian) -> None:
-    """One untimed call of every method on one run, so that one-off start-up costs (library
-    loading, allocator growth) do not land in the first block's timing."""
-    one = Gaussian(prior.x[:1], prior.P[:1])
-    for spec in setup.methods:
-        run_method(spec, z[:1], one, setup.models, setup.trackers, (setup.scenario.seed, 1 << 30))
+
+def score(setup: Setup, case: Case, est, truth: Truth) -> dict[str, np.ndarray]:
+    """Every sum :mod:`.scoring` keeps for one method's estimates of one block."""
+    pos, vel = list(setup.models.motion.pos_idx), list(setup.models.motion.vel_idx)
+    out = scoring.point_sums(est, truth, case.scored, pos, vel)
+    if case.multi_target:
+        out.update(scoring.swaps(est, truth, pos))
+        out.update(scoring.set_sums(est, truth, pos, *setup.set_metric))
+    if setup.loss is not None:
+        out.update(scoring.loss_counts(est, setup.loss.successive_scans, setup.loss.gate_range_sd_m))
+    if "max_duality_gap" in est.extras:
+        out["gap"] = np.asarray(float(est.extras["max_duality_gap"]))
+    return out
 
 
 def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
@@ -256,35 +481,63 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                desc=f"{sc.name}", leave=False)
     with torch.no_grad():
         for ci, case in enumerate(setup.cases):
-            n = case.truth.shape[-1]
-            pos, vel = position_columns(n), velocity_columns(n)
-            sums = {m.name: {q: [] for q in QUANTITIES} for m in setup.methods}
-            run_mse = {m.name: [] for m in setup.methods}
-            seconds = {m.name: [] for m in setup.methods}
             for block in blocks:
-                z, prior = draw_block(setup, ci, block)
-                truth = case.truth.expand(len(z), -1, -1)
-                if ci == 0 and block == blocks[0]:
-                    warm_up(setup, z, prior)
+                truth, products = draw_block(setup, ci, block)
+                if ci == 0 and block == blocks[0]:  # untimed: one-off start-up costs stay out of the timing
+                    first = _first_runs(products)
+                    for spec in setup.methods:
+                        call_method(setup, spec, case, first, (sc.seed, 1 << 30))
+                pos = list(setup.models.motion.pos_idx)
                 for spec in setup.methods:
                     interrupts.check()
                     bar.set_postfix_str(f"{case.name} {spec.name}", refresh=False)
                     t0 = time.perf_counter()
-                    res = run_method(spec, z, prior, setup.models, setup.trackers, (sc.seed, ci, block))
-                    seconds[spec.name].append(time.perf_counter() - t0)
-                    se_p, se_v = squared_error(res.x, truth, pos), squared_error(res.x, truth, vel)
-                    nees = normalised_nees(res.x, res.P, truth) if res.P is not None else torch.full_like(se_p, float("nan"))
-                    for q, v in zip(QUANTITIES, (se_p, se_v, nees)):
-                        sums[spec.name][q].append(v.sum(0).numpy())
-                    run_mse[spec.name].append(se_p[:, sc.warmup_steps:].mean(1).numpy())
+                    est = call_method(setup, spec, case, products, (sc.seed, ci, block))
+                    seconds = time.perf_counter() - t0
+                    out.add(case.name, spec.name, score(setup, case, est, truth), seconds)
                     if block == 0:
-                        out.example.setdefault(case.name, {})[spec.name] = res.x[0][:, pos].numpy()
+                        x = torch.where(est.exists[0, ..., None], est.x[0][..., pos], float("nan"))
+                        out.example.setdefault(case.name, {})[spec.name] = x.numpy()
                     bar.update()
-            out.sums[case.name] = {m: {q: np.stack(v) for q, v in qs.items()} for m, qs in sums.items()}
-            out.run_mse[case.name] = {m: np.concatenate(v) for m, v in run_mse.items()}
-            out.seconds[case.name] = {m: np.asarray(v) for m, v in seconds.items()}
+                if block == 0:
+                    out.example.setdefault(case.name, {})["truth"] = truth.x[0][..., pos].numpy()
     bar.close()
-    return out
+    return out.stacked()
+
+
+# ------------------------------------------------------------------ the figures
+
+
+def _mean(curve: np.ndarray, mask: np.ndarray) -> float:
+    """Mean of ``curve (K, N)`` over the entries of ``mask`` (target by target for one target: the
+    plain mean of its contiguous scans, as the papers average a curve)."""
+    if curve.shape[1] == 1:
+        return float(curve[mask[:, 0], 0].mean())
+    return float(curve[mask].mean())
+
+
+def _set_figures(s: dict, R: int, scored: np.ndarray, p: float) -> tuple[dict, dict]:
+    """Multi-target figures of one method: the row's fields and its per-scan curves."""
+    k = scored.any(1)
+    ospa_c = s["ospa"] / R
+    assigned = np.sqrt(s["assigned_pos"] / np.where(s["assigned_count"] > 0, s["assigned_count"], np.nan))
+    per_target = []
+    for t in range(scored.shape[1]):
+        v = assigned[scored[:, t], t]
+        v = v[np.isfinite(v)]
+        per_target.append(float(v.mean()) if len(v) else None)  # None: no run kept a track on it
+    gp = (s["gospa_loc"] + s["gospa_missed"] + s["gospa_false"]) / R  # (K,) mean GOSPA^p per scan
+    total = float(gp[k].mean())
+    row = {"ospa_m": float(ospa_c[k].mean()), "gospa_m": total ** (1 / p),
+           "gospa_localisation_share": float((s["gospa_loc"][k] / R).mean() / total) if total > 0 else 0.0,
+           "gospa_missed_share": float((s["gospa_missed"][k] / R).mean() / total) if total > 0 else 0.0,
+           "gospa_false_share": float((s["gospa_false"][k] / R).mean() / total) if total > 0 else 0.0,
+           "cardinality_mean_abs_error": float((s["abs_card"][k] / R).mean()),
+           "rmse_pos_assigned_per_target_m": per_target,
+           "label_switches_per_run": float(s["switches"].sum() / R),
+           "swap_probability": float(s["swap"].sum() / max(s["swap_n"].sum(), 1))}
+    curves = {"ospa_m": ospa_c.tolist(), "gospa_m": (gp ** (1 / p)).tolist(), "cardinality": (s["n_est"] / R).tolist()}
+    return row, curves
 
 
 def finalise(setup: Setup, bs: BlockSums) -> dict:
@@ -292,73 +545,94 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
     sc = setup.scenario
     if bs.blocks != list(range(sc.n_blocks)):
         raise ConfigError(f"the shards cover blocks {bs.blocks}, not all {sc.n_blocks}")
-    R, w = sc.mc_runs, sc.warmup_steps
+    R = sc.mc_runs
     cases = {}
     for case in setup.cases:
-        b, b0 = case.bound, case.bound_q0
-        bounds = {"filtering": (b.position_rmse().numpy(), b.velocity_rmse().numpy()),
-                  "smoothing": (b.position_rmse("smoothing").numpy(), b.velocity_rmse("smoothing").numpy())}
-        floor = {"filtering": b0.position_rmse().numpy(), "smoothing": b0.position_rmse("smoothing").numpy()}
-        methods, curves = {}, {}
-        for spec in sc.methods:
-            s = {q: bs.sums[case.name][spec.name][q].sum(0) / R for q in QUANTITIES}
-            rmse_p, rmse_v = np.sqrt(s["pos"]), np.sqrt(s["vel"])
-            run_rmse = np.sqrt(bs.run_mse[case.name][spec.name])
-            which = "filtering" if setup.causal[spec.name] else "smoothing"
-            bound_p = float(bounds[which][0][w:].mean())
-            rmse = float(rmse_p[w:].mean())
-            row = {"rmse_pos_m": rmse, "rmse_vel_mps": float(rmse_v[w:].mean()),
-                   "anees": None if np.isnan(s["nees"]).all() else float(s["nees"][w:].mean()),
+        scored = case.scored.numpy()
+        alive = case.alive.numpy()
+        N = alive.shape[1]
+        b = case.bounds
+        methods, curves, set_curves, run_rmse = {}, {}, {}, {}
+        for spec in setup.methods:
+            s = {q: a.sum(0) if q not in scoring.PER_RUN else a for q, a in bs.sums[case.name][spec.name].items()}
+            count = np.where(s["count"] > 0, s["count"], np.nan)
+            rmse_p, rmse_v, nees = np.sqrt(s["pos"] / count), np.sqrt(s["vel"] / count), s["nees"] / count
+            mse = s["run_mse"]  # (R, N)
+            per_run = np.sqrt(mse.mean(1))  # per run: root of the mean over its targets' mean squared errors
+            run_rmse[spec.name] = per_run
+            rmse = _mean(rmse_p, scored)
+            row = {"kind": spec.kind, "causal": setup.causal[spec.name],
+                   "rmse_pos_m": rmse, "rmse_vel_mps": _mean(rmse_v, scored),
+                   "anees": None if np.isnan(s["nees"]).all() else _mean(nees, scored),
                    "seconds_per_run": float(bs.seconds[case.name][spec.name].sum() / R),
-                   "rmse_pos_pooled_m": float(np.sqrt(s["pos"][w:].mean())),
-                   "kind": spec.kind, "causal": setup.causal[spec.name], "bound": which, "bound_pos_m": bound_p,
-                   "over_bound": rmse / bound_p, "below_bound": bool(rmse < bound_p),
-                   "bound_q0_pos_m": float(floor[which][w:].mean()),
-                   "below_q0_bound": bool(rmse < float(floor[which][w:].mean())),
-                   "diverged_runs": int((~np.isfinite(run_rmse) | (run_rmse > sc.divergence_m)).sum()),
-                   "median_run_rmse_pos_m": float(np.median(run_rmse)), "runs": R}
-            if spec.kind == "learned":
-                t = setup.trackers[spec.name]
-                row.update({"checkpoint": t.source, "model": t.meta["model"]["kind"], "window": t.window})
+                   "rmse_pos_pooled_m": float(np.sqrt(s["pos"][scored].sum() / s["count"][scored].sum())) if N > 1
+                   else float(np.sqrt((s["pos"][:, 0] / R)[scored[:, 0]].mean())),
+                   "rmse_pos_all_scans_m": _mean(rmse_p, alive),
+                   "median_run_rmse_pos_m": float(np.median(per_run)), "runs": R}
+            if N > 1:
+                row["rmse_pos_per_target_m"] = [float(rmse_p[scored[:, t], t].mean()) for t in range(N)]
+            if setup.divergence_m is not None:
+                row["diverged_runs"] = int((~np.isfinite(per_run) | (per_run > setup.divergence_m)).sum())
+            if "lost" in s:
+                row["loss_probability"] = float(s["lost"].sum() / (R * N))
+            if "gap" in s:
+                row["max_duality_gap"] = float(bs.sums[case.name][spec.name]["gap"].max())
+            if case.multi_target:
+                extra, set_curves[spec.name] = _set_figures(s, R, scored, setup.set_metric[1])
+                row.update(extra)
+            if b is not None:
+                which = "filtering" if setup.causal[spec.name] else "smoothing"
+                bound_p = _mean(b.pos if which == "filtering" else b.smoothing_pos, scored)
+                floor = _mean(b.q0_pos if which == "filtering" else b.q0_smoothing_pos, scored)
+                row.update({"bound": which, "bound_pos_m": bound_p, "over_bound": rmse / bound_p,
+                            "below_bound": bool(rmse < bound_p), "bound_q0_pos_m": floor, "below_q0_bound": bool(rmse < floor)})
+            res = setup.resources[spec.name]
+            if setup.kinds[spec.name].needs_checkpoint:
+                row.update({"checkpoint": res.source, "model": res.meta["model"]["kind"], "window": res.window})
                 if spec.name in case.memory_bounds:
-                    scans, mb = case.memory_bounds[spec.name]
-                    curve = mb.position_rmse().numpy()[w:]
-                    mem = float(curve.mean())
+                    scans, curve = case.memory_bounds[spec.name]
+                    mem = _mean(curve, scored)
                     # per run: mean squared error over the bound's mean square; "below" only when the
                     # mean ratio is more than two Monte Carlo standard errors under 1
-                    ratio = bs.run_mse[case.name][spec.name] / float((curve**2).mean())
+                    ratio = mse.mean(1) / float(np.mean(curve[scored] ** 2))
                     se = float(ratio.std(ddof=1) / np.sqrt(len(ratio))) if len(ratio) > 1 else float("inf")
                     row.update({"memory_scans": scans, "memory_bound_pos_m": mem, "over_memory_bound": rmse / mem,
                                 "mse_over_memory_bound": float(ratio.mean()), "mse_over_memory_bound_se": se,
                                 "below_memory_bound": bool(ratio.mean() + 2 * se < 1)})
             methods[spec.name] = row
-            curves[spec.name] = rmse_p.tolist()
-        cases[case.name] = {
-            "title": case.title, "steps": len(case.truth),
-            "methods": methods,
-            "seed_groups": summarise_seeds(methods),
-            "comparisons": comparisons(methods, {n: np.sqrt(bs.run_mse[case.name][n]) for n in methods}),
-            "truth_pos_m": case.truth[:, position_columns(case.truth.shape[-1])].tolist(),
-            "pcrb": {"pos_m": float(bounds["filtering"][0][w:].mean()), "vel_mps": float(bounds["filtering"][1][w:].mean()),
-                     "smoothing_pos_m": float(bounds["smoothing"][0][w:].mean()),
-                     "smoothing_vel_mps": float(bounds["smoothing"][1][w:].mean()),
-                     "q0_pos_m": float(floor["filtering"][w:].mean()),
-                     "q0_smoothing_pos_m": float(floor["smoothing"][w:].mean())},
-            "curves": {"rmse_pos_m": curves, "pcrb_pos_m": bounds["filtering"][0].tolist(),
-                       "pcrb_smoothing_pos_m": bounds["smoothing"][0].tolist(),
-                       "pcrb_q0_pos_m": floor["filtering"].tolist()},
-        }
+            curves[spec.name] = rmse_p[:, 0].tolist() if N == 1 else rmse_p.T.tolist()
+        out = {"title": case.title, "steps": case.steps, "targets": case.targets, **case.info, "methods": methods}
+        if b is not None:
+            out.update({"seed_groups": summarise_seeds(methods), "comparisons": comparisons(methods, run_rmse)})
+            truth_xy = case.truth.x[..., list(setup.models.motion.pos_idx)]
+            out["truth_pos_m"] = truth_xy[:, 0].tolist() if N == 1 else truth_xy.transpose(0, 1).tolist()
+            out["pcrb"] = {"pos_m": _mean(b.pos, scored), "vel_mps": _mean(b.vel, scored),
+                           "smoothing_pos_m": _mean(b.smoothing_pos, scored), "smoothing_vel_mps": _mean(b.smoothing_vel, scored),
+                           "q0_pos_m": _mean(b.q0_pos, scored), "q0_smoothing_pos_m": _mean(b.q0_smoothing_pos, scored)}
+            one = (lambda a: a[:, 0].tolist()) if N == 1 else (lambda a: a.T.tolist())
+            out["curves"] = {"rmse_pos_m": curves, "pcrb_pos_m": one(b.pos), "pcrb_smoothing_pos_m": one(b.smoothing_pos),
+                             "pcrb_q0_pos_m": one(b.q0_pos)}
+        else:
+            out["pcrb"] = None
+            out["curves"] = {"rmse_pos_m": curves}
+        if case.multi_target:
+            out["curves"].update({"set": set_curves, "cardinality_truth": alive.sum(1).tolist()})
+        cases[case.name] = out
     return cases
 
 
 DEFINITIONS = {
     "rmse_pos_m": "Eq. 31 of the MDFNN paper: at each step k the root of the mean over the Monte Carlo runs of the "
-                  "squared Euclidean position error, then the mean of that curve over steps warmup_steps..K-1",
-    "rmse_pos_pooled_m": "root of the mean squared position error over runs and steps warmup_steps..K-1 (pooled)",
+                  "squared Euclidean position error, then the mean of that curve over the steps after the warm-up "
+                  "(with several targets: per target and step, then the mean over targets and their steps after "
+                  "their own warm-up)",
+    "rmse_pos_pooled_m": "root of the mean squared position error over runs, targets and steps after the warm-up (pooled)",
+    "rmse_pos_all_scans_m": "the same as rmse_pos_m, averaged over every step each target lives (the S-MSJPDA paper)",
     "anees": "mean over runs and steps after the warm-up of the NEES over the full state divided by its dimension "
              "(1 = consistent); null for methods without covariances",
-    "pcrb": "per-trajectory posterior Cramer-Rao bound of the case's true trajectory under the recipe's CA model and "
-            "q, the scenario's measurement deviations and the initiation prior P0; averaged like rmse_pos_m",
+    "pcrb": "per-trajectory posterior Cramer-Rao bound of each target's true trajectory under the recipe's CA model and "
+            "q, the scenario's measurement deviations and the initiation prior P0, from the target's birth on clean "
+            "(association-known) measurement streams; averaged like rmse_pos_m",
     "bound": "the bound a method is compared with: filtering for a causal method, smoothing for one that looks ahead",
     "memory_bound_pos_m": "finite-memory bound of a causal learned tracker: the filtering PCRB of only the memory_scans "
                           "scans its estimate at each step reads (an MDFNN's filter taps, a recurrent network's splice), "
@@ -375,21 +649,51 @@ DEFINITIONS = {
     "diverged_runs": "runs whose position RMSE after the warm-up exceeds divergence_m or is not finite; "
                      "they are kept in every average",
     "seconds_per_run": "wall-clock seconds of the method per Monte Carlo run, measured in this run (whole block "
-                       "calls divided by the runs); timings differ between repeats",
+                       "calls divided by the runs; all targets); timings differ between repeats",
+    "ospa_m": "OSPA (Schuhmacher et al. 2008, cut-off c_m, order p) between the existing tracks and the living targets "
+              "at each scan, averaged over runs, then over the scans after the warm-up",
+    "gospa_m": "GOSPA (alpha = 2, Rahmathullah et al. 2017): the p-th root of the mean over runs and scans after the "
+               "warm-up of GOSPA^p; gospa_localisation_share, gospa_missed_share and gospa_false_share split that "
+               "mean into its parts (sum of d^p over assigned pairs, c^p/2 per missed target, c^p/2 per false track), "
+               "which add up to 1",
+    "cardinality_mean_abs_error": "mean over runs and scans after the warm-up of |number of tracks - number of targets|",
+    "rmse_pos_assigned_per_target_m": "per target: each run's track labels are assigned to targets once (the assignment "
+                                      "minimising the summed capped squared distances over the run), then the RMSE of "
+                                      "the assigned track, averaged over the target's scans after the warm-up",
+    "label_switches_per_run": "changes, between consecutive scans, of the track assigned to a target by the per-scan "
+                              "OSPA assignment, summed over targets, per run",
+    "swap_probability": "fraction of (run, target) tracks nearer another target's truth than their own at the last scan",
+    "loss_probability": "fraction of (run, target) tracks declared lost by the S-MSJPDA paper's rule (dummy most "
+                        "probable at every sensor for successive_scans scans in a row, or predicted bistatic-range "
+                        "deviation above gate_range_sd_m); a lost track keeps being tracked and stays in the RMSE",
+    "max_duality_gap": "largest duality gap (event cost minus Lagrangian lower bound, in nats: the event found is at "
+                       "least exp(-gap) times as probable as the best) of the (N+1)-D assignments of P-MSJPDA",
 }
 
 
-def describe(setup: Setup) -> dict:
+def describe(sc: Scenario, recipe: TrackRecipe, models: Models, prior_sd: torch.Tensor, tuning: dict,
+             detection_model: MeasurementModel | None) -> dict:
     """Settings recorded beside the figures."""
-    sc, r = setup.scenario, setup.recipe
-    return {"recipe": str(sc.path(sc.recipe)) if sc.recipe else "built-in FITEE 2023 CA recipe", "variant": r.variant, "dt_s": r.motion.dt_s, "q_psd": setup.models.q,
-            "noise": {"range_m": sc.noise.range_m, "range_rate_mps": sc.noise.range_rate_mps,
-                      "azimuth_deg": sc.noise.azimuth_deg,
-                      **({"range_outlier_prob": sc.noise.range_outlier_prob,
-                          "range_outlier_scale": sc.noise.range_outlier_scale} if sc.noise.has_outliers else {})},
-            "measurement_components": list(MEASUREMENT_COMPONENTS), "prior_sd": setup.prior_sd.tolist(),
-            "prior": "per run: mean = truth at step 0 + a draw from N(0, P0), P0 = diag(prior_sd^2); the PCRB uses P0",
-            "warmup_steps": sc.warmup_steps, "divergence_m": sc.divergence_m, "block_runs": sc.block_runs,
-            "methods": {m.name: {"kind": m.kind, **({"checkpoint": str(sc.path(m.checkpoint))} if m.checkpoint else {}),
-                                 **m.options, **({"tuning": setup.tuning[m.name]} if m.name in setup.tuning else {})}
-                        for m in sc.methods}}
+    out = {"recipe": str(sc.path(sc.recipe)) if sc.recipe else "built-in FITEE 2023 CA recipe", "variant": recipe.variant,
+           "dt_s": recipe.motion.dt_s, "q_psd": models.q,
+           "noise": {"range_m": sc.noise.range_m, "range_rate_mps": sc.noise.range_rate_mps,
+                     "azimuth_deg": sc.noise.azimuth_deg,
+                     **({"range_outlier_prob": sc.noise.range_outlier_prob,
+                         "range_outlier_scale": sc.noise.range_outlier_scale} if sc.noise.has_outliers else {})},
+           "measurement_components": list(MEASUREMENT_COMPONENTS), "prior_sd": prior_sd.tolist(),
+           "prior": "per run and target: mean = truth at its birth + a draw from N(0, P0), P0 = diag(prior_sd^2); the "
+                    "PCRB uses P0",
+           "warmup_steps": sc.warmup_steps, "divergence_m": sc.divergence_m, "block_runs": sc.block_runs,
+           "methods": {m.name: {"kind": m.kind, "reads": method_kind(m.kind).reads, **({"checkpoint": str(sc.path(m.checkpoint))} if m.checkpoint else {}),
+                                **m.options, **({"tuning": tuning[m.name]} if m.name in tuning else {})}
+                       for m in sc.methods}}
+    if detection_model is not None:
+        d = sc.detections
+        lo, ext = d.clutter.box(d.components)
+        out["detections"] = {"pd": d.pd, "components": list(d.components), "clutter_per_scan": d.clutter.per_scan,
+                             "clutter_model": d.clutter.model, "clutter_box_si": [[a, a + e] for a, e in zip(lo, ext)],
+                             "sensors": detection_model.n_pairs}
+    if sc.random_streams != "per_block" or any(len(c.flights()) > 1 for c in sc.cases):
+        out["random_streams"] = sc.random_streams
+        out["set_metrics"] = {"c_m": sc.set_metrics.c_m, "p": sc.set_metrics.p}
+    return out

@@ -22,42 +22,17 @@ from typing import Literal
 
 from ..config import from_dict, load_yaml, require
 from ..errors import ConfigError
+from ..methods import method_kind
+from ..simulation.detections import ClutterSpec
 from ..simulation.recipe import check_outliers
 
-MethodKind = Literal["ekf", "ukf", "imm", "si_kf", "particle_filter", "learned"]
-
-METHOD_OPTIONS: dict[str, dict[str, object]] = {
-    # q: jerk PSD (m^2/s^5) of the filter's CA model; null = the recipe's q
-    "ekf": {"q": None},
-    "ukf": {"q": None},
-    # two CA modes (EKF moments): quiet (null = the recipe's q) and manoeuvring, and the
-    # probability of staying in a mode per step (diagonal of the 2x2 Markov matrix)
-    "imm": {"q_quiet": None, "q_manoeuvre": 1.0, "stay": 0.95},
-    # refine_steps 0 is the paper's plain spherical interpolation
-    "si_kf": {"refine_steps": 0},
-    "particle_filter": {"particles": 2000, "roughening": 0.2},
-    "learned": {"stride": None},
-}
-"""Options each method kind accepts, with their defaults."""
-
-OPTION_RANGES: dict[str, tuple[type, float, float]] = {
-    "refine_steps": (int, 0, 100),
-    "particles": (int, 1, 1_000_000),  # a block of runs x particles x 9 states must fit in memory
-    "roughening": (float, 0.0, 10.0),
-    "stride": (int, 1, 1_000_000),
-    "q": (float, 0.0, 1.0e6),
-    "q_quiet": (float, 0.0, 1.0e6),
-    "q_manoeuvre": (float, 0.0, 1.0e6),
-    "stay": (float, 0.0, 1.0),
-}
-"""Type and inclusive range of every option (``stride``, ``q`` and ``q_quiet`` may also be null:
-the tracker's or the recipe's value)."""
-
-NULLABLE = ("stride", "q", "q_quiet")
-"""Options whose null means a default taken elsewhere (the tracker's stride, the recipe's q)."""
-
 TUNABLE = ("q", "q_quiet", "q_manoeuvre", "stay")
-"""Options that may be ``tuned`` (chosen from ``tuning.<option>_grid``), in grid order."""
+"""Options that may be ``tuned`` (chosen from ``tuning.<option>_grid``), in grid order; each is
+marked ``tunable`` in its method kind (:mod:`pmsr_nn.methods`)."""
+
+TUNABLE_RANGES: dict[str, tuple[float, float]] = {"q": (0.0, 1.0e6), "q_quiet": (0.0, 1.0e6),
+                                                  "q_manoeuvre": (0.0, 1.0e6), "stay": (0.0, 1.0)}
+"""Inclusive range of every grid of :class:`TuningSpec`."""
 
 MAX_TUNING_TRACKS = 500
 """Most tuning tracks (one filter call holds all of them: 500 IMM runs of 1000 steps take ~0.2 GB)."""
@@ -66,17 +41,16 @@ MAX_TUNING_POINTS = 1000
 """Most grid points one method's search may have (the product of its tuned options' grids)."""
 
 
-def _check_option(method: str, key: str, value) -> None:
-    kind, lo, hi = OPTION_RANGES[key]
-    if value is None and key in NULLABLE:
+def _check_option(method: str, key: str, value, opt) -> None:
+    if value is None and opt.nullable:
         return
-    if value == "tuned" and key in TUNABLE:
+    if value == "tuned" and opt.tunable:
         return
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if not number or (kind is int and not isinstance(value, int)) or not (lo <= value <= hi):
-        extra = " or 'tuned'" if key in TUNABLE else ""
-        raise ConfigError(f"method {method!r}: option {key} must be {'an integer' if kind is int else 'a number'} "
-                          f"in [{lo}, {hi}]{extra}, got {value!r:.40}")
+    if not number or (opt.kind is int and not isinstance(value, int)) or not (opt.lo <= value <= opt.hi):
+        extra = " or 'tuned'" if opt.tunable else ""
+        raise ConfigError(f"method {method!r}: option {key} must be {'an integer' if opt.kind is int else 'a number'} "
+                          f"in [{opt.lo}, {opt.hi}]{extra}, got {value!r:.40}")
 
 
 MAX_MC_RUNS = 10_000_000
@@ -102,9 +76,10 @@ class SegmentSpec:
 
 
 @dataclass(frozen=True)
-class CaseSpec:
-    """One fixed true trajectory: start (range and bearing from the first transmitter, clockwise
-    from north), initial speed and heading, then its segments; ``title`` names it in the report."""
+class TargetSpec:
+    """One target's designed flight: start (range and bearing from the first transmitter, clockwise
+    from north), initial speed and heading, then its segments; it is born ``birth_s`` after the
+    case starts and flies until its segments end or until ``death_s`` (s from the case's start)."""
 
     name: str
     start_range_m: float
@@ -112,16 +87,107 @@ class CaseSpec:
     speed_mps: float
     heading_deg: float
     segments: tuple[SegmentSpec, ...] = ()
-    title: str = ""
+    birth_s: float = 0.0
+    death_s: float | None = None
 
     def __post_init__(self) -> None:
-        require(bool(self.name), "a case needs a name")
-        require(len(self.segments) > 0, f"case {self.name!r}: the trajectory is empty (no segments)")
-        require(self.speed_mps >= 0, f"case {self.name!r}: speed_mps must be >= 0")
+        require(bool(self.name), "a target needs a name")
+        require(len(self.segments) > 0, f"target {self.name!r}: the trajectory is empty (no segments)")
+        require(self.speed_mps >= 0, f"target {self.name!r}: speed_mps must be >= 0")
+        require(math.isfinite(self.birth_s) and self.birth_s >= 0, f"target {self.name!r}: birth_s must be >= 0")
+        if self.death_s is not None:
+            require(self.death_s > self.birth_s, f"target {self.name!r}: death_s {self.death_s:g} s is not after its "
+                                                 f"birth_s {self.birth_s:g} s (death before birth)")
+            require(self.death_s <= self.birth_s + self.duration_s,
+                    f"target {self.name!r}: death_s {self.death_s:g} s is after its segments end "
+                    f"({self.birth_s + self.duration_s:g} s)")
 
     @property
     def duration_s(self) -> float:
+        """Length of the segments (s)."""
         return sum(s.duration_s for s in self.segments)
+
+    @property
+    def end_s(self) -> float:
+        """When the target stops being seen (s from the case's start)."""
+        return self.birth_s + self.duration_s if self.death_s is None else self.death_s
+
+
+FLIGHT_FIELDS = ("start_range_m", "start_bearing_deg", "speed_mps", "heading_deg")
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    """One case: a single designed flight given inline (start, speed, heading, segments: the
+    papers' cases), or ``targets``, several :class:`TargetSpec` with their own births and deaths;
+    ``title`` names it in the report."""
+
+    name: str
+    start_range_m: float | None = None
+    start_bearing_deg: float | None = None
+    speed_mps: float | None = None
+    heading_deg: float | None = None
+    segments: tuple[SegmentSpec, ...] = ()
+    title: str = ""
+    targets: tuple[TargetSpec, ...] = ()
+
+    def __post_init__(self) -> None:
+        require(bool(self.name), "a case needs a name")
+        inline = [k for k in FLIGHT_FIELDS if getattr(self, k) is not None]
+        if self.targets:
+            require(not inline and not self.segments, f"case {self.name!r}: give either targets or one inline flight "
+                                                      f"({', '.join(FLIGHT_FIELDS)}, segments), not both")
+            names = [t.name for t in self.targets]
+            dup = sorted({n for n in names if names.count(n) > 1})
+            require(not dup, f"case {self.name!r}: duplicate target name(s) {dup}")
+        else:
+            missing = [k for k in FLIGHT_FIELDS if getattr(self, k) is None]
+            require(not missing, f"case {self.name!r}: needs {', '.join(missing)} (or a list of targets)")
+            require(len(self.segments) > 0, f"case {self.name!r}: the trajectory is empty (no segments)")
+            require(self.speed_mps >= 0, f"case {self.name!r}: speed_mps must be >= 0")
+
+    def flights(self) -> tuple[TargetSpec, ...]:
+        """The case's targets (an inline flight is one target named like the case, born at 0)."""
+        if self.targets:
+            return self.targets
+        return (TargetSpec(self.name, self.start_range_m, self.start_bearing_deg, self.speed_mps, self.heading_deg,
+                           self.segments),)
+
+    @property
+    def duration_s(self) -> float:
+        return max(t.end_s for t in self.flights())
+
+
+@dataclass(frozen=True)
+class DetectionSpec:
+    """Detections for multi-target trackers: every transmitter-receiver pair detects each living
+    target with probability ``pd`` per scan and reports clutter (:class:`ClutterSpec`, its box over
+    ``components``); the noise is the scenario's fixed noise."""
+
+    pd: float = 0.9
+    clutter: ClutterSpec = ClutterSpec()
+    components: tuple[str, ...] = ("range", "range_rate", "azimuth")
+
+    def __post_init__(self) -> None:
+        require(0 < self.pd <= 1, f"detections.pd must be in (0, 1], got {self.pd}")
+        allowed = ("range", "range_rate", "azimuth")
+        require(len(self.components) > 0 and self.components[0] == "range"
+                and all(c in allowed for c in self.components) and len(set(self.components)) == len(self.components),
+                f"detections.components must start with range and be distinct names from {allowed}, "
+                f"got {list(self.components)}")
+
+
+@dataclass(frozen=True)
+class SetMetricSpec:
+    """Cut-off ``c_m`` (m) and order ``p`` of OSPA / GOSPA (and the cut-off of the label
+    assignment behind per-target RMSE and label switches)."""
+
+    c_m: float = 1000.0
+    p: float = 2.0
+
+    def __post_init__(self) -> None:
+        require(math.isfinite(self.c_m) and self.c_m > 0, f"set_metrics.c_m must be a positive distance, got {self.c_m}")
+        require(math.isfinite(self.p) and self.p >= 1, f"set_metrics.p must be >= 1, got {self.p}")
 
 
 @dataclass(frozen=True)
@@ -150,29 +216,30 @@ class FixedNoiseSpec:
 
 @dataclass(frozen=True)
 class MethodSpec:
-    """A method to run: ``kind`` picks the implementation, ``options`` its settings
-    (:data:`METHOD_OPTIONS`), ``checkpoint`` the trained tracker of a ``learned`` method."""
+    """A method to run: ``kind`` names a registered method kind (:mod:`pmsr_nn.methods`: its product,
+    options and defaults), ``options`` its settings, ``checkpoint`` the trained tracker of a kind
+    that needs one (``learned``)."""
 
     name: str
-    kind: MethodKind
+    kind: str
     checkpoint: str | None = None
     options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         require(bool(self.name) and "/" not in self.name, f"method name {self.name!r} must be non-empty, without '/'")
-        if self.kind == "learned":
-            require(self.checkpoint is not None, f"method {self.name!r}: a learned method needs a checkpoint")
+        kind = method_kind(self.kind)
+        if kind.needs_checkpoint:
+            require(self.checkpoint is not None, f"method {self.name!r}: a {self.kind} method needs a checkpoint")
         else:
-            require(self.checkpoint is None, f"method {self.name!r}: only a learned method takes a checkpoint")
-        allowed = METHOD_OPTIONS[self.kind]
-        unknown = sorted(set(self.options) - set(allowed))
+            require(self.checkpoint is None, f"method {self.name!r}: kind {self.kind} takes no checkpoint")
+        unknown = sorted(set(self.options) - set(kind.options))
         require(not unknown, f"method {self.name!r}: unknown option(s) {unknown} for kind {self.kind!r} "
-                             f"(valid: {sorted(allowed) or 'none'})")
+                             f"(valid: {sorted(kind.options) or 'none'})")
         for key, value in self.options.items():
-            _check_option(self.name, key, value)
+            _check_option(self.name, key, value, kind.options[key])
 
     def option(self, key: str):
-        return self.options.get(key, METHOD_OPTIONS[self.kind][key])
+        return self.options.get(key, method_kind(self.kind).options[key].default)
 
     def tuned(self) -> list[str]:
         """Options set to ``tuned``, in :data:`TUNABLE` order."""
@@ -201,7 +268,7 @@ class TuningSpec:
         require(self.seed >= 0, f"tuning.seed must be non-negative, got {self.seed}")
         for key in TUNABLE:
             grid = self.grid(key)
-            _, lo, hi = OPTION_RANGES[key]
+            lo, hi = TUNABLE_RANGES[key]
             for v in grid:
                 require(lo <= v <= hi, f"tuning.{key}_grid: values must be in [{lo}, {hi}], got {v}")
             dup = sorted({v for v in grid if grid.count(v) > 1})
@@ -238,6 +305,9 @@ class Scenario:
     ramp_s: float = 60.0
     reference: ReferenceSpec | None = None
     tuning: TuningSpec | None = None
+    detections: DetectionSpec | None = None
+    set_metrics: SetMetricSpec = SetMetricSpec()
+    random_streams: Literal["per_block", "per_product"] = "per_block"
     description: str = ""
     base_dir: str = field(default=".", init=False, compare=False)
 
@@ -257,6 +327,15 @@ class Scenario:
         for what, names in (("case", [c.name for c in self.cases]), ("method", [m.name for m in self.methods])):
             dup = sorted({n for n in names if names.count(n) > 1})
             require(not dup, f"duplicate {what} name(s): {dup}")
+        for m in self.methods:
+            reads = method_kind(m.kind).reads
+            require(reads != "detections" or self.detections is not None,
+                    f"method {m.name!r} (kind {m.kind}) reads detections, which this scenario does not make: add a "
+                    "detections section (pd, clutter)")
+        products = sorted({method_kind(m.kind).reads for m in self.methods})
+        require(len(products) == 1 or self.random_streams == "per_product",
+                f"the methods read {len(products)} products ({', '.join(products)}); set random_streams: per_product "
+                "(each product its own random stream, one initiation prior shared by all)")
         for m in self.methods:
             tuned = m.tuned()
             if not tuned:
@@ -316,8 +395,15 @@ class Scenario:
         from ..config import to_dict
 
         d = to_dict(self)
-        if self.tuning is None:
-            del d["tuning"]
+        for key, off in (("tuning", None), ("detections", None), ("set_metrics", to_dict(SetMetricSpec())),
+                         ("random_streams", "per_block")):
+            if d[key] == off:
+                del d[key]
+        for c in d["cases"]:  # an inline case is written as before; a multi-target one without the inline fields
+            for k in (*FLIGHT_FIELDS, "targets") if c["targets"] else ("targets",):
+                c.pop(k, None)
+            if c.get("segments") == []:
+                del c["segments"]
         if not self.noise.has_outliers and self.noise.range_outlier_scale == 10.0:
             del d["noise"]["range_outlier_prob"], d["noise"]["range_outlier_scale"]
         return d

@@ -29,7 +29,9 @@ from ..metrics import position_columns, squared_error
 from ..rng import seeded_generator
 from ..simulation.recipe import TrackRecipe, load_recipe
 from ..simulation.tracks import generate_tracks
-from .methods import PER_RUN_OPTIONS, Models, run_method
+from ..methods import Models
+from ..methods.single_target import PER_RUN_OPTIONS, run_single
+from ..simulation.products import SensorSetup, Truth, make_streams
 from .scenario import MethodSpec, Scenario
 
 TUNING_STREAM = 0x74756E65
@@ -71,19 +73,20 @@ def training_recipe(sc: Scenario, recipe: TrackRecipe) -> tuple[TrackRecipe, str
 
 def tuning_data(sc: Scenario, recipe: TrackRecipe, models: Models, prior_sd: torch.Tensor) -> TuningData:
     """Draw the tuning tracks (truth from the training recipe, measurements as in the scenario)."""
-    from .runner import draw_runs
-
     train, label = training_recipe(sc, recipe)
     g = seeded_generator(sc.tuning.seed, TUNING_STREAM)
     batch, _ = generate_tracks(train, sc.tuning.tracks, g)
     truth = batch.states
-    z, prior = draw_runs(models.model.h(truth), truth[:, 0], len(truth), models, prior_sd, sc.noise, g)
-    return TuningData(truth, z, prior, label)
+    sensing = SensorSetup(models.model, prior_sd, sc.noise.range_outlier_prob, sc.noise.range_outlier_scale)
+    alive = torch.ones(truth.shape[1], 1, dtype=torch.bool)
+    streams = make_streams(sensing, Truth(truth[:, :, None], alive), g, g)  # noise, prior, outliers: one generator
+    prior = Gaussian(streams.prior.x[:, 0], streams.prior.P[:, 0])
+    return TuningData(truth, streams.z[:, 0], prior, label)
 
 
 def _scores(spec: MethodSpec, points: list[dict], data: TuningData, models: Models, warmup: int) -> list[float]:
     """Position RMSE after the warm-up (Eq. 31, m) at each of ``points`` (which differ only in
-    options of :data:`~.methods.PER_RUN_OPTIONS`), in one call: the tracks repeated once per
+    options of :data:`~pmsr_nn.methods.single_target.PER_RUN_OPTIONS`), in one call: the tracks repeated once per
     point, the options given per run. A failing call is retried point by point; a point whose
     filter fails scores infinity."""
     B, K = data.truth.shape[:2]
@@ -94,7 +97,7 @@ def _scores(spec: MethodSpec, points: list[dict], data: TuningData, models: Mode
                for k in points[0] if k in PER_RUN_OPTIONS}
     prior = Gaussian(data.prior.x.repeat(reps, 1), data.prior.P.repeat(reps, 1, 1))
     try:
-        x = run_method(trial, data.z.repeat(reps, 1, 1), prior, models, {}, (0, TUNING_STREAM), per_run).x
+        x = run_single(trial, data.z.repeat(reps, 1, 1), prior, models, None, (0, TUNING_STREAM), per_run).x
     except FilterError:
         if reps == 1:
             return [math.inf]

@@ -30,13 +30,17 @@ PADDING = -2
 @dataclass(frozen=True)
 class ClutterSpec:
     """Clutter of one sensor and scan: ``per_scan`` points (the exact number for ``model="fixed"``,
-    the Poisson mean for ``"poisson"``), uniform over a box of bistatic range ``range_m`` (m) and
-    ``doppler_hz`` (Hz), the same box for every sensor."""
+    the Poisson mean for ``"poisson"``), uniform over a box of the sensor's measurement space, the
+    same box for every sensor: bistatic range ``range_m`` (m) and, for the components the model
+    has, Doppler ``doppler_hz`` (Hz), bistatic range-rate ``range_rate_mps`` (m/s) and azimuth
+    ``azimuth_deg`` (deg)."""
 
     per_scan: float = 50.0
     model: Literal["fixed", "poisson"] = "fixed"
     range_m: tuple[float, float] = (0.0, 150_000.0)
     doppler_hz: tuple[float, float] = (-250.0, 250.0)
+    range_rate_mps: tuple[float, float] = (-300.0, 300.0)
+    azimuth_deg: tuple[float, float] = (-180.0, 180.0)
 
     def __post_init__(self) -> None:
         require(self.per_scan >= 0 and math.isfinite(self.per_scan), f"clutter per_scan must be >= 0, got {self.per_scan}")
@@ -44,17 +48,36 @@ class ClutterSpec:
                 f"a fixed clutter count must be a whole number, got {self.per_scan}")
         check_interval("clutter range_m", self.range_m, nonneg=True)
         check_interval("clutter doppler_hz", self.doppler_hz)
+        check_interval("clutter range_rate_mps", self.range_rate_mps)
+        check_interval("clutter azimuth_deg", self.azimuth_deg)
+        require(-180.0 <= self.azimuth_deg[0] and self.azimuth_deg[1] <= 180.0,
+                f"clutter azimuth_deg must lie in [-180, 180], got {self.azimuth_deg}")
         require(self.volume > 0, "the clutter box must have a positive area")
+
+    def box(self, components=("range", "doppler")) -> tuple[list[float], list[float]]:
+        """Lower corner and extent of the box over ``components``, in SI units (azimuth in rad)."""
+        bounds = {"range": self.range_m, "doppler": self.doppler_hz, "range_rate": self.range_rate_mps,
+                  "azimuth": tuple(math.radians(a) for a in self.azimuth_deg)}
+        lo = [float(bounds[c][0]) for c in components]
+        return lo, [float(bounds[c][1]) - v for c, v in zip(components, lo)]
+
+    def volume_of(self, components=("range", "doppler")) -> float:
+        """Volume of the measurement box over ``components`` (SI units, azimuth in rad)."""
+        return math.prod(self.box(components)[1])
+
+    def density_of(self, components=("range", "doppler")) -> float:
+        """Expected clutter points per unit of that measurement space."""
+        return self.per_scan / self.volume_of(components)
 
     @property
     def volume(self) -> float:
-        """Area of the measurement box (m Hz): the paper's ``V_s``."""
-        return (self.range_m[1] - self.range_m[0]) * (self.doppler_hz[1] - self.doppler_hz[0])
+        """Area of the range x Doppler box (m Hz): the paper's ``V_s``."""
+        return self.volume_of()
 
     @property
     def density(self) -> float:
-        """Expected clutter points per unit of measurement space (1 / (m Hz))."""
-        return self.per_scan / self.volume
+        """Expected clutter points per unit of range x Doppler (1 / (m Hz))."""
+        return self.density_of()
 
 
 @dataclass
@@ -87,18 +110,24 @@ class Scans:
 
 
 def check_model_for_detections(model: MeasurementModel) -> None:
-    if model.layout != "pair" or tuple(model.components) != ("range", "doppler"):
-        raise ConfigError("detections are (bistatic range m, Doppler Hz) per sensor: the measurement model needs "
-                          f"components ('range', 'doppler') in layout 'pair', got {model.components} / {model.layout!r}")
+    """Detections are per sensor, bistatic range first (the loss rule reads its deviation)."""
+    if model.layout != "pair" or model.components[0] != "range":
+        raise ConfigError("detections are per sensor with the bistatic range first: the measurement model needs "
+                          f"layout 'pair' and components starting with 'range', got {model.components} / {model.layout!r}")
 
 
 def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clutter: ClutterSpec,
-                   generator: torch.Generator | None = None) -> Scans:
-    """Detections of targets ``truth (B, K, T, n)`` (SI states) by every sensor of ``model``.
+                   generator: torch.Generator | None = None, alive: torch.Tensor | None = None) -> Scans:
+    """Detections of targets ``truth (B, K, T, n)`` (SI states) by every sensor of ``model``;
+    ``alive (K, T)`` or ``(B, K, T)`` (default: all) says which targets exist at each scan (a
+    target that does not is never detected; its states may be NaN).
 
     All draws for all runs at once, from ``generator``: detection (``pd``), measurement noise
-    (``model.noise_std``), clutter count and positions, and the shuffle of each list.
+    (``model.noise_std``), clutter count and positions, and the shuffle of each list. Angles
+    (azimuth) are wrapped to (-pi, pi].
     """
+    from ..measurements import wrap_angle
+
     check_model_for_detections(model)
     require(0.0 <= pd <= 1.0, f"pd must be in [0, 1], got {pd}")
     if truth.dim() != 4:
@@ -108,7 +137,12 @@ def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clut
     dtype, device = truth.dtype, truth.device
     clean = model.h(truth).reshape(B, K, T, N, d)
     noisy = clean + standard_normal(clean.shape, generator, dtype, device) * torch.tensor(model.noise_std, dtype=dtype, device=device)
+    if "azimuth" in model.components:
+        angles = torch.tensor([c == "azimuth" for c in model.components], device=device)
+        noisy = torch.where(angles, wrap_angle(noisy), noisy)
     detected = torch.rand((B, K, T, N), generator=generator, dtype=dtype, device=device) < pd
+    if alive is not None:
+        detected = detected & alive.to(device).expand(B, K, T).unsqueeze(-1)
     target_z = noisy.permute(0, 1, 3, 2, 4)  # (B, K, N, T, d)
     target_ok = detected.permute(0, 1, 3, 2)
 
@@ -118,9 +152,7 @@ def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clut
         rate = torch.full((B, K, N), float(clutter.per_scan), dtype=dtype, device=device)
         counts = torch.poisson(rate, generator=generator).to(torch.int64)
     C = int(counts.max()) if counts.numel() else 0
-    lo = torch.tensor([clutter.range_m[0], clutter.doppler_hz[0]], dtype=dtype, device=device)
-    span = torch.tensor([clutter.range_m[1] - clutter.range_m[0], clutter.doppler_hz[1] - clutter.doppler_hz[0]],
-                        dtype=dtype, device=device)
+    lo, span = (torch.tensor(v, dtype=dtype, device=device) for v in clutter.box(model.components))
     clutter_z = lo + span * torch.rand((B, K, N, C, d), generator=generator, dtype=dtype, device=device)
     clutter_ok = torch.arange(C, device=device) < counts.unsqueeze(-1)
 

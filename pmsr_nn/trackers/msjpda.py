@@ -37,7 +37,7 @@ import torch
 from ..config import require
 from ..errors import ConfigError
 from ..filters.gaussian import Gaussian, MeasurementMoments, kalman_update, predict, safe_cholesky, unscented_moments
-from ..measurements import MeasurementModel
+from ..measurements import MeasurementModel, wrap_angle
 from ..motion import KinematicModel
 from ..simulation.detections import Scans, check_model_for_detections
 from .clustering import track_clusters
@@ -108,12 +108,14 @@ def _expand(m: MeasurementMoments) -> MeasurementMoments:
 
 
 def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
-                 s: JPDASettings, gamma: float) -> tuple[Gaussian, np.ndarray, torch.Tensor]:
-    """One sensor's detections ``z (B, M, d)`` update tracks ``g`` ``(B, T, n)`` (Eqs. 15-21)."""
+                 s: JPDASettings, gamma: float, active: torch.Tensor | None = None) -> tuple[Gaussian, np.ndarray, torch.Tensor]:
+    """One sensor's detections ``z (B, M, d)`` update tracks ``g`` ``(B, T, n)`` (Eqs. 15-21);
+    a track outside ``active (B, T)`` gates nothing (it is only predicted)."""
     mom = unscented_moments(g, sub, R)
     nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d)
     d2, log_lik = gaussian_log_likelihood(nu, mom.S)
-    gated = ((d2 <= gamma) & valid.unsqueeze(1)).numpy()
+    gate = (d2 <= gamma) & valid.unsqueeze(1)
+    gated = (gate if active is None else gate & active.unsqueeze(-1)).numpy()
     cost = np.where(gated, detection_costs(log_lik.numpy(), s.pd, s.clutter_density), np.inf)
     B, T, M = gated.shape
     alpha = np.zeros((B, T, M + 1))
@@ -131,6 +133,18 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     P_all = torch.cat([post.P, g.P.unsqueeze(-3)], dim=-3)
     dummy = alpha[..., M] >= alpha[..., :M].max(-1, initial=0.0)
     return _collapse(w, x_all, P_all), dummy, mom.S[..., 0, 0].sqrt()
+
+
+def _wrap(nu: torch.Tensor, model: MeasurementModel) -> torch.Tensor:
+    """Angle components of per-sensor residuals ``(..., d)`` wrapped to (-pi, pi]."""
+    if "azimuth" not in model.components:
+        return nu
+    angles = torch.tensor([c == "azimuth" for c in model.components])
+    return torch.where(angles, wrap_angle(nu), nu)
+
+
+def _wrap_np(nu: np.ndarray, model: MeasurementModel) -> np.ndarray:
+    return _wrap(torch.from_numpy(nu), model).numpy() if "azimuth" in model.components else nu
 
 
 def _pattern_inverses(S: torch.Tensor, N: int, d: int) -> tuple[np.ndarray, np.ndarray]:
@@ -151,17 +165,19 @@ def _pattern_inverses(S: torch.Tensor, N: int, d: int) -> tuple[np.ndarray, np.n
 
 
 def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: MeasurementModel, R: torch.Tensor,
-                s: JPDASettings, gamma: float) -> tuple[Gaussian, np.ndarray, torch.Tensor, float]:
-    """All sensors' detections ``z (B, N, M, d)`` update tracks ``g`` jointly (Eqs. 9-14)."""
+                s: JPDASettings, gamma: float, active: torch.Tensor | None = None) -> tuple[Gaussian, np.ndarray, torch.Tensor, float]:
+    """All sensors' detections ``z (B, N, M, d)`` update tracks ``g`` jointly (Eqs. 9-14); a
+    track outside ``active (B, T)`` gates nothing."""
     B, N, M, d = z.shape
     T = g.x.shape[1]
     mom = unscented_moments(g, model, R)  # pair layout: sensor s owns rows s*d .. s*d+d-1
     zhat = mom.z.reshape(B, T, N, d)
     # each sensor's diagonal block of the joint S, (B, T, N, d, d), gates that sensor's detections
     S_blocks = mom.S.reshape(B, T, N, d, N, d).diagonal(dim1=2, dim2=4).permute(0, 1, 4, 2, 3)
-    nu = z.unsqueeze(1) - zhat.unsqueeze(3)  # (B, T, N, M, d); range and Doppler rows do not wrap
+    nu = _wrap(z.unsqueeze(1) - zhat.unsqueeze(3), model)  # (B, T, N, M, d)
     d2, _ = gaussian_log_likelihood(nu, S_blocks)
-    gated = ((d2 <= gamma) & valid.unsqueeze(1)).numpy()  # (B, T, N, M)
+    gate = (d2 <= gamma) & valid.unsqueeze(1)
+    gated = (gate if active is None else gate & active[:, :, None, None]).numpy()  # (B, T, N, M)
     inv, half_logdet = _pattern_inverses(mom.S, N, d)
     zn, zhat_n = z.numpy(), zhat.numpy()
     det_offset = math.log(2 * math.pi) * d / 2 - math.log(s.pd) + math.log(s.clutter_density)  # per detection
@@ -181,7 +197,7 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
                 idx = np.array(list(itertools.product(*options)), dtype=np.int64)  # (L, N)
                 hit = idx >= 0
                 meas = np.where(hit[..., None], zn[b, np.arange(N), np.maximum(idx, 0)], np.nan)  # (L, N, d)
-                r = np.where(hit[..., None], meas - zhat_n[b, t], 0.0).reshape(len(idx), N * d)
+                r = np.where(hit[..., None], _wrap_np(meas - zhat_n[b, t], model), 0.0).reshape(len(idx), N * d)
                 pattern = (hit * (1 << np.arange(N))).sum(1)
                 quad = np.einsum("li,lij,lj->l", r, inv[b, t, pattern], r)
                 D = hit.sum(1)
@@ -220,19 +236,37 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
     return _collapse(torch.from_numpy(Wc), post.x, post.P), dummy, range_sd, worst_gap
 
 
+def _births(active: torch.Tensor | None, B: int, K: int, T: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """``active`` as ``(B, K, T)`` and each track's first active scan ``(B, T)`` (K if never)."""
+    if active is None:
+        return None, None
+    if active.shape not in ((K, T), (B, K, T)):
+        raise ConfigError(f"active must be (K={K}, T={T}) or (B={B}, K, T), got {tuple(active.shape)}")
+    active = active.expand(B, K, T)
+    first = torch.where(active.any(1), active.to(torch.int64).argmax(1), torch.full((B, T), K))
+    return active, first
+
+
 def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: float, model: MeasurementModel,
-           R: torch.Tensor, settings: JPDASettings, architecture: Literal["sequential", "parallel"]) -> MultiTargetResult:
+           R: torch.Tensor, settings: JPDASettings, architecture: Literal["sequential", "parallel"],
+           active: torch.Tensor | None = None) -> MultiTargetResult:
     """Track ``T`` targets through ``scans`` (``B`` runs, ``K`` scans) from ``prior`` ``x (B, T, n)``.
 
     Step 0 is an update of the prior only (the convention of :mod:`pmsr_nn.filters.kalman`); every
     later scan a CV/CA prediction over ``dt`` with process noise ``q``, then the update of the
     chosen architecture. ``R (N d, N d)`` is block-diagonal over sensors (pair layout).
+
+    ``active (K, T)`` or ``(B, K, T)`` (default: every track at every scan) gives each track's
+    life: a track is started from its ``prior`` at its first active scan (the prior is then the
+    state at that scan), takes part in the association only while active, and is only predicted
+    otherwise (its estimates there mean nothing).
     """
     check_tracker_inputs(scans, prior, motion, model)
     if architecture not in ("sequential", "parallel"):
         raise ConfigError(f"architecture must be 'sequential' or 'parallel', got {architecture!r}")
     B, K, N, M = scans.shape
     T, n = prior.x.shape[1:]
+    active, first = _births(active, B, K, T)
     d = len(model.components)
     gamma = gate_threshold(settings.gate_probability, d)
     F, Q = motion.F(dt, prior.x.dtype), motion.Q(dt, q, prior.x.dtype)
@@ -247,17 +281,22 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
     for k in range(K):
         if k > 0:
             g = predict(g, F, Q)
+            if first is not None and bool((first == k).any()):
+                born = (first == k)
+                g = Gaussian(torch.where(born[..., None], prior.x, g.x), torch.where(born[..., None, None], prior.P, g.P))
+        act = None if active is None else active[:, k]
         if architecture == "sequential":
             flags, sds = [], []
             for j in range(N):
                 g, f, sd = _sensor_step(g, scans.z[:, k, j], scans.valid[:, k, j], subs[j], R[rows[j]][:, rows[j]],
-                                        settings, gamma)
+                                        settings, gamma, act)
                 flags.append(f)
                 sds.append(sd)
             dummy[:, k] = np.logical_and.reduce(flags)
             gate_sd[:, k] = torch.stack(sds, -1).amax(-1)
         else:
-            g, dummy[:, k], gate_sd[:, k], gap = _joint_step(g, scans.z[:, k], scans.valid[:, k], model, R, settings, gamma)
+            g, dummy[:, k], gate_sd[:, k], gap = _joint_step(g, scans.z[:, k], scans.valid[:, k], model, R, settings, gamma,
+                                                             act)
             worst_gap = max(worst_gap, gap)
         x[:, k], P[:, k] = g.x, g.P
     return MultiTargetResult(x, P, torch.from_numpy(dummy), gate_sd, worst_gap)

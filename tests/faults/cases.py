@@ -1102,8 +1102,23 @@ case("evaluate/seed-negative", "evaluate s.yaml --quiet --out out", setup=scenar
      message="seed", klass="silent_wrong")
 case("evaluate/noise-zero", "evaluate s.yaml --out out", setup=scenario_set(noise={"range_m": 0.0}), message="noise",
      klass="refusal")
-case("evaluate/multitarget-with-shard", "evaluate mt.yaml --out out --shard 1/2",
-     setup=write("mt.yaml", "kind: multitarget\nname: mt\n"), message="shard", klass="refusal")
+case("evaluate/multitarget-incomplete", "evaluate mt.yaml --out out --shard 1/2",
+     setup=write("mt.yaml", "kind: multitarget\nname: mt\n"), message="cases", klass="refusal")
+case("evaluate/product-not-made", "evaluate s.yaml --out out",
+     setup=scenario_method("s.yaml", {"name": "JPDA", "kind": "s_msjpda"}), message="reads detections",
+     klass="refusal")
+_TWO = [{"name": "a", "start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0, "heading_deg": 20.0,
+         "segments": [{"duration_s": 300.0}]}]
+case("evaluate/target-death-before-birth", "evaluate s.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: d["cases"].__setitem__(0, {"name": "c", "targets": [
+         {**_TWO[0], "birth_s": 100.0, "death_s": 50.0}]})), message="death before birth", klass="refusal")
+case("evaluate/target-out-of-envelope", "evaluate s.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: d["cases"].__setitem__(0, {"name": "c", "targets": [
+         {**_TWO[0], "start_range_m": 60000.0}]})), message="envelope", klass="refusal")
+case("evaluate/two-products-one-stream", "evaluate s.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: (d.update(detections={"pd": 0.9}),
+                                                          d["methods"].append({"name": "J", "kind": "s_msjpda"}))),
+     message="random_streams", klass="refusal")
 _SIG_EV = ("evaluate sc_big.yaml --quiet --out big", ("big.partial*", ".big.partial*", "big"))
 case("evaluate/sigterm", _SIG_EV[0], signal=("SIGTERM", 2.0), signal_after=_SIG_EV[1], klass="traceback",
      note="a killed evaluate must not leave big.partial-XXXX behind")

@@ -1,0 +1,111 @@
+"""Per-block sums of one method's estimates against the truth: what :mod:`.runner` keeps.
+
+Everything here is summed over the runs of a block (the Monte Carlo dimension), so that the
+figures of a scenario are sums of blocks reduced in block order (shards merge bit for bit).
+Shapes: ``K`` scans, ``N`` targets (= track slots of a labelled tracker), ``B`` runs.
+
+Point metrics (every method, every case), on the (run, scan, target) entries where the target
+lives and its track exists:
+
+* ``pos`` / ``vel`` ``(K, N)``: summed squared position / velocity error (m^2, m^2/s^2), ``count``
+  ``(K, N)`` how many runs entered them;
+* ``nees`` ``(K, N)``: summed NEES over the full state / its dimension (NaN: no covariances);
+* ``run_mse`` ``(B, N)``: per run and target, the mean squared position error over its scored scans.
+
+Multi-target metrics (cases with more than one target), from the labelled estimates as sets:
+OSPA and GOSPA (split into localisation, missed and false parts) per scan, the cardinality
+error, per-target squared error after the best fixed assignment of track labels to targets over
+the run (``assigned_pos``, ``assigned_count``), label switches per target, the swaps of the
+S-MSJPDA study (at the last scan, a track nearer another target than its own) and, for trackers
+that report the flags, the paper's track-loss rule.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..metrics import label_switches, labelled_assignment, normalised_nees, set_scores, squared_error, track_loss
+from ..simulation.products import Truth
+from ..trackers.base import Estimates
+
+PER_RUN = ("run_mse",)
+"""Quantities kept per run (concatenated over blocks); every other one is summed per block."""
+
+
+def _masked_sum(values: torch.Tensor, mask: torch.Tensor) -> np.ndarray:
+    zero = torch.zeros((), dtype=values.dtype)
+    return torch.where(mask, values, zero).sum(0).numpy()
+
+
+def point_sums(est: Estimates, truth: Truth, scored: torch.Tensor, pos: list[int], vel: list[int]) -> dict[str, np.ndarray]:
+    """``pos``, ``vel``, ``count``, ``nees`` and ``run_mse`` (module docstring); ``scored (K, N)``
+    marks the scans of each target that enter ``run_mse`` (after its warm-up); ``pos`` / ``vel``
+    are the state's position / velocity columns."""
+    live = est.exists & truth.alive  # (B, K, N)
+    se_p = squared_error(est.x, truth.x, pos)
+    se_v = squared_error(est.x, truth.x, vel)
+    if est.P is not None:
+        nees = normalised_nees(est.x, est.P, truth.x)
+    else:
+        nees = torch.full_like(se_p, float("nan"))
+    if se_p.shape[-1] == 1 and bool(live.all()):  # one target, always tracked: the plain mean of its scored scans
+        run_mse = se_p[:, scored[:, 0], 0].mean(1, keepdim=True)
+    else:
+        mask = scored & live
+        run_mse = torch.where(mask, se_p, torch.zeros((), dtype=se_p.dtype)).sum(1) / mask.sum(1).clamp(min=1)
+    return {"pos": _masked_sum(se_p, live), "vel": _masked_sum(se_v, live),
+            "count": live.sum(0).to(torch.float64).numpy(),
+            "nees": torch.where(live, nees, torch.zeros((), dtype=nees.dtype)).sum(0).numpy() if est.P is not None
+            else np.full(tuple(live.shape[1:]), np.nan),
+            "run_mse": run_mse.numpy()}
+
+
+def swaps(est: Estimates, truth: Truth, pos: list[int]) -> dict[str, np.ndarray]:
+    """``swap (N,)``: runs in which, at the last scan, target ``t``'s track is nearer another living
+    target's truth than its own; ``swap_n (N,)``: runs in which target ``t`` and its track exist then."""
+    alive = truth.alive[-1]  # (N,)
+    e, t = est.x[:, -1][..., pos], truth.x[:, -1][..., pos]  # (B, N, 2)
+    d = torch.cdist(torch.nan_to_num(e), torch.nan_to_num(t))
+    d = torch.where(alive[None, None, :], d, torch.full_like(d, float("inf")))
+    ok = est.exists[:, -1] & alive  # (B, N)
+    swapped = ok & (d.argmin(-1) != torch.arange(est.x.shape[2]))
+    return {"swap": swapped.sum(0).to(torch.float64).numpy(), "swap_n": ok.sum(0).to(torch.float64).numpy()}
+
+
+def loss_counts(est: Estimates, successive: int, gate_limit_m: float) -> dict[str, np.ndarray]:
+    """``lost (N,)``: runs in which the paper's rule declares target ``t``'s track lost (only for
+    trackers whose extras carry ``dummy_most_probable`` and ``gate_range_sd_m``)."""
+    if "dummy_most_probable" not in est.extras:
+        return {}
+    lost = track_loss(est.extras["dummy_most_probable"], est.extras["gate_range_sd_m"], successive, gate_limit_m)
+    return {"lost": (lost >= 0).sum(0).to(torch.float64).numpy()}
+
+
+def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float) -> dict[str, np.ndarray]:
+    """Multi-target sums over the runs (module docstring): per scan ``(K,)`` ``ospa``,
+    ``gospa_loc``, ``gospa_missed``, ``gospa_false`` (p-th powers, m^p), ``n_est``, ``abs_card``;
+    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)``. ``pos``: position columns."""
+    n = est.x.shape[-1]
+    B, K, N = est.exists.shape
+    e, e_mask = est.x[..., pos], est.exists
+    t, t_mask = truth.x[..., pos], truth.alive.expand(B, K, N)
+    sc = set_scores(e, e_mask, t, t_mask, c, p)
+    g = sc.gospa
+    out = {"ospa": sc.ospa.sum(0).numpy(), "gospa_loc": g.localisation.sum(0).numpy(), "gospa_missed": g.missed.sum(0).numpy(),
+           "gospa_false": g.false.sum(0).numpy(),
+           "n_est": e_mask.sum(-1).sum(0).to(torch.float64).numpy(),
+           "abs_card": (e_mask.sum(-1) - t_mask.sum(-1)).abs().sum(0).to(torch.float64).numpy()}
+    label = labelled_assignment(e, e_mask, t, t_mask, c)  # (B, M): target of each track label
+    hit = label.unsqueeze(-1) == torch.arange(N)  # (B, M, N)
+    has = hit.any(1)  # (B, N): a label is assigned to the target
+    which = hit.to(torch.int64).argmax(1)  # (B, N): that label
+    idx = which[:, None, :, None].expand(B, K, N, n)
+    x_lab = est.x.gather(2, idx)
+    ex_lab = est.exists.gather(2, which[:, None, :].expand(B, K, N))
+    both = has[:, None, :] & ex_lab & t_mask
+    se = squared_error(x_lab, truth.x, pos)
+    out["assigned_pos"] = _masked_sum(se, both)
+    out["assigned_count"] = both.sum(0).to(torch.float64).numpy()
+    out["switches"] = label_switches(sc.assignment, t_mask).sum(0).to(torch.float64).numpy()
+    return out

@@ -1,0 +1,128 @@
+"""The methods a scenario can run, behind one interface: a product in, labelled estimates out.
+
+Every method kind is a :class:`MethodKind` in :data:`REGISTRY`: the product it reads
+(:mod:`pmsr_nn.simulation.products`), its options with defaults and ranges, whether it needs a
+checkpoint, and ``run(call) -> Estimates``. The modules of this package register their kinds
+when imported, and :func:`registry` imports every module of the package, so a new tracker is
+one module here (plus its tests): the runner and the report need no edit.
+
+* :mod:`.single_target`: EKF, UKF, IMM, SI+KF, particle filter and learned trackers, each run
+  on every target's own stream (association known);
+* :mod:`.msjpda`: S-/P-MSJPDA and the true-assignment reference, on the detections.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import zlib
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import torch
+
+from ..errors import ConfigError
+from ..measurements import MeasurementModel
+from ..motion import KinematicModel
+from ..simulation.products import SensorSetup
+from ..trackers.base import Estimates
+
+
+@dataclass
+class Models:
+    """What the classical methods share: motion and measurement models, interval ``dt`` (s),
+    process-noise PSD ``q`` (the motion model's unit), measurement covariance ``R (m, m)`` and
+    deviations ``noise_std (m_c,)`` per component of the per-target stream."""
+
+    motion: KinematicModel
+    model: MeasurementModel
+    dt: float
+    q: float
+    R: torch.Tensor
+    noise_std: torch.Tensor
+
+
+@dataclass
+class MethodCall:
+    """One call of a method on a block of runs: its ``spec`` (``MethodSpec``, options resolved),
+    the ``product`` it reads, the targets' lives ``alive (K, N)``, the shared ``models``, how
+    the case is sensed (``sensing``), what :attr:`MethodKind.load` prepared (``resource``), and
+    ``seed``: the block's random stream, for methods that draw."""
+
+    spec: Any
+    product: Any
+    alive: torch.Tensor
+    models: Models
+    sensing: SensorSetup
+    resource: Any = None
+    seed: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class Option:
+    """An option: ``default``, ``kind`` (int or float), inclusive range; ``nullable``: null means
+    a default taken elsewhere; ``tunable``: may be ``tuned`` (a grid search picks it)."""
+
+    default: Any
+    kind: type = float
+    lo: float = 0.0
+    hi: float = 1.0e6
+    nullable: bool = False
+    tunable: bool = False
+
+
+@dataclass(frozen=True)
+class MethodKind:
+    """A registered method kind (see the module docstring).
+
+    ``load(spec, context) -> resource`` runs before anything is written (it loads and checks a
+    checkpoint); ``causal(resource)`` says whether an estimate at scan k reads only scans up to k;
+    ``check(spec, alive, resource)`` refuses a case the method can not run (one-line error).
+    """
+
+    name: str
+    reads: str
+    run: Callable[[MethodCall], Estimates]
+    options: dict[str, Option] = field(default_factory=dict)
+    needs_checkpoint: bool = False
+    load: Callable | None = None
+    causal: Callable[[Any], bool] = lambda resource: True
+    check: Callable | None = None
+    description: str = ""
+    multi_target: bool = False
+
+
+REGISTRY: dict[str, MethodKind] = {}
+
+
+def register(kind: MethodKind) -> MethodKind:
+    if kind.name in REGISTRY:
+        raise ValueError(f"method kind {kind.name!r} is registered twice")
+    REGISTRY[kind.name] = kind
+    return kind
+
+
+_loaded = False
+
+
+def registry() -> dict[str, MethodKind]:
+    """Every method kind, after importing each module of this package once."""
+    global _loaded
+    if not _loaded:
+        for info in pkgutil.iter_modules(__path__):
+            importlib.import_module(f"{__name__}.{info.name}")
+        _loaded = True
+    return REGISTRY
+
+
+def method_kind(name: str) -> MethodKind:
+    """The kind ``name``, or a one-line error listing the known kinds."""
+    kinds = registry()
+    if name not in kinds:
+        raise ConfigError(f"unknown method kind {name!r} (known: {', '.join(sorted(kinds))})")
+    return kinds[name]
+
+
+def method_stream(name: str) -> int:
+    """A stable integer naming a method's random stream (independent of its place in the list)."""
+    return zlib.crc32(name.encode())

@@ -1,0 +1,37 @@
+"""Accuracy metrics.
+
+- :mod:`.pointwise`: single-target errors over Monte Carlo runs (RMSE, NEES, track loss).
+- :mod:`.sets`: multi-object metrics on padded, masked sets (OSPA, GOSPA, assignments, label switches).
+"""
+
+from __future__ import annotations
+
+from .pointwise import (
+    normalised_nees,
+    pooled_rmse,
+    position_columns,
+    rmse_over_time,
+    squared_error,
+    track_loss,
+    velocity_columns,
+)
+from .sets import GOSPA, SetScores, cardinality_error, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, set_scores
+
+__all__ = [
+    "position_columns",
+    "velocity_columns",
+    "squared_error",
+    "rmse_over_time",
+    "pooled_rmse",
+    "normalised_nees",
+    "track_loss",
+    "optimal_assignment",
+    "ospa",
+    "set_scores",
+    "SetScores",
+    "GOSPA",
+    "gospa",
+    "cardinality_error",
+    "labelled_assignment",
+    "label_switches",
+]

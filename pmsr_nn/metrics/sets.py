@@ -1,0 +1,215 @@
+"""Multi-object metrics on padded, masked sets, batched over any leading dims (e.g. runs B, scans K).
+
+Conventions: estimates ``est (..., M, d)`` with ``est_mask (..., M)`` (bool: which slots exist),
+truth ``truth (..., N, d)`` with ``truth_mask (..., N)``; ``d`` are position columns in metres.
+Padding slots may hold anything (NaN included) and are ignored; existing slots must be finite.
+Distances are Euclidean, in metres; ``c`` (cut-off) is in metres, ``p >= 1`` is the order.
+
+The distance matrices and every metric are vectorised in torch; the only Python loop runs
+``scipy.optimize.linear_sum_assignment`` once per leading item whose two sets are both non-empty.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+
+
+def _check_cp(c: float, p: float) -> None:
+    if not (math.isfinite(c) and c > 0):
+        raise ValueError(f"cut-off c must be a finite positive distance, got {c!r}")
+    if not (math.isfinite(p) and p >= 1):
+        raise ValueError(f"order p must be finite and >= 1, got {p!r}")
+
+
+def _check_sets(est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor) -> None:
+    if est.dim() < 2 or truth.dim() < 2:
+        raise ValueError(f"est and truth must be (..., M, d) and (..., N, d), got {tuple(est.shape)} and {tuple(truth.shape)}")
+    if est_mask.shape != est.shape[:-1] or truth_mask.shape != truth.shape[:-1]:
+        raise ValueError(
+            f"masks must be est/truth without the last dim: est {tuple(est.shape)} mask {tuple(est_mask.shape)}, "
+            f"truth {tuple(truth.shape)} mask {tuple(truth_mask.shape)}"
+        )
+    if est.shape[:-2] != truth.shape[:-2] or est.shape[-1] != truth.shape[-1]:
+        raise ValueError(f"est {tuple(est.shape)} and truth {tuple(truth.shape)} differ in leading dims or in d")
+    if est_mask.dtype != torch.bool or truth_mask.dtype != torch.bool:
+        raise ValueError("est_mask and truth_mask must be bool tensors")
+
+
+def _sq_distances(est, est_mask, truth, truth_mask) -> torch.Tensor:
+    """``(..., M, N)`` squared distances; padded slots are zeroed first so NaN padding cannot leak."""
+    e = torch.where(est_mask.unsqueeze(-1), est, torch.zeros((), dtype=est.dtype, device=est.device))
+    t = torch.where(truth_mask.unsqueeze(-1), truth, torch.zeros((), dtype=truth.dtype, device=truth.device))
+    return ((e.unsqueeze(-2) - t.unsqueeze(-3)) ** 2).sum(-1)
+
+
+def _solve(cost: torch.Tensor, row_ok: torch.Tensor, col_ok: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """Minimum-cost one-to-one matching of the existing rows and columns of each ``cost (..., M, N)``
+    item; returns ``(..., M)`` int64 column per row, -1 where unmatched or where ``keep`` is False."""
+    lead, M, N = cost.shape[:-2], cost.shape[-2], cost.shape[-1]
+    L = math.prod(lead)
+    C = cost.detach().reshape(L, M, N).to("cpu", torch.float64).numpy()
+    R = row_ok.reshape(L, M).cpu().numpy()
+    Q = col_ok.reshape(L, N).cpu().numpy()
+    Kp = keep.reshape(L, M, N).cpu().numpy()
+    out = np.full((L, M), -1, dtype=np.int64)
+    for l in np.flatnonzero(R.any(1) & Q.any(1)):  # the only Python loop; sets are small
+        rows, cols = np.flatnonzero(R[l]), np.flatnonzero(Q[l])
+        r, q = linear_sum_assignment(C[l][np.ix_(rows, cols)])
+        ok = Kp[l, rows[r], cols[q]]
+        out[l, rows[r[ok]]] = cols[q[ok]]
+    return torch.from_numpy(out).reshape(*lead, M).to(cost.device)
+
+
+def _assign(est, est_mask, truth, truth_mask, c: float, p: float) -> tuple[torch.Tensor, torch.Tensor]:
+    _check_cp(c, p)
+    _check_sets(est, est_mask, truth, truth_mask)
+    D = _sq_distances(est, est_mask, truth, truth_mask).sqrt()
+    assign = _solve(D.clamp(max=c) ** p, est_mask, truth_mask, D < c)
+    return assign, D
+
+
+def _assigned_terms(D: torch.Tensor, assign: torch.Tensor, p: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sum of ``d**p`` over assigned pairs and their number (same dtype as ``D``), ``(...)`` each."""
+    valid = assign >= 0
+    d = D.gather(-1, assign.clamp(min=0).unsqueeze(-1)).squeeze(-1)
+    loc = torch.where(valid, d**p, torch.zeros((), dtype=D.dtype, device=D.device)).sum(-1)
+    return loc, valid.sum(-1).to(D.dtype)
+
+
+def optimal_assignment(
+    est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor, c: float, p: float
+) -> torch.Tensor:
+    """``(..., M)`` int64: the truth index assigned to each estimate slot, minimising the sum of
+    ``min(d, c)**p`` over the pairs of a full (``min(|X|, |Y|)``) matching. Pairs at ``d >= c`` cost the
+    same as leaving both unassigned, so they are reported as -1 (unassigned), as are padded slots."""
+    return _assign(est, est_mask, truth, truth_mask, c, p)[0]
+
+
+def ospa(est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor, c: float, p: float) -> torch.Tensor:
+    """OSPA distance of order ``p``, cut-off ``c`` (Schuhmacher, Vo & Vo 2008), ``(...)`` in metres:
+    ``(min_pi sum min(d, c)**p + c**p * (n - m)) / n) ** (1/p)`` with ``m <= n`` the two set sizes;
+    0 when both sets are empty and ``c`` when exactly one is."""
+    assign, D = _assign(est, est_mask, truth, truth_mask, c, p)
+    return _ospa(D, assign, est_mask, truth_mask, c, p)
+
+
+def _ospa(D, assign, est_mask, truth_mask, c: float, p: float) -> torch.Tensor:
+    loc, a = _assigned_terms(D, assign, p)
+    n = torch.maximum(est_mask.sum(-1), truth_mask.sum(-1)).to(D.dtype)
+    val = ((loc + c**p * (n - a)) / n.clamp(min=1)) ** (1.0 / p)
+    return torch.where(n > 0, val, torch.zeros((), dtype=D.dtype, device=D.device))
+
+
+@dataclass
+class GOSPA:
+    """GOSPA and its parts, each ``(...)``. ``total`` is in metres; ``localisation``, ``missed`` and
+    ``false`` are its p-th power contributions (``total**p == localisation + missed + false``, m^p);
+    ``n_missed`` and ``n_false`` are counts (float)."""
+
+    total: torch.Tensor
+    localisation: torch.Tensor
+    missed: torch.Tensor
+    false: torch.Tensor
+    n_missed: torch.Tensor
+    n_false: torch.Tensor
+
+
+def gospa(
+    est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor, c: float, p: float, alpha: float = 2.0
+) -> GOSPA:
+    """GOSPA (Rahmathullah, García-Fernández & Svensson 2017), ``alpha = 2`` only:
+
+    ``GOSPA**p = min over assignments of [sum_{assigned, d < c} d**p + c**p / 2 * (#unassigned truths + #unassigned estimates)]``.
+
+    A pair at ``d >= c`` costs ``c**p`` whether assigned or not; by convention it is reported as
+    unassigned, i.e. one missed truth plus one false estimate. ``localisation = sum d**p`` over the
+    pairs with ``d < c``; ``missed = c**p / 2 * n_missed``; ``false = c**p / 2 * n_false``.
+    """
+    if alpha != 2:
+        raise ValueError(f"gospa supports only alpha=2 (the assignment-based form), got alpha={alpha!r}")
+    assign, D = _assign(est, est_mask, truth, truth_mask, c, p)
+    return _gospa(D, assign, est_mask, truth_mask, c, p)
+
+
+def _gospa(D, assign, est_mask, truth_mask, c: float, p: float) -> GOSPA:
+    loc, a = _assigned_terms(D, assign, p)
+    n_missed = truth_mask.sum(-1).to(D.dtype) - a
+    n_false = est_mask.sum(-1).to(D.dtype) - a
+    missed = c**p / 2 * n_missed
+    false = c**p / 2 * n_false
+    total = (loc + missed + false) ** (1.0 / p)
+    return GOSPA(total=total, localisation=loc, missed=missed, false=false, n_missed=n_missed, n_false=n_false)
+
+
+@dataclass
+class SetScores:
+    """:func:`set_scores` of one pair of sets per leading item: ``ospa`` and ``gospa`` ``(...)``,
+    and the optimal assignment ``(..., M)`` (truth index per estimate slot, -1 unassigned)."""
+
+    ospa: torch.Tensor
+    gospa: GOSPA
+    assignment: torch.Tensor
+
+
+def set_scores(est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor, c: float,
+               p: float) -> SetScores:
+    """OSPA, GOSPA (alpha = 2) and their common optimal assignment from one solve: both minimise
+    the sum of ``min(d, c)**p`` over a full matching (a GOSPA pair at ``d >= c`` costs ``c**p``,
+    the same as leaving both unassigned), so one assignment serves all three."""
+    assign, D = _assign(est, est_mask, truth, truth_mask, c, p)
+    return SetScores(_ospa(D, assign, est_mask, truth_mask, c, p), _gospa(D, assign, est_mask, truth_mask, c, p), assign)
+
+
+def cardinality_error(est_mask: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
+    """``(...)`` float (default dtype): ``|X_est| - |X_truth|`` (positive: too many estimates)."""
+    return (est_mask.sum(-1) - truth_mask.sum(-1)).to(torch.get_default_dtype())
+
+
+def labelled_assignment(
+    est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor, c: float
+) -> torch.Tensor:
+    """One assignment per run of track labels to truth targets, fixed over the whole run.
+
+    ``est (B, K, M, d)``, ``est_mask (B, K, M)``, ``truth (B, K, N, d)``, ``truth_mask (B, K, N)``
+    (any leading dims before ``K``). Minimises, over one-to-one label -> target maps, the sum over
+    scans of ``min(||e - t||**2, c**2)`` where both exist and ``c**2`` where exactly one exists (an
+    unassigned label or target counts as paired with one that never exists). Returns ``(B, M)`` int64
+    target per label, -1 for a label left unassigned or whose target never co-exists with it.
+    """
+    _check_cp(c, 1.0)
+    _check_sets(est, est_mask, truth, truth_mask)
+    if est.dim() < 3:
+        raise ValueError(f"est must be (B, K, M, d), got {tuple(est.shape)}")
+    D2 = _sq_distances(est, est_mask, truth, truth_mask)  # (B, K, M, N)
+    both = est_mask.unsqueeze(-1) & truth_mask.unsqueeze(-2)
+    zero = torch.zeros((), dtype=D2.dtype, device=D2.device)
+    # cost of the pair minus the cost of leaving both unassigned: only co-existing scans differ,
+    # each by min(d^2, c^2) - 2 c^2 < 0 (so a full matching is optimal)
+    reduced = torch.where(both, D2.clamp(max=c * c) - 2 * c * c, zero).sum(-3)
+    return _solve(reduced, est_mask.any(-2), truth_mask.any(-2), both.any(-3))
+
+
+def label_switches(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
+    """``(B, N)`` int64: how often the track label assigned to each truth target changes between
+    consecutive scans ``k-1, k`` at which the target is assigned at both.
+
+    ``assignment_per_scan (B, K, M)`` int64 is :func:`optimal_assignment` per scan (truth index per
+    track slot, -1 unassigned); ``truth_mask (B, K, N)``. Any leading dims before ``K`` work.
+    """
+    N = truth_mask.shape[-1]
+    if assignment_per_scan.shape[:-1] != truth_mask.shape[:-1]:
+        raise ValueError(f"assignment {tuple(assignment_per_scan.shape)} and truth_mask {tuple(truth_mask.shape)} differ before the last dim")
+    if assignment_per_scan.numel() and (int(assignment_per_scan.min()) < -1 or int(assignment_per_scan.max()) >= N):
+        raise ValueError(f"assignment values must lie in [-1, {N - 1}]")
+    if assignment_per_scan.shape[-1] == 0:
+        return torch.zeros(truth_mask.shape[:-2] + (N,), dtype=torch.int64, device=truth_mask.device)
+    hit = assignment_per_scan.unsqueeze(-1) == torch.arange(N, device=assignment_per_scan.device)  # (B, K, M, N)
+    has = hit.any(-2) & truth_mask
+    track = torch.where(has, hit.to(torch.int64).argmax(-2), torch.full_like(has, -1, dtype=torch.int64))
+    changed = has[..., 1:, :] & has[..., :-1, :] & (track[..., 1:, :] != track[..., :-1, :])
+    return changed.sum(-2)

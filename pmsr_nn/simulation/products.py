@@ -1,0 +1,185 @@
+"""Sensor products of one truth: what each kind of tracker reads, made only when one asks.
+
+A scenario's truth (:class:`Truth`: any number of targets, each alive over its own scans) is
+seen through *products*, each a registered kind (:data:`PRODUCTS`) built by one function from
+the truth and random generators:
+
+* ``measurements`` (:class:`Streams`): every target's own clean measurement stream, association
+  known, what the single-target filters, the learned trackers and the PCRB read;
+* ``detections`` (:class:`Detections`): per sensor and scan, detections with missed targets and
+  clutter, truth origin kept, what the multi-target trackers read.
+
+A later kind (range-Doppler maps for track-before-detect) is one more :func:`register_product`.
+Every product carries the initiation prior of its readers: per target, the true state at its
+birth scan plus a draw from ``N(0, P0)``. The prior is drawn from its own generator, so two
+products built with equal initiation generators give their readers the same initial tracks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+
+from ..errors import ConfigError
+from ..filters import Gaussian
+from ..measurements import MeasurementModel, wrap_angle
+from ..motion import KinematicModel
+from ..rng import standard_normal
+from .detections import ClutterSpec, Scans, simulate_scans
+from .tracks import apply_range_outliers, range_rows
+
+
+@dataclass
+class Truth:
+    """True states ``x (B, K, N, n)`` (SI; NaN where a target is not alive) and ``alive (K, N)``
+    (the same births and deaths in every run)."""
+
+    x: torch.Tensor
+    alive: torch.Tensor
+
+    @property
+    def births(self) -> torch.Tensor:
+        """First scan of each target ``(N,)``."""
+        return self.alive.to(torch.int64).argmax(0)
+
+    def at_birth(self) -> torch.Tensor:
+        """Each target's true state at its birth scan ``(B, N, n)``."""
+        N = self.x.shape[2]
+        return self.x[:, self.births, torch.arange(N)]
+
+
+@dataclass(frozen=True)
+class DesignedTruth:
+    """Fixed flights ``x (K, N, n)`` (NaN outside ``alive (K, N)``): no random draw."""
+
+    x: torch.Tensor
+    alive: torch.Tensor
+
+    def draw(self, b: int, g: torch.Generator) -> Truth:
+        return Truth(self.x.expand(b, *self.x.shape), self.alive)
+
+
+@dataclass(frozen=True)
+class SampledTruth:
+    """Flights from initial states ``x0 (N, n)`` with the process noise of ``motion`` (PSD ``q``),
+    ``K`` scans of ``dt`` s, all targets alive throughout; one draw per run."""
+
+    x0: torch.Tensor
+    motion: KinematicModel
+    K: int
+    dt: float
+    q: float
+
+    @property
+    def alive(self) -> torch.Tensor:
+        return torch.ones(self.K, self.x0.shape[0], dtype=torch.bool)
+
+    def draw(self, b: int, g: torch.Generator) -> Truth:
+        N, n = self.x0.shape
+        x = self.motion.sample(self.x0.expand(b, N, n).reshape(b * N, n), self.K, self.dt, self.q, g)
+        return Truth(x.reshape(b, N, self.K, n).transpose(1, 2), self.alive)
+
+
+@dataclass(frozen=True)
+class SensorSetup:
+    """How one case's truth is sensed.
+
+    ``model``: the per-target stream's measurement model (its ``noise_std`` the deviations used);
+    ``outlier_prob`` / ``outlier_scale``: heavy-tailed range errors of the stream
+    (:func:`~.tracks.apply_range_outliers`); ``detection_model`` (pair layout), ``pd`` and
+    ``clutter``: the detections, ``None`` where the scenario makes none; ``prior_sd (n,)``: the
+    initiation prior's deviations.
+    """
+
+    model: MeasurementModel
+    prior_sd: torch.Tensor
+    outlier_prob: float = 0.0
+    outlier_scale: float = 10.0
+    detection_model: MeasurementModel | None = None
+    pd: float | None = None
+    clutter: ClutterSpec | None = None
+
+
+def initiation_prior(truth: Truth, prior_sd: torch.Tensor, g: torch.Generator) -> Gaussian:
+    """Per run and target: the state at birth plus a draw from ``N(0, diag(prior_sd^2))``,
+    ``x (B, N, n)``, ``P (B, N, n, n)``."""
+    start = truth.at_birth()
+    B, N, n = start.shape
+    x0 = start + standard_normal((B, N, n), g) * prior_sd
+    return Gaussian(x0, torch.diag(prior_sd**2).expand(B, N, n, n).clone())
+
+
+@dataclass
+class Streams:
+    """Each target's measurement stream ``z (B, N, K, m)`` (NaN outside its life) and the
+    initiation prior ``x (B, N, n)`` at its birth scan."""
+
+    z: torch.Tensor
+    prior: Gaussian
+
+
+@dataclass
+class Detections:
+    """Detections of every sensor and scan (:class:`~.detections.Scans`) and the initiation prior
+    of each target's track ``x (B, N, n)`` at its birth scan."""
+
+    scans: Scans
+    prior: Gaussian
+
+
+def make_streams(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior: torch.Generator) -> Streams:
+    """Noise (from ``g``), then the prior (``g_prior``), then range outliers (``g``, only when on)."""
+    model = sensing.model
+    B, K, N, _ = truth.x.shape
+    clean = model.h(truth.x.transpose(1, 2))  # (B, N, K, m)
+    z = clean + standard_normal((B, N, K, model.dim_z), g) * model.std_vector()
+    z = torch.where(model.angle_mask, wrap_angle(z), z)
+    prior = initiation_prior(truth, sensing.prior_sd, g_prior)
+    z = apply_range_outliers(z, clean, range_rows(model), sensing.outlier_prob, sensing.outlier_scale, g)
+    return Streams(z, prior)
+
+
+def make_detections(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior: torch.Generator) -> Detections:
+    """Detections (from ``g``: :func:`~.detections.simulate_scans`), then the prior (``g_prior``)."""
+    scans = simulate_scans(truth.x, sensing.detection_model, sensing.pd, sensing.clutter, g, truth.alive)
+    return Detections(scans, initiation_prior(truth, sensing.prior_sd, g_prior))
+
+
+@dataclass(frozen=True)
+class ProductKind:
+    """A registered product: ``make(sensing, truth, g, g_prior)``; ``stream`` numbers its own
+    generator; ``available(sensing)`` says whether a scenario's sensing can make it."""
+
+    name: str
+    stream: int
+    make: Callable
+    available: Callable[[SensorSetup], bool]
+    description: str
+
+
+PRODUCTS: dict[str, ProductKind] = {}
+"""Product kinds by name."""
+
+
+def register_product(kind: ProductKind) -> ProductKind:
+    if kind.name in PRODUCTS:
+        raise ValueError(f"product kind {kind.name!r} is registered twice")
+    if any(p.stream == kind.stream for p in PRODUCTS.values()):
+        raise ValueError(f"product stream {kind.stream} is taken")
+    PRODUCTS[kind.name] = kind
+    return kind
+
+
+def product_kind(name: str) -> ProductKind:
+    """The registered kind ``name``, or a one-line error listing the known ones."""
+    if name not in PRODUCTS:
+        raise ConfigError(f"unknown product kind {name!r} (known: {', '.join(PRODUCTS)})")
+    return PRODUCTS[name]
+
+
+register_product(ProductKind("measurements", 1, make_streams, lambda s: True,
+                             "each target's own measurement stream, association known"))
+register_product(ProductKind("detections", 2, make_detections, lambda s: s.detection_model is not None,
+                             "per sensor and scan: detections with missed targets and clutter"))
