@@ -23,6 +23,14 @@ def check_demo_folder(out, mc_runs):
         assert (out / "evaluation" / f).is_file()
     for kind in ("mdfnn", "kalmannet"):
         assert (out / "train" / kind / "tracker.pt").is_file()
+    shared = json.loads((out / "shared_drones" / "results.json").read_text())
+    assert shared["mc_runs"] == min(mc_runs, demo.SHARED_DRONES_RUNS)
+    rows = shared["cases"]["three_drones"]["methods"]
+    assert set(rows) == {"EKF", "UKF", "MDFNN", "KalmanNet", "S-MSJPDA"}
+    for r in rows.values():
+        assert 0 < r["ospa_m"] <= 500.0 and len(r["rmse_pos_per_target_m"]) == 3
+    for f in ("report.md", "three_drones_set_metrics.png", "three_drones_rmse.png"):
+        assert (out / "shared_drones" / f).is_file()
 
 
 def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeypatch, capsys):
@@ -36,7 +44,7 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--mc-runs", "2"]) == 0
     printed = capsys.readouterr().out
-    assert "| MDFNN |" in printed and "report" in printed
+    assert "| MDFNN |" in printed and "report" in printed and "| S-MSJPDA | detections |" in printed
     check_demo_folder(out, 2)
     assert main(["demo", "--out", str(out), "--mc-runs", "1"]) == 0  # a previous demo is replaced
     check_demo_folder(out, 1)

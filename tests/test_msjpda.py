@@ -139,6 +139,31 @@ def test_clusters_are_connected_components_of_shared_detections():
     assert clusters == [[0, 1, 2], [3]]  # track 4 gates nothing: left out
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_dense_clusters_equal_the_sparse_graph_components(seed, monkeypatch):
+    import pmsr_nn.trackers.clustering as clustering
+
+    rng = np.random.default_rng(seed)
+    gated = rng.random((int(rng.integers(2, 20)), 30)) < 0.04
+    dense = sorted(sorted(c.tolist()) for c in track_clusters(gated))
+    monkeypatch.setattr(clustering, "SMALL", 0)  # every problem through scipy's connected components
+    assert dense == sorted(sorted(c.tolist()) for c in track_clusters(gated))
+
+
+def test_one_track_marginals_keep_the_m_cheapest_events_like_murty():
+    rng = np.random.default_rng(3)
+    for m in (1, 2, 3, 50):
+        det = rng.normal(0.0, 2.0, (1, 6))
+        det[0, 2] = np.inf  # outside the gate
+        cost = assignment_matrix(det, miss_cost(0.7))
+        events = sorted(np.flatnonzero(np.isfinite(cost[0])), key=lambda j: cost[0, j])[:m]
+        expected = np.zeros((1, 7))
+        w = np.exp(-cost[0, events] + cost[0, events].min())
+        for j, v in zip(events, w / w.sum()):
+            expected[0, min(j, 6)] += v
+        np.testing.assert_allclose(single_sensor_marginals(cost, m), expected, rtol=1e-12)
+
+
 # ----------------------------------------------------------------------------------- trackers
 
 @pytest.mark.parametrize("architecture", ["sequential", "parallel"])

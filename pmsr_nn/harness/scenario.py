@@ -400,7 +400,7 @@ class Scenario:
             if d[key] == off:
                 del d[key]
         for c in d["cases"]:  # an inline case is written as before; a multi-target one without the inline fields
-            for k in (*FLIGHT_FIELDS, "targets") if c["targets"] else ("targets",):
+            for k in FLIGHT_FIELDS if c["targets"] else ("targets",):
                 c.pop(k, None)
             if c.get("segments") == []:
                 del c["segments"]

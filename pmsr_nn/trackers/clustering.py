@@ -13,6 +13,10 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 
+SMALL = 32
+"""Up to this many gated tracks the clusters come from a dense transitive closure."""
+
+
 def track_clusters(gated: np.ndarray) -> list[np.ndarray]:
     """Clusters of tracks from a gate matrix ``gated (T, M)`` bool (detections of all sensors as
     columns). Returns the track indices of each cluster that has at least one gated detection;
@@ -22,5 +26,11 @@ def track_clusters(gated: np.ndarray) -> list[np.ndarray]:
         return [active] if len(active) else []
     g = gated[active].astype(np.float64)
     share = (g @ g.T) > 0  # (A, A): tracks with a common detection
+    if len(active) <= SMALL:  # transitive closure by repeated squaring: cheaper than a sparse graph here
+        reach = share
+        for _ in range(int(np.ceil(np.log2(len(active)))) + 1):
+            reach = (reach.astype(np.float64) @ reach) > 0
+        first = reach.argmax(1)  # each track's cluster is named by its lowest member
+        return [active[first == c] for c in np.unique(first)]
     n, labels = connected_components(csr_matrix(share), directed=False)
     return [active[labels == c] for c in range(n)]

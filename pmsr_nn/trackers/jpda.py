@@ -56,6 +56,13 @@ def single_sensor_marginals(cost: np.ndarray, m: int | None) -> np.ndarray:
 
     T, MT = cost.shape
     M = MT - T
+    if T == 1 and m is not None:  # one track: its events are its options, the m cheapest (what Murty ranks)
+        c = cost[0]
+        finite = np.flatnonzero(np.isfinite(c))
+        best = finite[np.argsort(c[finite], kind="stable")][:m]
+        alpha = np.zeros((1, M + 1))
+        np.add.at(alpha, (0, np.minimum(best, M)), event_probabilities(c[best]))
+        return alpha
     events = brute_force_assignments(cost) if m is None else murty(cost, m)
     cols = np.stack([e.cols for e in events])  # (E, T)
     p = event_probabilities(np.array([e.cost for e in events]))
