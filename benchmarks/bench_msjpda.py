@@ -29,15 +29,19 @@ from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.config import load_yaml  # noqa: E402
 from pmsr_nn.filters import Gaussian  # noqa: E402
-from pmsr_nn.harness.multitarget import draw_block, multitarget_from_dict, prepare_multitarget, run_method  # noqa: E402
+from pmsr_nn.harness.multitarget import multitarget_from_dict  # noqa: E402
+from pmsr_nn.harness.runner import call_method, draw_block, prepare  # noqa: E402
 from pmsr_nn.simulation.detections import Scans  # noqa: E402
+from pmsr_nn.simulation.products import Detections  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "evaluate" / "access2019_msjpda.yaml"
 PAPER_S = {"S-MSJPDA": 2.45, "P-MSJPDA": 30.12}  # Table 1 of the paper at Pd 0.8, MATLAB, s per run
 
 
-def _take(scans: Scans, prior: Gaussian, i: slice):
-    return Scans(scans.z[i], scans.valid[i], scans.origin[i]), Gaussian(prior.x[i], prior.P[i])
+def _take(det: Detections, i: slice) -> dict:
+    """The detections product of runs ``i``."""
+    s, p = det.scans, det.prior
+    return {"detections": Detections(Scans(s.z[i], s.valid[i], s.origin[i]), Gaussian(p.x[i], p.P[i]))}
 
 
 def main() -> None:
@@ -49,22 +53,24 @@ def main() -> None:
     data = load_yaml(SCENARIO)
     data.update(mc_runs=args.runs, block_runs=args.runs)
     sc = multitarget_from_dict(data, SCENARIO.parent)
-    setup = prepare_multitarget(sc)
-    _, scans, prior = draw_block(setup, 0, 0)  # the nominal case, all runs in one draw
-    methods = {m.name: m for m in sc.methods}
+    setup = prepare(sc)
+    case = setup.cases[0]
+    det = draw_block(setup, 0, 0)[1]["detections"]  # the nominal case, all runs in one draw
+    methods = {m.name: m for m in setup.methods}
+    run = lambda m, i: call_method(setup, m, case, _take(det, i), (sc.seed, 0, 0))
     for m in methods.values():  # untimed warm-up
-        run_method(setup, m, *_take(scans, prior, slice(0, 1)), 0)
+        run(m, slice(0, 1))
     figures = {"scenario": str(SCENARIO.name), "case": sc.cases[0].name, "runs": args.runs, "block": args.block,
                "threads": torch.get_num_threads(), "methods": {}}
     for name, m in methods.items():
         serial = []
         for r in range(args.runs):
             t0 = time.perf_counter()
-            run_method(setup, m, *_take(scans, prior, slice(r, r + 1)), 0)
+            run(m, slice(r, r + 1))
             serial.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         for start in range(0, args.runs, args.block):
-            run_method(setup, m, *_take(scans, prior, slice(start, start + args.block)), 0)
+            run(m, slice(start, start + args.block))
         batched = (time.perf_counter() - t0) / args.runs
         figures["methods"][name] = {"serial_s_per_run_mean": statistics.fmean(serial),
                                     "serial_s_per_run_median": statistics.median(serial),
