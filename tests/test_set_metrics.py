@@ -288,3 +288,19 @@ def test_set_scores_equal_the_separate_metrics():
     g = gospa(est, em, tru, tm, 4.0, 2.0)
     assert torch.equal(both.gospa.total, g.total) and torch.equal(both.gospa.missed, g.missed)
     assert torch.equal(both.assignment, optimal_assignment(est, em, tru, tm, 4.0, 2.0))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_enumerated_small_sets_equal_scipy_matching(seed, monkeypatch):
+    """The permutation path for small sets gives SciPy's optimum (values to rounding; sets random)."""
+    import pmsr_nn.metrics.sets as sets
+
+    gen = torch.Generator().manual_seed(seed)
+    est, em = random_sets(gen, (40,), slots=4)
+    tru, tm = random_sets(gen, (40,), slots=3)
+    small = set_scores(est, em, tru, tm, 6.0, 2.0)
+    monkeypatch.setattr(sets, "SMALL_SETS", 0)
+    big = set_scores(est, em, tru, tm, 6.0, 2.0)
+    assert torch.allclose(small.ospa, big.ospa, rtol=1e-12, atol=1e-12)
+    assert torch.allclose(small.gospa.total, big.gospa.total, rtol=1e-12, atol=1e-12)
+    assert torch.equal(small.gospa.n_missed, big.gospa.n_missed)

@@ -5,12 +5,15 @@ truth ``truth (..., N, d)`` with ``truth_mask (..., N)``; ``d`` are position col
 Padding slots may hold anything (NaN included) and are ignored; existing slots must be finite.
 Distances are Euclidean, in metres; ``c`` (cut-off) is in metres, ``p >= 1`` is the order.
 
-The distance matrices and every metric are vectorised in torch; the only Python loop runs
-``scipy.optimize.linear_sum_assignment`` once per leading item whose two sets are both non-empty.
+The distance matrices and every metric are vectorised in torch; sets of up to
+:data:`SMALL_SETS` slots are matched by enumerating permutations as one tensor operation, larger
+ones by ``scipy.optimize.linear_sum_assignment`` once per leading item whose two sets are both
+non-empty.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -47,10 +50,42 @@ def _sq_distances(est, est_mask, truth, truth_mask) -> torch.Tensor:
     return ((e.unsqueeze(-2) - t.unsqueeze(-3)) ** 2).sum(-1)
 
 
+SMALL_SETS = 4
+"""Up to this many slots a side, every item's matching is found by enumerating the permutations
+as one tensor operation (24 at most) instead of a SciPy call per item."""
+
+
+def _solve_small(cost: torch.Tensor, row_ok: torch.Tensor, col_ok: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """:func:`_solve` by enumeration on the padded square: a pair with a missing row or column
+    costs more than any real pair, so the best permutation holds a full matching of the existing
+    rows and columns with the least cost."""
+    lead, M, N = cost.shape[:-2], cost.shape[-2], cost.shape[-1]
+    S = max(M, N)
+    C = cost.detach().reshape(-1, M, N).to(torch.float64)
+    ok = row_ok.reshape(-1, M, 1) & col_ok.reshape(-1, 1, N)
+    real = torch.where(ok, C, torch.zeros((), dtype=C.dtype))
+    pad = float(real.max()) + 1.0 if real.numel() else 1.0
+    sq = torch.full((C.shape[0], S, S), pad, dtype=C.dtype)
+    sq[:, :M, :N] = torch.where(ok, C, torch.full((), pad, dtype=C.dtype))
+    rows_exist = torch.zeros(C.shape[0], S, dtype=torch.bool)
+    rows_exist[:, :M] = row_ok.reshape(-1, M)
+    cols_exist = torch.zeros(C.shape[0], S, dtype=torch.bool)
+    cols_exist[:, :N] = col_ok.reshape(-1, N)
+    sq = torch.where(~rows_exist[:, :, None] & ~cols_exist[:, None, :], torch.zeros((), dtype=C.dtype), sq)
+    perms = torch.tensor(list(itertools.permutations(range(S))), dtype=torch.int64)  # (P, S)
+    total = sq[:, torch.arange(S), perms].sum(-1)  # (L, P)
+    best = perms[total.argmin(-1)][:, :M]  # (L, M): column of each row
+    col = best.clamp(max=N - 1)
+    valid = (best < N) & ok.gather(2, col[..., None]).squeeze(-1) & keep.reshape(-1, M, N).gather(2, col[..., None]).squeeze(-1)
+    return torch.where(valid, best, torch.full_like(best, -1)).reshape(*lead, M).to(cost.device)
+
+
 def _solve(cost: torch.Tensor, row_ok: torch.Tensor, col_ok: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
     """Minimum-cost one-to-one matching of the existing rows and columns of each ``cost (..., M, N)``
     item; returns ``(..., M)`` int64 column per row, -1 where unmatched or where ``keep`` is False."""
     lead, M, N = cost.shape[:-2], cost.shape[-2], cost.shape[-1]
+    if 0 < M <= SMALL_SETS and 0 < N <= SMALL_SETS:
+        return _solve_small(cost, row_ok, col_ok, keep)
     L = math.prod(lead)
     C = cost.detach().reshape(L, M, N).to("cpu", torch.float64).numpy()
     R = row_ok.reshape(L, M).cpu().numpy()
