@@ -28,20 +28,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.config import load_yaml  # noqa: E402
-from pmsr_nn.filters import Gaussian  # noqa: E402
 from pmsr_nn.harness.multitarget import multitarget_from_dict  # noqa: E402
 from pmsr_nn.harness.runner import call_method, draw_block, prepare  # noqa: E402
-from pmsr_nn.simulation.detections import Scans  # noqa: E402
-from pmsr_nn.simulation.products import Detections  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "evaluate" / "access2019_msjpda.yaml"
 PAPER_S = {"S-MSJPDA": 2.45, "P-MSJPDA": 30.12}  # Table 1 of the paper at Pd 0.8, MATLAB, s per run
-
-
-def _take(det: Detections, i: slice) -> dict:
-    """The detections product of runs ``i``."""
-    s, p = det.scans, det.prior
-    return {"detections": Detections(Scans(s.z[i], s.valid[i], s.origin[i]), Gaussian(p.x[i], p.P[i]))}
 
 
 def main() -> None:
@@ -57,7 +48,7 @@ def main() -> None:
     case = setup.cases[0]
     det = draw_block(setup, 0, 0)[1]["detections"]  # the nominal case, all runs in one draw
     methods = {m.name: m for m in setup.methods}
-    run = lambda m, i: call_method(setup, m, case, _take(det, i), (sc.seed, 0, 0))
+    run = lambda m, i: call_method(setup, m, case, {"detections": det.runs(i)}, (sc.seed, 0, 0))
     for m in methods.values():  # untimed warm-up
         run(m, slice(0, 1))
     figures = {"scenario": str(SCENARIO.name), "case": sc.cases[0].name, "runs": args.runs, "block": args.block,

@@ -29,6 +29,7 @@ radar measures anything.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import Sequence
@@ -84,6 +85,13 @@ def azimuth(pos: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
     dx = pos[..., None, 0] - rx[:, 0]
     dy = pos[..., None, 1] - rx[:, 1]
     return torch.atan2(dx, dy)
+
+
+@functools.lru_cache(maxsize=64)
+def _sensor_tensors(g: Geometry, dtype, device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per pair: transmitter and receiver positions ``(N, dim)`` and carriers ``(N,)``, made once
+    per geometry, dtype and device (the filters evaluate ``h`` thousands of times per run)."""
+    return g.pair_tx_positions(dtype, device), g.pair_rx_positions(dtype, device), g.pair_carriers(dtype, device)
 
 
 @dataclass(frozen=True)
@@ -167,12 +175,7 @@ class MeasurementModel:
         return [where[key] for key in sub]
 
     def _sensors(self, x: torch.Tensor):
-        g = self.geometry
-        return (
-            g.pair_tx_positions(x.dtype, x.device),
-            g.pair_rx_positions(x.dtype, x.device),
-            g.pair_carriers(x.dtype, x.device),
-        )
+        return _sensor_tensors(self.geometry, x.dtype, x.device)
 
     def _split_state(self, x: torch.Tensor):
         return x[..., list(self.pos_idx)], x[..., list(self.vel_idx)]

@@ -8,6 +8,10 @@ Process noise
 -------------
 * CV: the discrete white-noise acceleration model of the S-MSJPDA paper (and the SMC-PHD paper),
   per axis ``q * [[T^4/4, T^3/2], [T^3/2, T^2]]`` with ``q`` the acceleration variance in m^2/s^4.
+  Its ``Q`` has rank one per axis (one acceleration per interval).
+* CV continuous (``cv_continuous``): continuous white-noise acceleration of power spectral density
+  ``q`` in m^2/s^3 (the PMHT paper's "process noise intensity"), per axis
+  ``q * [[T^3/3, T^2/2], [T^2/2, T]]``: full rank, so a trajectory has a finite prior density.
 * CA: Eq. 12 of the MDFNN paper (continuous white-noise jerk), per axis
   ``q * [[T^5/20, T^4/8, T^3/6], [T^4/8, T^3/3, T^2/2], [T^3/6, T^2/2, T]]`` with ``q`` the
   power spectral density in m^2/s^5.
@@ -152,6 +156,19 @@ class ConstantVelocity(KinematicModel):
 
 
 @dataclass(frozen=True)
+class ContinuousConstantVelocity(ConstantVelocity):
+    """CV model driven by continuous white acceleration; ``q`` is its PSD (m^2/s^3)."""
+
+    name: str = field(default="cv_continuous", init=False)
+
+    def Q_block(self, T: float, dtype=torch.float64, device=None) -> torch.Tensor:
+        return torch.tensor([[T**3 / 3, T**2 / 2], [T**2 / 2, T]], dtype=dtype, device=device)
+
+    def noise_factor(self, T: float, q, dtype=torch.float64, device=None) -> torch.Tensor:
+        return KinematicModel.noise_factor(self, T, q, dtype, device)
+
+
+@dataclass(frozen=True)
 class ConstantAcceleration(KinematicModel):
     """CA model (Eq. 12 of the MDFNN paper); ``q`` is the jerk power spectral density (m^2/s^5)."""
 
@@ -171,8 +188,8 @@ class ConstantAcceleration(KinematicModel):
 
 
 def motion_model(name: str, spatial_dim: int = 2) -> KinematicModel:
-    """``"cv"`` or ``"ca"`` -> the model instance."""
-    models = {"cv": ConstantVelocity, "ca": ConstantAcceleration}
+    """``"cv"``, ``"cv_continuous"`` or ``"ca"`` -> the model instance."""
+    models = {"cv": ConstantVelocity, "cv_continuous": ContinuousConstantVelocity, "ca": ConstantAcceleration}
     if name not in models:
         raise ConfigError(f"unknown motion model {name!r}; choose one of {sorted(models)}")
     return models[name](spatial_dim=spatial_dim)

@@ -46,18 +46,25 @@ def rts_backward(x: torch.Tensor | None, P: torch.Tensor, F: torch.Tensor, Q: to
     """Linear RTS pass: ``x (B, K, n)`` (or None for covariances only), ``P (B, K, n, n)``,
     ``F (n, n)``, ``Q (n, n)`` or ``(B, n, n)``. Also used by the smoothing PCRB, which has no means."""
     _check(x, P)
+    P_pred = symmetrise(F @ P[:, :-1] @ F.transpose(-1, -2) + (Q if Q.dim() == 2 else Q[:, None]))
+    x_pred = None if x is None else x[:, :-1] @ F.transpose(-1, -2)
+    return rts_from_predictions(x, P, x_pred, P_pred, F)
+
+
+def rts_from_predictions(x: torch.Tensor | None, P: torch.Tensor, x_pred: torch.Tensor | None, P_pred: torch.Tensor,
+                         F: torch.Tensor) -> SmootherResult:
+    """Linear RTS pass from filtered moments ``x (B, K, n)``, ``P (B, K, n, n)`` and the
+    predictions the filter made from them, ``x_pred[k], P_pred[k]`` for scan ``k + 1``
+    (``(B, K-1, ...)``): what a filter that kept its predictions passes without recomputing them."""
+    _check(x, P)
     xs = None if x is None else x.clone()
     Ps = P.clone()
     for k in range(P.shape[1] - 2, -1, -1):
-        Pk = P[:, k]
-        C = Pk @ F.transpose(-1, -2)
-        P_pred = symmetrise(F @ C + Q)
-        # G = C P_pred^-1, i.e. G^T = P_pred^-1 C^T (P_pred symmetric positive definite).
-        G = torch.cholesky_solve(C.transpose(-1, -2), safe_cholesky(P_pred)).transpose(-1, -2)
-        Ps[:, k] = symmetrise(Pk + G @ (Ps[:, k + 1] - P_pred) @ G.transpose(-1, -2))
+        # G = P F^T P_pred^-1, i.e. G^T = P_pred^-1 F P (P_pred symmetric positive definite).
+        G = torch.cholesky_solve(F @ P[:, k], safe_cholesky(P_pred[:, k])).transpose(-1, -2)
+        Ps[:, k] = symmetrise(P[:, k] + G @ (Ps[:, k + 1] - P_pred[:, k]) @ G.transpose(-1, -2))
         if xs is not None:
-            x_pred = x[:, k] @ F.transpose(-1, -2)
-            xs[:, k] = x[:, k] + ((xs[:, k + 1] - x_pred).unsqueeze(-2) @ G.transpose(-1, -2)).squeeze(-2)
+            xs[:, k] = x[:, k] + ((xs[:, k + 1] - x_pred[:, k]).unsqueeze(-2) @ G.transpose(-1, -2)).squeeze(-2)
     return SmootherResult(xs, Ps)
 
 

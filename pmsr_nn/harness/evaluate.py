@@ -78,7 +78,13 @@ def _references(sc: AnyScenario) -> tuple[dict | None, dict | None, dict]:
     name = getattr(ref, "table", None)
     table = reference_table(path, name) if name else None
     timing = reference_table(path, ref.timing) if ref.timing else None
-    return table, timing, {"file": str(path), "table": name, "timing": ref.timing, "label": ref.label}
+    info = {"file": str(path), "table": name, "timing": ref.timing, "label": ref.label}
+    per_target = {key: reference_table(path, getattr(ref, key)) for key in ("velocity_rmse", "anees")
+                  if getattr(ref, key, None)}
+    if per_target:  # the paper's per-target tables, shown beside ours
+        info["per_target"] = {**per_target, "methods": dict(ref.methods),
+                              **{f"{k}_key": getattr(ref, k) for k in per_target}}
+    return table, timing, info
 
 
 def build_results(setup: Setup, bs: BlockSums, device: str) -> dict:

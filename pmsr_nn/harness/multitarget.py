@@ -28,9 +28,9 @@ from ..config import from_dict, require, to_dict
 from ..errors import ConfigError
 from ..measurements import MeasurementModel
 from ..methods import Models, method_kind
-from ..motion import ConstantVelocity
+from ..motion import motion_model
 from ..simulation.detections import ClutterSpec
-from ..simulation.products import SampledTruth, SensorSetup
+from ..simulation.products import DesignedTruth, SampledTruth, SensorSetup
 from ..simulation.recipe import GeometrySpec, ReceiverSpec, TransmitterSpec
 from .runner import DEFINITIONS, Case, LossRule, Setup
 from .scenario import MethodSpec, SetMetricSpec
@@ -60,6 +60,25 @@ class FormationSpec:
 
 
 @dataclass(frozen=True)
+class TargetStateSpec:
+    """One target's state at the first scan: ``position_m`` and ``velocity_mps`` ([x, y] or
+    [x, y, z], the scenario's ``dimensions``)."""
+
+    position_m: tuple[float, ...]
+    velocity_mps: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        require(len(self.position_m) == len(self.velocity_mps) and len(self.position_m) in (2, 3)
+                and all(math.isfinite(v) for v in (*self.position_m, *self.velocity_mps)),
+                f"a target's position_m and velocity_mps must be finite [x, y] or [x, y, z], got "
+                f"{list(self.position_m)} / {list(self.velocity_mps)}")
+
+    def state(self) -> list[float]:
+        """Axis-major CV state ``[x, vx, y, vy(, z, vz)]``."""
+        return [v for p, u in zip(self.position_m, self.velocity_mps) for v in (p, u)]
+
+
+@dataclass(frozen=True)
 class MTNoiseSpec:
     range_m: float = 1000.0
     doppler_hz: float = 1.0
@@ -70,27 +89,49 @@ class MTNoiseSpec:
 
 @dataclass(frozen=True)
 class MTMotionSpec:
-    """CV motion of truth and trackers: interval ``dt_s`` and acceleration variance ``q`` (m^2/s^4)."""
+    """CV motion of truth and trackers: interval ``dt_s``; ``model`` ``cv`` (discrete white
+    acceleration, ``q`` its variance in m^2/s^4) or ``cv_continuous`` (continuous white
+    acceleration, ``q`` its PSD in m^2/s^3); ``vertical_q``: the vertical axis's q in 3-D
+    (default: ``q``). ``truth``: ``sampled`` (each run's flights drawn with that process noise) or
+    ``straight`` (every run flies the same straight lines; the trackers still assume ``q``)."""
 
     dt_s: float = 1.0
     q: float = 1.0
+    model: Literal["cv", "cv_continuous"] = "cv"
+    vertical_q: float | None = None
+    truth: Literal["sampled", "straight"] = "sampled"
 
     def __post_init__(self) -> None:
         require(self.dt_s > 0 and self.q >= 0, "motion: dt_s must be positive and q non-negative")
+        require(self.vertical_q is None or self.vertical_q >= 0, "motion: vertical_q must be non-negative")
+
+    def q_per_axis(self, dims: int):
+        """``q`` as the trackers use it: a float, or a per-axis tensor when the vertical one differs."""
+        if dims == 2 or self.vertical_q is None or self.vertical_q == self.q:
+            return self.q
+        return torch.tensor([self.q, self.q, self.vertical_q], dtype=torch.float64)
 
 
 @dataclass(frozen=True)
 class PriorSpec:
-    """Track initiation: truth plus a draw from ``N(0, P0)``, ``P0`` from these deviations."""
+    """Track initiation: truth plus a draw from ``N(0, P0)``, ``P0`` from these deviations (in 3-D
+    ``altitude_m`` and ``vertical_mps`` for the vertical axis; default the horizontal ones)."""
 
     position_m: float = 500.0
     velocity_mps: float = 20.0
+    altitude_m: float | None = None
+    vertical_mps: float | None = None
 
     def __post_init__(self) -> None:
         require(self.position_m > 0 and self.velocity_mps > 0, "prior deviations must be positive")
+        require((self.altitude_m is None or self.altitude_m > 0) and (self.vertical_mps is None or self.vertical_mps > 0),
+                "prior deviations must be positive")
 
-    def sd(self) -> torch.Tensor:
-        return torch.tensor([self.position_m, self.velocity_mps] * 2, dtype=torch.float64)
+    def sd(self, dims: int = 2) -> torch.Tensor:
+        sd = [self.position_m, self.velocity_mps] * 2
+        if dims == 3:
+            sd += [self.altitude_m or self.position_m, self.vertical_mps or self.velocity_mps]
+        return torch.tensor(sd, dtype=torch.float64)
 
 
 @dataclass(frozen=True)
@@ -105,11 +146,13 @@ class LossSpec:
 @dataclass(frozen=True)
 class MTMethodSpec:
     """A tracker of the study: ``kind`` a registered method kind that reads detections
-    (:mod:`pmsr_nn.methods`); ``m_best`` overrides the scenario's ``tracker.m_best``."""
+    (:mod:`pmsr_nn.methods`); ``m_best`` overrides the scenario's ``tracker.m_best``; ``options``
+    the kind's other options (e.g. a PMHT's ``window``)."""
 
     name: str
     kind: str
     m_best: int | None = None  # None: the scenario's tracker.m_best
+    options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         require(bool(self.name) and "/" not in self.name, f"method name {self.name!r} must be non-empty, without '/'")
@@ -142,11 +185,17 @@ class MTCaseSpec:
 
 @dataclass(frozen=True)
 class MTReferenceSpec:
-    """Paper run-time tables (method -> reference_key -> seconds per run) in ``file``."""
+    """The paper's tables in ``file`` (dotted keys): ``timing`` run times (method -> reference_key
+    -> seconds per run); ``velocity_rmse`` per-target velocity RMSE (paper method -> list) and
+    ``anees`` per-target ANEES (a list, the paper's proposed method; the paper's NEES is not
+    divided by the state dimension); ``methods`` maps our method names to the paper's keys."""
 
-    timing: str
+    timing: str | None = None
     file: str = "reference/paper_tables.json"
     label: str = "paper"
+    velocity_rmse: str | None = None
+    anees: str | None = None
+    methods: dict = field(default_factory=dict)
 
 
 DEFAULT_GEOMETRY = GeometrySpec(
@@ -170,11 +219,14 @@ class MultiTargetScenario:
     scans: int = 50
     geometry: GeometrySpec = DEFAULT_GEOMETRY
     targets: FormationSpec = FormationSpec()
+    initial_states: tuple[TargetStateSpec, ...] = ()
+    dimensions: int = 2
     noise: MTNoiseSpec = MTNoiseSpec()
     motion: MTMotionSpec = MTMotionSpec()
     prior: PriorSpec = PriorSpec()
     pd: float = 0.8
     clutter: ClutterSpec = ClutterSpec()
+    illuminator_known: bool = True
     tracker: TrackerSpec = TrackerSpec()
     loss: LossSpec = LossSpec()
     converged_from_scan: int = 10
@@ -198,6 +250,23 @@ class MultiTargetScenario:
             require(c.clutter_per_scan is None or 0 <= c.clutter_per_scan <= 100_000,
                     f"case {c.name!r}: clutter_per_scan must be in [0, 100000] (the papers use up to 500)")
             require(c.spacing_m is None or c.spacing_m >= 0, f"case {c.name!r}: spacing_m must be >= 0")
+        require(self.dimensions in (2, 3), f"dimensions must be 2 or 3, got {self.dimensions}")
+        for i, t in enumerate(self.initial_states):
+            require(len(t.position_m) == self.dimensions, f"initial_states[{i}]: {len(t.position_m)}-D state in a "
+                                                          f"{self.dimensions}-D scenario")
+        require(self.dimensions == 2 or self.initial_states, "a 3-D scenario lists its targets in initial_states")
+        require(self.sweep != "spacing_m" or not self.initial_states, "a spacing_m sweep needs the formation, not "
+                                                                      "initial_states")
+
+    @property
+    def target_count(self) -> int:
+        return len(self.initial_states) or self.targets.count
+
+    def initial_states_for(self, spacing_m: float) -> torch.Tensor:
+        """CV states ``(count, 2 * dimensions)`` at the first scan."""
+        if self.initial_states:
+            return torch.tensor([t.state() for t in self.initial_states], dtype=torch.float64)
+        return self.targets.initial_states(spacing_m)
 
     @property
     def n_blocks(self) -> int:
@@ -250,34 +319,55 @@ def _methods(sc: MultiTargetScenario) -> tuple[MethodSpec, ...]:
                                      ("gate_probability", sc.tracker.gate_probability),
                                      ("relaxation_iterations", sc.tracker.relaxation_iterations))
                    if k in method_kind(m.kind).options}
-        out.append(MethodSpec(m.name, m.kind, options=options))
+        out.append(MethodSpec(m.name, m.kind, options={**options, **m.options}))
     return tuple(out)
 
 
 def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
-    """The study as a runner :class:`~.runner.Setup`: per case a formation flying CV with process
-    noise (drawn per run), seen through detections with the case's Pd and clutter."""
+    """The study as a runner :class:`~.runner.Setup`: per case the targets flying CV (with process
+    noise drawn per run, or on straight lines), seen through detections with the case's Pd and
+    clutter (pooled per receiver when the illuminator is unknown). Straight flights also get the
+    PCRB of each target (every run flies them)."""
+    from .runner import case_bounds
+
     if device != "cpu":
         raise ConfigError("the multi-target trackers run on the CPU (their assignment step is NumPy/SciPy)")
-    geometry = sc.geometry.build(2)
-    motion = ConstantVelocity(2)
+    dims = sc.dimensions
+    geometry = sc.geometry.build(dims)
+    motion = motion_model(sc.motion.model, dims)
+    q = sc.motion.q_per_axis(dims)
     model = MeasurementModel(geometry, ("range", "doppler"), (sc.noise.range_m, sc.noise.doppler_hz), motion.pos_idx,
                              motion.vel_idx, layout="pair")
-    models = Models(motion, model, sc.motion.dt_s, sc.motion.q, model.R(), torch.tensor(model.noise_std, dtype=torch.float64))
+    models = Models(motion, model, sc.motion.dt_s, q, model.R(), torch.tensor(model.noise_std, dtype=torch.float64))
+    share = model.n_pairs // len(geometry.receivers)
+    if not sc.illuminator_known and sc.clutter.model == "fixed":
+        for c in sc.cases:
+            per = sc.case_settings(c)[1].per_scan
+            if per % share:
+                raise ConfigError(f"case {c.name!r}: {per:g} fixed clutter points per receiver do not split evenly over "
+                                  f"its {share} pairs; use a multiple of {share} or clutter model poisson")
     methods = _methods(sc)
     kinds = {m.name: method_kind(m.kind) for m in methods}
+    straight = sc.motion.truth == "straight"
     cases = []
     for c in sc.cases:  # every target's whole flight must stay clear of the sensors
         pd, clutter, spacing = sc.case_settings(c)
-        x0 = sc.targets.initial_states(spacing)
+        x0 = sc.initial_states_for(spacing)
         t = torch.arange(sc.scans, dtype=torch.float64) * sc.motion.dt_s
-        nominal = torch.einsum("kij,tj->tki", motion.F(t), x0)  # (T, K, 4), no noise
+        nominal = torch.einsum("kij,tj->tki", motion.F(t), x0)  # (T, K, n), no noise
         if bool(model.near_sensor(nominal, 1000.0).any()):
             raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
         prior = c.prior or sc.prior
-        sensing = SensorSetup(model, prior.sd(), detection_model=model, pd=pd, clutter=clutter)
-        truth = SampledTruth(x0, motion, sc.scans, sc.motion.dt_s, sc.motion.q)
-        alive = truth.alive
+        P0 = prior.sd(dims)
+        sensing = SensorSetup(model, P0, detection_model=model, pd=pd, clutter=clutter,
+                              illuminator_known=sc.illuminator_known)
+        alive = torch.ones(sc.scans, len(x0), dtype=torch.bool)
+        bounds = None
+        if straight:
+            truth = DesignedTruth(nominal.transpose(0, 1).contiguous(), alive)
+            bounds = case_bounds(truth.x, alive, models, torch.diag(P0**2))
+        else:
+            truth = SampledTruth(x0, motion, sc.scans, sc.motion.dt_s, q)
         scored = alive & (torch.arange(sc.scans) >= sc.converged_from_scan)[:, None]
         for spec in methods:
             if kinds[spec.name].check:
@@ -285,10 +375,13 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
         info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
                 "reference_key": c.reference_key}
         cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored,
-                          [f"target {i + 1}" for i in range(sc.targets.count)], info))
-    definitions = {k: v for k, v in DEFINITIONS.items() if k not in MT_LEFT_OUT}
+                          [f"target {i + 1}" for i in range(len(x0))], info, bounds))
+    left_out = MT_LEFT_OUT if not straight else tuple(k for k in MT_LEFT_OUT if k not in ("pcrb", "bound", "pcrb_q0"))
+    definitions = {k: v for k, v in DEFINITIONS.items() if k not in left_out}
     definitions.update(MT_DEFINITIONS)
-    return Setup(sc, models, cases, methods, kinds, {m.name: None for m in methods}, {m.name: True for m in methods},
+    definitions["anees"] = definitions["anees"].replace("/ 4", f"/ {motion.dim_x}")
+    causal = {m.name: bool(kinds[m.name].causal(None)) for m in methods}
+    return Setup(sc, models, cases, methods, kinds, {m.name: None for m in methods}, causal,
                  "per_block", (sc.set_metrics.c_m, sc.set_metrics.p), describe_multitarget(sc, model, methods),
                  definitions, geometry, loss=LossRule(sc.loss.successive_scans, sc.loss.gate_range_sd_m))
 
@@ -307,7 +400,7 @@ MT_DEFINITIONS = {
 
 def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, methods) -> dict:
     g = model.geometry
-    return {"dt_s": sc.motion.dt_s, "q": sc.motion.q, "scans": sc.scans, "targets": to_dict(sc.targets),
+    out = {"dt_s": sc.motion.dt_s, "q": sc.motion.q, "scans": sc.scans, "state_dim": 2 * sc.dimensions, "targets": to_dict(sc.targets),
             "noise": to_dict(sc.noise), "clutter": to_dict(sc.clutter), "clutter_volume_m_hz": sc.clutter.volume,
             "prior": to_dict(sc.prior), "tracker": to_dict(sc.tracker), "loss": to_dict(sc.loss),
             "converged_from_scan": sc.converged_from_scan, "warmup_steps": sc.converged_from_scan, "sweep": sc.sweep,
@@ -315,3 +408,8 @@ def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, metho
             "transmitters": [{"position_m": list(t.position_m), "carrier_hz": t.carrier_hz} for t in g.transmitters],
             "receivers": [list(r.position_m) for r in g.receivers],
             "methods": {m.name: {"kind": m.kind, "reads": method_kind(m.kind).reads, **m.options} for m in methods}}
+    if sc.dimensions == 3 or sc.initial_states or sc.motion != MTMotionSpec(sc.motion.dt_s, sc.motion.q) \
+            or not sc.illuminator_known:
+        out.update({"dimensions": sc.dimensions, "motion": to_dict(sc.motion), "illuminator_known": sc.illuminator_known,
+                    "initial_states": [to_dict(t) for t in sc.initial_states]})
+    return out

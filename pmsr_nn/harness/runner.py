@@ -373,15 +373,13 @@ def call_method(setup: Setup, spec: MethodSpec, case: Case, products: dict, seed
 def _first_runs(products: dict, b: int = 1) -> dict:
     """The products of the first ``b`` runs (a cheap call for the warm-up)."""
     from ..filters import Gaussian
-    from ..simulation.detections import Scans
 
     out = {}
     for name, p in products.items():
-        prior = Gaussian(p.prior.x[:b], p.prior.P[:b])
-        if hasattr(p, "scans"):
-            out[name] = type(p)(Scans(p.scans.z[:b], p.scans.valid[:b], p.scans.origin[:b]), prior)
+        if hasattr(p, "runs"):
+            out[name] = p.runs(slice(0, b))
         else:
-            out[name] = type(p)(p.z[:b], prior)
+            out[name] = type(p)(p.z[:b], Gaussian(p.prior.x[:b], p.prior.P[:b]))
     return out
 
 
@@ -573,6 +571,9 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
                    "median_run_rmse_pos_m": float(np.median(per_run)), "runs": R}
             if N > 1:
                 row["rmse_pos_per_target_m"] = [float(rmse_p[scored[:, t], t].mean()) for t in range(N)]
+                row["rmse_vel_per_target_mps"] = [float(rmse_v[scored[:, t], t].mean()) for t in range(N)]
+                row["anees_per_target"] = None if row["anees"] is None else \
+                    [float(nees[scored[:, t], t].mean()) for t in range(N)]
             if setup.divergence_m is not None:
                 row["diverged_runs"] = int((~np.isfinite(per_run) | (per_run > setup.divergence_m)).sum())
             if "lost" in s:
@@ -630,6 +631,9 @@ DEFINITIONS = {
                   "their own warm-up)",
     "rmse_pos_pooled_m": "root of the mean squared position error over runs, targets and steps after the warm-up (pooled)",
     "rmse_pos_all_scans_m": "the same as rmse_pos_m, averaged over every step each target lives (the S-MSJPDA paper)",
+    "rmse_vel_per_target_mps": "per target: at each step the root of the mean over runs of the squared velocity error, "
+                               "averaged over the target's steps after the warm-up (track slot i is target i's track)",
+    "anees_per_target": "per target: the anees averaged over its steps after the warm-up",
     "anees": "mean over runs and steps after the warm-up of the NEES over the full state divided by its dimension "
              "(1 = consistent); null for methods without covariances",
     "pcrb": "per-trajectory posterior Cramer-Rao bound of each target's true trajectory under the recipe's CA model and "

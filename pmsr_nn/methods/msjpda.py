@@ -23,7 +23,8 @@ def settings(call: MethodCall) -> JPDASettings:
     a positive clutter density even where none was simulated) and the method's options."""
     s, spec = call.sensing, call.spec
     components = s.detection_model.components
-    density = max(s.clutter.density_of(components), 1e-3 / s.clutter.volume_of(components))
+    clutter = s.pair_clutter()  # the clutter of each pair's list
+    density = max(clutter.density_of(components), 1e-3 / clutter.volume_of(components))
     return JPDASettings(pd=s.pd, clutter_density=density, m_best=int(spec.option("m_best")),
                         gate_probability=float(spec.option("gate_probability")),
                         relaxation_iterations=int(spec.option("relaxation_iterations")))

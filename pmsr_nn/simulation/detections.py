@@ -160,12 +160,65 @@ def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clut
     valid = torch.cat([target_ok, clutter_ok], dim=3)
     target_ids = torch.arange(T, device=device).expand(B, K, N, T)
     origin = torch.cat([target_ids, torch.full((B, K, N, C), CLUTTER, dtype=torch.int64, device=device)], dim=3)
-    # Random order of the valid detections, padding last.
-    keys = torch.rand(valid.shape, generator=generator, dtype=dtype, device=device).masked_fill(~valid, 2.0)
+    z, valid, (origin,) = _shuffled(z, valid, (origin,), generator)
+    return Scans(z, valid, origin.masked_fill(~valid, PADDING))
+
+
+def _shuffled(z: torch.Tensor, valid: torch.Tensor, labels: tuple[torch.Tensor, ...], generator: torch.Generator | None):
+    """Lists ``z (..., M, d)``, ``valid (..., M)`` and per-detection ``labels`` in a random order
+    of the valid detections, padding last, cut to the longest list: one draw per slot."""
+    keys = torch.rand(valid.shape, generator=generator, dtype=z.dtype, device=z.device).masked_fill(~valid, 2.0)
     order = keys.argsort(dim=-1)
     M = int(valid.sum(-1).max()) if valid.numel() else 0
     order = order[..., :M]
     valid = valid.gather(-1, order)
-    origin = origin.gather(-1, order).masked_fill(~valid, PADDING)
-    z = z.gather(3, order.unsqueeze(-1).expand(*order.shape, d)).masked_fill(~valid.unsqueeze(-1), float("nan"))
-    return Scans(z, valid, origin)
+    z = z.gather(-2, order.unsqueeze(-1).expand(*order.shape, z.shape[-1])).masked_fill(~valid.unsqueeze(-1), float("nan"))
+    return z, valid, tuple(lab.gather(-1, order) for lab in labels)
+
+
+@dataclass
+class PooledScans:
+    """Detections pooled per receiver, as a single-frequency network (SFN) receiver sees them: it
+    can not tell which transmitter's signal a detection came from.
+
+    ``scans``: ``L`` lists per scan, one per receiver (``z (B, K, L, M, d)``, origin a target index,
+    :data:`CLUTTER` or :data:`PADDING`); ``pair (B, K, L, M)``: truth only, the transmitter-receiver
+    pair whose list the detection was drawn in (a target detection's illuminator; for clutter, the
+    pair it was drawn for; -1 for padding); ``routes (L, S)``: pair ``s`` ends at receiver ``l``.
+    """
+
+    scans: Scans
+    pair: torch.Tensor
+    routes: torch.Tensor
+
+
+def receiver_routes(model: MeasurementModel) -> torch.Tensor:
+    """``(L, S)`` bool: pair ``s`` of ``model`` ends at receiver ``l``."""
+    rx = torch.tensor([j for _, j in model.geometry.pairs])
+    return torch.arange(len(model.geometry.receivers))[:, None] == rx
+
+
+def pool_by_receiver(scans: Scans, model: MeasurementModel, generator: torch.Generator | None = None) -> PooledScans:
+    """Each receiver's pairs' lists ``scans (B, K, S, M, d)`` joined into one list per receiver,
+    shuffled again (from ``generator``) so a detection's place says nothing about its pair."""
+    routes = receiver_routes(model)
+    B, K, S, M = scans.shape
+    if S != routes.shape[1]:
+        raise ConfigError(f"detections are from {S} sensors; the model has {routes.shape[1]}")
+    pair_id = torch.arange(S, device=scans.z.device)[:, None].expand(B, K, S, M).masked_fill(~scans.valid, -1)
+    lists = [[t[:, :, routes[l]].flatten(2, 3) for t in (scans.z, scans.valid, scans.origin, pair_id)]
+             for l in range(routes.shape[0])]
+    width = max(v.shape[2] for _, v, _, _ in lists)
+
+    def stack(i: int, fill) -> torch.Tensor:
+        parts = []
+        for part in lists:
+            t = part[i]
+            pad = list(t.shape)
+            pad[2] = width - t.shape[2]
+            parts.append(torch.cat([t, t.new_full(pad, fill)], 2))
+        return torch.stack(parts, 2)
+
+    z, valid = stack(0, float("nan")), stack(1, False)
+    z, valid, (origin, pair) = _shuffled(z, valid, (stack(2, PADDING), stack(3, -1)), generator)
+    return PooledScans(Scans(z, valid, origin.masked_fill(~valid, PADDING)), pair.masked_fill(~valid, -1), routes)

@@ -7,7 +7,9 @@ the truth and random generators:
 * ``measurements`` (:class:`Streams`): every target's own clean measurement stream, association
   known, what the single-target filters, the learned trackers and the PCRB read;
 * ``detections`` (:class:`Detections`): per sensor and scan, detections with missed targets and
-  clutter, truth origin kept, what the multi-target trackers read.
+  clutter, truth origin kept, what the multi-target trackers read; with ``illuminator_known``
+  false (a single-frequency network) also the same detections pooled per receiver, the
+  transmitter of each unknown to the trackers that read the pooled lists.
 
 A later kind (range-Doppler maps for track-before-detect) is one more :func:`register_product`.
 Every product carries the initiation prior of its readers: per target, the true state at its
@@ -27,7 +29,7 @@ from ..filters import Gaussian
 from ..measurements import MeasurementModel, wrap_angle
 from ..motion import KinematicModel
 from ..rng import standard_normal
-from .detections import ClutterSpec, Scans, simulate_scans
+from .detections import ClutterSpec, PooledScans, Scans, pool_by_receiver, simulate_scans
 from .tracks import apply_range_outliers, range_rows
 
 
@@ -89,7 +91,8 @@ class SensorSetup:
     ``model``: the per-target stream's measurement model (its ``noise_std`` the deviations used);
     ``outlier_prob`` / ``outlier_scale``: heavy-tailed range errors of the stream
     (:func:`~.tracks.apply_range_outliers`); ``detection_model`` (pair layout), ``pd`` and
-    ``clutter``: the detections, ``None`` where the scenario makes none; ``prior_sd (n,)``: the
+    ``clutter``: the detections, ``None`` where the scenario makes none (``clutter.per_scan`` is per
+    list: per pair, or per receiver when ``illuminator_known`` is false); ``prior_sd (n,)``: the
     initiation prior's deviations.
     """
 
@@ -100,6 +103,18 @@ class SensorSetup:
     detection_model: MeasurementModel | None = None
     pd: float | None = None
     clutter: ClutterSpec | None = None
+    illuminator_known: bool = True
+
+    def pair_clutter(self) -> ClutterSpec:
+        """Clutter drawn per pair and scan: the scenario's per list, split evenly over a
+        receiver's pairs when the detections are pooled per receiver (a Poisson rate splits
+        exactly; a fixed count must divide)."""
+        if self.illuminator_known:
+            return self.clutter
+        import dataclasses
+
+        share = self.detection_model.n_pairs // len(self.detection_model.geometry.receivers)
+        return dataclasses.replace(self.clutter, per_scan=self.clutter.per_scan / share)
 
 
 def initiation_prior(truth: Truth, prior_sd: torch.Tensor, g: torch.Generator) -> Gaussian:
@@ -123,10 +138,21 @@ class Streams:
 @dataclass
 class Detections:
     """Detections of every sensor and scan (:class:`~.detections.Scans`) and the initiation prior
-    of each target's track ``x (B, N, n)`` at its birth scan."""
+    of each target's track ``x (B, N, n)`` at its birth scan; ``pooled``: the same detections per
+    receiver, illuminator unknown (only when the scenario's ``illuminator_known`` is false)."""
 
     scans: Scans
     prior: Gaussian
+    pooled: PooledScans | None = None
+
+    def runs(self, i: slice) -> "Detections":
+        """The product of runs ``i``."""
+        s = self.scans
+        pooled = None
+        if self.pooled is not None:
+            p = self.pooled
+            pooled = PooledScans(Scans(p.scans.z[i], p.scans.valid[i], p.scans.origin[i]), p.pair[i], p.routes)
+        return Detections(Scans(s.z[i], s.valid[i], s.origin[i]), Gaussian(self.prior.x[i], self.prior.P[i]), pooled)
 
 
 def make_streams(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior: torch.Generator) -> Streams:
@@ -142,9 +168,11 @@ def make_streams(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior
 
 
 def make_detections(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior: torch.Generator) -> Detections:
-    """Detections (from ``g``: :func:`~.detections.simulate_scans`), then the prior (``g_prior``)."""
-    scans = simulate_scans(truth.x, sensing.detection_model, sensing.pd, sensing.clutter, g, truth.alive)
-    return Detections(scans, initiation_prior(truth, sensing.prior_sd, g_prior))
+    """Detections (from ``g``: :func:`~.detections.simulate_scans`; pooled per receiver, from
+    ``g`` again, when the illuminator is unknown), then the prior (``g_prior``)."""
+    scans = simulate_scans(truth.x, sensing.detection_model, sensing.pd, sensing.pair_clutter(), g, truth.alive)
+    pooled = None if sensing.illuminator_known else pool_by_receiver(scans, sensing.detection_model, g)
+    return Detections(scans, initiation_prior(truth, sensing.prior_sd, g_prior), pooled)
 
 
 @dataclass(frozen=True)

@@ -60,19 +60,21 @@ class GeometrySpec:
     receivers: tuple[ReceiverSpec, ...] = field(default_factory=_default_receivers)
 
     def build(self, dim: int) -> Geometry:
-        """All transmitter-receiver pairs, sensors on the ground (z = 0 when ``dim == 3``)."""
+        """All transmitter-receiver pairs; 2-D sensor positions are on the ground (z = 0 when
+        ``dim == 3``), a 3-D geometry may also give sensors their height ``[x, y, z]``."""
         require(len(self.transmitters) > 0 and len(self.receivers) > 0, "need at least one transmitter and one receiver")
-        for t in self.transmitters:
-            require(len(t.position_m) == 2, f"sensor positions are 2-D ground coordinates [x, y], got {list(t.position_m)}")
-        origin = self.transmitters[0].position_m
-        rx = []
-        for r in self.receivers:
-            pos = r.resolve(origin)
-            require(len(pos) == 2, f"sensor positions are 2-D ground coordinates [x, y], got {list(pos)}")
-            rx.append(Receiver(tuple(pos)))
-        tx = [Transmitter(t.position_m, t.carrier_hz) for t in self.transmitters]
+        allowed = (2,) if dim == 2 else (2, 3)
+
+        def placed(pos) -> tuple[float, ...]:
+            require(len(pos) in allowed, f"sensor positions are [x, y]{' or [x, y, z]' if dim == 3 else ''} "
+                                         f"coordinates, got {list(pos)}")
+            return tuple(float(v) for v in pos) + (0.0,) * (dim - len(pos))
+
+        origin = self.transmitters[0].position_m[:2]
+        rx = [Receiver(placed(r.resolve(origin))) for r in self.receivers]
+        tx = [Transmitter(placed(t.position_m), t.carrier_hz) for t in self.transmitters]
         try:
-            return Geometry.all_pairs(tx, rx).lifted(dim)
+            return Geometry.all_pairs(tx, rx)
         except GeometryError as exc:
             raise ConfigError(str(exc)) from None
 

@@ -1,0 +1,100 @@
+"""PMHT (:mod:`pmsr_nn.trackers.pmht`) on the detections, and the true-assignment smoother.
+
+* ``pmht``: the standard PMHT, given each detection's illuminator (the per-pair lists, also when
+  the scenario pools them per receiver: it is then a reference that knows more than a
+  single-frequency network tells);
+* ``pmht_3d``: the target-detection-illuminator PMHT (Li et al., JEIT 2021) on the lists a
+  receiver really has: per receiver, illuminator unknown, where the scenario's
+  ``illuminator_known`` is false; on per-pair lists otherwise (where it is the standard PMHT
+  with the measurement mixture);
+* ``true_assignment_smoother``: a UKF and RTS smoother per target on exactly its own detections,
+  the floor of what any association can reach with the same smoother.
+
+Tracks start at scan 0 from the initiation prior (truth at scan 0 plus a draw from ``N(0, P0)``)
+and last the whole scenario. The association priors are fixed from the case's Pd and clutter.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..errors import ConfigError
+from ..filters.smoothing import rts_backward
+from ..trackers.base import Estimates
+from ..trackers.msjpda import true_assignment_ukf
+from ..trackers.pmht import AssociationLists, PMHTSettings, pmht
+from . import MethodCall, MethodKind, Option, register
+
+MIN_CLUTTER_PER_SCAN = 1e-3
+"""A tracker needs a positive clutter rate even where none is simulated (as the JPDA's density floor)."""
+
+
+def settings(call: MethodCall) -> PMHTSettings:
+    """The PMHT settings of a call: the case's Pd and per-pair clutter rate, the method's options."""
+    s, spec = call.sensing, call.spec
+    clutter = s.pair_clutter()
+    rate = max(clutter.per_scan, MIN_CLUTTER_PER_SCAN)
+    wide = spec.kind == "pmht_3d" and float(spec.option("wide_weight")) > 0
+    return PMHTSettings(
+        pd=s.pd, clutter_rate=(rate,) * s.detection_model.n_pairs, volume=clutter.volume_of(s.detection_model.components),
+        window=int(spec.option("window")), overlap=int(spec.option("overlap")),
+        em_iterations=int(spec.option("em_iterations")), tolerance_m=float(spec.option("tolerance_m")),
+        anneal=float(spec.option("anneal")),
+        kappa=(1.0, float(spec.option("wide_kappa"))) if wide else (1.0,),
+        kappa_weights=(1.0 - float(spec.option("wide_weight")), float(spec.option("wide_weight"))) if wide else None)
+
+
+def lists_of(call: MethodCall) -> AssociationLists:
+    det = call.product
+    if call.spec.kind == "pmht_3d" and det.pooled is not None:
+        return AssociationLists.pooled(det.pooled)
+    return AssociationLists.per_pair(det.scans)
+
+
+def run_pmht(call: MethodCall) -> Estimates:
+    m, s = call.models, call.sensing
+    res = pmht(lists_of(call), call.product.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
+               settings(call))
+    B, K, N = res.x.shape[:3]
+    return Estimates(res.x, torch.ones(B, K, N, dtype=torch.bool), res.P)
+
+
+def run_true_assignment_smoother(call: MethodCall) -> Estimates:
+    m, s, det = call.models, call.sensing, call.product
+    res = true_assignment_ukf(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R())
+    B, K, N, n = res.x.shape
+    rows = lambda t: t.transpose(1, 2).reshape(B * N, K, *t.shape[3:])
+    sm = rts_backward(rows(res.x), rows(res.P), m.motion.F(m.dt), m.motion.Q(m.dt, m.q))
+    back = lambda t: t.reshape(B, N, K, *t.shape[2:]).transpose(1, 2)
+    return Estimates(back(sm.x), call.alive.expand(B, K, N), back(sm.P))
+
+
+def _check_pmht(spec, alive: torch.Tensor, resource, case: str) -> None:
+    K = alive.shape[0]
+    window, overlap = int(spec.option("window")), int(spec.option("overlap"))
+    if window > K:
+        raise ConfigError(f"method {spec.name!r}: window of {window} scans is longer than case {case!r} ({K} scans)")
+    if overlap >= window:
+        raise ConfigError(f"method {spec.name!r}: overlap {overlap} must be smaller than the window ({window})")
+    _all_throughout(spec, alive, resource, case)
+
+
+def _all_throughout(spec, alive: torch.Tensor, resource, case: str) -> None:
+    if not bool(alive.all()):
+        raise ConfigError(f"method {spec.name!r}: kind {spec.kind} keeps every track from scan 0 to the end; case "
+                          f"{case!r} has targets born later or dying earlier")
+
+
+OPTIONS = {"window": Option(10, int, 1, 100_000), "overlap": Option(3, int, 0, 99_999),
+           "em_iterations": Option(6, int, 1, 1000), "tolerance_m": Option(0.0, float, 0.0, 1e6),
+           "anneal": Option(1.0, float, 1.0, 1e6)}
+OPTIONS_3D = {**OPTIONS, "wide_kappa": Option(4.0, float, 1.0, 1e4), "wide_weight": Option(0.5, float, 0.0, 0.99)}
+register(MethodKind("pmht", "detections", run_pmht, OPTIONS, causal=lambda r: False, check=_check_pmht,
+                    multi_target=True, description="PMHT with an unscented smoother, illuminator of each detection given "
+                                                   "(Streit & Luginbuhl 1995)"))
+register(MethodKind("pmht_3d", "detections", run_pmht, OPTIONS_3D, causal=lambda r: False, check=_check_pmht,
+                    multi_target=True, description="target-detection-illuminator PMHT with a Gaussian scale mixture "
+                                                   "(Li et al., JEIT 2021): per receiver, illuminator unknown"))
+register(MethodKind("true_assignment_smoother", "detections", run_true_assignment_smoother, {},
+                    causal=lambda r: False, check=_all_throughout, multi_target=True,
+                    description="UKF + RTS smoother per target on exactly its own detections"))
