@@ -8,7 +8,8 @@ one module here (plus its tests): the runner and the report need no edit.
 
 * :mod:`.single_target`: EKF, UKF, IMM, SI+KF, particle filter and learned trackers, each run
   on every target's own stream (association known);
-* :mod:`.msjpda`: S-/P-MSJPDA and the true-assignment reference, on the detections.
+* :mod:`.msjpda`: S-/P-MSJPDA and the true-assignment reference, on the detections;
+* :mod:`.pmht`: PMHT, 3-D association PMHT and the true-assignment smoother, on the detections.
 """
 
 from __future__ import annotations

@@ -1119,6 +1119,45 @@ case("evaluate/two-products-one-stream", "evaluate s.yaml --out out",
      setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: (d.update(detections={"pd": 0.9}),
                                                           d["methods"].append({"name": "J", "kind": "s_msjpda"}))),
      message="random_streams", klass="refusal")
+PMHT_YAML = """\
+kind: multitarget
+name: pmht_tiny
+mc_runs: 2
+block_runs: 2
+scans: 12
+dimensions: 3
+geometry:
+  transmitters: [{position_m: [29434.0, -34761.0, 293.0], carrier_hz: 500.0e+6},
+                 {position_m: [12845.0, -106922.0, 293.0], carrier_hz: 500.0e+6}]
+  receivers: [{position_m: [0.0, 0.0, 0.0]}]
+initial_states: [{position_m: [-55000.0, -3498.0, 890.0], velocity_mps: [200.0, 10.0, 0.0]}]
+noise: {range_m: 50.0, doppler_hz: 20.0}
+motion: {dt_s: 1.0, q: 5.0, model: cv_continuous, truth: straight}
+clutter: {per_scan: 4, model: fixed, range_m: [40000.0, 260000.0], doppler_hz: [-1000.0, 1000.0]}
+illuminator_known: false
+converged_from_scan: 2
+cases: [{name: c}]
+methods: [{name: P, kind: pmht_3d, options: {window: 5, overlap: 2}}]
+"""
+case("evaluate/pmht-window-longer-than-scans", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(window=20)),
+     message="window of 20 scans is longer", klass="refusal")
+case("evaluate/pmht-zero-em-iterations", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(em_iterations=0)),
+     message="em_iterations", klass="refusal")
+case("evaluate/pmht-overlap-whole-window", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(overlap=5)),
+     message="overlap", klass="refusal")
+case("evaluate/pmht-clutter-does-not-split-over-illuminators", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["clutter"].update(per_scan=5)), message="split evenly",
+     klass="refusal")
+case("evaluate/pmht-2d-target-in-3d-scenario", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["initial_states"][0].update(position_m=[0.0, 1.0],
+                                                                                  velocity_mps=[1.0, 0.0])),
+     message="initial_states[0]", klass="refusal")
+case("evaluate/pmht-anneal-below-one", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(anneal=0.5)),
+     message="anneal", klass="refusal")
 _SIG_EV = ("evaluate sc_big.yaml --quiet --out big", ("big.partial*", ".big.partial*", "big"))
 case("evaluate/sigterm", _SIG_EV[0], signal=("SIGTERM", 2.0), signal_after=_SIG_EV[1], klass="traceback",
      note="a killed evaluate must not leave big.partial-XXXX behind")
