@@ -373,7 +373,8 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
             if kinds[spec.name].check:
                 kinds[spec.name].check(spec, alive, None, c.name)
         info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
-                "reference_key": c.reference_key}
+                "reference_key": c.reference_key, "formation": not sc.initial_states,
+                "clutter_list": "sensor" if sc.illuminator_known else "receiver"}
         cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored,
                           [f"target {i + 1}" for i in range(len(x0))], info, bounds))
     left_out = MT_LEFT_OUT if not straight else tuple(k for k in MT_LEFT_OUT if k not in ("pcrb", "bound", "pcrb_q0"))

@@ -234,8 +234,9 @@ def _paper_seconds(timing: dict | None, method: str, key: str | None):
 
 def _case_heading(name: str, case: dict) -> str:
     if "pd" in case:  # a multi-target study's case
-        return (f"### {case['title']} (`{name}`: Pd {case['pd']}, {case['clutter_per_scan']:g} clutter per sensor per "
-                f"scan, spacing {case['spacing_m']:g} m)")
+        spacing = f", spacing {case['spacing_m']:g} m" if case.get("formation", True) else ""
+        return (f"### {case['title']} (`{name}`: Pd {case['pd']}, {case['clutter_per_scan']:g} clutter per "
+                f"{case.get('clutter_list', 'sensor')} per scan{spacing})")
     lives = ", ".join(f"{t['name']} scans {t['first_scan']}-{t['end_scan'] - 1}" for t in case.get("lives", []))
     return f"### {case['title']} (`{name}`, {case['steps']} steps{': ' + lives if lives else ''})"
 
@@ -361,11 +362,18 @@ def _setting_lines(res: dict) -> list[str]:
                        for p in st["transmitters"])
         tr = st["methods"]
         m_best = sorted({v["m_best"] for v in tr.values() if "m_best" in v})
-        return [f"{st['scans']} scans of {st['dt_s']} s. Transmitters {tx}; receiver at {st['receivers'][0]}. Noise: range "
+        mo = st.get("motion", {"model": "cv", "vertical_q": None, "truth": "sampled"})
+        unit = "m^2/s^3 (PSD of continuous white acceleration)" if mo["model"] == "cv_continuous" else "m^2/s^4"
+        vertical = f", vertically {mo['vertical_q']:g}" if mo.get("vertical_q") is not None else ""
+        truth = "the truth flies straight lines, the same in every run" if mo["truth"] == "straight" else "the truth's"
+        pooled = ("; detections pooled per receiver (single-frequency network: the illuminator of a detection is "
+                  "unknown; clutter per receiver list)" if st.get("illuminator_known") is False else "")
+        return [f"{st['scans']} scans of {st['dt_s']} s, {st.get('dimensions', 2)}-D. Transmitters {tx}; receiver at "
+                f"{st['receivers'][0]}. Noise: range "
                 f"{st['noise']['range_m']} m, Doppler {st['noise']['doppler_hz']} Hz. Clutter: {st['clutter']['model']}, "
-                f"uniform over range {st['clutter']['range_m']} m x Doppler {st['clutter']['doppler_hz']} Hz. Trackers: "
-                f"UKF moments, m = {', '.join(map(str, m_best))} best events, gate probability "
-                f"{st['tracker']['gate_probability']}, CV with q = {st['q']} m^2/s^4 (the truth's). Loss rule: "
+                f"uniform over range {st['clutter']['range_m']} m x Doppler {st['clutter']['doppler_hz']} Hz{pooled}. "
+                f"Trackers: UKF moments, m = {', '.join(map(str, m_best)) or '-'} best events (JPDA), gate probability "
+                f"{st['tracker']['gate_probability']}, CV with q = {st['q']} {unit}{vertical} ({truth}). Loss rule: "
                 f"{st['loss']['successive_scans']} scans dummy-most-probable, or predicted range deviation > "
                 f"{st['loss']['gate_range_sd_m']:g} m. OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
                 f"{st['set_metrics']['p']:g}. Position RMSE = {res['definitions']['rmse_pos_m']}.", ""]

@@ -167,7 +167,7 @@ class PMHTResult:
 
 
 @dataclass
-class _Problem:
+class PMHTProblem:
     """What every window shares: models, per-pair noise factors and the settings."""
 
     model: object
@@ -189,7 +189,7 @@ class _Problem:
 
 
 def problem(model, motion: KinematicModel, dt: float, q, R: torch.Tensor, s: PMHTSettings, dtype=torch.float64,
-            device=None) -> _Problem:
+            device=None) -> PMHTProblem:
     """Everything the windows share (one-line errors for a model or ``R`` PMHT can not use)."""
     S = getattr(model, "n_pairs", 1)
     if getattr(model, "layout", "pair") != "pair":
@@ -207,14 +207,14 @@ def problem(model, motion: KinematicModel, dt: float, q, R: torch.Tensor, s: PMH
     L = safe_cholesky(blocks)
     eye = torch.eye(d, dtype=dtype, device=device).expand_as(L)
     kappa, log_c = s.mixture(dtype, device)
-    return _Problem(model, motion.F(dt, dtype, device), motion.Q(dt, q, dtype, device), R,
+    return PMHTProblem(model, motion.F(dt, dtype, device), motion.Q(dt, q, dtype, device), R,
                     torch.linalg.solve_triangular(L, eye, upper=False),
                     2 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1), model.angle_mask[:d].to(device),
                     torch.tensor(s.clutter_rate, dtype=dtype, device=device), kappa, log_c,
                     SigmaPoints().weights(motion.dim_x, dtype, device), s)
 
 
-def _log_terms(pr: _Problem, X: torch.Tensor, lists: AssociationLists,
+def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
                inflate: float = 1.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """For states ``X (B, W, T, n)`` and a window's lists: residuals ``nu (B, W, L, M, T, S, d)``,
     ``log(Pd c_p N(z_r; h_s(x_t), kappa_p R_s)) (B, W, L, M, T, S, P)`` (-inf where pair ``s`` is
@@ -244,7 +244,7 @@ def _log_density(log_t: torch.Tensor, log_clutter: torch.Tensor) -> torch.Tensor
     return torch.logsumexp(torch.cat([log_clutter.unsqueeze(-1), log_t.flatten(-3)], -1), -1)
 
 
-def association_weights(pr: _Problem, X: torch.Tensor, lists: AssociationLists,
+def association_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
                         inflate: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
     """E-step: weights ``w (B, W, L, M, T, S, P)`` (0 on padding) and the residuals ``nu``."""
     nu, log_t, log_clutter = _log_terms(pr, X, lists, inflate)
@@ -252,7 +252,7 @@ def association_weights(pr: _Problem, X: torch.Tensor, lists: AssociationLists,
     return torch.where(lists.valid[..., None, None, None], w, torch.zeros((), dtype=w.dtype, device=w.device)), nu
 
 
-def synthetic_measurements(pr: _Problem, X: torch.Tensor, w: torch.Tensor, nu: torch.Tensor, inflate: float = 1.0):
+def synthetic_measurements(pr: PMHTProblem, X: torch.Tensor, w: torch.Tensor, nu: torch.Tensor, inflate: float = 1.0):
     """M-step's measurements: ``z~ (B, W, T, S d)`` (NaN rows where a pair's weight is below
     ``min_weight``) and the diagonal scale ``1 / sum(w / kappa)`` per row ``(B, W, T, S d)``."""
     B, W, T, _ = X.shape
@@ -268,7 +268,7 @@ def synthetic_measurements(pr: _Problem, X: torch.Tensor, w: torch.Tensor, nu: t
     return z.masked_fill(missing, float("nan")).reshape(B, W, T, S * d), scale.reshape(B, W, T, S * d)
 
 
-def _smooth(pr: _Problem, prior: Gaussian, z: torch.Tensor, scale: torch.Tensor, hand_off: int):
+def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tensor, hand_off: int):
     """Unscented Kalman smoother over synthetic measurements ``z (R, W, m)`` (NaN rows missing;
     covariance ``D R D``, ``D = diag(sqrt(scale))``) from ``prior`` (predicted moments at the
     window's first scan, ``(R, n)``): a UKF forward (the update of
@@ -324,7 +324,7 @@ def _log_gauss(x: torch.Tensor, mean: torch.Tensor, cov: torch.Tensor) -> torch.
     return -0.5 * (e * e).sum(-1) - torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1) - 0.5 * d.shape[-1] * math.log(2 * math.pi)
 
 
-def state_log_prior(pr: _Problem, X: torch.Tensor, prior: Gaussian) -> torch.Tensor:
+def state_log_prior(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian) -> torch.Tensor:
     """``log p(X)`` per run ``(B,)``: the window's first state under ``prior`` (``(B, T, n)``) and
     the CV transitions."""
     out = _log_gauss(X[:, 0], prior.x, prior.P).sum(-1)
@@ -334,14 +334,14 @@ def state_log_prior(pr: _Problem, X: torch.Tensor, prior: Gaussian) -> torch.Ten
     return out
 
 
-def window_objective(pr: _Problem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists) -> torch.Tensor:
+def window_objective(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists) -> torch.Tensor:
     """EM's objective per run ``(B,)``: ``log p(X) + sum_r log p(z_r | X)`` (up to a constant)."""
     _, log_t, log_clutter = _log_terms(pr, X, lists)
     dens = torch.where(lists.valid, _log_density(log_t, log_clutter), torch.zeros((), dtype=X.dtype, device=X.device))
     return state_log_prior(pr, X, prior) + dens.sum((1, 2, 3))
 
 
-def expected_complete_log_likelihood(pr: _Problem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists,
+def expected_complete_log_likelihood(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists,
                                      w: torch.Tensor) -> torch.Tensor:
     """EM's auxiliary function ``Q(X; X_old)`` per run ``(B,)`` (Eq. 21), the weights ``w`` from
     the E-step at ``X_old``: ``log p(X) + sum w log(Pd c_p N(z_r; h_s(x_t), kappa_p R_s))`` plus
@@ -425,7 +425,7 @@ def pmht(lists: AssociationLists, prior: Gaussian, motion: KinematicModel, dt: f
     return PMHTResult(x_out, P_out, history)
 
 
-def em_step(pr: _Problem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists, inflate: float = 1.0,
+def em_step(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists, inflate: float = 1.0,
             hand_off: int | None = None):
     """One EM iteration on a window: states ``X (b, W, T, n)``, ``prior`` the predicted moments at
     its first scan (one row per run and target, ``(b T, n)``). Returns the new states, their
@@ -444,7 +444,7 @@ def _rows(t: torch.Tensor) -> torch.Tensor:
     return t.transpose(1, 2).reshape(b * T, W, *t.shape[3:])
 
 
-def _initial_states(pr: _Problem, g: Gaussian, X_prev: torch.Tensor | None, shift: int, W: int, b: int, T: int) -> torch.Tensor:
+def _initial_states(pr: PMHTProblem, g: Gaussian, X_prev: torch.Tensor | None, shift: int, W: int, b: int, T: int) -> torch.Tensor:
     """EM's starting states ``(b, W, T, n)``: the previous window's smoothed states on the overlap,
     CV predictions beyond (the prior's mean predicted through the first window)."""
     n = pr.F.shape[0]
