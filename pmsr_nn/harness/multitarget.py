@@ -381,6 +381,10 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
     definitions = {k: v for k, v in DEFINITIONS.items() if k not in left_out}
     definitions.update(MT_DEFINITIONS)
     definitions["anees"] = definitions["anees"].replace("/ 4", f"/ {motion.dim_x}")
+    if straight:
+        definitions["pcrb"] = ("per-trajectory posterior Cramer-Rao bound of each target's straight flight under the "
+                               "trackers' motion model and q, the measurement deviations and the initiation prior P0, on "
+                               "clean (association-known) measurements of every pair; averaged like rmse_pos_m")
     causal = {m.name: bool(kinds[m.name].causal(None)) for m in methods}
     return Setup(sc, models, cases, methods, kinds, {m.name: None for m in methods}, causal,
                  "per_block", (sc.set_metrics.c_m, sc.set_metrics.p), describe_multitarget(sc, model, methods),

@@ -8,6 +8,7 @@ of ours.
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -455,8 +456,8 @@ def _flags(res: dict) -> list[str]:
         anees = [res["cases"][c]["methods"][m]["anees"] for c, m in flagged]
         known = [a for a in anees if a is not None]
         lines += ["**Below the bound (bold):** " + ", ".join(f"{m} on {c}" for c, m in flagged) + ". "
-                  "The per-trajectory PCRB assumes, like the filters, that the target's acceleration wanders with "
-                  "jerk PSD q; the designed trajectories have no such process noise, so a filter's error on them "
+                  "The per-trajectory PCRB assumes, like the filters, the process noise q of the motion model; "
+                  "the designed trajectories have no such process noise, so a filter's error on them "
                   "lacks the part the bound reserves for it"
                   + (f" (the flagged methods' ANEES of {_span(known)} says the same: their errors are "
                      "smaller than their own covariances)" if known else "") +
@@ -472,9 +473,9 @@ def _flags(res: dict) -> list[str]:
     return lines
 
 
-def save_figure(fig, path: Path, dpi: int = 110) -> Path:
-    """Lay out, write and close a matplotlib figure."""
-    fig.tight_layout()
+def save_figure(fig, path: Path, dpi: int = 110, rect=None) -> Path:
+    """Lay out (within ``rect``, figure fractions, where a legend sits outside), write and close a figure."""
+    fig.tight_layout(rect=rect)
     fig.savefig(path, dpi=dpi)
     _plt().close(fig)
     return path
@@ -508,9 +509,14 @@ def plot_rmse(res: dict, out: Path) -> list[Path]:
         cv = case["curves"]
         rmse = {m: _per_target(c) for m, c in cv["rmse_pos_m"].items()}
         T = len(next(iter(rmse.values())))
-        fig, axes = plt.subplots(1, T, figsize=(8, 4.8) if T == 1 else (3.6 * T, 3.6), sharey=True, squeeze=False)
+        cols = min(T, 5)  # more targets wrap onto more rows, so no panel is squashed
+        rows = -(-T // cols)
+        fig, axes = plt.subplots(rows, cols, figsize=(8, 4.8) if T == 1 else (3.6 * cols, 3.2 * rows + 0.6),
+                                 sharey=True, squeeze=False)
+        for ax in axes.flat[T:]:
+            ax.set_visible(False)
         names = case.get("targets", [])
-        for i, ax in enumerate(axes[0]):
+        for i, ax in enumerate(axes.flat[:T]):
             t = np.arange(case["steps"]) * dt
             for m, per in rmse.items():
                 ax.semilogy(t, per[i], lw=1.2, label=m)
@@ -524,11 +530,16 @@ def plot_rmse(res: dict, out: Path) -> list[Path]:
             ax.set(xlabel="time (s)", title=f"{case['title']}: {res['mc_runs']} runs" if T == 1 else
                    (names[i] if i < len(names) else f"target {i + 1}"))
             ax.grid(True, which="both", alpha=0.3)
-        axes[0][0].set_ylabel("position RMSE (m)")
-        axes[0][0].legend(fontsize=8 if T == 1 else 6, ncol=2 if T == 1 else 1)
-        if T > 1:
+        for row in axes:
+            row[0].set_ylabel("position RMSE (m)")
+        if T == 1:
+            axes[0][0].legend(fontsize=8, ncol=2)
+        else:  # one legend for all panels, below them
+            handles, labels = axes[0][0].get_legend_handles_labels()
+            fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=8, frameon=False)
             fig.suptitle(f"{case['title']}: {res['mc_runs']} runs")
-        paths.append(save_figure(fig, out / f"{name}_rmse.png", dpi=110 if T == 1 else 100))
+        rect = None if T == 1 else (0, (0.3 + 0.25 * -(-len(labels) // 4)) / fig.get_figheight(), 1, 0.97)
+        paths.append(save_figure(fig, out / f"{name}_rmse.png", dpi=110 if T == 1 else 100, rect=rect))
     return paths
 
 
@@ -578,7 +589,7 @@ def plot_trajectories(res: dict, examples: dict, geometry, path: Path) -> Path:
         truth = np.asarray(examples.get(name, {}).get("truth", np.zeros((0, 1, 2))))
         for t in range(truth.shape[1]):
             ax0.plot(truth[:, t, 0] / 1e3, truth[:, t, 1] / 1e3, color=f"C{j}", lw=1.6, label=name if t == 0 else None)
-    ax0.set(xlabel="east (km)", ylabel="north (km)", title="sensors (^ Tx, v Rx) and true trajectories", aspect="equal")
+    ax0.set(xlabel="east (km)", ylabel="north (km)", title="sensors (^ Tx, v Rx)\nand true trajectories", aspect="equal")
     ax0.legend(fontsize=7)
     for ax, name in zip(axes[1:], names):
         ex = examples.get(name, {})
@@ -590,7 +601,7 @@ def plot_trajectories(res: dict, examples: dict, geometry, path: Path) -> Path:
             est = est[:, None] if est.ndim == 2 else est
             for t in range(est.shape[1]):
                 ax.plot(est[:, t, 0] / 1e3, est[:, t, 1] / 1e3, color=f"C{j}", lw=0.8, label=m if t == 0 else None)
-        ax.set(xlabel="east (km)", title=f"{res['cases'][name]['title']}: run 0", aspect="equal")
+        ax.set(xlabel="east (km)", title=textwrap.fill(f"{res['cases'][name]['title']}: run 0", 40), aspect="equal")
         ax.legend(fontsize=6)
     return save_figure(fig, path)
 
