@@ -59,12 +59,16 @@ def rts_from_predictions(x: torch.Tensor | None, P: torch.Tensor, x_pred: torch.
     _check(x, P)
     xs = None if x is None else x.clone()
     Ps = P.clone()
+    if P.shape[1] < 2:
+        return SmootherResult(xs, Ps)
+    # Every gain at once (they depend on the filter's moments only): G_k = P_k F^T P_pred_k^-1,
+    # i.e. G_k^T = P_pred_k^-1 F P_k (P_pred symmetric positive definite).
+    Gt = torch.cholesky_solve(F @ P[:, :-1], safe_cholesky(P_pred))
+    G = Gt.transpose(-1, -2)
     for k in range(P.shape[1] - 2, -1, -1):
-        # G = P F^T P_pred^-1, i.e. G^T = P_pred^-1 F P (P_pred symmetric positive definite).
-        G = torch.cholesky_solve(F @ P[:, k], safe_cholesky(P_pred[:, k])).transpose(-1, -2)
-        Ps[:, k] = symmetrise(P[:, k] + G @ (Ps[:, k + 1] - P_pred[:, k]) @ G.transpose(-1, -2))
+        Ps[:, k] = symmetrise(P[:, k] + G[:, k] @ (Ps[:, k + 1] - P_pred[:, k]) @ Gt[:, k])
         if xs is not None:
-            xs[:, k] = x[:, k] + ((xs[:, k + 1] - x_pred[:, k]).unsqueeze(-2) @ G.transpose(-1, -2)).squeeze(-2)
+            xs[:, k] = x[:, k] + ((xs[:, k + 1] - x_pred[:, k]).unsqueeze(-2) @ Gt[:, k]).squeeze(-2)
     return SmootherResult(xs, Ps)
 
 
