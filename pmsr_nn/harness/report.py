@@ -300,7 +300,7 @@ def per_target_tables(res: dict, label: str) -> list[str]:
             lines.append(f"| {tname} | " + " | ".join(cells) + " |")
         means = [_f(float(np.mean(r["rmse_vel_per_target_mps"]))) for r in rows.values()]
         means += [_f(float(np.mean(v))) for v in vel_ref.values()]
-        lines += [f"| mean | " + " | ".join(means) + " |", ""]
+        lines += ["| mean | " + " | ".join(means) + " |", ""]
         n = res["settings"].get("state_dim")
         with_p = [m for m, r in rows.items() if r.get("anees_per_target")]
         if not with_p or not n:
@@ -318,7 +318,7 @@ def per_target_tables(res: dict, label: str) -> list[str]:
         means = [_f(n * float(np.mean(rows[m]["anees_per_target"]))) for m in with_p]
         if anees_ref and proposed:
             means.append(_f(float(np.mean(anees_ref))))
-        lines += [f"| mean | " + " | ".join(means) + " |", ""]
+        lines += ["| mean | " + " | ".join(means) + " |", ""]
     if per:
         lines += [f"Columns marked *{label}* are the paper's tables (`{per.get('velocity_rmse_key')}`, "
                   f"`{per.get('anees_key')}`), for reference only; method names map as {names}.", ""]

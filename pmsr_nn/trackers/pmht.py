@@ -61,6 +61,7 @@ from ..filters.smoothing import rts_from_predictions
 from ..measurements import wrap_angle
 from ..motion import KinematicModel
 from ..simulation.detections import PooledScans, Scans
+from .gating import gaussian_log_likelihood
 
 
 @dataclass(frozen=True)
@@ -317,20 +318,13 @@ def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tens
     return sm.x, sm.P, handed
 
 
-def _log_gauss(x: torch.Tensor, mean: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
-    d = x - mean
-    L = safe_cholesky(cov)
-    e = torch.linalg.solve_triangular(L.expand(*d.shape[:-1], *L.shape[-2:]), d.unsqueeze(-1), upper=False).squeeze(-1)
-    return -0.5 * (e * e).sum(-1) - torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1) - 0.5 * d.shape[-1] * math.log(2 * math.pi)
-
-
 def state_log_prior(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian) -> torch.Tensor:
     """``log p(X)`` per run ``(B,)``: the window's first state under ``prior`` (``(B, T, n)``) and
     the CV transitions."""
-    out = _log_gauss(X[:, 0], prior.x, prior.P).sum(-1)
+    out = gaussian_log_likelihood((X[:, 0] - prior.x).unsqueeze(-2), prior.P)[1].sum((-2, -1))
     if X.shape[1] > 1:
-        pred = X[:, :-1] @ pr.F.transpose(-1, -2)
-        out = out + _log_gauss(X[:, 1:], pred, pr.Q).sum((1, 2))
+        step = X[:, 1:] - X[:, :-1] @ pr.F.transpose(-1, -2)  # (B, W-1, T, n): T innovations against Q
+        out = out + gaussian_log_likelihood(step, pr.Q)[1].sum((1, 2))
     return out
 
 
