@@ -163,6 +163,16 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
 
+    fe = sub.add_parser(
+        "front-end", help="run the FM front end on recorded I/Q samples",
+        description="Cancellation, 2D-CCF, OS-CFAR and centroiding of every CPI of an HDF5 recording (complex "
+        "datasets 'ref' and 'surv', attribute sample_rate_hz) with the settings of a front_end YAML (or a scenario "
+        "with a front_end block); write OUT/maps.h5 and OUT/detections.csv.")
+    fe.add_argument("recording", type=Path, help="HDF5 file with 'ref' and 'surv' (samples,) or (cpis, samples)")
+    fe.add_argument("--settings", type=Path, required=True, help="front_end YAML, e.g. evaluate/fm_front_end.yaml")
+    fe.add_argument("--out", type=Path, required=True, help="output folder (new or empty unless --overwrite)")
+    fe.add_argument("--overwrite", action="store_true", help="replace a folder an earlier front-end run wrote")
+
     mg = sub.add_parser("merge", help="combine the shards of a scenario run",
                         description="Combine the output folders of 'pmsr evaluate --shard I/N' runs (all N of them) "
                         "into the results, report and figures of the whole run.")
@@ -192,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
                 "track": cmd_track, "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge,
-                "demo": cmd_demo}
+                "demo": cmd_demo, "front-end": cmd_front_end}
     from .interrupts import signals_raise
 
     try:
@@ -384,8 +394,12 @@ def _checkpoint_overrides(items: list[str]) -> dict[str, str]:
 def print_summary(res: dict) -> None:
     """The methods x cases position-RMSE table of a results.json, and the multi-target tables where
     a case has several targets."""
+    from .harness.front_end_report import front_end_tables
     from .harness.report import multi_target_tables, summary_table
 
+    fe = [line for line in front_end_tables(res) if line.startswith("|")]
+    if fe:
+        print("front end: signals -> detections, measured in this run\n" + "\n".join(fe) + "\n")
     print(f"position RMSE (m), Eq. 31 averaged after the warm-up; {res['mc_runs']} runs per case\n")
     print("\n".join(summary_table(res, None, "", False)))
     mt = [line for line in multi_target_tables(res, None, "paper") if not line.startswith("![")]
@@ -411,6 +425,17 @@ def cmd_evaluate(args) -> int:
         return 0
     print_summary(res)
     print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def cmd_front_end(args) -> int:
+    from .frontend.recording import process_recording
+
+    t0 = time.perf_counter()
+    s = process_recording(args.recording, args.settings, args.out, overwrite=args.overwrite)
+    print(f"front end {s['cpis']} CPIs -> {s['detections']} detections on {s['map'][0]} x {s['map'][1]} (Doppler x "
+          f"range) maps, cancellation {s['cancellation_depth_db']:.1f} dB, {time.perf_counter() - t0:.1f} s -> "
+          f"{args.out / 'detections.csv'}, {args.out / 'maps.h5'}")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""The fault catalogue (``tests/faults/cases.py``, 376 bad inputs and faults over the nine ``pmsr``
+"""The fault catalogue (``tests/faults/cases.py``, 385 bad inputs and faults over the ten ``pmsr``
 commands), held to account.
 
 Each case runs in a fresh sandbox (a copy of small fixtures: a dataset, a trained run, shards,
@@ -42,7 +42,7 @@ def test_the_catalogue_is_wide_and_distinct():
     plain = [(c.argv, c.signal) for c in CASES if c.setup is None]  # a setup makes its own input
     assert len(set(plain)) == len(plain)
     assert {c.command for c in CASES} == {"simulate", "info", "train", "select", "track", "export", "evaluate",
-                                          "merge", "demo"}
+                                          "merge", "demo", "front-end"}
 
 
 @pytest.fixture(scope="session")

@@ -26,6 +26,7 @@ import torch
 
 from ..config import from_dict, require, to_dict
 from ..errors import ConfigError
+from ..frontend.chain import FrontEndSpec
 from ..measurements import MeasurementModel
 from ..methods import Models, method_kind
 from ..motion import motion_model
@@ -172,7 +173,9 @@ class TrackerSpec:
 @dataclass(frozen=True)
 class MTCaseSpec:
     """One setting: ``pd``, ``clutter_per_scan``, ``spacing_m`` and ``prior`` override the
-    scenario's; ``reference_key`` is the key of this case in the paper's tables (default: none)."""
+    scenario's; ``signals: false`` draws this case's detections from the statistical model even
+    when the scenario has a ``front_end``; ``reference_key`` is the key of this case in the paper's
+    tables (default: none)."""
 
     name: str
     title: str = ""
@@ -180,6 +183,7 @@ class MTCaseSpec:
     clutter_per_scan: float | None = None
     spacing_m: float | None = None
     prior: PriorSpec | None = None
+    signals: bool = True
     reference_key: str | None = None
 
 
@@ -227,6 +231,7 @@ class MultiTargetScenario:
     pd: float = 0.8
     clutter: ClutterSpec = ClutterSpec()
     illuminator_known: bool = True
+    front_end: FrontEndSpec | None = None
     tracker: TrackerSpec = TrackerSpec()
     loss: LossSpec = LossSpec()
     converged_from_scan: int = 10
@@ -257,6 +262,11 @@ class MultiTargetScenario:
         require(self.dimensions == 2 or self.initial_states, "a 3-D scenario lists its targets in initial_states")
         require(self.sweep != "spacing_m" or not self.initial_states, "a spacing_m sweep needs the formation, not "
                                                                       "initial_states")
+        if self.front_end is not None:
+            require(self.illuminator_known, "detections from signals (front_end) are per transmitter: set "
+                                            "illuminator_known true")
+            require(all(k < self.scans for k in self.front_end.example_scans),
+                    f"front_end example_scans {list(self.front_end.example_scans)} must be below scans ({self.scans})")
 
     @property
     def target_count(self) -> int:
@@ -359,8 +369,9 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
             raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
         prior = c.prior or sc.prior
         P0 = prior.sd(dims)
+        front_end = sc.front_end if c.signals else None
         sensing = SensorSetup(model, P0, detection_model=model, pd=pd, clutter=clutter,
-                              illuminator_known=sc.illuminator_known)
+                              illuminator_known=sc.illuminator_known, front_end=front_end)
         alive = torch.ones(sc.scans, len(x0), dtype=torch.bool)
         bounds = None
         if straight:
@@ -374,7 +385,8 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
                 kinds[spec.name].check(spec, alive, None, c.name)
         info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
                 "reference_key": c.reference_key, "formation": not sc.initial_states,
-                "clutter_list": "sensor" if sc.illuminator_known else "receiver"}
+                "clutter_list": "sensor" if sc.illuminator_known else "receiver",
+                "detections_from": "signals" if front_end is not None else "model"}
         cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored,
                           [f"target {i + 1}" for i in range(len(x0))], info, bounds))
     left_out = MT_LEFT_OUT if not straight else tuple(k for k in MT_LEFT_OUT if k not in ("pcrb", "bound", "pcrb_q0"))
@@ -417,4 +429,8 @@ def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, metho
             or not sc.illuminator_known:
         out.update({"dimensions": sc.dimensions, "motion": to_dict(sc.motion), "illuminator_known": sc.illuminator_known,
                     "initial_states": [to_dict(t) for t in sc.initial_states]})
+    if sc.front_end is not None:
+        fe = sc.front_end
+        out["front_end"] = {**to_dict(fe), "map_shape": list(fe.map_shape), "range_bin_m": fe.signal.range_bin_m,
+                            "doppler_bin_hz": fe.doppler_bin_hz, "samples_per_cpi": fe.signal.samples}
     return out

@@ -402,8 +402,11 @@ def write_report(res: dict, out: Path, examples: dict, geometry, ref: dict | Non
     cases = res["cases"]
     designed = all(c.get("pcrb") is not None for c in cases.values())
     sweep = res["settings"].get("sweep", "none")
+    from .front_end_report import front_end_tables, write_front_end_outputs
+
     figures = plot_rmse(res, out) + plot_set_metrics(res, out)
     figures.append(plot_trajectories(res, examples, geometry, out / "trajectories.png"))
+    figures += write_front_end_outputs(res, examples, out)
     if sweep != "none":
         figures.append(plot_sweep(res, out / f"sweep_{sweep}.png"))
     env = res["environment"]
@@ -422,6 +425,7 @@ def write_report(res: dict, out: Path, examples: dict, geometry, ref: dict | Non
     lines += _flags(res)
     if sweep != "none":
         lines += ["## Sweep", "", *sweep_table(res, ref_timing, ref_label)]
+    lines += front_end_tables(res)
     mt = multi_target_tables(res, ref_timing, ref_label)
     if mt:
         lines += ["## Multi-target figures", "", *mt, *per_target_tables(res, ref_label)]
@@ -596,7 +600,7 @@ def plot_trajectories(res: dict, examples: dict, geometry, path: Path) -> Path:
         truth = np.asarray(ex.get("truth", np.zeros((0, 1, 2))))
         for t in range(truth.shape[1]):
             ax.plot(truth[:, t, 0] / 1e3, truth[:, t, 1] / 1e3, "k", lw=2.2, label="truth" if t == 0 else None)
-        for j, m in enumerate(k for k in ex if k != "truth"):
+        for j, m in enumerate(k for k in ex if k != "truth" and not k.startswith("@")):
             est = np.asarray(ex[m])
             est = est[:, None] if est.ndim == 2 else est
             for t in range(est.shape[1]):

@@ -44,6 +44,9 @@ from .trajectories import check_inside, design_trajectory
 INIT_STREAM = 0x696E6974
 """Last seed word of the initiation prior's generator under ``random_streams: per_product`` ('init')."""
 
+FRONT_END = "@front_end"
+"""Key of a signal chain's sums and examples in :class:`BlockSums` (beside the methods')."""
+
 
 @dataclass
 class Bounds:
@@ -482,6 +485,12 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
         for ci, case in enumerate(setup.cases):
             for block in blocks:
                 truth, products = draw_block(setup, ci, block)
+                for product in products.values():  # what a signal chain measured on the way
+                    record = getattr(product, "front_end", None)
+                    if record is not None:
+                        out.add(case.name, FRONT_END, record.sums, 0.0)
+                        if block == 0:
+                            out.example.setdefault(case.name, {}).update(record.example)
                 if not setup.warmed:  # untimed, once: one-off start-up costs stay out of the timing
                     first = _first_runs(products)
                     for spec in setup.methods:
@@ -620,6 +629,11 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
             out["curves"] = {"rmse_pos_m": curves}
         if case.multi_target:
             out["curves"].update({"set": set_curves, "cardinality_truth": alive.sum(1).tolist()})
+        if FRONT_END in bs.sums.get(case.name, {}):
+            from ..frontend.chain import summarise
+
+            out["front_end"] = summarise({q: a.sum(0) for q, a in bs.sums[case.name][FRONT_END].items()},
+                                         case.sensing.front_end)
         cases[case.name] = out
     return cases
 

@@ -104,6 +104,7 @@ class SensorSetup:
     pd: float | None = None
     clutter: ClutterSpec | None = None
     illuminator_known: bool = True
+    front_end: object | None = None  # a frontend.chain.FrontEndSpec: detections from simulated signals
 
     def pair_clutter(self) -> ClutterSpec:
         """Clutter drawn per pair and scan: the scenario's per list, split evenly over a
@@ -139,11 +140,14 @@ class Streams:
 class Detections:
     """Detections of every sensor and scan (:class:`~.detections.Scans`) and the initiation prior
     of each target's track ``x (B, N, n)`` at its birth scan; ``pooled``: the same detections per
-    receiver, illuminator unknown (only when the scenario's ``illuminator_known`` is false)."""
+    receiver, illuminator unknown (only when the scenario's ``illuminator_known`` is false);
+    ``front_end``: what the signal chain measured, when the detections came from signals
+    (:class:`~pmsr_nn.frontend.chain.FrontEndRecord`)."""
 
     scans: Scans
     prior: Gaussian
     pooled: PooledScans | None = None
+    front_end: object | None = None
 
     def runs(self, i: slice) -> "Detections":
         """The product of runs ``i``."""
@@ -168,8 +172,14 @@ def make_streams(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior
 
 
 def make_detections(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior: torch.Generator) -> Detections:
-    """Detections (from ``g``: :func:`~.detections.simulate_scans`; pooled per receiver, from
-    ``g`` again, when the illuminator is unknown), then the prior (``g_prior``)."""
+    """Detections (from ``g``: :func:`~.detections.simulate_scans`, or the signal chain
+    :func:`~pmsr_nn.frontend.chain.front_end_scans` when the sensing has a front end; pooled per
+    receiver, from ``g`` again, when the illuminator is unknown), then the prior (``g_prior``)."""
+    if sensing.front_end is not None:
+        from ..frontend.chain import front_end_scans
+
+        scans, record = front_end_scans(truth.x, truth.alive, sensing.detection_model, sensing.front_end, g)
+        return Detections(scans, initiation_prior(truth, sensing.prior_sd, g_prior), None, record)
     scans = simulate_scans(truth.x, sensing.detection_model, sensing.pd, sensing.pair_clutter(), g, truth.alive)
     pooled = None if sensing.illuminator_known else pool_by_receiver(scans, sensing.detection_model, g)
     return Detections(scans, initiation_prior(truth, sensing.prior_sd, g_prior), pooled)

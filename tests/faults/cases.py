@@ -40,7 +40,7 @@ from typing import Callable
 
 from .sandbox import RECIPE_YAML, SCENARIO_LEARNED_YAML, SCENARIO_YAML, TRAIN_YAML
 
-COMMANDS = ("simulate", "info", "train", "select", "track", "export", "evaluate", "merge", "demo")
+COMMANDS = ("simulate", "info", "train", "select", "track", "export", "evaluate", "merge", "demo", "front-end")
 DEFAULT_TIMEOUT = 60.0
 
 
@@ -1158,6 +1158,73 @@ case("evaluate/pmht-2d-target-in-3d-scenario", "evaluate p.yaml --out out",
 case("evaluate/pmht-anneal-below-one", "evaluate p.yaml --out out",
      setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(anneal=0.5)),
      message="anneal", klass="refusal")
+FM_YAML = """\
+kind: multitarget
+name: fm_tiny
+mc_runs: 1
+block_runs: 1
+scans: 3
+geometry:
+  transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 100.0e+6}]
+  receivers: [{position_m: [0.0, 0.0]}]
+initial_states: [{position_m: [10000.0, 10000.0], velocity_mps: [60.0, 80.0]}]
+noise: {range_m: 1500.0, doppler_hz: 1.5}
+clutter: {per_scan: 1, model: poisson, range_m: [0.0, 60000.0], doppler_hz: [-120.0, 120.0]}
+front_end:
+  signal: {sample_rate_hz: 64000.0, cpi_s: 0.25, audio_bandwidth_hz: 4000.0, deviation_hz: 5000.0}
+  max_range_m: 40000.0
+  max_doppler_hz: 120.0
+  batch_len: 250
+  cancellation: {range_bins: 4}
+  cfar: {guard: [1, 1], train: [4, 2], pfa: 1.0e-3}
+converged_from_scan: 1
+cases: [{name: c}]
+methods: [{name: J, kind: s_msjpda}]
+"""
+case("evaluate/front-end-cpi-shorter-than-longest-delay", "evaluate fm.yaml --out out",
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: (d["front_end"]["signal"].update(cpi_s=0.0005),
+                                                 d["front_end"].update(max_range_m=200000.0))),
+     message="shorter than the longest delay", klass="refusal")
+case("evaluate/front-end-sample-rate-cannot-resolve-range", "evaluate fm.yaml --out out",
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"].update(max_range_m=3000.0)),
+     message="can not resolve the requested max_range_m", klass="refusal")
+case("evaluate/front-end-cfar-window-larger-than-map", "evaluate fm.yaml --out out",
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"]["cfar"].update(guard=[2, 4], train=[4, 4])),
+     message="larger than the", klass="refusal")
+case("evaluate/front-end-doppler-beyond-ambiguity", "evaluate fm.yaml --out out",
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"].update(max_doppler_hz=128.0)),
+     message="max_doppler_hz", klass="refusal")
+
+
+def _recording(nan_at: int | None = None, rate: float = 64000.0) -> Callable[[Path], None]:
+    """An I/Q recording of two 0.25 s CPIs at 64 kHz (noise and a direct path), NaN at one sample."""
+    def f(root: Path) -> None:
+        import h5py
+        import numpy as np
+
+        rng = np.random.default_rng(0)
+        n = 2 * 16000
+        ref = np.exp(1j * np.cumsum(rng.normal(0, 0.3, n))) * 100 + rng.normal(0, 1, n) + 1j * rng.normal(0, 1, n)
+        surv = ref * 10 + rng.normal(0, 1, n) + 1j * rng.normal(0, 1, n)
+        if nan_at is not None:
+            surv[nan_at] = np.nan
+        with h5py.File(root / "iq.h5", "w") as fh:
+            fh.create_dataset("ref", data=ref)
+            fh.create_dataset("surv", data=surv)
+            fh.attrs["sample_rate_hz"] = rate
+        yaml_edit(FM_YAML, "fm.yaml", lambda d: None)(root)
+    return f
+
+
+case("front-end/ok", "front-end iq.h5 --settings fm.yaml --out fe", expect="ok", setup=_recording(), outputs=("fe",))
+case("front-end/non-finite-samples", "front-end iq.h5 --settings fm.yaml --out fe", setup=_recording(nan_at=20000),
+     message="non-finite samples", klass="refusal")
+case("front-end/sample-rate-mismatch", "front-end iq.h5 --settings fm.yaml --out fe", setup=_recording(rate=48000.0),
+     message="sampled at 48000 Hz", klass="refusal")
+case("front-end/not-hdf5", "front-end fm.yaml --settings fm.yaml --out fe",
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: None), message="not a readable HDF5", klass="refusal")
+case("front-end/out-is-the-recording", "front-end iq.h5 --settings fm.yaml --out iq.h5 --overwrite", setup=_recording(),
+     klass="data_loss")
 _SIG_EV = ("evaluate sc_big.yaml --quiet --out big", ("big.partial*", ".big.partial*", "big"))
 case("evaluate/sigterm", _SIG_EV[0], signal=("SIGTERM", 2.0), signal_after=_SIG_EV[1], klass="traceback",
      note="a killed evaluate must not leave big.partial-XXXX behind")

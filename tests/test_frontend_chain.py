@@ -1,0 +1,193 @@
+"""The FM signal simulator and the whole front end (signals -> detections) on small cases."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from pmsr_nn import SPEED_OF_LIGHT
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.frontend.chain import CancellationSpec, CfarSpec, FrontEndSpec, front_end_scans, process_cpi
+from pmsr_nn.frontend.fm_signals import FMSignalSpec, _phase_spectrum, simulate_cpi
+from pmsr_nn.geometry import Geometry, Receiver, Transmitter
+from pmsr_nn.measurements import MeasurementModel
+
+# a small chain: 64 kHz (4.7 km delay bins), 0.25 s CPIs (4 Hz Doppler bins)
+SMALL = FMSignalSpec(sample_rate_hz=64e3, cpi_s=0.25, audio_bandwidth_hz=4e3, deviation_hz=5e3,
+                     multipath_delay_samples=(1.0, 2.0), multipath_cnr_db=(40.0, 35.0), echo_snr_db=-10.0,
+                     echo_range_law=False, fluctuation="none")
+
+
+def small_front_end(**kw) -> FrontEndSpec:
+    args = dict(signal=SMALL, max_range_m=40_000.0, max_doppler_hz=120.0, batch_len=250,
+                cancellation=CancellationSpec(range_bins=4), cfar=CfarSpec(guard=(1, 1), train=(4, 2), pfa=1e-3),
+                example_scans=(1,))
+    args.update(kw)
+    return FrontEndSpec(**args)
+
+
+def test_fractional_delay_is_the_exact_delayed_waveform():
+    """The simulator's copy delayed by d samples is the FM phase's Fourier series evaluated at
+    n - d, summed directly (no interpolation filter anywhere)."""
+    L = 400
+    g = torch.Generator().manual_seed(1)
+    Phi = _phase_spectrum(SMALL, 1, L, g)[0]
+    d = 3.37
+    k = torch.arange(Phi.shape[0], dtype=torch.float64)
+    n = torch.arange(L, dtype=torch.float64)
+    # irfft's real series: X0 + 2 Re sum_{0<k<L/2} X_k e^{j 2 pi k t / L} (+ Nyquist), over L
+    terms = Phi[None, 1:L // 2] * torch.exp(2j * math.pi * k[None, 1:L // 2] * (n[:, None] - d) / L)
+    direct = (Phi[0].real + 2 * terms.sum(1).real) / L
+    from pmsr_nn.frontend.fm_signals import _delayed_phase
+
+    ours = _delayed_phase(Phi[None], torch.tensor([d], dtype=torch.float64), L)[0]
+    assert torch.allclose(ours, direct, rtol=0, atol=1e-12 * float(direct.abs().max()))
+
+
+def test_waveform_deviation_and_channel_powers():
+    """The programme's RMS frequency deviation is the stated one (within 3 %, the spread of a
+    Gaussian programme's sample variance over a 1 s CPI) and each channel's power is its
+    path's plus the unit noise (the cross term averages out to ~1/sqrt(N) of the path's)."""
+    spec = FMSignalSpec(fluctuation="none", multipath_delay_samples=(), multipath_cnr_db=())
+    g = torch.Generator().manual_seed(2)
+    L = spec.samples
+    phi = torch.fft.irfft(_phase_spectrum(spec, 2, L, g), n=L)
+    f = torch.diff(phi, dim=1) * spec.sample_rate_hz / (2 * math.pi)
+    assert abs(float(f.std()) / spec.deviation_hz - 1) < 0.03
+    cpi = simulate_cpi(spec, torch.zeros(1, 0), torch.zeros(1, 0), torch.zeros(1, 0), torch.zeros(1, 0, dtype=torch.bool), g)
+    assert abs(float(cpi.surv.abs().pow(2).mean()) / (1 + 10 ** (spec.dnr_db / 10)) - 1) < 1e-3
+    assert abs(float(cpi.ref.abs().pow(2).mean()) / (1 + 10 ** (spec.reference_snr_db / 10)) - 1) < 1e-3
+
+
+def _one_pair_model(carrier_hz: float = 100e6) -> MeasurementModel:
+    geo = Geometry((Transmitter((6500.0, 0.0), carrier_hz),), (Receiver((0.0, 0.0)),), ((0, 0),))
+    return MeasurementModel(geo, ("range", "doppler"), (300.0, 1.0), (0, 2), (1, 3), layout="pair")
+
+
+def test_a_strong_echo_is_detected_at_its_true_range_and_doppler():
+    spec = small_front_end()
+    model = _one_pair_model()
+    # one target 10 km north of the receiver, flying north-east: two scans
+    x = torch.tensor([[10000.0, 60.0, 10000.0, 80.0]], dtype=torch.float64)
+    truth = torch.stack([x, x + torch.tensor([60.0, 0, 80.0, 0], dtype=torch.float64)])[None]  # (1, K=2, T=1, 4)
+    alive = torch.ones(2, 1, dtype=torch.bool)
+    scans, record = front_end_scans(truth, alive, model, spec, torch.Generator().manual_seed(3))
+    z = model.h(truth)  # (1, 2, 1, 2): range m, Doppler Hz
+    for k in range(2):
+        hit = scans.origin[0, k, 0] == 0
+        assert int(hit.sum()) == 1
+        det = scans.z[0, k, 0][hit][0]
+        # a mid-SNR centroid is well within half a cell of the truth
+        assert abs(float(det[0] - z[0, k, 0, 0])) < 0.5 * SMALL.range_bin_m
+        assert abs(float(det[1] - z[0, k, 0, 1])) < 0.5 * spec.doppler_bin_hz
+    s = record.sums
+    assert s["detected"].sum() == 2 and s["in_map"].sum() == 2
+    assert s["depth_db"] / s["cpis"] > 30  # the direct path (60 dB) and multipath are gone
+    assert "@maps" in record.example and record.example["@maps"].shape[2:] == (4, *spec.map_shape)
+
+
+def test_bad_front_end_settings_are_refused_in_one_line():
+    with pytest.raises(ConfigError, match="shorter than the longest delay"):
+        small_front_end(signal=FMSignalSpec(sample_rate_hz=64e3, cpi_s=0.0003, audio_bandwidth_hz=4e3, deviation_hz=5e3),
+                        batch_len=25, max_doppler_hz=1000.0, max_range_m=100_000.0)
+    with pytest.raises(ConfigError, match="can not resolve the requested max_range_m"):
+        small_front_end(max_range_m=3000.0)
+    with pytest.raises(ConfigError, match="Carson"):
+        small_front_end(signal=FMSignalSpec(sample_rate_hz=64e3, cpi_s=0.25, audio_bandwidth_hz=4e3, deviation_hz=25e3))
+    with pytest.raises(ConfigError, match="larger than the"):
+        small_front_end(cfar=CfarSpec(guard=(2, 4), train=(4, 4)))
+    spec = small_front_end()
+    ref = torch.ones(1, SMALL.samples, dtype=torch.complex128)
+    surv = ref.clone()
+    surv[0, 5] = complex(math.nan, 0)
+    with pytest.raises(ConfigError, match="NaN or inf"):
+        process_cpi(spec, ref, surv)
+
+
+TINY = """\
+kind: multitarget
+name: fm_tiny
+mc_runs: 2
+block_runs: 2
+scans: 6
+geometry:
+  transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 100.0e+6}, {position_m: [-5000.0, 9000.0], carrier_hz: 95.0e+6}]
+  receivers: [{position_m: [0.0, 0.0]}]
+initial_states: [{position_m: [10000.0, 10000.0], velocity_mps: [60.0, 80.0]}]
+noise: {range_m: 1500.0, doppler_hz: 1.5}
+motion: {dt_s: 1.0, q: 0.1}
+prior: {position_m: 200.0, velocity_mps: 10.0}
+pd: 0.9
+clutter: {per_scan: 1, model: poisson, range_m: [0.0, 60000.0], doppler_hz: [-120.0, 120.0]}
+front_end:
+  signal: {sample_rate_hz: 64000.0, cpi_s: 0.25, audio_bandwidth_hz: 4000.0, deviation_hz: 5000.0,
+           multipath_delay_samples: [1.0], multipath_cnr_db: [40.0], echo_snr_db: -10.0, echo_range_law: false}
+  max_range_m: 40000.0
+  max_doppler_hz: 120.0
+  batch_len: 250
+  cancellation: {range_bins: 4}
+  cfar: {guard: [1, 1], train: [4, 2], pfa: 1.0e-3}
+  example_scans: [2]
+converged_from_scan: 1
+cases: [{name: signals}, {name: model, signals: false}]
+methods: [{name: J, kind: s_msjpda}, {name: T, kind: true_assignment}]
+"""
+
+
+def test_evaluate_runs_signals_to_tracks_and_writes_the_maps(tmp_path):
+    import h5py
+
+    from pmsr_nn.harness.evaluate import evaluate
+
+    (tmp_path / "fm.yaml").write_text(TINY)
+    res = evaluate(tmp_path / "fm.yaml", tmp_path / "out", progress=False)
+    fe = res["cases"]["signals"]["front_end"]
+    assert "front_end" not in res["cases"]["model"]
+    assert fe["cpis"] == 2 * 6 * 2 and fe["pairs"] == 2
+    assert fe["pd_measured"] > 0.5 and fe["faster_than_real_time"] > 0
+    assert res["cases"]["signals"]["methods"]["J"]["rmse_pos_m"] < 2000
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Front end: signals to detections" in report
+    assert (tmp_path / "out" / "signals_rd_map.png").stat().st_size > 0
+    assert (tmp_path / "out" / "signals_detections.png").stat().st_size > 0
+    with h5py.File(tmp_path / "out" / "maps.h5") as f:
+        assert f["signals/power_after"].shape == (1, 2, *FrontEndSpec(
+            signal=SMALL, max_range_m=40_000.0, max_doppler_hz=120.0, batch_len=250,
+            cfar=CfarSpec(guard=(1, 1), train=(4, 2))).map_shape)
+        assert f["signals/detections_run0"].shape[:2] == (6, 2)
+    json.loads((tmp_path / "out" / "results.json").read_text())
+
+
+def test_front_end_command_finds_the_echo_in_a_recording(tmp_path, capsys):
+    """`pmsr front-end` on an HDF5 recording of two simulated CPIs (one echo at 4.3 delay bins and
+    +40 Hz): detections.csv holds it within half a cell; maps.h5 one map per CPI."""
+    import csv
+
+    import h5py
+
+    from pmsr_nn.cli import main
+
+    (tmp_path / "fm.yaml").write_text(TINY)
+    spec = small_front_end()
+    cpis = [simulate_cpi(SMALL, torch.tensor([[4.3 / SMALL.sample_rate_hz]]), torch.tensor([[40.0]]),
+                         torch.tensor([[-10.0]]), torch.tensor([[True]]), torch.Generator().manual_seed(k))
+            for k in range(2)]
+    with h5py.File(tmp_path / "iq.h5", "w") as f:
+        f.create_dataset("ref", data=torch.cat([c.ref for c in cpis]).numpy())
+        f.create_dataset("surv", data=torch.cat([c.surv for c in cpis]).numpy())
+        f.attrs["sample_rate_hz"] = SMALL.sample_rate_hz
+    assert main(["front-end", str(tmp_path / "iq.h5"), "--settings", str(tmp_path / "fm.yaml"),
+                 "--out", str(tmp_path / "fe")]) == 0
+    assert "2 CPIs" in capsys.readouterr().out
+    rows = list(csv.DictReader(open(tmp_path / "fe" / "detections.csv")))
+    for cpi in ("0", "1"):
+        near = [r for r in rows if r["cpi"] == cpi and abs(float(r["excess_range_m"]) - 4.3 * SMALL.range_bin_m)
+                < 0.5 * SMALL.range_bin_m and abs(float(r["doppler_hz"]) - 40.0) < 0.5 * spec.doppler_bin_hz]
+        assert len(near) == 1
+    with h5py.File(tmp_path / "fe" / "maps.h5") as f:
+        assert f["power_after"].shape == (2, *spec.map_shape)
