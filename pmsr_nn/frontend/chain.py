@@ -182,13 +182,12 @@ def range_doppler_map(spec: FrontEndSpec, surv: torch.Tensor, ref: torch.Tensor)
 def process_cpi(spec: FrontEndSpec, ref: torch.Tensor, surv: torch.Tensor, full_maps: bool = False) -> CpiResult:
     """Cancellation, 2D-CCF, OS-CFAR and centroiding of one CPI ``ref, surv (B, N)``;
     ``full_maps``: the CFAR's threshold at every cell (else only at detections, the rest NaN:
-    the same detections, several times faster)."""
-    if not (bool(torch.isfinite(torch.view_as_real(surv)).all()) and bool(torch.isfinite(torch.view_as_real(ref)).all())):
-        raise ConfigError("the signal samples contain NaN or inf")
+    the same detections, several times faster). Non-finite samples are refused (one line) by the
+    cancellation and the 2D-CCF, which check their inputs."""
     clean = _cancel(spec, surv, ref)
     depth = cancellation_depth_db(surv, clean)
     rd = range_doppler_map(spec, clean, ref)
-    power = rd.values.abs() ** 2
+    power = rd.power
     c = spec.cfar
     cf = os_cfar(power, guard=c.guard, train=c.train, rank=c.rank, pfa=c.pfa, wrap_doppler=False,
                  full_maps=full_maps)
