@@ -43,8 +43,9 @@ def front_end_tables(res: dict) -> list[str]:
                      f"| {_f(f['rmse_doppler_hz'])} / {_f(f['reported_sd_doppler_hz'])} | {f['cancellation_depth_db']:.1f} "
                      f"| {f['processing_seconds_per_cpi']:.3f} | {_f(f['faster_than_real_time'])} |")
     lines += ["", "Pd: detections labelled with a target over the (target, pair, scan)s whose true cell lies in the map; "
-              "false alarms: every other detection (noise, sidelobes, a second peak of a split echo), against the "
-              "CFAR's nominal Pfa x cells; errors: of labelled detections from the true (range, Doppler); s / CPI: "
+              "false alarms: every other (centroided) detection -- noise, sidelobes, a second peak of a split echo, "
+              "an echo just beyond the map's last range bin -- per map, beside the CFAR's nominal Pfa x cells (cells "
+              "over threshold; neighbouring ones merge into one detection); errors: of labelled detections from the true (range, Doppler); s / CPI: "
               "cancellation to centroids of one pair's CPI (simulation not counted), x real time = CPI length / that.",
               ""]
     for name, _ in rows:
