@@ -217,3 +217,42 @@ def test_chain_false_alarm_rate_on_noise_only_maps_is_the_nominal_pfa():
     assert cells >= 1_000_000
     lo, hi = binom.interval(0.99, cells, spec.cfar.pfa)
     assert lo <= hits <= hi, (hits, cells, lo, hi)
+
+
+def test_rms_bandwidth_of_a_tone_is_its_frequency():
+    from pmsr_nn.frontend.chain import rms_bandwidth
+
+    n = torch.arange(5000, dtype=torch.float64)
+    tone = torch.exp(2j * math.pi * 0.0731 * n)[None]
+    assert abs(float(rms_bandwidth(tone)[0]) - 0.0731) < 1e-9
+
+
+def test_reported_range_deviation_is_the_delay_bound_and_the_centroid_is_within_2x_of_it():
+    """Echoes at a fixed map SNR (~20 dB, no fluctuation) over 40 CPIs: the RMS range error of the
+    centroids over the mean reported deviation (the Cramer-Rao bound of the FM waveform, which
+    no unbiased estimate beats) is at least 0.67 (1 less 3 standard errors of an RMS over 40
+    errors) and at most 2 (the power-weighted centroid's loss against the bound: 1.30 with this
+    seed, at a mean map SNR of 17 dB)."""
+    import dataclasses
+
+    spec = FrontEndSpec()
+    sig = dataclasses.replace(spec.signal, fluctuation="none")
+    g = torch.Generator().manual_seed(5)
+    rows = 40
+    d_bins = 20 + torch.rand(rows, 1, generator=g, dtype=torch.float64)
+    fd = 50.0 + torch.rand(rows, 1, generator=g, dtype=torch.float64)
+    errs, sds = [], []
+    for lo in range(0, rows, 10):
+        sl = slice(lo, lo + 10)
+        cpi = simulate_cpi(sig, d_bins[sl] / sig.sample_rate_hz, fd[sl], torch.full((10, 1), -35.0, dtype=torch.float64),
+                           torch.ones(10, 1, dtype=torch.bool), g)
+        res = process_cpi(spec, cpi.ref, cpi.surv)
+        c = res.centroids
+        dop = res.doppler_hz[0] + c.doppler_bin * (res.doppler_hz[1] - res.doppler_hz[0])
+        near = c.valid & ((c.range_bin - d_bins[sl]).abs() < 3) & ((dop - fd[sl]).abs() < 3)
+        assert bool((near.sum(1) == 1).all())  # every echo found once
+        errs.append((c.range_bin - d_bins[sl])[near])
+        sds.append(c.sd_range_bin[near])
+    e, sd = torch.cat(errs), torch.cat(sds)
+    ratio = float(e.pow(2).mean().sqrt() / sd.pow(2).mean().sqrt())
+    assert 0.67 <= ratio <= 2.0, ratio
