@@ -20,7 +20,9 @@ import h5py
 import numpy as np
 import torch
 
+from pmsr_nn import SPEED_OF_LIGHT
 from pmsr_nn.config import load_yaml
+from pmsr_nn.frontend.chain import true_cells
 from pmsr_nn.frontend.fm_signals import echo_snr_db, simulate_cpi
 from pmsr_nn.harness.multitarget import multitarget_from_dict
 from pmsr_nn.harness.runner import prepare
@@ -46,23 +48,19 @@ def main() -> None:
     model = case.sensing.detection_model
     g = seeded_generator(sc.seed, 0, 0)
     truth = case.truth.draw(1, g)
-    x = truth.x[0, : args.cpis]  # (K, T, n)
     s = args.pair
-    clean = model.h(x).reshape(x.shape[0], x.shape[1], model.n_pairs, 2)[..., s, :]  # (K, T, 2)
+    r, doppler, r_tx, r_rx = (v[0, :, :, s] for v in true_cells(model, truth.x[:, : args.cpis]))  # (K, T)
     baseline = model.geometry.baselines_m()[s]
-    pos = x[..., list(model.pos_idx)]
-    r_tx = torch.linalg.vector_norm(pos - model.geometry.pair_tx_positions()[s], dim=-1)
-    r_rx = torch.linalg.vector_norm(pos - model.geometry.pair_rx_positions()[s], dim=-1)
     spec = sc.front_end.signal
-    excess = clean[..., 0] - baseline
+    excess = r - baseline
     alive = case.alive[: args.cpis]
-    cpi = simulate_cpi(spec, excess / 299_792_458.0, clean[..., 1], echo_snr_db(spec, r_tx, r_rx), alive, g)
+    cpi = simulate_cpi(spec, excess / SPEED_OF_LIGHT, doppler, echo_snr_db(spec, r_tx, r_rx), alive, g)
     with h5py.File(args.out, "x") as f:
         f.create_dataset("ref", data=cpi.ref.numpy())
         f.create_dataset("surv", data=cpi.surv.numpy())
         f.attrs["sample_rate_hz"] = spec.sample_rate_hz
         f.create_dataset("truth_excess_range_m", data=torch.where(alive, excess, np.nan).numpy())
-        f.create_dataset("truth_doppler_hz", data=torch.where(alive, clean[..., 1], np.nan).numpy())
+        f.create_dataset("truth_doppler_hz", data=torch.where(alive, doppler, np.nan).numpy())
     print(f"{args.out}: {args.cpis} CPIs of {spec.samples:,} samples at {spec.sample_rate_hz:g} Hz, pair {s}")
 
 

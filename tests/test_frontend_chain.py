@@ -149,12 +149,16 @@ def test_evaluate_runs_signals_to_tracks_and_writes_the_maps(tmp_path):
     fe = res["cases"]["signals"]["front_end"]
     assert "front_end" not in res["cases"]["model"]
     assert fe["cpis"] == 2 * 6 * 2 and fe["pairs"] == 2
-    assert fe["pd_measured"] > 0.5 and fe["faster_than_real_time"] > 0
+    assert fe["pd_measured"] > 0.5
     assert res["cases"]["signals"]["methods"]["J"]["rmse_pos_m"] < 2000
     report = (tmp_path / "out" / "report.md").read_text()
     assert "## Front end: signals to detections" in report
-    assert (tmp_path / "out" / "signals_rd_map.png").stat().st_size > 0
-    assert (tmp_path / "out" / "signals_detections.png").stat().st_size > 0
+    import matplotlib.image
+
+    # the map figure has a row of panels per pair (2 here), the detections figure is one row wide
+    rd_map = matplotlib.image.imread(tmp_path / "out" / "signals_rd_map.png")
+    dets = matplotlib.image.imread(tmp_path / "out" / "signals_detections.png")
+    assert rd_map.shape[0] > rd_map.shape[1] * 0.5 and dets.shape[1] > dets.shape[0]
     with h5py.File(tmp_path / "out" / "maps.h5") as f:
         assert f["signals/power_after"].shape == (1, 2, *FrontEndSpec(
             signal=SMALL, max_range_m=40_000.0, max_doppler_hz=120.0, batch_len=250,

@@ -233,8 +233,9 @@ class FrontEndRecord:
     example: dict = field(default_factory=dict)
 
 
-def _true_cells(model: MeasurementModel, truth: torch.Tensor):
-    """True bistatic range, Doppler and the two leg lengths ``(B, K, T, S)`` of every target and pair."""
+def true_cells(model: MeasurementModel, truth: torch.Tensor):
+    """True bistatic range (m), Doppler (Hz) and the two leg lengths (m) ``(B, K, T, S)`` of
+    targets ``truth (B, K, T, n)`` for every pair of ``model`` (layout ``pair``, range and Doppler)."""
     B, K, T, _ = truth.shape
     S = model.n_pairs
     clean = model.h(truth).reshape(B, K, T, S, 2)
@@ -286,7 +287,7 @@ def front_end_scans(truth: torch.Tensor, alive: torch.Tensor, model: Measurement
     sig = spec.signal
     fs, c = sig.sample_rate_hz, SPEED_OF_LIGHT
     baseline = torch.tensor(model.geometry.baselines_m(), dtype=torch.float64)  # (S,)
-    r_true, f_true, r_tx, r_rx = _true_cells(model, truth.to(torch.float64))
+    r_true, f_true, r_tx, r_rx = true_cells(model, truth.to(torch.float64))
     live = alive.to(torch.bool).expand(B, K, T)
     delay = (r_true - baseline) / c  # (B, K, T, S)
     snr = echo_snr_db(sig, r_tx, r_rx)

@@ -83,33 +83,37 @@ def process_recording(recording: Path, settings: Path, out: Path, *, overwrite: 
     spec = load_front_end_spec(settings)
     ref, surv = read_recording(Path(recording), spec)
     D, U = spec.map_shape
-    rows, power, dets = [], [], []
-    depth = []
-    for i in range(ref.shape[0]):
-        res = process_cpi(spec, torch.from_numpy(ref[i : i + 1]), torch.from_numpy(surv[i : i + 1]))
+    rows, power, dets, depth = [], [], [], []
+    for lo in range(0, ref.shape[0], spec.chunk_rows):  # CPIs of a chunk processed as one batch
+        hi = min(ref.shape[0], lo + spec.chunk_rows)
+        res = process_cpi(spec, torch.from_numpy(ref[lo:hi]), torch.from_numpy(surv[lo:hi]))
         c = res.centroids
         f0, df = float(res.doppler_hz[0]), float(res.doppler_hz[1] - res.doppler_hz[0])
-        for j in torch.nonzero(c.valid[0]).flatten().tolist():
-            rows.append([i, float(c.range_bin[0, j]) * spec.signal.range_bin_m, f0 + float(c.doppler_bin[0, j]) * df,
-                         float(c.snr_db[0, j]), float(c.sd_range_bin[0, j]) * spec.signal.range_bin_m,
-                         float(c.sd_doppler_bin[0, j]) * df])
-        power.append(res.power[0].to(torch.float32).numpy())
-        dets.append(res.detections[0].numpy())
-        depth.append(float(res.depth_db[0]))
+        i, j = torch.nonzero(c.valid, as_tuple=True)
+        rows.append(torch.stack([(i + lo).to(torch.float64), c.range_bin[i, j] * spec.signal.range_bin_m,
+                                 f0 + c.doppler_bin[i, j] * df, c.snr_db[i, j],
+                                 c.sd_range_bin[i, j] * spec.signal.range_bin_m, c.sd_doppler_bin[i, j] * df], -1))
+        power.append(res.power.to(torch.float32).numpy())
+        dets.append(res.detections.numpy())
+        depth.append(res.depth_db.numpy())
+        doppler_hz = res.doppler_hz.numpy()
+    rows = torch.cat(rows).tolist()
+    for r in rows:
+        r[0] = int(r[0])
     with atomic_folder(Path(out), command="front-end", overwrite=overwrite, inputs=[Path(recording), Path(settings)],
                        allow=RECORDING_COMMANDS) as tmp:
         import h5py
 
         with h5py.File(tmp / "maps.h5", "w") as f:
             f.attrs["format"] = "pmsr_nn.front_end_maps/1"
-            f.create_dataset("power_after", data=np.stack(power), compression="gzip")
-            f.create_dataset("cfar_detections", data=np.stack(dets), compression="gzip")
-            f.create_dataset("doppler_hz", data=(np.arange(D) - D // 2) * spec.doppler_bin_hz)
+            f.create_dataset("power_after", data=np.concatenate(power), compression="gzip")
+            f.create_dataset("cfar_detections", data=np.concatenate(dets), compression="gzip")
+            f.create_dataset("doppler_hz", data=doppler_hz)
             f.create_dataset("excess_range_m", data=np.arange(U) * spec.signal.range_bin_m)
-            f.create_dataset("cancellation_depth_db", data=np.asarray(depth))
+            f.create_dataset("cancellation_depth_db", data=np.concatenate(depth))
         with open(tmp / "detections.csv", "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(["cpi", "excess_range_m", "doppler_hz", "snr_db", "sd_range_m", "sd_doppler_hz"])
             w.writerows(rows)
     return {"cpis": ref.shape[0], "detections": len(rows), "map": [D, U],
-            "cancellation_depth_db": float(np.mean(depth))}
+            "cancellation_depth_db": float(np.concatenate(depth).mean())}
