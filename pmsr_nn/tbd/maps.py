@@ -1,0 +1,211 @@
+"""Range-Doppler maps of a GNSS-based multistatic passive radar: geometry, response, simulation.
+
+One receiver at the origin and moving satellites as transmitters (the Remote Sensing 2020 seed,
+``001``). Per transmitter and frame the receiver forms a map after 2-D coherent integration; the
+seed removes the direct path's range and the satellite's own Doppler, so a map's axes are
+
+* the *excess* bistatic range ``R = |p_T - p| + |p| - |p_T|`` (m), and
+* the target's Doppler ``f = -(u_T + u_R) . v / lambda`` (Hz), ``u_T``, ``u_R`` the unit vectors
+  from transmitter and receiver to the target, ``v`` its velocity (the satellite's motion removed).
+
+Response (our choice, the seed's Eq. 3 being the modified-RFT output): separable, with a *triangle*
+in range, the autocorrelation envelope of a C/A-like code (half-width one chip, ``c / chip_rate_hz``
+of path length) and a *sinc* in Doppler, the response of a rectangular coherent frame whose
+Doppler resolution is the cell ``doppler_cell_hz``. A target of complex amplitude ``A exp(j phi)``
+(phase uniform per frame and map, amplitude fixed: Swerling 0) adds
+``A exp(j phi) tri((R_u - R) / chip) sinc((f_d - f) / doppler_cell)`` to cell ``(d, u)``, in circular
+complex Gaussian noise of power ``noise_power`` per cell; the map SNR is ``A^2 / noise_power``
+(the seed's Eq. 25). Range cells are ``c / sample_rate_hz`` (60 m at the seed's 5 MHz).
+
+Shapes: maps ``(B, P, D, U)`` complex64 (runs, transmitters, Doppler rows, range columns); a
+map's first cell is at ``range0_m[p]``, ``doppler0_hz[p]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..config import require
+
+C = 299_792_458.0
+"""Speed of light (m/s)."""
+
+
+@dataclass(frozen=True)
+class Satellite:
+    """A transmitter: ``position_m`` and ``velocity_mps`` (3 values each) at time 0."""
+
+    name: str
+    position_m: tuple[float, float, float]
+    velocity_mps: tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        require(len(self.position_m) == 3 and len(self.velocity_mps) == 3
+                and all(math.isfinite(v) for v in (*self.position_m, *self.velocity_mps)),
+                f"satellite {self.name!r}: position_m and velocity_mps must be 3 finite values each")
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """How maps are formed. ``sample_rate_hz`` sets the range cell (``c / fs``), ``chip_rate_hz``
+    the triangle's half-width, ``doppler_cell_hz`` the Doppler cell (the inverse of the coherent
+    frame), ``wavelength_m`` the carrier; ``noise_power`` per cell; ``altitude_m``: the target's
+    (known, constant) height above the receiver; ``margin_cells``: cells added on every side of the
+    region the birth box can reach."""
+
+    wavelength_m: float = 0.19
+    sample_rate_hz: float = 5.0e6
+    chip_rate_hz: float = 1.023e6
+    doppler_cell_hz: float = 0.5
+    noise_power: float = 1.0
+    altitude_m: float = 5000.0
+    margin_cells: int = 8
+
+    def __post_init__(self) -> None:
+        for name in ("wavelength_m", "sample_rate_hz", "chip_rate_hz", "doppler_cell_hz", "noise_power"):
+            v = getattr(self, name)
+            require(math.isfinite(v) and v > 0, f"maps.{name} must be positive, got {v}")
+        require(math.isfinite(self.altitude_m) and self.altitude_m >= 0, "maps.altitude_m must be >= 0")
+        require(self.margin_cells >= 0, "maps.margin_cells must be >= 0")
+
+    @property
+    def range_cell_m(self) -> float:
+        return C / self.sample_rate_hz
+
+    @property
+    def lobe_cells(self) -> float:
+        """Half-width of the range triangle in range cells (``fs / chip rate``)."""
+        return self.sample_rate_hz / self.chip_rate_hz
+
+
+def transmitter_positions(satellites: tuple[Satellite, ...], times_s: torch.Tensor) -> torch.Tensor:
+    """Satellite positions ``(K, P, 3)`` at ``times_s (K,)`` (straight lines over the short scene)."""
+    p0 = torch.tensor([s.position_m for s in satellites], dtype=torch.float64)
+    v = torch.tensor([s.velocity_mps for s in satellites], dtype=torch.float64)
+    return p0 + times_s[:, None, None] * v
+
+
+def range_doppler(states: torch.Tensor, tx: torch.Tensor, spec: MapSpec) -> tuple[torch.Tensor, torch.Tensor]:
+    """Excess bistatic range (m) and target Doppler (Hz) of planar CV states ``(..., 4)``
+    ``[x, vx, y, vy]`` at altitude ``spec.altitude_m``, for transmitters ``tx (P, 3)``: each
+    ``(..., P)``. The receiver is at the origin. The excess range is formed as
+    ``(|p|^2 - 2 p.t) / (|p - t| + |t|) + |p|`` (no cancellation between 20,000 km distances)."""
+    x, vx, y, vy = states.unbind(-1)
+    p = torch.stack([x, y, torch.full_like(x, spec.altitude_m)], -1)[..., None, :]  # (..., 1, 3)
+    to_t = p - tx  # transmitter -> target
+    d_t = to_t.norm(dim=-1)
+    d_r = p.norm(dim=-1)
+    rng = (d_r * d_r - 2 * (p * tx).sum(-1)) / (d_t + tx.norm(dim=-1)) + d_r
+    u = to_t / d_t[..., None] + p / d_r[..., None]
+    rate = u[..., 0] * vx[..., None] + u[..., 1] * vy[..., None]
+    return rng, -rate / spec.wavelength_m
+
+
+@dataclass(frozen=True)
+class MapGrid:
+    """The cells of each transmitter's map: first cell ``range0_m (P,)``, ``doppler0_hz (P,)``;
+    ``D`` Doppler rows and ``U`` range columns (the same for every map, so maps stack)."""
+
+    range0_m: torch.Tensor
+    doppler0_hz: torch.Tensor
+    D: int
+    U: int
+    range_cell_m: float
+    doppler_cell_hz: float
+
+    def cell_coordinates(self, rng: torch.Tensor, dop: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Fractional (Doppler row, range column) of ranges / Dopplers ``(..., P)``."""
+        return (dop - self.doppler0_hz) / self.doppler_cell_hz, (rng - self.range0_m) / self.range_cell_m
+
+    def axes(self, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """Doppler (Hz) and excess range (m) of map ``p``'s rows and columns."""
+        return (float(self.doppler0_hz[p]) + self.doppler_cell_hz * np.arange(self.D),
+                float(self.range0_m[p]) + self.range_cell_m * np.arange(self.U))
+
+
+def grid_covering(box_lo: torch.Tensor, box_hi: torch.Tensor, tx: torch.Tensor, dt: float, spec: MapSpec,
+                  samples: int = 7) -> MapGrid:
+    """The smallest grid holding every state a birth at any frame can reach at any later frame:
+    the box ``[box_lo, box_hi]`` (``(4,)``, CV ``[x, vx, y, vy]``) moved straight for ``0 .. K-1``
+    frames of ``dt`` s, seen from the transmitters ``tx (K, P, 3)`` of the frame it reaches, plus
+    the margin (range and Doppler are smooth over the box, sampled on ``samples`` points per axis)."""
+    axes = [torch.linspace(float(a), float(b), samples, dtype=torch.float64) for a, b in zip(box_lo, box_hi)]
+    pts = torch.cartesian_prod(*axes)  # (S, 4)
+    K = tx.shape[0]
+    r_lo = r_hi = f_lo = f_hi = None
+    for k in range(K):
+        lag = torch.arange(k + 1, dtype=torch.float64)[:, None] * dt  # born k, k-1, .., 0 frames ago
+        moved = pts[None].clone().repeat(k + 1, 1, 1)
+        moved[..., 0] += lag * moved[..., 1]
+        moved[..., 2] += lag * moved[..., 3]
+        rng, dop = range_doppler(moved.reshape(-1, 4), tx[k], spec)  # (S', P)
+        lows = (rng.amin(0), dop.amin(0))
+        highs = (rng.amax(0), dop.amax(0))
+        if r_lo is None:
+            (r_lo, f_lo), (r_hi, f_hi) = lows, highs
+        else:
+            r_lo, f_lo = torch.minimum(r_lo, lows[0]), torch.minimum(f_lo, lows[1])
+            r_hi, f_hi = torch.maximum(r_hi, highs[0]), torch.maximum(f_hi, highs[1])
+    dr, df = spec.range_cell_m, spec.doppler_cell_hz
+    pad_r = (spec.margin_cells + math.ceil(spec.lobe_cells)) * dr
+    pad_f = (spec.margin_cells + 1) * df
+    r0, f0 = r_lo - pad_r, f_lo - pad_f
+    U = int(math.ceil(float(((r_hi + pad_r - r0) / dr).max()))) + 1
+    D = int(math.ceil(float(((f_hi + pad_f - f0) / df).max()))) + 1
+    return MapGrid(r0, f0, D, U, dr, df)
+
+
+def triangle(x: torch.Tensor) -> torch.Tensor:
+    return (1.0 - x.abs()).clamp(min=0.0)
+
+
+def response(d_rows: torch.Tensor, u_cols: torch.Tensor, d: torch.Tensor, u: torch.Tensor, lobe_cells: float):
+    """Unit-amplitude response ``tri((u_cols - u) / lobe) sinc(d_rows - d)`` of targets at fractional
+    cells ``(d, u)`` on cells ``(d_rows, u_cols)`` (broadcast): real, signed (the sinc's sidelobes
+    alternate)."""
+    return triangle((u_cols - u) / lobe_cells) * torch.sinc(d_rows - d)
+
+
+def simulate_frame(rng: torch.Tensor, dop: torch.Tensor, present: torch.Tensor, snr_db: torch.Tensor, grid: MapGrid,
+                   spec: MapSpec, g: torch.Generator) -> torch.Tensor:
+    """One frame's maps ``(B, P, D, U)`` complex64: noise of power ``spec.noise_power`` plus, where
+    ``present (B,)``, the target at ``rng``, ``dop (B, P)`` with map SNR ``snr_db (P,)`` and a
+    uniform random phase per map. Noise is drawn first, then the phases, in that order always."""
+    B, P = rng.shape
+    D, U = grid.D, grid.U
+    s = math.sqrt(spec.noise_power / 2)
+    noise = torch.randn((B, P, D, U, 2), generator=g, dtype=torch.float32) * s
+    maps = torch.view_as_complex(noise)
+    phase = torch.rand((B, P), generator=g, dtype=torch.float64) * (2 * math.pi)
+    amp = torch.sqrt(spec.noise_power * 10.0 ** (snr_db.to(torch.float64) / 10))  # (P,)
+    d, u = grid.cell_coordinates(rng, dop)
+    rows = torch.arange(D, dtype=torch.float64)
+    cols = torch.arange(U, dtype=torch.float64)
+    # separable: (B, P, D, 1) x (B, P, 1, U)
+    dr = torch.sinc(rows - d[..., None])
+    ur = triangle((cols - u[..., None]) / spec.lobe_cells)
+    c = (amp * torch.polar(torch.ones_like(phase), phase)) * present[:, None].to(torch.float64)
+    sig = (c[..., None, None] * dr[..., :, None] * ur[..., None, :]).to(torch.complex64)
+    return maps + sig
+
+
+def power_ratio(half: int | None, lobe_cells: float, points: int = 2001) -> float:
+    """Expected share of a target's map energy inside the ``(2 half + 1)^2`` sub-area centred on the
+    cell nearest to it (``None``: the whole, unbounded map, 1), for the triangle x sinc response with
+    the target's sub-cell offsets uniform in both axes: ``E_u[sum_{|n|<=h} tri^2((n-u)/L)] /
+    E_u[sum_n tri^2((n-u)/L)]`` times the same for sinc^2 (whose sum over all cells is 1 for any
+    offset). Midpoint quadrature over the offsets; the sums run over every cell the lobes reach
+    (sinc^2: +-20,000 cells, its neglected tail ~1e-5 of the energy)."""
+    if half is None:
+        return 1.0
+    off = (torch.arange(points, dtype=torch.float64) + 0.5) / points - 0.5  # offsets in [-1/2, 1/2)
+    n_r = torch.arange(-math.ceil(lobe_cells) - half - 1, math.ceil(lobe_cells) + half + 2, dtype=torch.float64)
+    tri2 = triangle((n_r[None] - off[:, None]) / lobe_cells) ** 2  # (offsets, cells)
+    inner_r = tri2[:, n_r.abs() <= half].sum(1).mean() / tri2.sum(1).mean()
+    n_d = torch.arange(-half, half + 1, dtype=torch.float64)
+    inner_d = (torch.sinc(n_d[None] - off[:, None]) ** 2).sum(1).mean()
+    return float(inner_r * inner_d)
