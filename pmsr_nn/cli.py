@@ -407,6 +407,20 @@ def print_summary(res: dict) -> None:
         print("\n" + "\n".join(mt).rstrip())
 
 
+def print_tbd_summary(res: dict) -> None:
+    """A track-before-detect study's table per case."""
+    for case in res["cases"].values():
+        print(f"\n{case['title']} (map SNRs {case['snr_db']} dB; position errors at the last frame with the target)")
+        print(f"  {'method':<28} {'detected %':>10} {'false al. %':>11} {'RMS pos m':>10} {'median m':>9} {'OSPA m':>7} "
+              f"{'s/run':>6}")
+        for n, r in case["methods"].items():
+            fa = r["false_alarm_rate_absent"]
+            pos, med = r["rms_pos_last_present_m"], r["median_pos_err_last_present_m"]
+            print(f"  {n:<28} {100 * r['detected_rate_present']:>10.1f} {'-' if fa is None else f'{100 * fa:.1f}':>11} "
+                  f"{'-' if pos != pos else f'{pos:.0f}':>10} {'-' if med != med else f'{med:.0f}':>9} "
+                  f"{r['ospa_mean_m']:>7.0f} {r['seconds_per_run']:>6.2f}")
+
+
 def cmd_evaluate(args) -> int:
     from .environment import resolve_device
     from .harness import evaluate
@@ -423,7 +437,10 @@ def cmd_evaluate(args) -> int:
         print(f"shard     {shard[0]}/{shard[1]} (blocks {res['blocks'][0]}..{res['blocks'][-1]}) -> {args.out} "
               f"in {time.perf_counter() - t0:.1f} s; combine all shards with 'pmsr merge'")
         return 0
-    print_summary(res)
+    if res.get("kind") == "tbd":
+        print_tbd_summary(res)
+    else:
+        print_summary(res)
     print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s)")
     return 0
 

@@ -25,6 +25,7 @@ from .multitarget import MultiTargetScenario, is_multitarget, multitarget_from_d
 from .report import reference_table, write_report
 from .runner import BlockSums, Setup, finalise, prepare, run_blocks, shard_blocks
 from .scenario import Scenario, scenario_from_dict
+from .tbd_study import TBDScenario, is_tbd, prepare_tbd, run_tbd, tbd_from_dict, write_tbd_outputs
 
 SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
 
@@ -32,7 +33,7 @@ SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
 RESULT_COMMANDS = ("evaluate", "merge")
 """Output folders an ``evaluate`` or ``merge --overwrite`` may replace."""
 
-AnyScenario = Scenario | MultiTargetScenario
+AnyScenario = Scenario | MultiTargetScenario | TBDScenario
 
 
 def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=()):
@@ -42,7 +43,7 @@ def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=())
 
 def _inputs(scenario, sc) -> list[Path]:
     """Files a scenario run reads: its YAML and every checkpoint a method names."""
-    paths = [] if isinstance(scenario, (Scenario, MultiTargetScenario)) else [Path(scenario)]
+    paths = [] if isinstance(scenario, (Scenario, MultiTargetScenario, TBDScenario)) else [Path(scenario)]
     for m in getattr(sc, "methods", ()):
         if getattr(m, "checkpoint", None):
             paths.append(sc.path(m.checkpoint))
@@ -50,7 +51,10 @@ def _inputs(scenario, sc) -> list[Path]:
 
 
 def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> AnyScenario:
-    """A designed scenario, or a multi-target study (``kind: multitarget``), from plain data."""
+    """A designed scenario, a multi-target study (``kind: multitarget``) or a track-before-detect
+    study (``kind: tbd``), from plain data."""
+    if is_tbd(data):
+        return tbd_from_dict(data, base_dir, where=where)
     if is_multitarget(data):
         return multitarget_from_dict(data, base_dir, where=where)
     return scenario_from_dict(data, base_dir, where=where)
@@ -59,12 +63,13 @@ def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> A
 def load_any(scenario: AnyScenario | str | Path, mc_runs: int | None = None,
              checkpoints: dict[str, str] | None = None) -> AnyScenario:
     """The scenario (loaded from its YAML file if a path), with ``--mc-runs`` and ``--checkpoint`` applied."""
-    if isinstance(scenario, (Scenario, MultiTargetScenario)):
+    if isinstance(scenario, (Scenario, MultiTargetScenario, TBDScenario)):
         sc = scenario
     else:
         sc = scenario_from_data(load_yaml(Path(scenario)), Path(scenario).parent, where=str(scenario))
-    if checkpoints and isinstance(sc, MultiTargetScenario):
-        raise ConfigError("a multi-target study has no learned methods: --checkpoint does not apply")
+    if checkpoints and isinstance(sc, (MultiTargetScenario, TBDScenario)):
+        raise ConfigError(f"a {'track-before-detect' if isinstance(sc, TBDScenario) else 'multi-target'} study has no "
+                          "learned methods: --checkpoint does not apply")
     sc = sc.with_mc_runs(mc_runs)
     return sc.with_checkpoints(checkpoints) if checkpoints else sc
 
@@ -113,6 +118,8 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
     sc = load_any(scenario, mc_runs, checkpoints)
     inputs = _inputs(scenario, sc)
     check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
+    if isinstance(sc, TBDScenario):
+        return _evaluate_tbd(sc, out, shard, device, progress, overwrite, inputs)
     blocks = shard_blocks(sc.n_blocks, shard)
     setup = prepare(sc, device)
     _references(sc)  # a bad reference entry fails now, not after the run
@@ -125,6 +132,17 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
         np.savez_compressed(tmp / "blocks.npz", **bs.to_arrays())
         (tmp / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
         return meta
+
+
+def _evaluate_tbd(sc: TBDScenario, out: Path, shard, device: str, progress: bool, overwrite: bool, inputs) -> dict:
+    if shard != (1, 1):
+        raise ConfigError("a track-before-detect study runs unsharded (--shard 1/1)")
+    if device != "cpu":
+        raise ConfigError("the track-before-detect filters run on the CPU in this version")
+    setup = prepare_tbd(sc)
+    with atomic_dir(out, overwrite, inputs=inputs) as tmp:
+        sums, examples = run_tbd(setup, progress=progress)
+        return write_tbd_outputs(setup, sums, examples, tmp, device)
 
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:

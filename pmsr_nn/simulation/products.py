@@ -11,7 +11,8 @@ the truth and random generators:
   false (a single-frequency network) also the same detections pooled per receiver, the
   transmitter of each unknown to the trackers that read the pooled lists.
 
-A later kind (range-Doppler maps for track-before-detect) is one more :func:`register_product`.
+* ``rd_maps`` (:class:`~pmsr_nn.tbd.scene.RangeDopplerMaps`, registered by :mod:`pmsr_nn.tbd.scene`):
+  per transmitter and frame a range-Doppler map, what track-before-detect filters read.
 Every product carries the initiation prior of its readers: per target, the true state at its
 birth scan plus a draw from ``N(0, P0)``. The prior is drawn from its own generator, so two
 products built with equal initiation generators give their readers the same initial tracks.
@@ -105,6 +106,7 @@ class SensorSetup:
     clutter: ClutterSpec | None = None
     illuminator_known: bool = True
     front_end: object | None = None  # a frontend.chain.FrontEndSpec: detections from simulated signals
+    rd_maps: object | None = None  # a tbd.scene.TBDScene: range-Doppler maps for track-before-detect
 
     def pair_clutter(self) -> ClutterSpec:
         """Clutter drawn per pair and scan: the scenario's per list, split evenly over a

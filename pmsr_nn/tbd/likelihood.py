@@ -14,9 +14,9 @@ the others have ``g = 0`` exactly and add nothing). ``log I0`` is evaluated as `
 exact and overflow-free.
 
 The amplitude ``A`` of ``g = A G`` (``G`` the unit response) that maximises a state's likelihood
-solves ``A = sum |z| G rho(2 A |z| G / sigma^2) / sum G^2`` with ``rho = I1 / I0``; we iterate that
-fixed point on the exact Rician density from ``A = sum |z| G / sum G^2`` (where the seed's Eq. 19
-uses the asymptotic expansion of ``I0``). Shapes: ``B`` runs, ``M`` particles, ``P`` maps,
+solves ``A = sum |z| G rho(2 A |z| G / sigma^2) / sum G^2`` with ``rho = I1 / I0``; we solve it by
+Newton's method on the exact Rician density (:func:`ml_amplitude`; the seed's Eq. 19 uses the
+asymptotic expansion of ``I0``). Shapes: ``B`` runs, ``M`` particles, ``P`` maps,
 ``S`` cells of a sub-area.
 """
 
@@ -50,18 +50,18 @@ def gather_cells(maps_abs: torch.Tensor, d: torch.Tensor, u: torch.Tensor, lobe_
     B, P, D, U = maps_abs.shape
     M = d.shape[1]
     if half is None:  # every row; the columns the triangle reaches
-        rows = torch.arange(D).view(1, 1, 1, D, 1).expand(B, M, P, D, 1)
+        rows = torch.arange(D).view(1, 1, 1, D).expand(B, M, P, D)
         cw = math.ceil(lobe_cells)
-        cols = torch.round(u).to(torch.int64)[..., None, None] + torch.arange(-cw, cw + 1).view(1, 1, 1, 1, -1)
+        cols = torch.round(u).to(torch.int64)[..., None] + torch.arange(-cw, cw + 1)
     else:
-        rows = torch.round(d).to(torch.int64)[..., None, None] + _offsets(half, D).view(1, 1, 1, -1, 1)
-        cols = torch.round(u).to(torch.int64)[..., None, None] + _offsets(half, U).view(1, 1, 1, 1, -1)
-    inside = (rows >= 0) & (rows < D) & (cols >= 0) & (cols < U)
-    flat = (torch.arange(P).view(1, 1, P, 1, 1) * D + rows.clamp(0, D - 1)) * U + cols.clamp(0, U - 1)
-    flat = flat.expand(B, M, P, rows.shape[-2], cols.shape[-1]).reshape(B, -1)
-    absz = maps_abs.reshape(B, -1).gather(1, flat).view(B, M, P, -1)
-    G = triangle((cols - u[..., None, None]) / lobe_cells) * torch.sinc(rows - d[..., None, None]).abs()
-    G = torch.where(inside, G, torch.zeros((), dtype=G.dtype)).reshape(B, M, P, -1)
+        rows = torch.round(d).to(torch.int64)[..., None] + _offsets(half, D)
+        cols = torch.round(u).to(torch.int64)[..., None] + _offsets(half, U)
+    # the response is separable: a factor per row and per column, zero outside the map
+    row_f = torch.sinc(rows - d[..., None]).abs() * ((rows >= 0) & (rows < D))
+    col_f = triangle((cols - u[..., None]) / lobe_cells) * ((cols >= 0) & (cols < U))
+    G = (row_f[..., :, None] * col_f[..., None, :]).reshape(B, M, P, -1)
+    flat = (torch.arange(P).view(1, 1, P, 1) * D + rows.clamp(0, D - 1))[..., :, None] * U + cols.clamp(0, U - 1)[..., None, :]
+    absz = maps_abs.reshape(B, -1).gather(1, flat.reshape(B, -1)).view(B, M, P, -1)
     return CellValues(absz, G.to(absz.dtype))
 
 
@@ -73,23 +73,39 @@ def log_i0(x: torch.Tensor) -> torch.Tensor:
 def log_likelihood_ratio(cells: CellValues, amplitude: torch.Tensor, noise_power: float) -> torch.Tensor:
     """Per state and map ``(B, M, P)``: the summed cell log ratios for amplitude ``amplitude``
     (broadcast against ``(B, M, P)``, e.g. ``(B, 1, P)``)."""
-    a = amplitude.to(cells.G.dtype)[..., None]
-    g = a * cells.G
-    return (log_i0(2.0 * cells.absz * g / noise_power) - g * g / noise_power).sum(-1)
+    g = cells.G * (amplitude.to(cells.G.dtype)[..., None] / noise_power)  # g / sigma^2
+    x = cells.absz * g
+    x = x + x  # 2 |z| g / sigma^2
+    # log I0(x) - |g|^2 / sigma^2 = log i0e(x) + g (2|z| - g) / sigma^2, in place where it can be
+    return torch.log_(torch.special.i0e(x)).add_(x).sub_(g.mul_(g).mul_(noise_power)).sum(-1)
 
 
-def ml_amplitude(cells: CellValues, noise_power: float, iterations: int = 30) -> torch.Tensor:
-    """The amplitude maximising each state's likelihood on its cells ``(B, M, P)`` (fixed point of
-    the score equation, module docstring; 0 where the state reads no cell)."""
-    zG = cells.absz * cells.G
-    G2 = (cells.G * cells.G).sum(-1)
+def ml_amplitude(cells: CellValues, noise_power: float, iterations: int = 30, tol: float = 1e-6) -> torch.Tensor:
+    """The amplitude maximising each state's likelihood on its cells ``(B, M, P)`` (0 where the
+    state reads no cell).
+
+    The score is ``f(A) = sum |z| G rho(2 A |z| G / sigma^2) - A sum G^2``, concave in ``A`` (``rho``
+    is concave on ``x >= 0``) with ``f(0) = 0``: a positive maximum exists iff ``f'(0) > 0``, i.e.
+    ``sum (|z| G)^2 > sigma^2 sum G^2``, and then Newton's method from ``A0 = sum |z| G / sum G^2``
+    (where ``f <= 0``, right of the root) descends to it monotonically. Stops when every step is
+    below ``tol`` relative, or after ``iterations``."""
+    zG = cells.absz.to(torch.float64) * cells.G.to(torch.float64)
+    G2 = (cells.G.to(torch.float64) ** 2).sum(-1)
     safe = torch.where(G2 > 0, G2, torch.ones((), dtype=G2.dtype))
     a = zG.sum(-1) / safe
+    positive = (zG * zG).sum(-1) > noise_power * G2
+    c = 2.0 * zG / noise_power
     for _ in range(iterations):
-        x = 2.0 * a[..., None] * zG / noise_power
+        x = a[..., None] * c
         rho = torch.special.i1e(x) / torch.special.i0e(x)
-        a = (zG * rho).sum(-1) / safe
-    return torch.where(G2 > 0, a, torch.zeros((), dtype=a.dtype))
+        drho = torch.where(x > 1e-6, 1.0 - rho / x.clamp(min=1e-6) - rho * rho, torch.full_like(x, 0.5))
+        f = (zG * rho).sum(-1) - a * G2
+        df = (zG * drho * c).sum(-1) - G2
+        step = torch.where(df < 0, f / df, torch.zeros((), dtype=f.dtype))
+        a = (a - step).clamp(min=0.0)
+        if bool((step.abs() <= tol * a.clamp(min=1e-12)).all()):
+            break
+    return torch.where((G2 > 0) & positive, a, torch.zeros((), dtype=a.dtype)).to(cells.absz.dtype)
 
 
 def max_ml_amplitude(cells: CellValues, valid: torch.Tensor, noise_power: float, iterations: int = 30,

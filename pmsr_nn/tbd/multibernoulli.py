@@ -31,13 +31,13 @@ counts adapt per component and per run without a loop over either. Component slo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Literal
 
 import torch
 
 from ..config import require
-from .likelihood import CellValues, gather_cells, log_likelihood_ratio, max_ml_amplitude
+from .likelihood import gather_cells, log_likelihood_ratio, max_ml_amplitude
 
 UpdateOrder = Literal["product", "ascending", "descending", "given"]
 

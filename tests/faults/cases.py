@@ -1325,3 +1325,42 @@ def _check() -> None:
 
 
 _check()
+TBD_YAML = """\
+kind: tbd
+name: tbd_tiny
+mc_runs: 1
+block_runs: 1
+scene:
+  satellites:
+    - {name: SVN2, position_m: [-17745000.0, 1835500.0, 13077300.0], velocity_mps: [2229.2, -519.2, 2058.0]}
+    - {name: SVN18, position_m: [6818700.0, -6090400.0, 18620300.0], velocity_mps: [1654.7, -2019.3, -926.3]}
+  snr_db: [12.0, 12.0]
+  maps: {doppler_cell_hz: 10.0}
+  frames: 4
+  appears_frame: 2
+  disappears_frame: 3
+table2_frame: 3
+filter: {particles_min: 50, particles_max: 200, birth_particles: 200}
+methods: [{name: m, filter: {estimate_snr: true}}]
+cases: [{name: c}]
+"""
+case("evaluate/tbd-ok", "evaluate t.yaml --out out", expect="ok", setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: None),
+     outputs=("out",))
+case("evaluate/tbd-subarea-larger-than-map", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["filter"].update(subarea_half=400)),
+     message="larger than the maps", klass="refusal")
+case("evaluate/tbd-snr-nan", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["scene"].update(snr_db=[float("nan"), 12.0])),
+     message="finite number", klass="refusal")
+case("evaluate/tbd-particles-min-above-max", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["filter"].update(particles_min=500)),
+     message="particles_min (500)", klass="refusal")
+case("evaluate/tbd-birth-box-outside-map", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["scene"].update(map_extent={"range_m": [0.0, 3000.0],
+                                                                                 "doppler_hz": [-100.0, 100.0]})),
+     message="outside the map's coverage", klass="refusal")
+case("evaluate/tbd-unknown-update-order", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["filter"].update(update="sideways")),
+     message="update", klass="refusal")
+case("evaluate/tbd-shard", "evaluate t.yaml --out out --shard 1/2", setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: None),
+     message="unsharded", klass="refusal")
