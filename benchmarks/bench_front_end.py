@@ -21,16 +21,14 @@ then timed (median of ``--repeats`` calls, in this process):
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run_info import write_figures  # noqa: E402
+from run_info import median_seconds, write_figures  # noqa: E402
 
 from pmsr_nn.frontend.cancellation import eca  # noqa: E402
 from pmsr_nn.frontend.ccf import ccf_batches  # noqa: E402
@@ -38,16 +36,6 @@ from pmsr_nn.frontend.centroid import centroids  # noqa: E402
 from pmsr_nn.frontend.cfar import os_cfar  # noqa: E402
 from pmsr_nn.frontend.chain import FrontEndSpec, process_cpi  # noqa: E402
 from pmsr_nn.frontend.fm_signals import simulate_cpi  # noqa: E402
-
-
-def median_seconds(fn, repeats: int) -> float:
-    fn()  # warm-up: plans, caches
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def signals(spec: FrontEndSpec, rows: int, seed: int = 0):

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import resource
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -26,7 +25,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run_info import write_figures  # noqa: E402
+from run_info import median_seconds, write_figures  # noqa: E402
 
 from pmsr_nn.config import load_yaml  # noqa: E402
 from pmsr_nn.harness.tbd_study import tbd_from_dict  # noqa: E402
@@ -55,16 +54,6 @@ def one_call(scene, spec, runs: int, seed: int, maps_only: bool = False):
     measure = MapLikelihood(spec, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power,
                             torch.tensor(scene.snr_db, dtype=torch.float64))
     return mb.run(scene.frames, measure, scene.cells, runs, seeded_generator(seed, 2))
-
-
-def median_seconds(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main() -> None:

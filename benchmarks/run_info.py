@@ -6,7 +6,9 @@ import datetime
 import json
 import os
 import platform
+import statistics
 import sys
+import time
 from pathlib import Path
 
 import torch
@@ -25,3 +27,14 @@ def write_figures(figures: dict, path: Path | None) -> None:
     figures["info"] = run_info()
     if path:
         Path(path).write_text(json.dumps(figures, indent=2) + "\n")
+
+
+def median_seconds(fn, repeats: int) -> float:
+    """Median wall-clock seconds of ``repeats`` calls of ``fn`` after one untimed warm-up call."""
+    fn()  # warm-up: plans, caches
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
