@@ -283,3 +283,17 @@ def test_pmsr_evaluate_writes_a_tbd_study(tmp_path):
     for fig in ("detected", "rms", "snr", "subarea", "existence", "ospa", "maps", "track"):
         assert (out / f"c_{fig}.png").stat().st_size > 10_000, fig
         assert f"c_{fig}.png" in report
+
+
+def test_detectors_false_alarm_rate_per_cell_is_the_stated_pfa():
+    """Noise-only maps: the share of cells reported as detections by the OS-CFAR and by the
+    known-noise threshold, against Pfa = 1e-3 less the local-maximum thinning (a cell above the
+    threshold loses to one of its 32 neighbours with probability ~ 32 Pfa / 2), within 4 binomial
+    standard errors."""
+    g = torch.Generator().manual_seed(8)
+    maps = torch.view_as_complex(torch.randn(20, 3, 57, 288, 2, generator=g) * math.sqrt(0.5))
+    n = maps.numel()
+    for det in ("os_cfar", "known_noise"):
+        peaks = detect(maps, 1.0, 1e-3, MapSpec().lobe_cells, DetectSpec(pfa=1e-3, detector=det))
+        rate = float(peaks.valid.sum()) / n
+        assert abs(rate - 1e-3 * (1 - 16e-3)) < 4 * math.sqrt(1e-3 / n), (det, rate)

@@ -1,10 +1,12 @@
 """Detect-then-track on the same maps: threshold each map, then track the detections.
 
 What a user without track-before-detect would do, to show what the seed's filter gains. Each map
-is thresholded at a stated per-cell false-alarm probability with the noise power known (for
-Rayleigh noise ``P(|z|^2 > T) = exp(-T / sigma^2)``, so ``T = sigma^2 ln(1 / Pfa)``: the exact
-threshold, where a CFAR would estimate ``sigma^2``); every cell above it that is the largest of
-its neighbourhood (+-1 Doppler row, the range triangle's half-width) is a detection at that cell.
+is thresholded at a stated per-cell false-alarm probability, by the package's 2-D OS-CFAR
+(:func:`~pmsr_nn.frontend.cfar.os_cfar`, ``detector: os_cfar``, the default: the noise power
+estimated from training cells around each cell) or with the noise power known (``known_noise``:
+for Rayleigh noise ``P(|z|^2 > T) = exp(-T / sigma^2)``, so ``T = sigma^2 ln(1 / Pfa)``, the ideal
+a CFAR approaches); every cell above it that is the largest of its neighbourhood (+-1 Doppler row,
+the range triangle's half-width) is a detection at that cell.
 The tracker is the same SMC multi-Bernoulli filter, births and settings, with the standard
 detection likelihood ratio per map instead of the map's (:class:`DetectionLikelihood`):
 
@@ -14,13 +16,15 @@ detection likelihood ratio per map instead of the map's (:class:`DetectionLikeli
 false detections' density per cell (``Pfa``: above a high threshold a noise cell is rarely beaten
 by a neighbour), ``Pd`` the probability that the target's peak cell crosses the threshold (a
 non-central chi-square with 2 degrees of freedom, averaged over the target's uniform sub-cell
-offsets, computed from the map model at the true SNR).
+offsets, computed from the map model at the true SNR for the known-noise threshold; the OS-CFAR's
+loss is not modelled, so its ``Pd`` is slightly optimistic).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -33,16 +37,23 @@ from .maps import triangle
 
 @dataclass(frozen=True)
 class DetectSpec:
-    """``pfa`` per cell; measurement deviations in cells (``sd_doppler_cells``, ``sd_range_cells``:
-    the peak cell's quantisation, widened in range where the triangle's flat top lets noise move
-    the peak)."""
+    """``pfa`` per cell; ``detector``; the OS-CFAR's ``guard`` / ``train`` half-widths (Doppler rows,
+    range columns: the guard holds the main lobe, +-1 row and the triangle's +-5 columns) and
+    ``rank``; measurement deviations in cells (``sd_doppler_cells``, ``sd_range_cells``: the peak
+    cell's quantisation, widened in range where the triangle's flat top lets noise move the peak)."""
 
     pfa: float = 1e-4
+    detector: Literal["os_cfar", "known_noise"] = "os_cfar"
+    guard: tuple[int, int] = (1, 5)
+    train: tuple[int, int] = (4, 8)
+    rank: float = 0.75
     sd_doppler_cells: float = 0.35
     sd_range_cells: float = 1.0
 
     def __post_init__(self) -> None:
         require(0 < self.pfa < 1, f"detect.pfa must be in (0, 1), got {self.pfa}")
+        require(self.detector in ("os_cfar", "known_noise"), f"detect.detector must be os_cfar or known_noise, "
+                                                             f"got {self.detector!r}")
         require(self.sd_doppler_cells > 0 and self.sd_range_cells > 0, "detect deviations must be positive")
 
 
@@ -56,14 +67,21 @@ class Peaks:
     valid: torch.Tensor
 
 
-def detect(maps: torch.Tensor, noise_power: float, pfa: float, lobe_cells: float) -> Peaks:
-    """Threshold detections of maps ``(B, P, D, U)`` (complex or magnitude) as module docstring."""
+def detect(maps: torch.Tensor, noise_power: float, pfa: float, lobe_cells: float,
+           spec: "DetectSpec | None" = None) -> Peaks:
+    """Detections of maps ``(B, P, D, U)`` (complex or magnitude) as module docstring (``spec``:
+    the detector; default the known-noise threshold)."""
     power = maps.abs() ** 2
     B, P, D, U = power.shape
-    thr = noise_power * math.log(1.0 / pfa)
+    if spec is not None and spec.detector == "os_cfar":
+        from ..frontend.cfar import os_cfar
+
+        above = os_cfar(power, tuple(spec.guard), tuple(spec.train), spec.rank, pfa, full_maps=False).detections
+    else:
+        above = power > noise_power * math.log(1.0 / pfa)
     w = 2 * math.ceil(lobe_cells) + 1
     local = F.max_pool2d(power.reshape(B * P, 1, D, U), (3, w), stride=1, padding=(1, w // 2)).reshape(B, P, D, U)
-    hit = (power > thr) & (power >= local)
+    hit = above & (power >= local)
     counts = hit.flatten(2).sum(-1)
     J = max(int(counts.max()), 1)
     # the J strongest hits per map (all of them), padded
@@ -95,7 +113,7 @@ class DetectionLikelihood:
 
     def __call__(self, x: torch.Tensor, valid: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
         s = self.spec
-        peaks = detect(self.maps(k), self.noise_power, s.pfa, self.lobe_cells)
+        peaks = detect(self.maps(k), self.noise_power, s.pfa, self.lobe_cells, s)
         self.detections.append(peaks)
         d, u = self.cells(x, k)  # (B, M, P)
         dd = (d[..., None] - peaks.d[:, None]) / s.sd_doppler_cells  # (B, M, P, J)
