@@ -411,12 +411,12 @@ def print_tbd_summary(res: dict) -> None:
     """A track-before-detect study's table per case."""
     for case in res["cases"].values():
         print(f"\n{case['title']} (map SNRs {case['snr_db']} dB; position errors at the last frame with the target)")
-        print(f"  {'method':<28} {'detected %':>10} {'false al. %':>11} {'RMS pos m':>10} {'median m':>9} {'OSPA m':>7} "
+        print(f"  {'method':<34} {'detected %':>10} {'false al. %':>11} {'RMS pos m':>10} {'median m':>9} {'OSPA m':>7} "
               f"{'s/run':>6}")
         for n, r in case["methods"].items():
             fa = r["false_alarm_rate_absent"]
             pos, med = r["rms_pos_last_present_m"], r["median_pos_err_last_present_m"]
-            print(f"  {n:<28} {100 * r['detected_rate_present']:>10.1f} {'-' if fa is None else f'{100 * fa:.1f}':>11} "
+            print(f"  {n:<34} {100 * r['detected_rate_present']:>10.1f} {'-' if fa is None else f'{100 * fa:.1f}':>11} "
                   f"{'-' if pos != pos else f'{pos:.0f}':>10} {'-' if med != med else f'{med:.0f}':>9} "
                   f"{r['ospa_mean_m']:>7.0f} {r['seconds_per_run']:>6.2f}")
 
