@@ -29,11 +29,7 @@ from run_info import median_seconds, write_figures  # noqa: E402
 
 from pmsr_nn.config import load_yaml  # noqa: E402
 from pmsr_nn.harness.tbd_study import tbd_from_dict  # noqa: E402
-from pmsr_nn.motion import motion_model  # noqa: E402
-from pmsr_nn.rng import seeded_generator  # noqa: E402
-from pmsr_nn.simulation.products import SensorSetup  # noqa: E402
-from pmsr_nn.tbd.multibernoulli import MapLikelihood, MultiBernoulliTBD  # noqa: E402
-from pmsr_nn.tbd.scene import make_rd_maps  # noqa: E402
+from pmsr_nn.tbd.run import draw_maps, simulate_and_run  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,17 +39,12 @@ def peak_rss_mib() -> float:
 
 
 def one_call(scene, spec, runs: int, seed: int, maps_only: bool = False):
-    truth = scene.truth().draw(runs, seeded_generator(seed, 0))
-    product = make_rd_maps(SensorSetup(model=None, prior_sd=None, rd_maps=scene), truth, seeded_generator(seed, 1), None)
     if maps_only:
+        _, product = draw_maps(scene, runs, seed)
         for k in range(scene.frames):
             product.frame(k)
         return None
-    cv = motion_model("cv", 2)
-    mb = MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(scene.frame_s), cv.noise_factor(scene.frame_s, 1.0))
-    measure = MapLikelihood(spec, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power,
-                            torch.tensor(scene.snr_db, dtype=torch.float64))
-    return mb.run(scene.frames, measure, scene.cells, runs, seeded_generator(seed, 2))
+    return simulate_and_run(scene, spec, runs, seed)[0]
 
 
 def main() -> None:

@@ -10,14 +10,12 @@ import pytest
 import torch
 from scipy import optimize, stats
 
-from pmsr_nn.motion import motion_model
-from pmsr_nn.rng import seeded_generator
-from pmsr_nn.simulation.products import SensorSetup
-from pmsr_nn.tbd.detect import DetectionLikelihood, DetectSpec, detect, detection_probability
+from pmsr_nn.tbd.detect import DetectSpec, detect, detection_probability
 from pmsr_nn.tbd.likelihood import (CellValues, gather_cells, log_likelihood_ratio, max_ml_amplitude, ml_amplitude)
 from pmsr_nn.tbd.maps import MapGrid, MapSpec, Satellite, power_ratio, range_doppler, simulate_frame, triangle
-from pmsr_nn.tbd.multibernoulli import BirthBox, MapLikelihood, MBSpec, MBState, MultiBernoulliTBD, _resample
-from pmsr_nn.tbd.scene import TBDScene, make_rd_maps
+from pmsr_nn.tbd.multibernoulli import BirthBox, MBSpec, MBState, MultiBernoulliTBD, _resample
+from pmsr_nn.tbd.run import simulate_and_run
+from pmsr_nn.tbd.scene import TBDScene
 
 SATS = (Satellite("SVN2", (-17745.0e3, 1835.5e3, 13077.3e3), (2229.2, -519.2, 2058.0)),
         Satellite("SVN10", (10232.9e3, -15519.5e3, 12420.5e3), (190.2, -2114.0, -1798.6)),
@@ -121,22 +119,8 @@ def test_power_ratio_of_simulated_maps_matches_its_analytic_value():
     assert power_ratio(0, spec.lobe_cells) < power_ratio(1, spec.lobe_cells) < power_ratio(2, spec.lobe_cells) < 1
 
 
-def _filter(scene: TBDScene, spec: MBSpec):
-    cv = motion_model("cv", 2)
-    return MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(scene.frame_s),
-                             cv.noise_factor(scene.frame_s, 1.0))
-
-
 def _run(scene: TBDScene, spec: MBSpec, runs: int, seed: int, detect_spec: DetectSpec | None = None):
-    truth = scene.truth().draw(runs, seeded_generator(seed, 0))
-    product = make_rd_maps(SensorSetup(model=None, prior_sd=None, rd_maps=scene), truth, seeded_generator(seed, 1), None)
-    snr = torch.tensor(scene.snr_db, dtype=torch.float64)
-    if detect_spec is None:
-        measure = MapLikelihood(spec, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power, snr)
-    else:
-        measure = DetectionLikelihood(detect_spec, product.frame, scene.cells, scene.maps.lobe_cells,
-                                      scene.maps.noise_power, snr)
-    return _filter(scene, spec).run(scene.frames, measure, scene.cells, runs, seeded_generator(seed, 2)), truth
+    return simulate_and_run(scene, spec, runs, seed, detect_spec)
 
 
 SMALL = dict(particles_min=500, particles_max=2000, birth_particles=4000)

@@ -35,12 +35,12 @@ from ..config import from_dict, require, to_dict
 from ..environment import environment
 from ..errors import ConfigError
 from ..metrics.sets import ospa
-from ..motion import motion_model
 from ..rng import seeded_generator
 from ..simulation.products import SensorSetup
-from ..tbd.detect import DetectionLikelihood, DetectSpec
+from ..tbd.detect import DetectSpec
 from ..tbd.maps import power_ratio
-from ..tbd.multibernoulli import MapLikelihood, MBSpec, MultiBernoulliTBD
+from ..tbd.multibernoulli import MBSpec
+from ..tbd.run import run_filter
 from ..tbd.scene import TBDScene, make_rd_maps
 
 
@@ -188,19 +188,9 @@ def prepare_tbd(sc: TBDScenario) -> TBDSetup:
 
 
 def _run_method(setup: TBDSetup, scene: TBDScene, name: str, product, g: torch.Generator):
-    sc = setup.scenario
+    method = next(m for m in setup.scenario.methods if m.name == name)
     spec = setup.specs[name]
-    method = next(m for m in sc.methods if m.name == name)
-    cv = motion_model("cv", 2)
-    T = scene.frame_s
-    mb = MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(T), cv.noise_factor(T, 1.0))
-    snr = torch.tensor(scene.snr_db, dtype=torch.float64)
-    if method.detect is not None:
-        measure = DetectionLikelihood(method.detect, product.frame, scene.cells, scene.maps.lobe_cells,
-                                      scene.maps.noise_power, snr)
-    else:
-        measure = MapLikelihood(spec, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power, snr)
-    return mb.run(scene.frames, measure, scene.cells, product.B, g), spec
+    return run_filter(scene, spec, product, g, method.detect), spec
 
 
 def _block_sums(out, spec: MBSpec, truth_x: torch.Tensor, present: torch.Tensor, c_m: float) -> dict[str, np.ndarray]:

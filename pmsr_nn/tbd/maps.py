@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from ..config import require
+from ..measurements import bistatic_range_rate
 
 C = 299_792_458.0
 """Speed of light (m/s)."""
@@ -95,13 +96,13 @@ def range_doppler(states: torch.Tensor, tx: torch.Tensor, spec: MapSpec) -> tupl
     ``(..., P)``. The receiver is at the origin. The excess range is formed as
     ``(|p|^2 - 2 p.t) / (|p - t| + |t|) + |p|`` (no cancellation between 20,000 km distances)."""
     x, vx, y, vy = states.unbind(-1)
-    p = torch.stack([x, y, torch.full_like(x, spec.altitude_m)], -1)[..., None, :]  # (..., 1, 3)
-    to_t = p - tx  # transmitter -> target
-    d_t = to_t.norm(dim=-1)
+    pos = torch.stack([x, y, torch.full_like(x, spec.altitude_m)], -1)  # (..., 3)
+    vel = torch.stack([vx, vy, torch.zeros_like(vx)], -1)
+    p = pos[..., None, :]  # (..., 1, 3)
+    d_t = (p - tx).norm(dim=-1)
     d_r = p.norm(dim=-1)
     rng = (d_r * d_r - 2 * (p * tx).sum(-1)) / (d_t + tx.norm(dim=-1)) + d_r
-    u = to_t / d_t[..., None] + p / d_r[..., None]
-    rate = u[..., 0] * vx[..., None] + u[..., 1] * vy[..., None]
+    rate = bistatic_range_rate(pos, vel, tx, torch.zeros(1, 3, dtype=tx.dtype))  # the receiver at the origin
     return rng, -rate / spec.wavelength_m
 
 

@@ -1,0 +1,38 @@
+"""The measured values behind two statistical checks of tests/test_tbd.py (same scenes, seeds and
+particle budgets), printed: the false-alarm rate of the multi-Bernoulli filter without a target,
+and the online SNR estimate once the target has been held for a while.
+
+    python evaluate/tbd_checks.py
+"""
+
+from __future__ import annotations
+
+from pmsr_nn.tbd.maps import MapSpec, Satellite
+from pmsr_nn.tbd.multibernoulli import MBSpec
+from pmsr_nn.tbd.run import simulate_and_run
+from pmsr_nn.tbd.scene import TBDScene
+
+SATS = (Satellite("SVN2", (-17745.0e3, 1835.5e3, 13077.3e3), (2229.2, -519.2, 2058.0)),
+        Satellite("SVN10", (10232.9e3, -15519.5e3, 12420.5e3), (190.2, -2114.0, -1798.6)),
+        Satellite("SVN18", (6818.7e3, -6090.4e3, 18620.3e3), (1654.7, -2019.3, -926.3)))
+
+
+def main() -> None:
+    maps = MapSpec(doppler_cell_hz=10.0)
+    # no target before frame 20: 24 runs x 19 absent frames, particle budget 500-2,000 (4,000 births)
+    scene = TBDScene(SATS, (8.0, 9.0, 10.0), maps, frames=20, appears_frame=20, disappears_frame=20)
+    out, truth = simulate_and_run(scene, MBSpec(estimate_snr=True, particles_min=500, particles_max=2000,
+                                                birth_particles=4000), 24, 21)
+    _, det, r = out.best(0.5)
+    absent = ~truth.alive[:, 0]
+    print(f"no target: {int(det[:, absent].sum())} detections in {int(absent.sum()) * 24} frames "
+          f"(rate {float(det[:, absent].double().mean()):.4f}), largest existence {float(r[:, absent].max()):.3f}")
+    # the seed's scene and particle budget, 8 runs: the estimate over frames 11-16
+    scene = TBDScene(SATS, (8.0, 9.0, 10.0), maps)
+    out, _ = simulate_and_run(scene, MBSpec(estimate_snr=True), 8, 31)
+    est = out.snr_db[:, 10:16].mean((0, 1)).tolist()
+    print("online SNR estimate, frames 11-16, for maps of 8, 9, 10 dB: " + ", ".join(f"{v:.2f}" for v in est) + " dB")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,45 @@
+"""One filter on one block of a scene's maps: what the study, the benchmark and the tests call.
+
+:func:`run_filter` runs a filter (the seed's map likelihood, or detect-then-track when given a
+:class:`~.detect.DetectSpec`) on a block's ``rd_maps`` product; :func:`simulate_and_run` also draws
+the block (truth from ``(seed, 0)``, the maps from ``(seed, 1)``, the filter from ``(seed, 2)``).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..motion import motion_model
+from ..rng import seeded_generator
+from ..simulation.products import SensorSetup, Truth
+from .detect import DetectionLikelihood, DetectSpec
+from .multibernoulli import MapLikelihood, MBOutput, MBSpec, MultiBernoulliTBD
+from .scene import RangeDopplerMaps, TBDScene, make_rd_maps
+
+
+def run_filter(scene: TBDScene, spec: MBSpec, product: RangeDopplerMaps, g: torch.Generator,
+               detect: DetectSpec | None = None) -> MBOutput:
+    """The CV multi-Bernoulli filter of ``spec`` over every frame of ``product`` (its runs batched)."""
+    cv = motion_model("cv", 2)
+    T = scene.frame_s
+    mb = MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(T), cv.noise_factor(T, 1.0))
+    snr = torch.tensor(scene.snr_db, dtype=torch.float64)
+    if detect is not None:
+        measure = DetectionLikelihood(detect, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power,
+                                      snr)
+    else:
+        measure = MapLikelihood(spec, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power, snr)
+    return mb.run(scene.frames, measure, scene.cells, product.B, g)
+
+
+def draw_maps(scene: TBDScene, runs: int, seed: int) -> tuple[Truth, RangeDopplerMaps]:
+    """The truth of ``runs`` runs and their maps product (generators ``(seed, 0)`` and ``(seed, 1)``)."""
+    truth = scene.truth().draw(runs, seeded_generator(seed, 0))
+    return truth, make_rd_maps(SensorSetup(model=None, prior_sd=None, rd_maps=scene), truth, seeded_generator(seed, 1), None)
+
+
+def simulate_and_run(scene: TBDScene, spec: MBSpec, runs: int, seed: int,
+                     detect: DetectSpec | None = None) -> tuple[MBOutput, Truth]:
+    """Draw ``runs`` runs of the scene and run the filter on them (its generator ``(seed, 2)``)."""
+    truth, product = draw_maps(scene, runs, seed)
+    return run_filter(scene, spec, product, seeded_generator(seed, 2), detect), truth
