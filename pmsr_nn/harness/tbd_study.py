@@ -171,6 +171,10 @@ def prepare_tbd(sc: TBDScenario) -> TBDSetup:
             scene = dataclasses.replace(scene, maps=dataclasses.replace(scene.maps, doppler_cell_hz=c.doppler_cell_hz))
         grid = scene.grid
         for name in c.methods or [m.name for m in sc.methods]:
+            s = specs[name].snr_model_db
+            if s is not None and len(s) not in (1, scene.P):
+                raise ConfigError(f"method {name!r}: snr_model_db needs one value or one per satellite ({scene.P}), "
+                                  f"got {len(s)}")
             h = specs[name].subarea_half
             if h is not None and (2 * h + 1 > grid.D or 2 * h + 1 > grid.U):
                 raise ConfigError(f"method {name!r}: sub-area {2 * h + 1}x{2 * h + 1} is larger than the maps "

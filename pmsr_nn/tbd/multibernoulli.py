@@ -165,8 +165,7 @@ class MapLikelihood:
         s = self.spec.snr_model_db
         if s is None:
             return self.true_snr_db.expand(B, P)
-        t = torch.tensor(s, dtype=torch.float64)
-        return t.expand(B, P) if t.numel() == 1 else t.expand(B, P)
+        return torch.tensor(s, dtype=torch.float64).expand(B, P)  # one value for every map, or one per map
 
     def __call__(self, x: torch.Tensor, valid: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Log ratios ``(B, M, P)`` of states ``x (B, M, 4)`` and the SNRs ``(B, P)`` (dB) used."""

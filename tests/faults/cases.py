@@ -1364,3 +1364,6 @@ case("evaluate/tbd-unknown-update-order", "evaluate t.yaml --out out",
      message="update", klass="refusal")
 case("evaluate/tbd-shard", "evaluate t.yaml --out out --shard 1/2", setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: None),
      message="unsharded", klass="refusal")
+case("evaluate/tbd-snr-model-length", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["filter"].update(snr_model_db=[8.0, 9.0, 10.0])),
+     message="snr_model_db needs one value", klass="refusal")
