@@ -13,7 +13,8 @@ from scipy import optimize, stats
 from pmsr_nn.tbd.detect import DetectSpec, detect, detection_probability
 from pmsr_nn.tbd.likelihood import (CellValues, gather_cells, log_likelihood_ratio, max_ml_amplitude, ml_amplitude)
 from pmsr_nn.tbd.maps import MapGrid, MapSpec, Satellite, power_ratio, range_doppler, simulate_frame, triangle
-from pmsr_nn.tbd.multibernoulli import BirthBox, MBSpec, MBState, MultiBernoulliTBD, _resample
+from pmsr_nn.filters.particle import segmented_resample as _resample
+from pmsr_nn.tbd.multibernoulli import BirthBox, MBSpec, MBState, MultiBernoulliTBD
 from pmsr_nn.tbd.run import simulate_and_run
 from pmsr_nn.tbd.scene import TBDScene
 

@@ -37,6 +37,7 @@ from typing import Callable, Literal
 import torch
 
 from ..config import require
+from ..filters.particle import segmented_resample
 from .likelihood import gather_cells, log_likelihood_ratio, max_ml_amplitude
 
 UpdateOrder = Literal["product", "ascending", "descending", "given"]
@@ -311,38 +312,5 @@ class MultiBernoulliTBD:
         spec = self.spec
         counts = torch.where(st.r > 0, (st.r * spec.particles_max).round().clamp(spec.particles_min, spec.particles_max),
                              torch.zeros((), dtype=st.r.dtype)).to(torch.int64)
-        x, comp, logw = _resample(st.x, st.logw, st.comp, st.r > 0, counts, g)
+        x, comp, logw = segmented_resample(st.x, st.logw, st.comp, st.r > 0, counts, g)
         return MBState(x, logw, comp, st.r)
-
-
-def _resample(x: torch.Tensor, logw: torch.Tensor, comp: torch.Tensor, active: torch.Tensor, counts: torch.Tensor,
-              g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Systematic resampling of each active component to ``counts (B, Q)`` particles, in one pass:
-    with the particles sorted by component and each component's weights summing to one, the
-    running sum of all weights passes ``c + (i + U) / L`` inside component ``c``'s ``i``-th stratum."""
-    B, Q = counts.shape
-    order = torch.argsort(comp, dim=1, stable=True)
-    comp_s = comp.gather(1, order)
-    w = torch.where(comp_s < Q, logw.gather(1, order).exp(), torch.zeros((), dtype=logw.dtype))
-    cum = w.cumsum(1)
-    base = active.to(w.dtype).cumsum(1) - active.to(w.dtype)  # (B, Q): components before q
-    ends = counts.cumsum(1)
-    total = ends[:, -1]
-    Mn = int(total.max()) if B else 0
-    j = torch.arange(Mn).expand(B, Mn)
-    q = torch.searchsorted(ends, j.contiguous(), right=True).clamp(max=Q - 1)  # (B, Mn)
-    start = (ends - counts).gather(1, q)
-    L = counts.gather(1, q).clamp(min=1).to(w.dtype)
-    U = torch.rand((B, Q), generator=g, dtype=w.dtype).gather(1, q)
-    target = base.gather(1, q) + ((j - start).to(w.dtype) + U) / L
-    idx = torch.searchsorted(cum, target.contiguous())
-    # stay inside component q whatever the rounding of the running sum
-    first = torch.searchsorted(comp_s.contiguous(), q.contiguous())
-    last = torch.searchsorted(comp_s.contiguous(), q.contiguous(), right=True) - 1
-    idx = torch.maximum(torch.minimum(idx, last), first).clamp(0, max(comp.shape[1] - 1, 0))
-    src = order.gather(1, idx)
-    valid = j < total[:, None]
-    x_new = x.gather(1, src[..., None].expand(B, Mn, x.shape[-1]))
-    comp_new = torch.where(valid, q, torch.full_like(q, Q))
-    logw_new = torch.where(valid, -torch.log(L), torch.full_like(L, -math.inf))
-    return x_new, comp_new, logw_new
