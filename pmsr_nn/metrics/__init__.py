@@ -15,7 +15,7 @@ from .pointwise import (
     track_loss,
     velocity_columns,
 )
-from .sets import GOSPA, SetScores, cardinality_error, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, set_scores
+from .sets import GOSPA, SetScores, cardinality_error, fragmentations, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, set_scores
 
 __all__ = [
     "position_columns",
@@ -34,4 +34,5 @@ __all__ = [
     "cardinality_error",
     "labelled_assignment",
     "label_switches",
+    "fragmentations",
 ]

@@ -229,6 +229,20 @@ def labelled_assignment(
     return _solve(reduced, est_mask.any(-2), truth_mask.any(-2), both.any(-3))
 
 
+def _target_tracks(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
+    """``(..., K, N)`` int64: the track slot assigned to each living target at each scan (-1: none)."""
+    N = truth_mask.shape[-1]
+    if assignment_per_scan.shape[:-1] != truth_mask.shape[:-1]:
+        raise ValueError(f"assignment {tuple(assignment_per_scan.shape)} and truth_mask {tuple(truth_mask.shape)} differ before the last dim")
+    if assignment_per_scan.numel() and (int(assignment_per_scan.min()) < -1 or int(assignment_per_scan.max()) >= N):
+        raise ValueError(f"assignment values must lie in [-1, {N - 1}]")
+    if assignment_per_scan.shape[-1] == 0:
+        return torch.full(truth_mask.shape, -1, dtype=torch.int64, device=truth_mask.device)
+    hit = assignment_per_scan.unsqueeze(-1) == torch.arange(N, device=assignment_per_scan.device)  # (B, K, M, N)
+    has = hit.any(-2) & truth_mask
+    return torch.where(has, hit.to(torch.int64).argmax(-2), torch.full_like(has, -1, dtype=torch.int64))
+
+
 def label_switches(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
     """``(B, N)`` int64: how often the track label assigned to each truth target changes between
     consecutive scans ``k-1, k`` at which the target is assigned at both.
@@ -236,15 +250,20 @@ def label_switches(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) 
     ``assignment_per_scan (B, K, M)`` int64 is :func:`optimal_assignment` per scan (truth index per
     track slot, -1 unassigned); ``truth_mask (B, K, N)``. Any leading dims before ``K`` work.
     """
-    N = truth_mask.shape[-1]
-    if assignment_per_scan.shape[:-1] != truth_mask.shape[:-1]:
-        raise ValueError(f"assignment {tuple(assignment_per_scan.shape)} and truth_mask {tuple(truth_mask.shape)} differ before the last dim")
-    if assignment_per_scan.numel() and (int(assignment_per_scan.min()) < -1 or int(assignment_per_scan.max()) >= N):
-        raise ValueError(f"assignment values must lie in [-1, {N - 1}]")
-    if assignment_per_scan.shape[-1] == 0:
-        return torch.zeros(truth_mask.shape[:-2] + (N,), dtype=torch.int64, device=truth_mask.device)
-    hit = assignment_per_scan.unsqueeze(-1) == torch.arange(N, device=assignment_per_scan.device)  # (B, K, M, N)
-    has = hit.any(-2) & truth_mask
-    track = torch.where(has, hit.to(torch.int64).argmax(-2), torch.full_like(has, -1, dtype=torch.int64))
+    track = _target_tracks(assignment_per_scan, truth_mask)
+    has = track >= 0
     changed = has[..., 1:, :] & has[..., :-1, :] & (track[..., 1:, :] != track[..., :-1, :])
     return changed.sum(-2)
+
+
+def fragmentations(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
+    """``(B, N)`` int64: how often each target's track coverage is interrupted (the CLEAR MOT
+    "fragmentation"): the target is assigned at scan ``k-1``, alive but unassigned at ``k``, and
+    assigned again at a later scan. Arguments as :func:`label_switches`."""
+    track = _target_tracks(assignment_per_scan, truth_mask)
+    has = track >= 0
+    later = has.flip(-2).to(torch.int64).cummax(-2).values.flip(-2).bool()  # assigned at k or after
+    after = torch.zeros_like(has)
+    after[..., :-1, :] = later[..., 1:, :]
+    broken = has[..., :-1, :] & truth_mask[..., 1:, :] & ~has[..., 1:, :] & after[..., 1:, :]
+    return broken.sum(-2)

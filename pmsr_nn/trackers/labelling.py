@@ -1,0 +1,150 @@
+"""Labelled tracks from unlabelled estimates (a PHD filter's, one set per scan), batched over runs.
+
+A track holds the last estimate it took and is predicted with the CV model between scans. At
+each scan the living tracks (players) and the scan's estimates are associated by
+
+* ``gtda``: the regret-matching game of :mod:`.gtda` (Daniyan et al.), or
+* ``hungarian``: the optimal assignment (``scipy.optimize.linear_sum_assignment``) minimising
+  ``sum min(d2, gate)``, i.e. with a null option of cost ``gate`` per track: the plain baseline,
+
+``d2`` being the Mahalanobis distance of an estimate from a track's prediction (covariance: the
+track's predicted one plus the estimate's). A track that takes an estimate reports it under its
+label; a track missing more than ``max_missed`` scans in a row ends (a player leaves); an estimate
+no track takes starts a new track with a new label (a player joins). Labels count up per run from 0.
+A living track that took no estimate reports its prediction (it coasts) once it has taken at
+least two estimates, so a missed detection does not cut a labelled track while a one-scan false
+estimate does not linger.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+
+from ..config import require
+from .gating import gate_threshold
+from .base import Estimates
+from .gtda import GameSpec, play
+
+@dataclass(frozen=True)
+class LabelSpec:
+    """``method`` (``gtda`` or ``hungarian``), ``gate`` on ``d2``, ``max_missed`` scans a track
+    coasts before it ends, ``game`` the GTDA settings."""
+
+    method: Literal["gtda", "hungarian"] = "gtda"
+    gate_probability: float = 0.999
+    max_missed: int = 3
+    game: GameSpec = field(default_factory=GameSpec)
+
+    @property
+    def gate(self) -> float:
+        """The gate on the squared Mahalanobis distance (chi-square, 2 degrees of freedom)."""
+        return gate_threshold(self.gate_probability, 2)
+
+    def __post_init__(self) -> None:
+        require(self.method in ("gtda", "hungarian"), f"labelling must be gtda or hungarian, got {self.method!r}")
+        require(0 < self.gate_probability < 1, f"gate_probability must be in (0, 1), got {self.gate_probability}")
+        require(self.max_missed >= 0, f"max_missed must be >= 0, got {self.max_missed}")
+
+
+def mahalanobis(x: torch.Tensor, P: torch.Tensor, e: torch.Tensor, Pe: torch.Tensor) -> torch.Tensor:
+    """``d2 (B, P, T)`` of estimates ``e (B, T, 2)`` (covariances ``Pe (B, T, 2, 2)``) from tracks
+    ``x (B, P, 2)`` (``P (B, P, 2, 2)``); NaN inputs give NaN."""
+    S = P[:, :, None] + Pe[:, None, :]  # (B, P, T, 2, 2)
+    d = e[:, None, :, :] - x[:, :, None, :]
+    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
+    det = a * c - b * b
+    return (c * d[..., 0] ** 2 - 2 * b * d[..., 0] * d[..., 1] + a * d[..., 1] ** 2) / det
+
+
+def hungarian(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor, gate: float) -> torch.Tensor:
+    """``choice (B, P)`` (-1: none): per run, the assignment minimising ``sum min(d2, gate)``."""
+    B, P, T = d2.shape
+    choice = np.full((B, P), -1, dtype=np.int64)
+    cost = torch.nan_to_num(d2, nan=gate).clamp(max=gate).numpy()
+    pl, ok = player.numpy(), strategy_ok.numpy()
+    for b in range(B):
+        rows, cols = np.flatnonzero(pl[b]), np.flatnonzero(ok[b])
+        if len(rows) == 0 or len(cols) == 0:
+            continue
+        c = cost[b][np.ix_(rows, cols)]
+        r, k = linear_sum_assignment(c)
+        take = c[r, k] < gate
+        choice[b, rows[r[take]]] = cols[k[take]]
+    return torch.from_numpy(choice)
+
+
+def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torch.Tensor, Q: torch.Tensor,
+                 spec: LabelSpec, g: torch.Generator) -> Estimates:
+    """Labelled tracks (module docstring) of estimates ``x (B, K, C, 2)``, ``P (B, K, C, 2, 2)``,
+    ``exists (B, K, C)``: :class:`~.base.Estimates` with one slot per label; extras
+    ``game_rounds (K,)`` and ``repaired (B,)`` (GTDA only), ``labels (B,)`` labels started per run."""
+    B, K, C, n = x.shape
+    cap = max(C, 1)
+    tx = torch.zeros(B, cap, n, dtype=torch.float64)
+    tP = torch.eye(n, dtype=torch.float64).expand(B, cap, n, n).clone()
+    alive = torch.zeros(B, cap, dtype=torch.bool)
+    label = torch.zeros(B, cap, dtype=torch.int64)
+    missed = torch.zeros(B, cap, dtype=torch.int64)
+    hits = torch.zeros(B, cap, dtype=torch.int64)
+    next_label = torch.zeros(B, dtype=torch.int64)
+    rounds, repaired = [], torch.zeros(B, dtype=torch.int64)
+    rows_out = []  # per scan: (b, label, estimate index)
+    gate = spec.gate
+    for k in range(K):
+        tx, tP = tx @ F.T, F @ tP @ F.T + Q
+        ek, Pk, ok = torch.nan_to_num(x[:, k]), P[:, k], exists[:, k]
+        d2 = mahalanobis(tx, tP, ek, Pk)
+        d2 = torch.where(alive[:, :, None] & ok[:, None, :], torch.nan_to_num(d2, nan=gate), torch.full((), gate))
+        if spec.method == "gtda":
+            res = play(d2, alive, ok, gate, spec.game, g)
+            choice = res.choice
+            rounds.append(res.rounds)
+            repaired += res.repaired
+        else:
+            choice = hungarian(d2, alive, ok, gate)
+        took = choice >= 0
+        pick = choice.clamp(min=0)
+        tx = torch.where(took[..., None], ek.gather(1, pick[..., None].expand(B, cap, n)), tx)
+        tP = torch.where(took[..., None, None], Pk.gather(1, pick[..., None, None].expand(B, cap, n, n)), tP)
+        missed = torch.where(took, torch.zeros_like(missed), missed + 1)
+        hits = hits + took
+        alive = alive & (missed <= spec.max_missed)
+        b, p = took.nonzero(as_tuple=True)
+        rows_out.append((k, b, label[b, p], ek[b, choice[b, p]], Pk[b, choice[b, p]]))
+        b, p = (alive & ~took & (hits >= 2)).nonzero(as_tuple=True)  # coasting: the prediction under the label
+        rows_out.append((k, b, label[b, p], tx[b, p], tP[b, p]))
+        # estimates no track took start tracks in free slots
+        taken = torch.zeros(B, C + 1, dtype=torch.bool).scatter_(1, torch.where(took, choice, C), True)[:, :C]
+        new = ok & ~taken
+        n_new = new.sum(1)
+        short = int((n_new - (~alive).sum(1)).max()) if B else 0
+        if short > 0:
+            grow = lambda t, fill: torch.cat([t, torch.full((B, short) + t.shape[2:], fill, dtype=t.dtype)], 1)
+            tx, alive, label, missed, hits = grow(tx, 0.0), grow(alive, False), grow(label, 0), grow(missed, 0), grow(hits, 0)
+            tP = torch.cat([tP, torch.eye(n, dtype=torch.float64).expand(B, short, n, n)], 1)
+            cap += short
+        if bool(new.any()):
+            free_first = torch.sort(alive.to(torch.int8), dim=1, stable=True).indices  # free slots first
+            b, c = new.nonzero(as_tuple=True)
+            rank = (new.cumsum(1) - 1)[b, c]
+            slot = free_first[b, rank]
+            tx[b, slot], tP[b, slot] = ek[b, c], Pk[b, c]
+            alive[b, slot], missed[b, slot], hits[b, slot] = True, 0, 1
+            label[b, slot] = next_label[b] + rank
+            next_label += n_new
+            rows_out.append((k, b, label[b, slot], ek[b, c], Pk[b, c]))
+    L = int(next_label.max()) if B else 0
+    out_x = torch.full((B, K, L, n), float("nan"), dtype=torch.float64)
+    out_P = torch.zeros(B, K, L, n, n, dtype=torch.float64)
+    out_e = torch.zeros(B, K, L, dtype=torch.bool)
+    for k, b, lab, xv, Pv in rows_out:
+        out_x[b, k, lab], out_P[b, k, lab], out_e[b, k, lab] = xv, Pv, True
+    extras = {"labels": next_label}
+    if spec.method == "gtda":
+        extras.update(game_rounds=torch.tensor(rounds), repaired=repaired)
+    return Estimates(out_x, out_e, out_P, extras)
