@@ -421,6 +421,22 @@ def print_tbd_summary(res: dict) -> None:
                   f"{r['ospa_mean_m']:>7.0f} {r['seconds_per_run']:>6.2f}")
 
 
+def print_phd_summary(res: dict) -> None:
+    """An SMC-PHD study's table per case."""
+    for case in res["cases"].values():
+        print(f"\n{case['title']} (Pd {case['pd']:g}, {case['clutter_per_scan']:g} clutter points per scan; OSPA on "
+              "bistatic range)")
+        print(f"  {'method':<34} {'OSPA m':>7} {'|card err|':>10} {'RMS r m':>8} {'switches/run':>12} "
+              f"{'frag./run':>9} {'labels/run':>10} {'s/run':>6}")
+        for n, r in case["methods"].items():
+            sw, fr, lb = (r.get(k) for k in ("label_switches_per_run", "fragmentations_per_run", "labels_per_run"))
+            rr = r["rms_range_m"]
+            print(f"  {n:<34} {r['ospa_mean_m']:>7.0f} {r['mean_abs_cardinality_error']:>10.2f} "
+                  f"{'-' if rr is None else f'{rr:.0f}':>8} {'-' if sw is None else f'{sw:.2f}':>12} "
+                  f"{'-' if fr is None else f'{fr:.2f}':>9} {'-' if lb is None else f'{lb:.1f}':>10} "
+                  f"{r['seconds_per_run']:>6.2f}")
+
+
 def cmd_evaluate(args) -> int:
     from .environment import resolve_device
     from .harness import evaluate
@@ -439,6 +455,8 @@ def cmd_evaluate(args) -> int:
         return 0
     if res.get("kind") == "tbd":
         print_tbd_summary(res)
+    elif res.get("kind") == "phd":
+        print_phd_summary(res)
     else:
         print_summary(res)
     print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s)")

@@ -25,6 +25,7 @@ from .multitarget import MultiTargetScenario, is_multitarget, multitarget_from_d
 from .report import reference_table, write_report
 from .runner import BlockSums, Setup, finalise, prepare, run_blocks, shard_blocks
 from .scenario import Scenario, scenario_from_dict
+from .phd_study import PHDScenario, is_phd, phd_from_dict, prepare_phd, run_phd, write_phd_outputs
 from .tbd_study import TBDScenario, is_tbd, prepare_tbd, run_tbd, tbd_from_dict, write_tbd_outputs
 
 SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
@@ -33,7 +34,9 @@ SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
 RESULT_COMMANDS = ("evaluate", "merge")
 """Output folders an ``evaluate`` or ``merge --overwrite`` may replace."""
 
-AnyScenario = Scenario | MultiTargetScenario | TBDScenario
+AnyScenario = Scenario | MultiTargetScenario | TBDScenario | PHDScenario
+STUDIES = (MultiTargetScenario, TBDScenario, PHDScenario)
+"""Scenario kinds with no learned methods."""
 
 
 def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=()):
@@ -43,16 +46,21 @@ def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=())
 
 def _inputs(scenario, sc) -> list[Path]:
     """Files a scenario run reads: its YAML and every checkpoint a method names."""
-    paths = [] if isinstance(scenario, (Scenario, MultiTargetScenario, TBDScenario)) else [Path(scenario)]
+    paths = [] if isinstance(scenario, (Scenario, *STUDIES)) else [Path(scenario)]
     for m in getattr(sc, "methods", ()):
         if getattr(m, "checkpoint", None):
             paths.append(sc.path(m.checkpoint))
+    for c in getattr(sc, "cases", ()):
+        if getattr(c, "detections_csv", None):
+            paths.append(sc.path(c.detections_csv))
     return paths
 
 
 def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> AnyScenario:
-    """A designed scenario, a multi-target study (``kind: multitarget``) or a track-before-detect
-    study (``kind: tbd``), from plain data."""
+    """A designed scenario, a multi-target study (``kind: multitarget``), a track-before-detect
+    study (``kind: tbd``) or an SMC-PHD study (``kind: phd``), from plain data."""
+    if is_phd(data):
+        return phd_from_dict(data, base_dir, where=where)
     if is_tbd(data):
         return tbd_from_dict(data, base_dir, where=where)
     if is_multitarget(data):
@@ -63,13 +71,13 @@ def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> A
 def load_any(scenario: AnyScenario | str | Path, mc_runs: int | None = None,
              checkpoints: dict[str, str] | None = None) -> AnyScenario:
     """The scenario (loaded from its YAML file if a path), with ``--mc-runs`` and ``--checkpoint`` applied."""
-    if isinstance(scenario, (Scenario, MultiTargetScenario, TBDScenario)):
+    if isinstance(scenario, (Scenario, *STUDIES)):
         sc = scenario
     else:
         sc = scenario_from_data(load_yaml(Path(scenario)), Path(scenario).parent, where=str(scenario))
-    if checkpoints and isinstance(sc, (MultiTargetScenario, TBDScenario)):
-        raise ConfigError(f"a {'track-before-detect' if isinstance(sc, TBDScenario) else 'multi-target'} study has no "
-                          "learned methods: --checkpoint does not apply")
+    if checkpoints and isinstance(sc, STUDIES):
+        kind = {TBDScenario: "track-before-detect", PHDScenario: "SMC-PHD"}.get(type(sc), "multi-target")
+        raise ConfigError(f"a {kind} study has no learned methods: --checkpoint does not apply")
     sc = sc.with_mc_runs(mc_runs)
     return sc.with_checkpoints(checkpoints) if checkpoints else sc
 
@@ -118,8 +126,8 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
     sc = load_any(scenario, mc_runs, checkpoints)
     inputs = _inputs(scenario, sc)
     check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
-    if isinstance(sc, TBDScenario):
-        return _evaluate_tbd(sc, out, shard, device, progress, overwrite, inputs)
+    if isinstance(sc, (TBDScenario, PHDScenario)):
+        return _evaluate_study(sc, out, shard, device, progress, overwrite, inputs)
     blocks = shard_blocks(sc.n_blocks, shard)
     setup = prepare(sc, device)
     _references(sc)  # a bad reference entry fails now, not after the run
@@ -134,15 +142,23 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
         return meta
 
 
-def _evaluate_tbd(sc: TBDScenario, out: Path, shard, device: str, progress: bool, overwrite: bool, inputs) -> dict:
+def _evaluate_study(sc: TBDScenario | PHDScenario, out: Path, shard, device: str, progress: bool, overwrite: bool,
+                    inputs) -> dict:
+    """A track-before-detect or SMC-PHD study: unsharded, on the CPU."""
+    kind = "track-before-detect" if isinstance(sc, TBDScenario) else "SMC-PHD"
     if shard != (1, 1):
-        raise ConfigError("a track-before-detect study runs unsharded (--shard 1/1)")
+        raise ConfigError(f"a {kind} study runs unsharded (--shard 1/1)")
     if device != "cpu":
-        raise ConfigError("the track-before-detect filters run on the CPU in this version")
-    setup = prepare_tbd(sc)
+        raise ConfigError(f"the {kind} filters run on the CPU in this version")
+    if isinstance(sc, TBDScenario):
+        setup = prepare_tbd(sc)
+        with atomic_dir(out, overwrite, inputs=inputs) as tmp:
+            sums, examples = run_tbd(setup, progress=progress)
+            return write_tbd_outputs(setup, sums, examples, tmp, device)
+    setup = prepare_phd(sc)
     with atomic_dir(out, overwrite, inputs=inputs) as tmp:
-        sums, examples = run_tbd(setup, progress=progress)
-        return write_tbd_outputs(setup, sums, examples, tmp, device)
+        sums, examples = run_phd(setup, progress=progress)
+        return write_phd_outputs(setup, sums, examples, tmp, device)
 
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:

@@ -1367,3 +1367,38 @@ case("evaluate/tbd-shard", "evaluate t.yaml --out out --shard 1/2", setup=yaml_e
 case("evaluate/tbd-snr-model-length", "evaluate t.yaml --out out",
      setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["filter"].update(snr_model_db=[8.0, 9.0, 10.0])),
      message="snr_model_db needs one value", klass="refusal")
+PHD_YAML = """\
+kind: phd
+name: phd_tiny
+mc_runs: 1
+block_runs: 1
+duration_s: 6
+phd: {particles_per_target: 50, particles_per_birth: 20}
+methods: [{name: g, labelling: gtda}]
+cases: [{name: c}]
+aircraft:
+  - {name: a, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0, legs: [{duration_s: 6}]}
+"""
+case("evaluate/phd-ok", "evaluate p.yaml --out out", expect="ok", setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: None),
+     outputs=("out",))
+case("evaluate/phd-particles-per-target-below-10", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["phd"].update(particles_per_target=9)),
+     message="at least 10", klass="refusal")
+case("evaluate/phd-birth-without-mass", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["phd"].update(birth_rate=0.0)),
+     message="birth intensity has no mass", klass="refusal")
+case("evaluate/phd-forgetting-zero", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0].update(options={"forgetting": 0.0})),
+     message="forgetting factor must be in (0, 1]", klass="refusal")
+case("evaluate/phd-forgetting-above-one", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d.update(labelling={"game": {"forgetting": 1.5}})),
+     message="forgetting factor must be in (0, 1]", klass="refusal")
+case("evaluate/phd-nan-detections", "evaluate p.yaml --out out",
+     setup=steps(yaml_edit(PHD_YAML, "p.yaml", lambda d: d["cases"][0].update(detections_csv="d.csv")),
+                 write_bytes("d.csv", b"scan,range_m,range_rate_mps\n0,20000,5\n1,nan,5\n")),
+     message="line 3: range_m is not a finite number", klass="refusal")
+case("evaluate/phd-shard", "evaluate p.yaml --out out --shard 1/2", setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: None),
+     message="unsharded", klass="refusal")
+case("evaluate/phd-signals-without-front-end", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["cases"][0].update(signals=True)),
+     message="needs the study's front_end block", klass="refusal")

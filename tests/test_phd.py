@@ -1,0 +1,317 @@
+"""SMC-PHD filter, GTDA and Hungarian labelling, aircraft flights and the ``kind: phd`` study.
+
+References: a direct evaluation of the PHD update equation (loops over particles and
+detections), the Kalman filter (exact for the linear-Gaussian single-target case), brute-force
+assignment enumeration, and the recursion's own conservation of the expected number.
+"""
+
+import itertools
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.metrics import fragmentations, label_switches, set_scores
+from pmsr_nn.simulation.aircraft import AircraftSpec, LegSpec, fly
+from pmsr_nn.trackers.gtda import GameSpec, play, resolve_conflicts
+from pmsr_nn.trackers.labelling import LabelSpec, hungarian, label_tracks
+from pmsr_nn.trackers.phd import PHDSpec, PHDState, SMCPHD, cv_matrices
+
+SD = torch.tensor([30.0, 4.5], dtype=torch.float64)
+BOX_LO = torch.tensor([0.0, -300.0], dtype=torch.float64)
+BOX_SPAN = torch.tensor([60_000.0, 600.0], dtype=torch.float64)
+
+
+def cv_truth(x0: torch.Tensor, B: int, K: int, g: torch.Generator, sigma: float = 20.0) -> torch.Tensor:
+    """``(B, K, N, 2)`` CV flights in [r, rdot] with the seed's discrete white-acceleration noise."""
+    G = sigma * torch.tensor([0.5, 1.0], dtype=torch.float64)
+    F, _ = cv_matrices(1.0, sigma)
+    xs = [x0.expand(B, *x0.shape).clone()]
+    for _ in range(K - 1):
+        xs.append(xs[-1] @ F.T + torch.randn(B, x0.shape[0], 1, generator=g, dtype=torch.float64) * G)
+    return torch.stack(xs, 1)
+
+
+def detections(truth: torch.Tensor, pd: float, clutter: int, g: torch.Generator):
+    B, K, N, _ = truth.shape
+    det = torch.rand(B, K, N, generator=g, dtype=torch.float64) < pd
+    zt = truth + torch.randn(B, K, N, 2, generator=g, dtype=torch.float64) * SD
+    zc = BOX_LO + BOX_SPAN * torch.rand(B, K, clutter, 2, generator=g, dtype=torch.float64)
+    return torch.cat([zt, zc], 2), torch.cat([det, torch.ones(B, K, clutter, dtype=torch.bool)], 2)
+
+
+def kappa(clutter: float) -> float:
+    return max(clutter, 1e-3) / float(BOX_SPAN.prod())
+
+
+def kalman_rmse(z: torch.Tensor, truth: torch.Tensor, from_scan: int) -> torch.Tensor:
+    """RMSE ``(2,)`` of the exact Kalman filter (H = I) started at the first measurement."""
+    F, Q = cv_matrices(1.0, 20.0)
+    R = torch.diag(SD**2)
+    x, P = z[:, 0].clone(), R.expand(z.shape[0], 2, 2).clone()
+    err = []
+    for k in range(1, z.shape[1]):
+        x, P = x @ F.T, F @ P @ F.T + Q
+        S = P + R
+        Kg = P @ torch.linalg.inv(S)
+        x = x + (Kg @ (z[:, k] - x)[..., None])[..., 0]
+        P = (torch.eye(2, dtype=torch.float64) - Kg) @ P
+        if k >= from_scan:
+            err.append(x - truth[:, k])
+    return torch.stack(err).pow(2).mean((0, 1)).sqrt()
+
+
+def test_one_target_no_clutter_pd_1_cardinality_and_error_against_the_kalman_filter():
+    g = torch.Generator().manual_seed(1)
+    B, K, burn = 40, 60, 10
+    truth = cv_truth(torch.tensor([[20_000.0, -100.0]], dtype=torch.float64), B, K, g)
+    z, valid = detections(truth, 1.0, 0, g)
+    est = SMCPHD(PHDSpec(), SD, 1.0, kappa(0), 1.0).run(z, valid, g)
+    # the PHD's integral: 1 - kappa / (kappa + taken) per scan, kappa ~ 6e-11 against taken ~ 1e-4
+    assert abs(float(est.expected[:, burn:].mean()) - 1.0) < 0.05
+    assert bool((est.exists[:, burn:].sum(-1) == 1).all())
+    x = est.x[:, burn:][est.exists[:, burn:]].reshape(B, K - burn, 2)
+    phd = (x - truth[:, burn:, 0]).pow(2).mean((0, 1)).sqrt()
+    kf = kalman_rmse(z[:, :, 0], truth[:, :, 0], burn)
+    assert bool((phd <= 1.2 * kf).all()), (phd, kf)
+
+
+def test_the_expected_number_equals_the_sum_of_weights_after_every_step():
+    """The recursion's count (births added, Pd / clutter update per detection partition, kept by
+    resampling) against the particle weights; float64 sums of ~1e5 terms agree to ~1e-11."""
+    g = torch.Generator().manual_seed(2)
+    truth = cv_truth(torch.tensor([[15_000.0, 50.0], [30_000.0, -120.0], [45_000.0, 10.0]], dtype=torch.float64), 3, 25, g)
+    z, valid = detections(truth, 0.8, 6, g)
+    f = SMCPHD(PHDSpec(particles_per_target=500, particles_per_birth=100), SD, 0.8, kappa(6), 1.0)
+    st = f.empty(3)
+    for k in range(25):
+        for step in ("predict", "update", "resample"):
+            if step == "predict":
+                st = f.predict(st, z[:, k - 1] if k else None, valid[:, k - 1] if k else None, g)
+            elif step == "update":
+                st = f.update(st, z[:, k], valid[:, k])[0]
+            else:
+                st = f.resample(st, g)
+            total = st.w.sum(1)
+            assert torch.allclose(total, st.expected, rtol=1e-9, atol=0.0), (k, step, total, st.expected)
+    assert float(st.expected.min()) > 1.5  # the check ran on a populated PHD
+
+
+def test_the_update_weights_match_a_direct_evaluation_of_the_update_equation():
+    x = torch.tensor([[[20_000.0, 10.0], [20_040.0, 12.0], [20_100.0, 3.0]]], dtype=torch.float64)
+    w = torch.tensor([[0.3, 0.5, 0.2]], dtype=torch.float64)
+    z = torch.tensor([[[20_020.0, 8.0], [20_090.0, 5.0], [0.0, 0.0]]], dtype=torch.float64)
+    valid = torch.tensor([[True, True, False]])
+    pd, kap = 0.7, 1e-5
+    f = SMCPHD(PHDSpec(), SD, pd, kap, 1.0)
+    new, part_x, part_w = f.update(PHDState(x, w, w.sum(1)), z, valid)
+
+    def g(zj, xi):
+        return math.exp(-0.5 * sum(((zj[d] - xi[d]) / float(SD[d])) ** 2 for d in range(2))) / (
+            2 * math.pi * float(SD.prod()))
+
+    xs, ws, zs = x[0].tolist(), w[0].tolist(), z[0, :2].tolist()
+    denom = [kap + sum(pd * g(zj, xl) * wl for xl, wl in zip(xs, ws)) for zj in zs]
+    direct = [(1 - pd) * wi + sum(pd * g(zj, xi) * wi / dj for zj, dj in zip(zs, denom)) for xi, wi in zip(xs, ws)]
+    # the exponent is formed as |x|^2 + |z|^2 - 2 x.z in units of the deviations: ~|x / sd|^2 eps ~ 1e-10
+    assert torch.allclose(new.w[0], torch.tensor(direct, dtype=torch.float64), rtol=1e-8, atol=0.0)
+    taken = [sum(pd * g(zj, xi) * wi for xi, wi in zip(xs, ws)) / dj for zj, dj in zip(zs, denom)]
+    assert torch.allclose(part_w[0, :2], torch.tensor(taken, dtype=torch.float64), rtol=1e-8)
+    assert float(part_w[0, 2]) < 0  # padding is no partition
+
+
+def test_bad_settings_and_detections_are_refused_with_one_line():
+    for kwargs, text in (({"particles_per_target": 9}, "at least 10"), ({"particles_per_birth": 5}, "at least 10"),
+                         ({"birth_rate": 0.0}, "no mass"), ({"survival": 1.5}, "survival")):
+        with pytest.raises(ConfigError, match=text):
+            PHDSpec(**kwargs)
+    for forgetting in (0.0, 1.01, float("nan")):
+        with pytest.raises(ConfigError, match="forgetting factor"):
+            GameSpec(forgetting=forgetting)
+    z = torch.zeros(1, 3, 2, 2, dtype=torch.float64)
+    z[0, 1, 0, 1] = float("nan")
+    valid = torch.ones(1, 3, 2, dtype=torch.bool)
+    with pytest.raises(ConfigError, match="detection 0 of scan 1 .* not finite"):
+        SMCPHD(PHDSpec(), SD, 0.9, 1e-9, 1.0).run(z, valid, torch.Generator())
+    valid[0, 1, 0] = False  # a NaN in padding is fine
+    SMCPHD(PHDSpec(particles_per_target=20, particles_per_birth=10), SD, 0.9, 1e-9, 1.0).run(z, valid, torch.Generator())
+
+
+def test_gtda_with_one_player_and_one_strategy_is_the_identity():
+    g = torch.Generator().manual_seed(0)
+    one = torch.ones(1, 1, dtype=torch.bool)
+    res = play(torch.tensor([[[3.0]]], dtype=torch.float64), one, one, 13.8, GameSpec(), g)
+    assert res.choice.tolist() == [[0]] and res.rounds == 1 and int(res.repaired.sum()) == 0
+    res = play(torch.tensor([[[30.0]]], dtype=torch.float64), one, one, 13.8, GameSpec(), g)  # outside the gate
+    assert res.choice.tolist() == [[-1]]
+
+
+def test_gtda_resolves_a_contested_estimate_and_never_leaves_a_conflict():
+    g = torch.Generator().manual_seed(3)
+    # two players want estimate 0; player 1 has a good alternative (estimate 1), player 0 has none
+    d2 = torch.tensor([[[1.0, 12.0], [2.0, 3.0]]], dtype=torch.float64)
+    ok = torch.ones(1, 2, dtype=torch.bool)
+    res = play(d2, ok, ok, 13.8, GameSpec(), g)
+    assert res.choice.tolist() == [[0, 1]]
+    # random problems: every estimate goes to at most one player, only inside the gate
+    B, P, T = 200, 4, 4
+    d2 = torch.rand(B, P, T, generator=g, dtype=torch.float64) * 20
+    res = play(d2, torch.ones(B, P, dtype=torch.bool), torch.ones(B, T, dtype=torch.bool), 13.8, GameSpec(), g)
+    c = res.choice
+    for b in range(B):
+        taken = [v for v in c[b].tolist() if v >= 0]
+        assert len(taken) == len(set(taken))
+        assert all(float(d2[b, p, v]) < 13.8 for p, v in enumerate(c[b].tolist()) if v >= 0)
+
+
+def test_resolve_conflicts_keeps_the_nearest_player():
+    d2 = torch.tensor([[[5.0], [2.0], [9.0]]], dtype=torch.float64)
+    choice, repaired = resolve_conflicts(torch.tensor([[0, 0, 0]]), d2)
+    assert choice.tolist() == [[-1, 0, -1]] and repaired.tolist() == [2]
+
+
+def test_hungarian_is_the_brute_force_optimum_with_a_null_option():
+    g = torch.Generator().manual_seed(4)
+    gate = 10.0
+    for _ in range(30):
+        P, T = int(torch.randint(1, 4, (1,), generator=g)), int(torch.randint(1, 4, (1,), generator=g))
+        d2 = torch.rand(1, P, T, generator=g, dtype=torch.float64) * 15
+        choice = hungarian(d2, torch.ones(1, P, dtype=torch.bool), torch.ones(1, T, dtype=torch.bool), gate)[0].tolist()
+        cost = lambda ch: sum(float(d2[0, p, c]) if c >= 0 else gate for p, c in enumerate(ch))
+        best = min(cost(ch) for ch in itertools.product(range(-1, T), repeat=P)
+                   if len([c for c in ch if c >= 0]) == len({c for c in ch if c >= 0})
+                   and all(c < 0 or float(d2[0, p, c]) < gate for p, c in enumerate(ch)))
+        assert abs(cost(choice) - best) < 1e-12
+
+
+@pytest.mark.parametrize("method", ["gtda", "hungarian"])
+def test_two_well_separated_targets_never_switch_labels(method):
+    g = torch.Generator().manual_seed(5)
+    B, K = 30, 80
+    truth = cv_truth(torch.tensor([[20_000.0, 100.0], [38_000.0, -100.0]], dtype=torch.float64), B, K, g, sigma=2.0)
+    # no clutter: a clutter point next to a target takes part of its PHD mass and can make a second
+    # estimate beside it for a scan, which the OSPA assignment may match instead of the held track
+    z, valid = detections(truth, 0.9, 0, g)
+    f = SMCPHD(PHDSpec(particles_per_target=1000, particles_per_birth=200), SD, 0.9, kappa(0), 1.0)
+    est = f.run(z, valid, g)
+    lab = label_tracks(est.x, est.P, est.exists, f.F, f.Q, LabelSpec(method=method), g)
+    mask = torch.ones(B, K, 2, dtype=torch.bool)
+    sc = set_scores(torch.nan_to_num(lab.x[..., :1]), lab.exists, truth[..., :1], mask, 1000.0, 2.0)
+    assert int(label_switches(sc.assignment, mask).sum()) == 0
+    after = sc.assignment[:, 5:]  # both targets held by a track on nearly every scan after the start
+    assert float((after >= 0).sum(-1).double().mean()) > 1.9
+
+
+def test_fragmentations_count_interrupted_and_resumed_coverage():
+    a = torch.tensor([[[0], [-1], [0], [0], [-1], [-1]]])
+    alive = torch.ones(1, 6, 1, dtype=torch.bool)
+    assert fragmentations(a, alive).tolist() == [[1]]  # the gap at scan 1; the loss at the end never resumes
+    assert label_switches(a, alive).tolist() == [[0]]
+    alive[0, 1, 0] = False  # not a fragmentation while the target is absent
+    assert fragmentations(a, alive).tolist() == [[0]]
+
+
+def test_an_aircraft_flies_its_legs_climbs_and_is_sampled_as_cv_states():
+    a = AircraftSpec("a", (1000.0, 2000.0), 500.0, 100.0, 0.0, (LegSpec(10.0, climb_mps=5.0), LegSpec(5.0)), birth_s=2.0)
+    x, flying = fly(a, 20, 1.0)
+    assert flying.tolist() == [False] * 2 + [True] * 16 + [False] * 2
+    assert torch.allclose(x[12], torch.tensor([1000.0, 0.0, 3000.0, 100.0, 550.0, 0.0], dtype=torch.float64), atol=1e-9)
+    assert torch.allclose(x[5, 4], torch.tensor(515.0, dtype=torch.float64)) and float(x[5, 5]) == 5.0
+
+
+TINY = """\
+kind: phd
+name: phd_tiny
+mc_runs: 2
+block_runs: 2
+duration_s: 40
+phd: {particles_per_target: 200, particles_per_birth: 50}
+methods: [{name: g, labelling: gtda}, {name: h, labelling: hungarian}]
+cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]
+aircraft:
+  - {name: over, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0, legs: [{duration_s: 40}]}
+  - {name: turn, start_m: [-9000.0, 9000.0], altitude_m: 800.0, speed_mps: 80.0, heading_deg: 90.0, birth_s: 10.0,
+     legs: [{duration_s: 30, across_mps2: 2.0}]}
+"""
+
+
+def test_the_study_writes_results_report_and_figures(tmp_path):
+    from pmsr_nn.cli import main
+
+    (tmp_path / "s.yaml").write_text(TINY)
+    assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert res["kind"] == "phd" and set(res["cases"]) == {"base", "noisy", "pd1"}
+    rows = res["cases"]["pd1"]["methods"]
+    assert set(rows) == {"smcphd", "g", "h"} and rows["g"]["kind"] == "SMC-PHD + GTDA"
+    true = np.asarray(res["cases"]["base"]["true_cardinality"])
+    assert true[0] == 1 and true[-1] == 2  # the second aircraft is born at 10 s
+    assert len(rows["g"]["label_switches_per_target"]) == 2
+    assert 0 < rows["smcphd"]["rms_range_m"] < 100  # 30 m detections, a well-seen pair of aircraft
+    report = (tmp_path / "out" / "report.md").read_text()
+    for f in ("base_smcphd_rr.png", "base_g_time.png", "base_cardinality.png", "noisy_ospa.png", "sweep_clutter.png"):
+        assert (tmp_path / "out" / f).is_file() and f in report
+
+
+def test_the_study_refuses_a_shard_and_unknown_options(tmp_path):
+    from pmsr_nn.harness.evaluate import evaluate
+
+    (tmp_path / "s.yaml").write_text(TINY)
+    with pytest.raises(ConfigError, match="unsharded"):
+        evaluate(tmp_path / "s.yaml", tmp_path / "out", shard=(1, 2), progress=False)
+    (tmp_path / "t.yaml").write_text(TINY.replace("labelling: gtda}", "labelling: gtda, options: {colour: 1}}"))
+    with pytest.raises(ConfigError, match="unknown option"):
+        evaluate(tmp_path / "t.yaml", tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_detections_csv_is_read_and_bad_rows_are_refused_with_their_line(tmp_path):
+    from pmsr_nn.harness.phd_study import read_detections_csv
+
+    f = tmp_path / "d.csv"
+    f.write_text("scan,range_m,range_rate_mps\n0,20000,10\n0,30000,-5.5\n2,21000,11\n")
+    z, valid = read_detections_csv(f, 4)
+    assert z.shape == (4, 2, 2) and valid.sum(1).tolist() == [2, 0, 1, 0]
+    assert z[0, 1].tolist() == [30000.0, -5.5] and bool(z[2, 1].isnan().all())
+    for text, message in (("scan,range_m,range_rate_mps\n0,20000,nan\n", "line 2: range_rate_mps is not a finite"),
+                          ("scan,range_m,range_rate_mps\n0,1,2\n9,20000,1\n", "line 3: scan 9 is outside"),
+                          ("scan,range,rate\n", "header scan,range_m,range_rate_mps"),
+                          ("scan,range_m,range_rate_mps\n0,x,1\n", "line 2: .* is not an integer scan")):
+        f.write_text(text)
+        with pytest.raises(ConfigError, match=message):
+            read_detections_csv(f, 4)
+
+
+def test_a_case_can_read_its_detections_from_a_csv_file(tmp_path):
+    from pmsr_nn.cli import main
+
+    lines = ["scan,range_m,range_rate_mps"] + [f"{k},{20000 + 50 * k},50" for k in range(40)]
+    (tmp_path / "d.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "s.yaml").write_text(TINY.replace("cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
+                                                  "cases: [{name: rec, detections_csv: d.csv}]"))
+    assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    case = res["cases"]["rec"]
+    assert case["detections"].endswith("d.csv")
+    phd = case["methods"]["smcphd"]
+    # one detection per scan on a straight line: one estimate per scan once the birth has been seen
+    assert phd["cardinality"][5:] == [1.0] * 35
+
+
+def test_a_case_can_take_its_detections_from_the_fm_front_end(tmp_path):
+    from pmsr_nn.cli import main
+
+    text = TINY.replace("duration_s: 40", "duration_s: 4").replace(
+        "cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
+        "cases: [{name: sig, signals: true, noise: {range_m: 200.0, range_rate_mps: 0.3}}]\n"
+        "front_end: {signal: {sample_rate_hz: 320000.0, cpi_s: 1.0}, max_range_m: 48000.0}")
+    text = text[: text.index("  - {name: turn")]  # one aircraft, seen from the first scan
+    (tmp_path / "s.yaml").write_text(text)
+    assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    case = json.loads((tmp_path / "out" / "results.json").read_text())["cases"]["sig"]
+    assert case["detections"] == "signals" and case["front_end"]["cpis"] == 2 * 4  # two runs of four scans
+    assert case["front_end"]["pd_measured"] > 0.5
+    assert "FM front end" in (tmp_path / "out" / "report.md").read_text()
