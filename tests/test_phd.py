@@ -246,7 +246,9 @@ def test_the_study_writes_results_report_and_figures(tmp_path):
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     assert res["kind"] == "phd" and set(res["cases"]) == {"base", "noisy", "pd1"}
     rows = res["cases"]["pd1"]["methods"]
-    assert set(rows) == {"smcphd", "g", "h"} and rows["g"]["kind"] == "SMC-PHD + GTDA"
+    assert set(rows) == {"smcphd", "known_association_kf", "g", "h"} and rows["g"]["kind"] == "SMC-PHD + GTDA"
+    known = rows["known_association_kf"]  # association and births known, Pd 1: a track on every aircraft, always
+    assert known["mean_abs_cardinality_error"] == 0.0 and known["rms_range_m"] < 30.0  # below one detection's error
     true = np.asarray(res["cases"]["base"]["true_cardinality"])
     assert true[0] == 1 and true[-1] == 2  # the second aircraft is born at 10 s
     assert len(rows["g"]["label_switches_per_target"]) == 2

@@ -143,9 +143,9 @@ def _sweeps(res: dict, out: Path) -> list[str]:
         if len({c[key] for c in cases}) < 2:
             continue
         xs = [c[key] for c in cases]
-        methods = [n for n in cases[0]["methods"] if n != PHD]
+        methods = [n for n, r in cases[0]["methods"].items() if "label_switches_per_run" in r]
         fig, axes = plt.subplots(1, 3, figsize=(14, 4.0))
-        for n in [PHD] + methods:
+        for n in [n for n in cases[0]["methods"] if all(n in c["methods"] for c in cases)]:
             axes[0].plot(xs, [c["methods"][n]["ospa_mean_m"] for c in cases], marker="o",
                          label="PHD estimates" if n == PHD else n)
         for n in methods:
@@ -209,13 +209,12 @@ def write_phd_report(res: dict, setup, examples: dict, out: Path) -> None:
         lines += ["| method | OSPA m | GOSPA m | abs. card. error | RMS range m | RMS range-rate m/s | label switches / run | "
                   "fragmentations / run | labels / run | s / run |", "|---|---|---|---|---|---|---|---|---|---|"]
         for n, r in m.items():
-            lab = n != PHD
-            lines.append(f"| {'SMC-PHD estimates (unlabelled)' if not lab else r['kind']} | {r['ospa_mean_m']:.0f} | "
+            lines.append(f"| {r['kind']} | {r['ospa_mean_m']:.0f} | "
                          f"{r['gospa_mean_m']:.0f} | {r['mean_abs_cardinality_error']:.2f} | {_fmt(r['rms_range_m'])} | "
                          f"{_fmt(r['rms_range_rate_mps'], 2)} | {_fmt(r.get('label_switches_per_run'), 2)} | "
                          f"{_fmt(r.get('fragmentations_per_run'), 2)} | {_fmt(r.get('labels_per_run'), 1)} | "
                          f"{r['seconds_per_run']:.2f} |")
-        labelled = [n for n in m if n != PHD]
+        labelled = [n for n, r in m.items() if "label_switches_per_target" in r]
         lines += ["", "Per aircraft, mean over runs: label switches / fragmentations", "",
                   "| aircraft | " + " | ".join(labelled) + " |", "|---|" + "---|" * len(labelled)]
         for i, a in enumerate(names):

@@ -53,6 +53,9 @@ from .scenario import SetMetricSpec
 PHD = "smcphd"
 """The name of the unlabelled PHD estimates in the results (a row beside the labelled methods)."""
 
+KNOWN = "known_association_kf"
+"""The reference row: a Kalman filter per aircraft on exactly its own detections, births known."""
+
 
 @dataclass(frozen=True)
 class PHDMethodSpec:
@@ -65,8 +68,8 @@ class PHDMethodSpec:
     options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        require(bool(self.name) and "/" not in self.name and self.name != PHD,
-                f"method name {self.name!r} must be non-empty, without '/', and not {PHD!r}")
+        require(bool(self.name) and "/" not in self.name and self.name not in (PHD, KNOWN),
+                f"method name {self.name!r} must be non-empty, without '/', and not {PHD!r} or {KNOWN!r}")
 
 
 @dataclass(frozen=True)
@@ -288,13 +291,46 @@ class PHDSetup:
     recorded: dict[str, tuple[torch.Tensor, torch.Tensor]] = field(default_factory=dict)
 
 
+def known_association_kf(z: torch.Tensor, origin: torch.Tensor, N: int, F: torch.Tensor, Q: torch.Tensor,
+                         R: torch.Tensor, alive: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The reference of what association can reach: per run and aircraft, the exact Kalman filter
+    (the PHD's CV model, ``H = I``) on exactly the detections that aircraft caused (``origin``),
+    started at its first detection (births known). ``z (B, K, J, 2)``, ``origin (B, K, J)``;
+    returns ``x (B, K, N, 2)``, ``P (B, K, N, 2, 2)`` and ``exists (B, K, N)`` (alive and started)."""
+    B, K, J, _ = z.shape
+    own = torch.full((B, K, N, 2), float("nan"), dtype=torch.float64)
+    b, k, j = torch.nonzero(origin >= 0, as_tuple=True)
+    own[b, k, origin[b, k, j]] = z[b, k, j].to(torch.float64)
+    x = torch.zeros(B, N, 2, dtype=torch.float64)
+    P = R.expand(B, N, 2, 2).clone()
+    started = torch.zeros(B, N, dtype=torch.bool)
+    xs, Ps, ex = [], [], []
+    eye = torch.eye(2, dtype=torch.float64)
+    for k in range(K):
+        x, P = x @ F.T, F @ P @ F.T + Q
+        zk = own[:, k]
+        seen = torch.isfinite(zk).all(-1)
+        Kg = P @ torch.linalg.inv(P + R)
+        xu = x + (Kg @ (torch.nan_to_num(zk) - x)[..., None])[..., 0]
+        Pu = (eye - Kg) @ P
+        first = seen & ~started  # the first detection starts the filter
+        x = torch.where(first[..., None], torch.nan_to_num(zk), torch.where(seen[..., None], xu, x))
+        P = torch.where(first[..., None, None], R, torch.where(seen[..., None, None], Pu, P))
+        started = (started | seen) & alive[k]
+        xs.append(x)
+        Ps.append(P)
+        ex.append(started.clone())
+    return torch.stack(xs, 1), torch.stack(Ps, 1), torch.stack(ex, 1)
+
+
 def case_detections(setup: PHDSetup, c: PHDCaseSpec, b: int, g: torch.Generator):
-    """``(z (b, K, J, 2), valid (b, K, J), front-end record or None)`` of a block of ``b`` runs:
-    read from the case's file, simulated from the model, or measured by the signal chain."""
+    """``(z (b, K, J, 2), valid (b, K, J), origin (b, K, J) or None, front-end record or None)`` of a
+    block of ``b`` runs: read from the case's file, simulated from the model (with each detection's
+    origin), or measured by the signal chain."""
     sc = setup.scenario
     if c.name in setup.recorded:
         z, valid = (v.expand(b, *v.shape) for v in setup.recorded[c.name])
-        return z, valid, None
+        return z, valid, None, None
     x = setup.x.expand(b, *setup.x.shape)
     model = setup.models[c.name]
     if c.signals:
@@ -303,10 +339,10 @@ def case_detections(setup: PHDSetup, c: PHDCaseSpec, b: int, g: torch.Generator)
         scans, record = front_end_scans(x, setup.alive, model, sc.front_end, g, progress=False)
         z = scans.z[:, :, 0].clone()
         z[..., 1] = -z[..., 1] * SPEED_OF_LIGHT / sc.geometry.transmitters[0].carrier_hz  # Doppler (Hz) -> m/s
-        return z, scans.valid[:, :, 0], record
+        return z, scans.valid[:, :, 0], None, record
     pd, clutter, _ = sc.case_settings(c)
     scans = simulate_scans(x, model, pd, clutter, g, setup.alive)
-    return scans.z[:, :, 0], scans.valid[:, :, 0], None
+    return scans.z[:, :, 0], scans.valid[:, :, 0], scans.origin[:, :, 0], None
 
 
 def prepare_phd(sc: PHDScenario) -> PHDSetup:
@@ -395,7 +431,7 @@ def run_phd(setup: PHDSetup, progress: bool = True) -> tuple[dict, dict]:
             for block in range(sc.n_blocks):
                 b = len(sc.block_runs_range(block))
                 g = seeded_generator(sc.seed, ci, block)
-                z, valid, record = case_detections(setup, c, b, g)
+                z, valid, origin, record = case_detections(setup, c, b, g)
                 if record is not None:
                     fe = front_end_sums.setdefault(c.name, {})
                     for q, v in record.sums.items():
@@ -413,6 +449,15 @@ def run_phd(setup: PHDSetup, progress: bool = True) -> tuple[dict, dict]:
                 if block == 0:
                     ex = examples.setdefault(c.name, {"z": z[0].numpy(), "valid": valid[0].numpy(), "tracks": {},
                                                       "phd": (est.x[0].numpy(), est.exists[0].numpy())})
+                if origin is not None:
+                    t0 = time.perf_counter()
+                    kx, kP, kex = known_association_kf(z, origin, setup.alive.shape[1], phd.F, phd.Q,
+                                                       torch.diag(sd**2), setup.alive)
+                    per = sums[c.name].setdefault(KNOWN, {"seconds": 0.0})
+                    _add(per, set_sums(kx, kex, setup.z, setup.alive, c_m, p, labelled=False))
+                    per["seconds"] += time.perf_counter() - t0
+                    if ex is not None:
+                        ex["tracks"][KNOWN] = (kx[0].numpy(), kex[0].numpy())
                 for m in sc.methods:
                     t0 = time.perf_counter()
                     lab = label_tracks(est.x, est.P, est.exists, phd.F, phd.Q, setup.labels[m.name],
@@ -464,6 +509,9 @@ def finalise_phd(setup: PHDSetup, sums: dict) -> dict:
             if name == PHD:
                 row.update(kind="SMC-PHD estimates (unlabelled)", expected=(s["expected"] / R).tolist(),
                            particles_mean=float(np.mean(s["particles"] / R)), seconds_per_run=float(s["seconds"] / R))
+            elif name == KNOWN:
+                row.update(kind="reference: Kalman filter per aircraft on its own detections, births known",
+                           seconds_per_run=float(s["seconds"] / R))
             else:
                 spec = setup.labels[name]
                 row.update(kind=f"SMC-PHD + {'GTDA' if spec.method == 'gtda' else 'Hungarian'}", labelling=to_dict(spec),
@@ -502,6 +550,10 @@ DEFINITIONS = {
     "fragmentations_per_target": "per aircraft: how often its matched coverage is interrupted and resumed later "
                                  "(CLEAR MOT fragmentation), mean over runs",
     "labels_per_run": "labels (tracks) started in a run; the ideal is the number of aircraft",
+    KNOWN: "the floor of what association can reach with the same motion model: an exact Kalman filter per aircraft "
+           "on exactly its own detections, started at its first detection (simulated detections only; the seed's "
+           "S-MSJPDA reference does not apply: one pair's range and range-rate do not fix the Cartesian state it "
+           "tracks)",
     "expected": "per scan: the PHD's integral (sum of the particle weights) after the update, mean over runs",
     "seconds_per_run": "wall-clock seconds per Monte Carlo run on this machine: the PHD filter, plus the labelling "
                        "for the labelled rows",
