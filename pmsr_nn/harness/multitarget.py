@@ -34,7 +34,7 @@ from ..simulation.detections import ClutterSpec
 from ..simulation.products import DesignedTruth, SampledTruth, SensorSetup
 from ..simulation.recipe import GeometrySpec, ReceiverSpec, TransmitterSpec
 from .runner import DEFINITIONS, Case, LossRule, Setup
-from .scenario import MethodSpec, SetMetricSpec
+from .scenario import MethodSpec, SetMetricSpec, StudyFile
 
 @dataclass(frozen=True)
 class FormationSpec:
@@ -211,7 +211,7 @@ evaluate/access2019_msjpda.yaml)."""
 
 
 @dataclass(frozen=True)
-class MultiTargetScenario:
+class MultiTargetScenario(StudyFile):
     name: str
     cases: tuple[MTCaseSpec, ...]
     methods: tuple[MTMethodSpec, ...]
@@ -277,24 +277,6 @@ class MultiTargetScenario:
         if self.initial_states:
             return torch.tensor([t.state() for t in self.initial_states], dtype=torch.float64)
         return self.targets.initial_states(spacing_m)
-
-    @property
-    def n_blocks(self) -> int:
-        return math.ceil(self.mc_runs / self.block_runs)
-
-    def block_runs_range(self, block: int) -> range:
-        return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
-
-    def with_mc_runs(self, mc_runs: int | None) -> "MultiTargetScenario":
-        if mc_runs is None:
-            return self
-        new = dataclasses.replace(self, mc_runs=mc_runs)
-        object.__setattr__(new, "base_dir", self.base_dir)
-        return new
-
-    def path(self, relative: str) -> Path:
-        p = Path(relative).expanduser()
-        return p if p.is_absolute() else Path(self.base_dir) / p
 
     def case_settings(self, case: MTCaseSpec) -> tuple[float, ClutterSpec, float]:
         """``(pd, clutter, spacing_m)`` of a case."""

@@ -102,33 +102,30 @@ def _example_figures(out: Path, cname: str, case: dict, setup, ex: dict) -> list
     return names
 
 
-def _time_figures(out: Path, cname: str, case: dict, dt: float) -> list[str]:
+def _time_figure(path: Path, t: np.ndarray, series: dict, ylabel: str, title: str, thick: str | None = None) -> None:
     plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    for name, y in series.items():
+        ax.plot(t, y, color="k" if name == thick else None, lw=2 if name == thick else 1, label=name)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    _legend_outside(ax)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _time_figures(out: Path, cname: str, case: dict, dt: float) -> list[str]:
     m = case["methods"]
-    true = np.asarray(case["true_cardinality"])
-    t = np.arange(len(true)) * dt
-    fig, ax = plt.subplots(figsize=(9, 4.2))
-    ax.plot(t, true, color="k", lw=2, label="true")
-    ax.plot(t, m[PHD]["expected"], lw=1, label="PHD integral (sum of weights)")
-    for n, r in m.items():
-        ax.plot(t, r["cardinality"], lw=1, label="PHD estimates" if n == PHD else f"{n} tracks")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("number of targets (mean over runs)")
-    ax.set_title(f"{case['title']}: cardinality", fontsize=10)
-    _legend_outside(ax)
-    fig.tight_layout()
-    fig.savefig(out / f"{cname}_cardinality.png", dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 4.2))
-    for n, r in m.items():
-        ax.plot(t, r["ospa_m"], lw=1, label="PHD estimates" if n == PHD else n)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("OSPA on bistatic range (m)")
-    ax.set_title(f"{case['title']}: OSPA, mean over runs", fontsize=10)
-    _legend_outside(ax)
-    fig.tight_layout()
-    fig.savefig(out / f"{cname}_ospa.png", dpi=110)
-    plt.close(fig)
+    t = np.arange(len(case["true_cardinality"])) * dt
+    label = lambda n: "PHD estimates" if n == PHD else f"{n} tracks"
+    _time_figure(out / f"{cname}_cardinality.png", t,
+                 {"true": case["true_cardinality"], "PHD integral (sum of weights)": m[PHD]["expected"],
+                  **{label(n): r["cardinality"] for n, r in m.items()}},
+                 "number of targets (mean over runs)", f"{case['title']}: cardinality", thick="true")
+    _time_figure(out / f"{cname}_ospa.png", t, {label(n): r["ospa_m"] for n, r in m.items()},
+                 "OSPA on bistatic range (m)", f"{case['title']}: OSPA, mean over runs")
     return [f"{cname}_cardinality.png", f"{cname}_ospa.png"]
 
 

@@ -48,7 +48,7 @@ from ..simulation.recipe import GeometrySpec, ReceiverSpec, TransmitterSpec
 from ..trackers.gtda import GameSpec
 from ..trackers.labelling import LabelSpec, label_tracks
 from ..trackers.phd import PHDSpec, SMCPHD
-from .scenario import SetMetricSpec
+from .scenario import SetMetricSpec, StudyFile
 
 PHD = "smcphd"
 """The name of the unlabelled PHD estimates in the results (a row beside the labelled methods)."""
@@ -172,7 +172,7 @@ DEFAULT_CLUTTER = ClutterSpec(per_scan=10.0, model="poisson", range_m=(6500.0, 4
 
 
 @dataclass(frozen=True)
-class PHDScenario:
+class PHDScenario(StudyFile):
     name: str
     aircraft: tuple[AircraftSpec, ...]
     cases: tuple[PHDCaseSpec, ...]
@@ -222,26 +222,8 @@ class PHDScenario:
     def scans(self) -> int:
         return int(math.floor(self.duration_s / self.dt_s + 1e-9))
 
-    @property
-    def n_blocks(self) -> int:
-        return math.ceil(self.mc_runs / self.block_runs)
-
-    def block_runs_range(self, block: int) -> range:
-        return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
-
-    def with_mc_runs(self, mc_runs: int | None) -> "PHDScenario":
-        if mc_runs is None:
-            return self
-        new = dataclasses.replace(self, mc_runs=mc_runs)
-        object.__setattr__(new, "base_dir", self.base_dir)
-        return new
-
     def with_checkpoints(self, checkpoints):
         raise ConfigError("an SMC-PHD study has no learned methods: --checkpoint does not apply")
-
-    def path(self, relative: str) -> Path:
-        p = Path(relative).expanduser()
-        return p if p.is_absolute() else Path(self.base_dir) / p
 
     def label_spec(self, m: PHDMethodSpec) -> LabelSpec:
         """The study's labelling settings with the method's options (checked like the YAML)."""
@@ -485,7 +467,7 @@ def _mean(v, n):
 
 def finalise_phd(setup: PHDSetup, sums: dict) -> dict:
     sc = setup.scenario
-    R, K = sc.mc_runs, sc.scans
+    R = sc.mc_runs
     alive = setup.alive.numpy()
     true_card = alive.sum(1).astype(float)
     p = sc.set_metrics.p

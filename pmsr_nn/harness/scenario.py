@@ -290,8 +290,33 @@ class ReferenceSpec:
     label: str = "paper"
 
 
+class StudyFile:
+    """What every scenario kind shares (fields ``mc_runs``, ``block_runs``, ``base_dir``): Monte
+    Carlo runs in blocks of ``block_runs``, paths relative to the YAML file's folder."""
+
+    def path(self, relative: str) -> Path:
+        """``relative`` resolved against the scenario file's folder (absolute paths unchanged)."""
+        p = Path(relative).expanduser()
+        return p if p.is_absolute() else Path(self.base_dir) / p
+
+    @property
+    def n_blocks(self) -> int:
+        return math.ceil(self.mc_runs / self.block_runs)
+
+    def block_runs_range(self, block: int) -> range:
+        return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
+
+    def with_mc_runs(self, mc_runs: int | None):
+        """The same study with ``mc_runs`` runs (``None``: unchanged)."""
+        if mc_runs is None:
+            return self
+        new = dataclasses.replace(self, mc_runs=mc_runs)
+        object.__setattr__(new, "base_dir", self.base_dir)
+        return new
+
+
 @dataclass(frozen=True)
-class Scenario:
+class Scenario(StudyFile):
     name: str
     cases: tuple[CaseSpec, ...]
     methods: tuple[MethodSpec, ...]
@@ -349,18 +374,6 @@ class Scenario:
                 points *= len(self.tuning.grid(key))
             require(points <= MAX_TUNING_POINTS, f"method {m.name!r}: {points} grid points to try, more than "
                                                  f"{MAX_TUNING_POINTS}; use smaller grids")
-
-    def path(self, relative: str) -> Path:
-        """``relative`` resolved against the scenario file's folder (absolute paths unchanged)."""
-        p = Path(relative).expanduser()
-        return p if p.is_absolute() else Path(self.base_dir) / p
-
-    @property
-    def n_blocks(self) -> int:
-        return math.ceil(self.mc_runs / self.block_runs)
-
-    def block_runs_range(self, block: int) -> range:
-        return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
 
     def with_mc_runs(self, mc_runs: int | None) -> "Scenario":
         if mc_runs is None:

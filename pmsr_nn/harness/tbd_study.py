@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 import zlib
 from dataclasses import dataclass, field
@@ -42,6 +41,7 @@ from ..tbd.maps import power_ratio
 from ..tbd.multibernoulli import MBSpec
 from ..tbd.run import run_filter
 from ..tbd.scene import TBDScene, make_rd_maps
+from .scenario import StudyFile
 
 
 @dataclass(frozen=True)
@@ -79,7 +79,7 @@ class TBDReferenceSpec:
 
 
 @dataclass(frozen=True)
-class TBDScenario:
+class TBDScenario(StudyFile):
     name: str
     scene: TBDScene
     cases: tuple[TBDCaseSpec, ...]
@@ -111,26 +111,8 @@ class TBDScenario:
             require(c.snr_db is None or len(c.snr_db) == self.scene.P,
                     f"case {c.name!r}: snr_db needs one value per satellite ({self.scene.P})")
 
-    @property
-    def n_blocks(self) -> int:
-        return math.ceil(self.mc_runs / self.block_runs)
-
-    def block_runs_range(self, block: int) -> range:
-        return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
-
-    def with_mc_runs(self, mc_runs: int | None) -> "TBDScenario":
-        if mc_runs is None:
-            return self
-        new = dataclasses.replace(self, mc_runs=mc_runs)
-        object.__setattr__(new, "base_dir", self.base_dir)
-        return new
-
     def with_checkpoints(self, checkpoints):
         raise ConfigError("a track-before-detect study has no learned methods: --checkpoint does not apply")
-
-    def path(self, relative: str) -> Path:
-        p = Path(relative).expanduser()
-        return p if p.is_absolute() else Path(self.base_dir) / p
 
     def method_spec(self, m: TBDMethodSpec) -> MBSpec:
         """The study's filter settings with the method's overrides (checked like the YAML)."""
