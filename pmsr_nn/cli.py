@@ -424,8 +424,8 @@ def print_tbd_summary(res: dict) -> None:
 def print_phd_summary(res: dict) -> None:
     """An SMC-PHD study's table per case."""
     for case in res["cases"].values():
-        print(f"\n{case['title']} (Pd {case['pd']:g}, {case['clutter_per_scan']:g} clutter points per scan; OSPA on "
-              "bistatic range)")
+        print(f"\n{case['title']} ({case['detections']} detections; the filter's Pd {case['pd']:g}, "
+              f"{case['clutter_per_scan']:g} clutter points per scan; OSPA on bistatic range)")
         print(f"  {'method':<34} {'OSPA m':>7} {'|card err|':>10} {'RMS r m':>8} {'switches/run':>12} "
               f"{'frag./run':>9} {'labels/run':>10} {'s/run':>6}")
         for n, r in case["methods"].items():

@@ -141,17 +141,22 @@ def _sweeps(res: dict, out: Path) -> list[str]:
             continue
         xs = [c[key] for c in cases]
         methods = [n for n, r in cases[0]["methods"].items() if "label_switches_per_run" in r]
+        every = [n for n in cases[0]["methods"] if all(n in c["methods"] for c in cases)]
+        colour = {n: plt.get_cmap("tab10")(i % 10) for i, n in enumerate(every)}  # one colour per method, every panel
+        style = {n: "--" if n in methods[1:] else "-" for n in every}  # labellings that coincide stay visible
         fig, axes = plt.subplots(1, 3, figsize=(14, 4.0))
-        for n in [n for n in cases[0]["methods"] if all(n in c["methods"] for c in cases)]:
-            axes[0].plot(xs, [c["methods"][n]["ospa_mean_m"] for c in cases], marker="o",
-                         label="PHD estimates" if n == PHD else n)
+        for n in every:
+            axes[0].plot(xs, [c["methods"][n]["ospa_mean_m"] for c in cases], marker="o", color=colour[n],
+                         ls=style[n], label="PHD estimates" if n == PHD else n)
         for n in methods:
-            axes[1].plot(xs, [c["methods"][n]["label_switches_per_run"] for c in cases], marker="o", label=n)
-            axes[2].plot(xs, [c["methods"][n]["fragmentations_per_run"] for c in cases], marker="o", label=n)
+            axes[1].plot(xs, [c["methods"][n]["label_switches_per_run"] for c in cases], marker="o", color=colour[n],
+                         ls=style[n])
+            axes[2].plot(xs, [c["methods"][n]["fragmentations_per_run"] for c in cases], marker="o", color=colour[n],
+                         ls=style[n])
         for ax, ylabel in zip(axes, ("OSPA (m), mean over scans", "label switches per run", "fragmentations per run")):
             ax.set_xlabel(xlabel)
             ax.set_ylabel(ylabel)
-        _legend_outside(axes[2])
+        axes[2].legend(*axes[0].get_legend_handles_labels(), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
         fig.suptitle(f"vs {xlabel} ({fixed_key} {fixed:g})", fontsize=10)
         fig.tight_layout()
         fig.savefig(out / f"{fname}.png", dpi=110)

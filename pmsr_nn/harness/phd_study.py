@@ -507,7 +507,7 @@ def finalise_phd(setup: PHDSetup, sums: dict) -> dict:
                            seconds_per_run=float((s["seconds"] + s["phd_seconds"]) / R))
                 if "repaired" in s:
                     row.update(conflicts_repaired_per_run=float(s["repaired"] / R),
-                               game_rounds_mean=float(np.mean(s["game_rounds"] / R)))
+                               game_rounds_mean=float(np.mean(s["game_rounds"] / sc.n_blocks)))
             rows[name] = row
         source = str(sc.path(c.detections_csv)) if c.detections_csv else ("signals" if c.signals else "simulated")
         out[c.name] = {"title": c.title or c.name, "pd": pd, "clutter_per_scan": clutter.per_scan,

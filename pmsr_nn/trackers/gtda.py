@@ -19,9 +19,13 @@ start on their own best strategy and play ``iterations`` rounds of regret matchi
 conditional regret ``R_{p,l->n}`` of having played ``l`` instead of ``n`` is the average over
 rounds (Eq. 6, weights ``lambda_f^(i - j)`` of round ``j``) of ``u_p(n, s_-p) - u_p(l, s_-p)``
 over the rounds in which ``p`` played ``l``; a player switches from ``l`` to ``n`` with
-probability ``max(R, 0) / alpha`` (Eq. 8; ``alpha`` is ``alpha_scale x`` the number of
-strategies x the utility span, so staying always keeps a positive probability) and decides by
-Eq. 7 at the end. Rounds stop early once no player of any run has a positive regret (a pure
+probability ``max(R, 0) / alpha`` (Eq. 8) and decides by Eq. 7 at the end. The seed asks only
+that ``alpha`` be large enough for every ``beta`` to stay positive; ours is ``alpha_scale`` (> 1)
+times the player's summed positive regret in that round, so a player with any regret stays with
+probability ``1 - 1 / alpha_scale`` (0.5 by default) and otherwise moves in proportion to its
+regrets. (With a constant ``alpha`` bounding every possible regret sum, about 200 here, a
+contested player moved with a few per cent per round: in evaluate/daniyan_smcphd.yaml's
+baseline case 7.9 conflicts per run were still open after 50 rounds and had to be repaired.) Rounds stop early once no player of any run has a positive regret (a pure
 equilibrium). The equilibrium is correlated, not always conflict-free: a conflict left after the
 last round (the round limit reached first) is resolved for the player nearer the estimate, the
 others take null (counted in ``GameResult.repaired``).
@@ -40,19 +44,20 @@ from ..config import require
 @dataclass(frozen=True)
 class GameSpec:
     """``forgetting`` ``lambda_f`` in (0, 1]; ``iterations`` rounds per scan at most; ``conflict``:
-    the feasibility penalty in units of the gate; ``alpha_scale`` (>= 1) of Eq. 8's ``alpha``."""
+    the feasibility penalty in units of the gate; ``alpha_scale`` (> 1) of Eq. 8's ``alpha``."""
 
     forgetting: float = 0.9
     iterations: int = 50
     conflict: float = 1.0
-    alpha_scale: float = 1.0
+    alpha_scale: float = 2.0
 
     def __post_init__(self) -> None:
         require(0 < self.forgetting <= 1 and math.isfinite(self.forgetting),
                 f"the forgetting factor must be in (0, 1], got {self.forgetting}")
         require(self.iterations >= 1, f"iterations must be at least 1, got {self.iterations}")
         require(self.conflict > 0, f"conflict must be positive, got {self.conflict}")
-        require(self.alpha_scale >= 1, f"alpha_scale must be >= 1, got {self.alpha_scale}")
+        require(self.alpha_scale > 1 and math.isfinite(self.alpha_scale),
+                f"alpha_scale must be a finite number above 1, got {self.alpha_scale}")
 
 
 @dataclass
@@ -95,7 +100,6 @@ def play(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor, gate
     S = T + 1
     U = utilities(d2, strategy_ok, gate, spec)
     penalty = spec.conflict * gate
-    alpha = spec.alpha_scale * S * gate * (1 + 2 * spec.conflict)  # > sum of the regrets a player can hold
     s = U.argmax(-1)  # each player starts on its own best strategy
     regret = torch.zeros(B, P, S, S, dtype=d2.dtype)  # (from l, to n), discounted sums
     rows = torch.arange(B)[:, None], torch.arange(P)[None, :]
@@ -110,6 +114,7 @@ def play(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor, gate
         r = torch.where(player[..., None], r, torch.zeros((), dtype=r.dtype))
         if not bool((r > 0).any()):
             break
+        alpha = spec.alpha_scale * r.sum(-1, keepdim=True).clamp(min=1e-300)  # Eq. 8's alpha, per player
         beta = r / alpha
         beta.scatter_(-1, s[..., None], (1 - beta.sum(-1, keepdim=True)))  # Eq. 8: stay with the rest
         if i == spec.iterations:
