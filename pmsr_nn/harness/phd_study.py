@@ -346,7 +346,7 @@ def prepare_phd(sc: PHDScenario) -> PHDSetup:
     x, alive = fly_all(sc.aircraft, sc.scans, sc.dt_s, model, sc.min_altitude_m, sc.max_range_m)
     z = torch.where(alive[..., None], model.h(torch.nan_to_num(x)), torch.full((), float("nan"), dtype=torch.float64))
     labels = {m.name: sc.label_spec(m) for m in sc.methods}
-    _reference(sc)  # a bad reference entry fails now, not after the run
+    sc.keyed_reference()  # a bad reference entry fails now, not after the run
     recorded = {c.name: read_detections_csv(sc.path(c.detections_csv), sc.scans) for c in sc.cases if c.detections_csv}
     return PHDSetup(sc, models, x, z, alive, labels, recorded)
 
@@ -554,20 +554,7 @@ def write_phd_outputs(setup: PHDSetup, sums: dict, examples: dict, out: Path, de
                         "geometry": to_dict(sc.geometry), "aircraft": [a.name for a in sc.aircraft],
                         "methods": {m.name: to_dict(setup.labels[m.name]) for m in sc.methods},
                         "set_metrics": to_dict(sc.set_metrics), "block_runs": sc.block_runs},
-           "definitions": DEFINITIONS, "reference": _reference(sc), "cases": finalise_phd(setup, sums)}
+           "definitions": DEFINITIONS, "reference": sc.keyed_reference(), "cases": finalise_phd(setup, sums)}
     (out / "results.json").write_text(json.dumps(res, indent=1, allow_nan=True) + "\n")
     write_phd_report(res, setup, examples, out)
     return res
-
-
-def _reference(sc: PHDScenario) -> dict | None:
-    if sc.reference is None:
-        return None
-    path = sc.path(sc.reference.file)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        for part in sc.reference.key.split("."):
-            data = data[part]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise ConfigError(f"reference {sc.reference.key!r} not found in {path}") from None
-    return {"file": str(path), "key": sc.reference.key, "label": sc.reference.label, "table": data}

@@ -15,6 +15,7 @@ Paths (recipe, checkpoints, reference file) are relative to the scenario file.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -305,6 +306,21 @@ class StudyFile:
 
     def block_runs_range(self, block: int) -> range:
         return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
+
+    def keyed_reference(self) -> dict | None:
+        """The entry ``reference.key`` (dotted) of the JSON ``reference.file`` with its ``label``, or a
+        one-line :class:`ConfigError` naming the key and file; ``None`` without a reference."""
+        ref = self.reference
+        if ref is None:
+            return None
+        path = self.path(ref.file)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            for part in ref.key.split("."):
+                data = data[part]
+        except (OSError, ValueError, KeyError, TypeError):
+            raise ConfigError(f"reference {ref.key!r} not found in {path}") from None
+        return {"file": str(path), "key": ref.key, "label": ref.label, "table": data}
 
     def with_mc_runs(self, mc_runs: int | None):
         """The same study with ``mc_runs`` runs (``None``: unchanged)."""

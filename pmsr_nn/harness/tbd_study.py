@@ -316,7 +316,7 @@ def write_tbd_outputs(setup: TBDSetup, sums: dict, examples: dict, out: Path, de
     sc = setup.scenario
     ref = None
     if sc.reference is not None:
-        ref = _reference(sc)
+        ref = sc.keyed_reference()
     res = {"scenario": sc.name, "kind": "tbd", "seed": sc.seed, "mc_runs": sc.mc_runs, "environment": environment(device),
            "description": sc.description, "settings": {"scene": to_dict(sc.scene), "filter": to_dict(sc.filter),
                                                       "methods": {m.name: to_dict(setup.specs[m.name]) | (
@@ -328,14 +328,3 @@ def write_tbd_outputs(setup: TBDSetup, sums: dict, examples: dict, out: Path, de
     (out / "results.json").write_text(json.dumps(res, indent=1, allow_nan=True) + "\n")
     write_tbd_report(res, examples, out)
     return res
-
-
-def _reference(sc: TBDScenario) -> dict:
-    path = sc.path(sc.reference.file)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        for part in sc.reference.key.split("."):
-            data = data[part]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise ConfigError(f"reference {sc.reference.key!r} not found in {path}") from None
-    return {"file": str(path), "key": sc.reference.key, "label": sc.reference.label, "table": data}
