@@ -11,6 +11,7 @@ exit code ``128 + signal``.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -146,6 +147,20 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--tracks", type=_positive_int, help="at most this many tracks")
     e.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
 
+    ox = sub.add_parser(
+        "export-onnx",
+        help="write a trained tracker as an ONNX model",
+        description="Write a DFNN / MDFNN / RNN tracker (tracker.pt or a run's .ckpt) as one ONNX graph: "
+        "normalisation, network and read-out, float32, SI units in and out, named inputs 'measurements' "
+        "(and 'state_fixes' for trackers that read fixes) and output 'states', dynamic batch and scan "
+        "axes; columns, geometry, dt and window in the model's metadata. The graph is one pass over "
+        "the sequence it is given (equal to 'pmsr track' for feedforward trackers; for an RNN on "
+        "sequences of up to its window). Needs the onnx extra: pip install \"pmsr-nn[onnx]\".",
+    )
+    ox.add_argument("--checkpoint", type=Path, required=True, help="tracker.pt or a run's .ckpt")
+    ox.add_argument("--out", type=Path, required=True, help="ONNX file to write (.onnx)")
+    ox.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+
     ev = sub.add_parser(
         "evaluate",
         help="run every method of a scenario on the same Monte Carlo draws",
@@ -202,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
                 "track": cmd_track, "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge,
-                "demo": cmd_demo, "front-end": cmd_front_end}
+                "demo": cmd_demo, "front-end": cmd_front_end, "export-onnx": cmd_export_onnx}
     from .interrupts import signals_raise
 
     try:
@@ -378,6 +393,28 @@ def cmd_export(args) -> int:
     z = torch.stack(seqs.z[: args.tracks] if args.tracks else seqs.z)
     write_csv_measurements(args.out, z, seqs.source["columns"], overwrite=args.overwrite, inputs=[args.dataset])
     print(f"wrote     {len(z)} track(s) x {z.shape[1]} scans -> {args.out}")
+    return 0
+
+
+def cmd_export_onnx(args) -> int:
+    from .nets.inference import Tracker
+    from .nets.onnx_export import check_with_onnxruntime, export_onnx
+    from .outputs import atomic_file, check_file_target
+
+    check_file_target(args.out, overwrite=args.overwrite, inputs=[args.checkpoint], suffixes=(".onnx",))
+    tracker = Tracker.load(args.checkpoint)
+    with atomic_file(args.out, overwrite=args.overwrite, inputs=[args.checkpoint], suffixes=(".onnx",)) as tmp:
+        meta = export_onnx(tracker, tmp)
+        check = check_with_onnxruntime(tracker, tmp)
+    names = ", ".join(json.loads(meta["inputs"]))
+    print(f"exported  {tracker.meta['model']['kind']} tracker -> {args.out}  "
+          f"({args.out.stat().st_size / 1e6:.1f} MB; inputs {names}; output states; dynamic batch and scan axes)")
+    if check is None:
+        print("checked   not run: onnxruntime is not installed (pip install \"pmsr-nn[onnx]\")")
+    else:
+        print(f"checked   onnxruntime {check['onnxruntime']} against 'pmsr track' on {check['sequences']} sequences of "
+              f"{check['scans']} scans: largest difference {check['max_diff_over_span']:.1e} of a state column's "
+              "training span")
     return 0
 
 
