@@ -102,6 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides (YAML values)")
     t.add_argument("--out", type=Path, required=True, help="run folder (new, or the run to --resume)")
     t.add_argument("--resume", action="store_true", help="continue an interrupted run from RUN/checkpoints/last.ckpt")
+    t.add_argument("--verbose", action="store_true",
+                   help="Lightning's own progress bars, model summary and messages instead of one line per epoch")
 
     sel = sub.add_parser(
         "select",
@@ -305,20 +307,21 @@ def _split_overrides(config: str | None, overrides: list[str]) -> tuple[str | No
 def cmd_train(args) -> int:
     from .nets.training import load_train_config, train
 
-    _quiet_lightning()
+    if not args.verbose:
+        _quiet_lightning()
     config, overrides = _split_overrides(args.config, args.overrides)
     if config is None and not args.resume:
         raise PmsrError("give a training config (e.g. train/smoke.yaml), or --resume an existing run")
     cfg = load_train_config(config, overrides) if config is not None else None
     if args.resume and cfg is None and overrides:
         raise PmsrError("overrides need the config they apply to; a resumed run keeps its own config")
-    m = train(cfg, args.out, resume=args.resume)
+    m = train(cfg, args.out, resume=args.resume, console="lightning" if args.verbose else "lines")
     if m["global_rank"] != 0:  # DDP workers: rank 0 reports
         return 0
-    print(f"run       {args.out}  ({m['epochs']} epochs, {m['global_step']} steps, "
-          f"{m['train_windows_per_second']} windows/s)")
+    print(f"run       {args.out}  ({m['epochs']} epochs, {m['global_step']} steps in {m['fit_seconds_this_session']:.0f} s"
+          + (f", {m['train_windows_per_second']:.0f} windows/s)" if m['train_windows_per_second'] else ")"))
     print(f"val       position RMSE {m['val']['pos_rmse_m']:.2f} m, velocity RMSE {m['val']['vel_rmse_mps']:.3f} m/s "
-          "(every sample of every window)")
+          f"(best checkpoint {m['best_checkpoint']}; every sample of every window)")
     print(f"test      position RMSE {m['test']['pos_rmse_m']:.2f} m, velocity RMSE {m['test']['vel_rmse_mps']:.3f} m/s")
     print(f"tracker   {args.out / 'tracker.pt'}   (tensorboard --logdir {args.out / 'tb'})")
     return 0

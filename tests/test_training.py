@@ -94,6 +94,77 @@ def test_track_cli_writes_one_estimate_per_input_row(run, tmp_path):
                  "--split", "test", "--out", str(tmp_path / "est.h5")]) == 0
 
 
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """``pmsr simulate datasets/fitee2023_ca.yaml --tracks 4``, shortened to the tiny run's 120 steps: a
+    dataset without splits (every track a test track), for tracking only."""
+    root = tmp_path_factory.mktemp("small")
+    recipe = yaml.safe_load((Path(__file__).resolve().parents[1] / "datasets" / "fitee2023_ca.yaml").read_text())
+    recipe["motion"]["steps"], recipe["window"] = 120, 40
+    (root / "r.yaml").write_text(yaml.safe_dump(recipe))
+    assert main(["simulate", str(root / "r.yaml"), "--out", str(root / "small"), "--tracks", "4", "--seed", "5",
+                 "--quiet"]) == 0
+    return root / "small"
+
+
+def test_track_reads_a_dataset_folder_its_tracks_h5_and_its_csv_alike(run, small, tmp_path):
+    ck = str(run / "run" / "tracker.pt")
+    assert main(["export", str(small), "--out", str(tmp_path / "z.csv")]) == 0
+    estimates = {}
+    for name, given, split in (("dir", small, []), ("h5", small / "tracks.h5", []), ("csv", tmp_path / "z.csv", []),
+                               ("h5-test", small / "tracks.h5", ["--split", "test"])):
+        out = tmp_path / f"{name}.csv"
+        assert main(["track", "--checkpoint", ck, "--input", str(given), "--out", str(out), *split]) == 0, name
+        estimates[name] = out.read_text()
+    assert len(estimates["dir"].splitlines()) == 1 + 4 * 120
+    assert estimates["dir"] == estimates["h5"] == estimates["csv"] == estimates["h5-test"]
+
+
+@pytest.mark.parametrize("given,extra,message", [
+    ("small", ["--split", "val"], "small has no val split: all its tracks are test tracks (simulated without splits); "
+                                  "use --split test or leave --split out"),
+    ("small/tracks.h5", ["--split", "train"], "small has no train split"),
+    ("other.h5", [], "other.h5 is not the tracks.h5 of a pmsr_nn dataset folder; give a dataset folder, its tracks.h5, "
+                     "or a measurement CSV as --input"),
+    ("loose/tracks.h5", [], "loose/tracks.h5 is not the tracks.h5 of a pmsr_nn dataset folder"),
+    ("moved/tracks.h5", [], "another sensor geometry than the dataset"),
+    ("small/tracks.h5", ["--out", "small/est.csv"], "lies inside the input"),
+])
+def test_track_inputs_that_are_refused(run, small, tmp_path, capsys, given, extra, message):
+    import shutil
+
+    import h5py
+
+    with h5py.File(tmp_path / "other.h5", "w") as h5:  # an HDF5 file of someone else's
+        h5.create_dataset("measurements", data=torch.zeros(2, 120, 9).numpy())
+    (tmp_path / "loose").mkdir()
+    shutil.copyfile(small / "tracks.h5", tmp_path / "loose" / "tracks.h5")  # a dataset's file without its folder
+    shutil.copytree(small, tmp_path / "moved")  # the dataset of another geometry
+    m = json.loads((tmp_path / "moved" / "manifest.json").read_text())
+    m["geometry"]["receivers"][0]["position_m"][0] += 500.0
+    (tmp_path / "moved" / "manifest.json").write_text(json.dumps(m))
+    shutil.copytree(small, tmp_path / "small")
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    args = ["track", "--checkpoint", str(run / "run" / "tracker.pt"), "--input", str(tmp_path / given)]
+    out = extra[extra.index("--out") + 1] if "--out" in extra else "est.csv"
+    extra = [a for i, a in enumerate(extra) if a != "--out" and (i == 0 or extra[i - 1] != "--out")]
+    assert main([*args, "--out", str(tmp_path / out), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pmsr: error: ") and len(err.splitlines()) == 1 and message in err, err
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+
+
+def test_training_on_a_dataset_without_splits_is_refused(small, tmp_path, capsys):
+    cfg = json.loads(json.dumps(TINY))
+    cfg["data"] = {"path": str(small), "window": 40, "batch_size": 32}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    assert main(["train", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"pmsr: error: dataset {small} has no train/val split (all its 4 tracks are test tracks, for "
+                   "tracking only); simulate more tracks")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.yaml"]
+
+
 def _csv(tmp_path, header, rows):
     p = tmp_path / "m.csv"
     p.write_text("\n".join([",".join(header)] + [",".join(map(str, r)) for r in rows]) + "\n")
@@ -298,3 +369,32 @@ def test_precision_auto_uses_bfloat16_only_where_it_is_native(monkeypatch):
     monkeypatch.setattr(training, "native_bf16", lambda accelerator: False)
     assert training.resolve_precision("auto", "cpu") == "32-true"
     assert training.resolve_precision("bf16-mixed") == "bf16-mixed"  # an explicit choice is kept
+
+
+def test_train_prints_one_line_per_epoch_and_no_lightning_chatter(tmp_path, capsys):
+    """Our console (pmsr_nn.nets.progress): one line per epoch, the summary, none of Lightning's
+    banners, tips or bars; each line's validation RMSE is the epoch's own, as TensorBoard logged it."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    cfg = write_config(tmp_path / "t.yaml", tmp_path / "data", trainer={"progress": True, "max_epochs": 3})
+    assert main(["train", str(cfg), "--out", str(tmp_path / "run")]) == 0
+    out = capsys.readouterr()
+    lines = out.out.splitlines()
+    epochs = [line for line in lines if line.startswith("epoch ")]
+    assert [line.split()[1] for line in epochs] == ["1/3", "2/3", "3/3"]
+    assert [line.split()[0] for line in lines[len(epochs):]] == ["run", "val", "test", "tracker"]
+    for chatter in ("GPU available", "LOCAL_RANK", "Sanity Checking", "Tip", "Epoch 0", "| Name", "Validation DataLoader"):
+        assert chatter not in out.out + out.err
+    events = EventAccumulator(str(min((tmp_path / "run" / "tb").glob("events.out.tfevents.*")))).Reload()
+    logged = [e.value for e in events.Scalars("val/pos_rmse_m")]
+    printed = [float(line.split("val position RMSE ")[1].split()[0]) for line in epochs]
+    history = json.loads((tmp_path / "run" / "metrics.json").read_text())["history"]
+    assert [r["epoch"] for r in history] == [0, 1, 2]
+    assert [round(r["val_pos_rmse_m"], 1) for r in history] == [round(v, 1) for v in logged] == printed
+
+
+def test_train_verbose_restores_lightnings_console(tmp_path, capsys):
+    cfg = write_config(tmp_path / "t.yaml", tmp_path / "data", trainer={"progress": True, "max_epochs": 1})
+    assert main(["train", str(cfg), "--out", str(tmp_path / "run"), "--verbose"]) == 0
+    out = capsys.readouterr()
+    assert "Epoch 0" in out.out + out.err and not any(line.startswith("epoch ") for line in out.out.splitlines())

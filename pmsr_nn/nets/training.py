@@ -260,12 +260,18 @@ def _check_accelerator(tc: "TrainerConfig") -> None:
         raise ConfigError(f"trainer.accelerator: unknown accelerator {tc.accelerator!r} (auto, cpu, gpu, cuda, mps)")
 
 
-def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> dict:
+def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False, console: str = "lines",
+          label: str = "training") -> dict:
     """Train ``cfg`` into the run folder ``out``; return the final metrics (also in metrics.json).
 
     With ``resume``, ``cfg`` may be None (the run's own config.yaml is used); a given config must
-    equal it.
+    equal it. ``console``: what the run prints (:mod:`pmsr_nn.nets.progress`; ``trainer.progress:
+    false`` silences it), ``label`` the progress bar's.
     """
+    from .progress import CONSOLES, EpochProgress
+
+    if console not in CONSOLES:
+        raise ValueError(f"console must be one of {CONSOLES}, got {console!r}")
     import lightning as L
     import torch
     from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
@@ -282,10 +288,11 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
             raise ConfigError(f"the given config differs from {out}/config.yaml; resume with the run's own config (omit CONFIG)")
         cfg = stored
     tc = cfg.trainer
+    console = console if tc.progress else "none"
     _check_accelerator(tc)
     if tc.threads:
         torch.set_num_threads(tc.threads)
-    dataset = prepare_dataset(cfg.data, progress=tc.progress)
+    dataset = prepare_dataset(cfg.data, progress=console != "none")
     dm = TrackWindowDataModule(dataset, window=cfg.data.window, batch_size=cfg.data.batch_size,
                                num_workers=cfg.data.num_workers, seed=cfg.seed,
                                fold=cfg.data.fold, folds=cfg.data.folds,
@@ -313,6 +320,8 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
                            every_n_train_steps=tc.checkpoint_every_n_steps)
     history = ValidationHistory()
     callbacks = [best, last, history, LearningRateMonitor(logging_interval="epoch")]
+    if console in ("lines", "bar"):
+        callbacks.append(EpochProgress(console, tc.max_epochs, tc.max_time_minutes, label=label))
     if tc.early_stopping_patience:
         callbacks.append(EarlyStopping(monitor="val/pos_rmse_m", mode="min", patience=tc.early_stopping_patience))
     from lightning.fabric.utilities.exceptions import MisconfigurationException
@@ -326,7 +335,7 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False) -> 
             precision=resolve_precision(tc.precision, tc.accelerator), deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
             logger=TensorBoardLogger(save_dir=out, name="tb", version="", default_hp_metric=False),
             callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps,
-            enable_progress_bar=tc.progress, enable_model_summary=tc.progress,
+            enable_progress_bar=console == "lightning", enable_model_summary=console == "lightning",
         )
     except (MisconfigurationException, ValueError, RuntimeError) as exc:
         raise ConfigError(f"trainer: {' '.join(str(exc).split())[:300]}") from None
@@ -442,9 +451,11 @@ class ValidationHistory(Callback):
             self._train_seconds += time.perf_counter() - self._batch_t
             self._windows += len(batch[0]) * trainer.world_size
 
-    def on_validation_epoch_end(self, trainer, pl_module):
+    def on_validation_end(self, trainer, pl_module):
+        # Not on_validation_epoch_end: callbacks run that hook before the module logs the epoch's
+        # metrics, so they would read the previous epoch's (every record one epoch late).
         m = trainer.callback_metrics
-        if trainer.sanity_checking or "val/pos_rmse_m" not in m:
+        if trainer.sanity_checking or trainer.state.fn != "fit" or "val/pos_rmse_m" not in m:
             return
         self.records.append({
             "epoch": trainer.current_epoch, "step": trainer.global_step,

@@ -1,0 +1,93 @@
+"""What a training run prints: one line per epoch, or one progress bar, instead of Lightning's bars.
+
+``console`` of :func:`pmsr_nn.nets.training.train`:
+
+``"lines"`` (``pmsr train``)
+    one line per validated epoch: the last batch's training loss, validation RMSE, the epoch's time and an
+    estimate of the time left (mean epoch time so far x epochs left, capped by
+    ``trainer.max_time_minutes``);
+``"bar"`` (``pmsr demo``)
+    a single bar over every training batch of the run, with the last validation RMSE and
+    tqdm's time left; it clears itself when the run ends (the caller prints the summary);
+``"lightning"`` (``--verbose``)
+    Lightning's own progress bars, model summary and start-up messages;
+``"none"``
+    nothing (``trainer.progress: false``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from lightning.pytorch.callbacks import Callback
+
+CONSOLES = ("lines", "bar", "lightning", "none")
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
+
+
+class EpochProgress(Callback):
+    """The ``"lines"`` and ``"bar"`` consoles (module docstring); rank 0 only."""
+
+    def __init__(self, style: str, max_epochs: int, max_time_minutes: float | None = None, label: str = "training",
+                 stream=None):
+        if style not in ("lines", "bar"):
+            raise ValueError(f"unknown progress style {style!r}")
+        self.style, self.max_epochs, self.label = style, max_epochs, label
+        self.max_seconds = None if max_time_minutes is None else 60.0 * max_time_minutes
+        self.stream = stream or sys.stdout
+        self._bar = None
+        self._t_start = self._t_epoch = None
+        self._first_epoch = 0
+
+    def on_train_start(self, trainer, pl_module):
+        if not trainer.is_global_zero:
+            return
+        self._t_start = time.perf_counter()
+        self._first_epoch = trainer.current_epoch
+        if self.style == "bar":
+            from tqdm.auto import tqdm
+
+            per_epoch = int(trainer.num_training_batches) if trainer.num_training_batches != float("inf") else None
+            total = None if per_epoch is None else per_epoch * (self.max_epochs - trainer.current_epoch)
+            self._bar = tqdm(total=total, unit="batch", desc=self.label, leave=False, file=self.stream,
+                             dynamic_ncols=True)
+
+    def on_train_epoch_start(self, trainer, pl_module):
+        self._t_epoch = time.perf_counter()
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        if self._bar is not None:
+            self._bar.update(1)
+
+    def on_validation_end(self, trainer, pl_module):  # after the module has logged the epoch's metrics
+        m = trainer.callback_metrics
+        if (trainer.sanity_checking or trainer.state.fn != "fit" or not trainer.is_global_zero
+                or "val/pos_rmse_m" not in m):
+            return
+        val = f"val position RMSE {float(m['val/pos_rmse_m']):.1f} m"
+        if self._bar is not None:
+            self._bar.set_postfix_str(val, refresh=False)
+            return
+        now = time.perf_counter()
+        done = trainer.current_epoch + 1 - self._first_epoch
+        mean = (now - self._t_start) / max(done, 1)
+        left = mean * max(self.max_epochs - trainer.current_epoch - 1, 0)
+        if self.max_seconds is not None:
+            left = min(left, max(self.max_seconds - (now - self._t_start), 0.0))
+        loss = m.get("train/loss")
+        vel = m.get("val/vel_rmse_mps")
+        width = len(str(self.max_epochs))
+        print(f"epoch {trainer.current_epoch + 1:>{width}}/{self.max_epochs}"
+              + (f"   last batch loss {float(loss):.4g}" if loss is not None else "")
+              + f"   {val}" + (f", velocity {float(vel):.2f} m/s" if vel is not None else "")
+              + f"   {now - (self._t_epoch or now):.1f} s"
+              + (f"   ~{_duration(left)} left" if left > 0 else ""), file=self.stream, flush=True)
+
+    def teardown(self, trainer, pl_module, stage):
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
