@@ -81,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=_nonneg_int, help="random seed (overrides the recipe's 'seed')")
     s.add_argument("--variant", choices=["envelope", "literal"],
                    help="'literal': the paper's recipe as written; 'envelope': tracks kept inside Table 1 (overrides the recipe)")
+    s.add_argument("--no-splits", action="store_true",
+                   help="put every track in the test split (for tracking and evaluation, not training); also what "
+                        "happens, with a note, when the tracks are too few for the recipe's train/val/test split")
     s.add_argument("--overwrite", action="store_true", help="replace an existing pmsr_nn dataset at --out")
     s.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
 
@@ -124,11 +127,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="estimate states from measurements with a trained tracker",
         description="Run a trained tracker over measurement sequences of any length (sliding windows, "
         "spliced). Input: a CSV with a header naming the checkpoint's measurement columns (SI units; an "
-        "optional 'track' column holds several sequences) or a dataset directory. Output: .csv (one "
-        "estimate row per input row) or .h5.",
+        "optional 'track' column holds several sequences), a dataset directory or its tracks.h5. Output: "
+        ".csv (one estimate row per input row) or .h5.",
     )
     tr.add_argument("--checkpoint", type=Path, required=True, help="tracker.pt or a run's .ckpt")
-    tr.add_argument("--input", type=Path, required=True, help="measurement CSV or dataset directory")
+    tr.add_argument("--input", type=Path, required=True, help="measurement CSV, dataset directory or its tracks.h5")
     tr.add_argument("--out", type=Path, required=True, help="estimates file, .csv or .h5")
     tr.add_argument("--split", choices=["train", "val", "test"], help="only this split of a dataset input")
     tr.add_argument("--stride", type=_positive_int, help="window stride (default: the largest that keeps every estimate's full context)")
@@ -273,14 +276,15 @@ def _one_line(text: str, limit: int = 400) -> str:
 
 def cmd_simulate(args) -> int:
     from .data.store import write_dataset
-    from .simulation.recipe import load_recipe
+    from .simulation.recipe import load_recipe_for_simulation
 
-    recipe = load_recipe(args.recipe).with_overrides(tracks=args.tracks, seed=args.seed, variant=args.variant)
+    recipe, why_unsplit = load_recipe_for_simulation(args.recipe, tracks=args.tracks, seed=args.seed,
+                                                     variant=args.variant, no_splits=args.no_splits)
     t0 = time.perf_counter()
     manifest = write_dataset(recipe, args.out, overwrite=args.overwrite, progress=not args.quiet, inputs=[args.recipe])
     seconds = time.perf_counter() - t0
     if not args.quiet:
-        print(summarise(args.out, manifest, seconds))
+        print(summarise(args.out, manifest, seconds, why_unsplit=why_unsplit))
     return 0
 
 
@@ -341,12 +345,15 @@ def cmd_select(args) -> int:
 
 def cmd_track(args) -> int:
     from .data.sequences import read_measurements, write_estimates
+    from .data.store import ARRAYS, is_our_dataset
     from .environment import resolve_device
     from .nets.inference import Tracker
     from .outputs import check_file_target
     from .plausibility import check_measurements
 
     inputs = [args.input, args.checkpoint]
+    if args.input.name == ARRAYS and is_our_dataset(args.input.parent):
+        inputs.append(args.input.parent)  # a dataset's tracks.h5: its folder is the input, as with --input DIR
     check_file_target(args.out, overwrite=args.overwrite, inputs=inputs, suffixes=(".csv", ".h5"))
     tracker = Tracker.load(args.checkpoint, device=resolve_device(args.device))
     if args.stride is not None and args.stride > tracker.window:

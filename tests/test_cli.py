@@ -1,5 +1,6 @@
 """The pmsr command: every bad input is a one-line error, a non-zero exit, and nothing written."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -98,9 +99,56 @@ def test_non_numeric_command_line_value(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_too_few_tracks_for_the_splits(tmp_path, capsys):
-    rc, err = run(tmp_path, capsys, small_recipe_dict(), "--tracks", "3")
-    assert rc == 2 and "leave the val split empty" in err
+def manifest(path: Path) -> dict:
+    return json.loads((path / "manifest.json").read_text())
+
+
+def test_too_few_tracks_for_the_splits_give_a_dataset_without_splits(tmp_path, capsys):
+    """The issue's ``pmsr simulate datasets/fitee2023_ca.yaml --tracks 4``: every track a test track, and a
+    summary line that says so (and why) instead of an error."""
+    assert main(["simulate", str(RECIPE), "--out", str(tmp_path / "x4"), "--tracks", "4"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and manifest(tmp_path / "x4")["splits"] == {"train": 0, "val": 0, "test": 4}
+    line = next(ln for ln in out.splitlines() if ln.startswith("splits"))
+    assert line == ("splits    none: all 4 tracks are test tracks, for tracking, not training; 4 tracks are too few "
+                    "for the recipe's train/val/test split 0.85/0.1/0.05, which needs at least 11")
+    assert main(["info", str(tmp_path / "x4"), "--verify"]) == 0
+    assert "splits    none: all 4 tracks are test tracks, for tracking, not training\n" in capsys.readouterr().out
+
+
+def test_splits_where_the_tracks_fill_them(tmp_path, capsys):
+    need = SplitSpec(0.85, 0.10, 0.05).min_tracks()  # the fractions of small_recipe_dict
+    assert need == 11  # test round(10 * 0.05) = 0
+    for tracks, want in ((need, {"train": 9, "val": 1, "test": 1}), (need - 1, {"train": 0, "val": 0, "test": 10})):
+        rc, err = run(tmp_path, capsys, small_recipe_dict(), "--tracks", str(tracks), out=f"n{tracks}")
+        assert rc == 0 and err == "" and manifest(tmp_path / f"n{tracks}")["splits"] == want
+    rc, err = run(tmp_path, capsys, small_recipe_dict(tracks=3), out="yaml3")  # the recipe's own count, too
+    assert rc == 0 and manifest(tmp_path / "yaml3")["splits"] == {"train": 0, "val": 0, "test": 3}
+    rc, err = run(tmp_path, capsys, small_recipe_dict(), "--no-splits", out="asked")
+    m = manifest(tmp_path / "asked")
+    assert rc == 0 and m["splits"] == {"train": 0, "val": 0, "test": 24}
+    assert m["recipe"]["splits"] == {"train": 0.0, "val": 0.0, "test": 1.0} and m["normalisation"]["fitted_on"] == "all"
+    # where the tracks fill it the recipe keeps its own split; the tracks are the same either way
+    rc, err = run(tmp_path, capsys, small_recipe_dict(), out="split")
+    assert manifest(tmp_path / "split")["recipe"]["splits"] == {"train": 0.85, "val": 0.10, "test": 0.05}
+    assert manifest(tmp_path / "split")["checksums_sha256"]["states"] == m["checksums_sha256"]["states"]
+
+
+def test_a_dataset_without_splits_written_by_the_recipe_itself(tmp_path, capsys):
+    rc, err = run(tmp_path, capsys, small_recipe_dict(splits={"train": 0, "val": 0, "test": 1}))
+    assert rc == 0 and manifest(tmp_path / "out")["splits"] == {"train": 0, "val": 0, "test": 24}
+    rc, err = run(tmp_path, capsys, small_recipe_dict(splits={"train": 0, "val": 0.5, "test": 0.5}), out="o2")
+    assert rc == 2 and "the training split cannot be empty" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o2").exists()
+
+
+def test_info_renders_a_manifest_with_only_a_test_split(tmp_path, capsys):
+    run(tmp_path, capsys, small_recipe_dict(), "--tracks", "3")
+    m = manifest(tmp_path / "out")
+    m["splits"], m["windows"] = {"test": 3}, {"test": 3 * m["windows_per_track"]}
+    (tmp_path / "out" / "manifest.json").write_text(json.dumps(m))
+    assert main(["info", str(tmp_path / "out")]) == 0
+    assert "splits    none: all 3 tracks are test tracks" in capsys.readouterr().out
 
 
 def test_paper_scale_split_counts():

@@ -92,6 +92,26 @@ def test_batched_cached_and_lazy_reads_agree(dataset):
             assert torch.equal(a, b) and torch.equal(b, c)
 
 
+def test_a_dataset_without_splits_serves_tracking_not_training(tmp_path, small_recipe):
+    from pmsr_nn.errors import ConfigError
+    from pmsr_nn.simulation.recipe import NO_SPLITS
+
+    write_dataset(small_recipe.with_overrides(tracks=3, splits=NO_SPLITS), tmp_path / "d", progress=False)
+    ds = open_dataset(tmp_path / "d")
+    try:
+        assert ds.manifest["splits"] == {"train": 0, "val": 0, "test": 3} and not ds.has_splits()
+        assert ds.manifest["recipe"]["splits"] == {"train": 0.0, "val": 0.0, "test": 1.0}
+        assert ds.manifest["normalisation"]["fitted_on"] == "all"  # no training tracks: finite statistics of all
+        states = read(tmp_path / "d", "states").astype(np.float64)
+        np.testing.assert_array_equal(ds.scaler("states").lo.numpy(), states.min((0, 1)))
+        ds.verify()
+    finally:
+        ds.close()
+    json.loads((tmp_path / "d" / "manifest.json").read_text(), parse_constant=pytest.fail)  # no Infinity / NaN
+    with pytest.raises(ConfigError, match=r"has no train/val split \(all its 3 tracks are test tracks.*simulate more"):
+        TrackWindowDataModule(tmp_path / "d")
+
+
 def test_window_longer_than_track_is_refused(dataset):
     with pytest.raises(DatasetError, match="longer than the tracks"):
         WindowDataset(dataset, "train", window=121)

@@ -121,6 +121,11 @@ class TrackWindowDataModule(L.LightningDataModule):
         self.normalise = normalise
         self.eval_window_stride = int(eval_window_stride)
         self.tracks = {s: self.data.split_indices(s) for s in ("train", "val", "test")}
+        if not len(self.tracks["train"]):  # a dataset without splits (pmsr simulate --no-splits, or few tracks)
+            self.data.close()
+            what, why = (("train/val split", f"all its {len(self.tracks['test'])} tracks are test tracks, for tracking "
+                          "only") if not len(self.tracks["val"]) else ("train split", "no track to train on"))
+            raise ConfigError(f"dataset {self.path} has no {what} ({why}); simulate more tracks")
         self.measurement_scaler: MinMaxScaler = self.data.scaler("measurements")
         self.state_scaler: MinMaxScaler = self.data.scaler("states")
         if folds is not None and folds > 1:

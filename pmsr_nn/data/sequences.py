@@ -6,8 +6,8 @@ Inputs:
     sequences (rows of one track in time order; tracks may differ in length). Empty cells and
     ``nan`` are missing values. A file without a header is read when it has exactly the expected
     number of numeric columns, in the expected order.
-  * a dataset directory written by ``pmsr simulate`` (its geometry and columns are checked
-    against the checkpoint), all tracks or one split.
+  * a dataset directory written by ``pmsr simulate``, or its ``tracks.h5`` (the geometry and
+    columns of its manifest are checked against the checkpoint), all tracks or one split.
 
 Outputs (written atomically): ``.csv`` with ``track``, ``k`` and the state columns, one row per
 input row in the input's order; or ``.h5`` with ``estimates (N, K, dim_x)``, ``track`` ids and the
@@ -150,8 +150,12 @@ def read_dataset(path: Path, split: str | None = None) -> Sequences:
         m = ds.manifest
         ids = ds.split_indices(split) if split else np.arange(m["shapes"]["measurements"][0])
         z = torch.from_numpy(ds.file["measurements"][np.sort(ids)].astype(np.float64)) if len(ids) else None
+        unsplit = z is None and not ds.has_splits()
     finally:
         ds.close()
+    if unsplit:
+        raise MeasurementError(f"{path} has no {split} split: all its tracks are test tracks (simulated without "
+                               "splits); use --split test or leave --split out")
     if z is None:
         raise MeasurementError(f"{path}: split {split!r} holds no tracks")
     K = z.shape[1]
@@ -161,7 +165,7 @@ def read_dataset(path: Path, split: str | None = None) -> Sequences:
 
 
 def read_measurements(path: str | Path, columns: list[str], split: str | None = None) -> Sequences:
-    """A CSV file or a dataset directory; see the module docstring."""
+    """A CSV file, a dataset directory or the dataset's ``tracks.h5``; see the module docstring."""
     from .store import ARRAYS, MANIFEST, is_our_dataset
 
     path = Path(path)
@@ -169,9 +173,15 @@ def read_measurements(path: str | Path, columns: list[str], split: str | None = 
         return read_dataset(path, split)
     if not path.is_file():
         raise MeasurementError(f"no measurement file at {path}")
-    if path.name in (ARRAYS, MANIFEST) and is_our_dataset(path.parent):
-        raise MeasurementError(f"{path} is part of a dataset: give the dataset folder {path.parent} as --input")
-    if path.suffix.lower() in (".h5", ".hdf5", ".json", ".npz", ".pt", ".ckpt"):
+    if path.name == ARRAYS and is_our_dataset(path.parent):
+        return read_dataset(path.parent, split)  # the folder's manifest: geometry, columns, dt
+    if path.name == MANIFEST and is_our_dataset(path.parent):
+        raise MeasurementError(f"{path} is part of a dataset: give the dataset folder {path.parent} (or its "
+                               f"{ARRAYS}) as --input")
+    if path.suffix.lower() in (".h5", ".hdf5"):
+        raise MeasurementError(f"{path} is not the {ARRAYS} of a pmsr_nn dataset folder; give a dataset folder, "
+                               f"its {ARRAYS}, or a measurement CSV as --input")
+    if path.suffix.lower() in (".json", ".npz", ".pt", ".ckpt"):
         raise MeasurementError(f"{path}: measurements are read from a CSV file or a dataset folder, "
                                f"not a {path.suffix} file")
     if split is not None:

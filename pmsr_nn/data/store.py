@@ -3,8 +3,9 @@
 Layout of a dataset directory::
 
     DIR/manifest.json   format, package version, full recipe, seed, shapes, column names and
-                        units, split sizes, normalisation statistics (training split only),
-                        envelope statistics, SHA-256 of every array
+                        units, split sizes, normalisation statistics (training split only; all
+                        tracks in a dataset without splits), envelope statistics, SHA-256 of
+                        every array
     DIR/tracks.h5       states (N, K, dim_x), measurements (N, K, dim_z), noise_std (N, 3),
                         split (N,) 0/1/2 = train/val/test, violations (N, 3) bool
                         (range, speed, azimuth), and the manifest again as an attribute
@@ -123,6 +124,7 @@ def _write_into(recipe: TrackRecipe, tmp: Path, progress: bool) -> dict:
     n, K = recipe.tracks, recipe.motion.steps
     dtype = np.dtype(recipe.storage.dtype)
     split = assign_splits(recipe)
+    fit = split == 0 if not recipe.splits.is_none else np.ones(n, dtype=bool)  # normalisation: train (or all) tracks
     shapes = {"states": (n, K, motion.dim_x), "measurements": (n, K, meas.dim_z), "noise_std": (n, 3)}
     digests = {name: hashlib.sha256() for name in ("states", "measurements", "noise_std", "split", "violations")}
     mm_z, mm_x = RunningMinMax(meas.dim_z), RunningMinMax(motion.dim_x)
@@ -149,9 +151,8 @@ def _write_into(recipe: TrackRecipe, tmp: Path, progress: bool) -> dict:
                 for name, arr in arrays.items():
                     dsets[name][start:stop] = arr
                     digests[name].update(np.ascontiguousarray(arr).tobytes())
-                train = split[start:stop] == 0
-                mm_z.update(arrays["measurements"][train])
-                mm_x.update(arrays["states"][train])
+                mm_z.update(arrays["measurements"][fit[start:stop]])
+                mm_x.update(arrays["states"][fit[start:stop]])
                 violations[start:stop] = np.stack([batch.violations[k].numpy() for k in ENVELOPE_CRITERIA], -1)
                 bar.update(stop - start)
         h5.create_dataset("split", data=split)
@@ -194,7 +195,8 @@ def _manifest(recipe, shapes, dtype, split, violations, stats, scaler_x, scaler_
         "windows_per_track": recipe.windows_per_track,
         "splits": counts,
         "windows": {k: v * recipe.windows_per_track for k, v in counts.items()},
-        "normalisation": {"fitted_on": "train", "states": scaler_x.to_dict(), "measurements": scaler_z.to_dict()},
+        "normalisation": {"fitted_on": "all" if recipe.splits.is_none else "train", "states": scaler_x.to_dict(),
+                          "measurements": scaler_z.to_dict()},
         "envelope": {
             "fraction_left": float(left.mean()),
             "fraction_left_by_criterion": {k: float(violations[:, i].mean()) for i, k in enumerate(ENVELOPE_CRITERIA)},
@@ -235,6 +237,11 @@ class TrackDataset:
         if name not in SPLITS:
             raise DatasetError(f"unknown split {name!r}; choose one of {SPLITS}")
         return np.flatnonzero(self.split == SPLITS.index(name))
+
+    def has_splits(self) -> bool:
+        """False for a dataset without splits (every track a test track: ``pmsr simulate --no-splits``,
+        or too few tracks for the recipe's split), which serves tracking, not training."""
+        return bool((self.split != SPLITS.index("test")).any())
 
     def scaler(self, which: str) -> MinMaxScaler:
         """Normalisation fitted on the training split, for 'states' or 'measurements'."""

@@ -227,17 +227,24 @@ class EnvelopeVariantSpec:
 
 @dataclass(frozen=True)
 class SplitSpec:
-    """Fractions of whole tracks in each split."""
+    """Fractions of whole tracks in each split. ``{train: 0, val: 0, test: 1}`` (:data:`NO_SPLITS`)
+    is a dataset without splits: every track is a test track, for tracking and evaluation only."""
 
     train: float = 0.85
     val: float = 0.10
     test: float = 0.05
 
+    @property
+    def is_none(self) -> bool:
+        """True for :data:`NO_SPLITS` (every track in 'test')."""
+        return self.train == 0 and self.val == 0
+
     def validate(self) -> None:
         fr = (self.train, self.val, self.test)
         require(all(f >= 0 for f in fr), f"split fractions must be non-negative, got {fr}")
         require(abs(sum(fr) - 1.0) < 1e-9, f"split fractions must sum to 1, got {sum(fr)}")
-        require(self.train > 0, "the training split cannot be empty")
+        require(self.train > 0 or self.is_none, "the training split cannot be empty (a dataset without splits, "
+                                                "for tracking only, is {train: 0, val: 0, test: 1})")
 
     def counts(self, n: int) -> tuple[int, int, int]:
         """Tracks per split: val and test rounded, train takes the rest."""
@@ -247,6 +254,28 @@ class SplitSpec:
             if frac > 0 and cnt < 1:
                 raise ConfigError(f"{n} tracks leave the {name} split empty; ask for more tracks")
         return n_train, n_val, n_test
+
+    def fits(self, n: int) -> bool:
+        """True when ``n`` tracks give every split with a positive fraction at least one track."""
+        try:
+            self.counts(n)
+        except ConfigError:
+            return False
+        return True
+
+    def min_tracks(self) -> int:
+        """The fewest tracks that fill every split with a positive fraction (:meth:`fits`)."""
+        n = 1
+        for frac in (self.val, self.test):
+            if frac > 0:
+                n = max(n, int(0.5 / frac))  # round(n * frac) >= 1 needs n * frac >= 0.5 at least
+        while not self.fits(n):
+            n += 1
+        return n
+
+
+NO_SPLITS = SplitSpec(train=0.0, val=0.0, test=1.0)
+"""Every track in the test split: a dataset for tracking and evaluation, not for training."""
 
 
 @dataclass(frozen=True)
@@ -352,6 +381,32 @@ class TrackRecipe:
 def load_recipe(path) -> TrackRecipe:
     """Load and validate a recipe YAML file."""
     return from_dict(TrackRecipe, load_yaml(path), where="recipe")
+
+
+def load_recipe_for_simulation(path, *, tracks: int | None = None, seed: int | None = None,
+                               variant: str | None = None, no_splits: bool = False) -> tuple[TrackRecipe, str | None]:
+    """The recipe YAML at ``path`` with the command-line overrides (None: the recipe's own), as
+    ``pmsr simulate`` writes it: with the recipe's train/val/test split, or with none
+    (:data:`NO_SPLITS`, every track in 'test') when ``no_splits`` or when the tracks are too few
+    to put one in every split the recipe asks for. Returns ``(recipe, note)``; ``note`` says why a
+    recipe that asks for splits got none (None otherwise)."""
+    data = load_yaml(path)
+    if not isinstance(data, dict):
+        return from_dict(TrackRecipe, data, where="recipe"), None  # raises: a recipe is a mapping
+    own = from_dict(SplitSpec, data["splits"], where="recipe.splits") if "splits" in data else SplitSpec()
+    try:
+        own.validate()
+    except ConfigError as exc:
+        raise ConfigError(f"recipe: {exc}") from None
+    unsplit = from_dict(TrackRecipe, {**data, "splits": to_dict(NO_SPLITS)}, where="recipe")
+    recipe = unsplit.with_overrides(tracks=tracks, seed=seed, variant=variant)
+    if no_splits or own.is_none:
+        return recipe, None
+    if own.fits(recipe.tracks):
+        return recipe.with_overrides(splits=own), None
+    return recipe, (f"{recipe.tracks} track{'s are' if recipe.tracks > 1 else ' is'} too few for the recipe's "
+                    f"train/val/test split {own.train:g}/{own.val:g}/{own.test:g}, which needs at least "
+                    f"{own.min_tracks()}")
 
 
 def recipe_from_dict(data: dict) -> TrackRecipe:

@@ -323,6 +323,41 @@ def _all_train(h5) -> None:
     h5["split"][...] = 0
 
 
+def unsplit_copy(src: str, dst: str) -> Callable[[Path], None]:
+    """A copy of dataset ``src`` as ``pmsr simulate --no-splits`` writes it: every track a test track (split
+    codes, counts, recipe fractions and the split checksum rewritten; made without pmsr_nn, so a census of
+    an older checkout gets the same input)."""
+    def f(root: Path) -> None:
+        import hashlib
+
+        import h5py
+        import numpy as np
+
+        shutil.copytree(root / src, root / dst)
+        m = json.loads((root / dst / "manifest.json").read_text())
+        with h5py.File(root / dst / "tracks.h5", "r+") as h5:
+            split = np.full(h5["split"].shape, 2, dtype=h5["split"].dtype)
+            h5["split"][...] = split
+            n = len(split)
+            m["splits"] = {"train": 0, "val": 0, "test": n}
+            m["windows"] = {"train": 0, "val": 0, "test": n * m["windows_per_track"]}
+            m["recipe"]["splits"] = {"train": 0.0, "val": 0.0, "test": 1.0}
+            m["checksums_sha256"]["split"] = hashlib.sha256(split.tobytes()).hexdigest()
+            h5.attrs["manifest"] = json.dumps(m)
+        (root / dst / "manifest.json").write_text(json.dumps(m, indent=2) + "\n")
+    return f
+
+
+def new_foreign_h5(rel: str) -> Callable[[Path], None]:
+    """An HDF5 file at ``rel`` that is not a pmsr_nn dataset's (one dataset 'foo')."""
+    def f(root: Path) -> None:
+        import h5py
+
+        with h5py.File(root / rel, "w") as h5:
+            h5.create_dataset("foo", data=[1, 2, 3])
+    return f
+
+
 def foreign_h5(rel: str) -> Callable[[Path], None]:
     def f(root: Path) -> None:
         import h5py
@@ -583,6 +618,13 @@ case("simulate/yaml-dot5-ok", "simulate r.yaml --out new --quiet", "ok",
      outputs=("new",), verify=v_manifest("new", "splits", {"train": 6, "val": 3, "test": 3}), klass="silent_wrong")
 case("simulate/tracks-huge", f"{SIM} --out new --tracks 999999999999", message="tracks", klass="hang")
 case("simulate/tracks-not-a-number", f"{SIM} --out new --tracks abc", message="--tracks", klass="refusal")
+case("simulate/tracks-too-few-for-the-splits-ok", f"{SIM} --out new --tracks 3", "ok", outputs=("new",),
+     verify=v_manifest("new", "splits", {"train": 0, "val": 0, "test": 3}), klass="refusal",
+     note="a small dataset for tracking: every track a test track, not an error (issue 21)")
+case("simulate/no-splits-ok", f"{SIM} --out new --no-splits", "ok", outputs=("new",),
+     verify=v_manifest("new", "splits", {"train": 0, "val": 0, "test": 12}), klass="refusal")
+case("simulate/recipe-empty-training-split", "simulate r.yaml --out new",
+     setup=recipe_set(splits={"train": 0.0, "val": 0.5, "test": 0.5}), message="training split", klass="refusal")
 case("simulate/seed-huge-ok", f"{SIM} --out new --seed 99999999999999999999", "ok", outputs=("new",),
      verify=v_manifest("new", "seed", 99999999999999999999), klass="refusal",
      note="seeds go through NumPy's SeedSequence: any non-negative integer is a valid seed")
@@ -637,6 +679,7 @@ case("info/h5-truncated-verify", "info ds --verify", setup=truncate("ds/tracks.h
 case("info/verify-corrupted-value", "info ds --verify", setup=h5_edit("ds/tracks.h5", _bump_measurement),
      message="checksum", klass="refusal")
 case("info/verify-ok", "info ds --verify", "ok", klass="refusal")
+case("info/dataset-without-splits-ok", "info small --verify", "ok", setup=unsplit_copy("ds", "small"), klass="traceback")
 case("info/trailing-slash-ok", "info ds/", "ok", klass="refusal")
 case("info/plot-ok", "info ds --plot fig.png", "ok", outputs=("fig.png",), verify=v_files("fig.png"), klass="refusal")
 case("info/plot-over-user-file", "info ds --plot user/photo.png", setup=FAKE_PNG, message="photo.png", klass="data_loss")
@@ -729,6 +772,8 @@ case("train/num-workers-negative", f"{TR} --out run2 data.num_workers=-1", messa
 case("train/fold-out-of-range", f"{TR} --out run2 data.fold=5 data.folds=2", message="fold", klass="refusal")
 case("train/data-path-user-folder", f"{TR} --out run2 data.path=user", message="user", klass="refusal")
 case("train/data-path-a-file", f"{TR} --out run2 data.path=z.csv", message="z.csv", klass="refusal")
+case("train/data-path-without-splits", f"{TR} --out run2 data.path=small", setup=unsplit_copy("ds", "small"),
+     message="no train/val split", klass="traceback")
 case("train/data-path-and-recipe", f"{TR} --out run2 data.recipe=recipe.yaml", message="recipe", klass="refusal")
 case("train/data-variant-unknown", f"{TR} --out run2 data.path=null data.variant=loose", message="variant",
      klass="refusal")
@@ -905,7 +950,22 @@ case("track/csv-non-utf8", f"{TRK} --input c.csv --out est.csv",
      message="utf-8", klass="refusal")
 case("track/csv-unreadable", f"{TZ} --out est.csv", setup=chmod("z.csv", 0), outputs=("est.csv",), root_expect="ok",
      message="z.csv", klass="refusal")
-case("track/input-dataset-h5-file", f"{TRK} --input ds/tracks.h5 --out est.csv", message="tracks.h5", klass="silent_wrong")
+case("track/input-dataset-h5-file-ok", f"{TRK} --input ds/tracks.h5 --out est.csv", "ok", outputs=("est.csv",),
+     verify=v_csv("est.csv", 12 * 120), klass="refusal", note="a dataset's tracks.h5 reads as its folder (issue 21)")
+case("track/input-dataset-h5-other-geometry", f"{TRK} --input ds/tracks.h5 --out est.csv",
+     setup=edit_json("ds/manifest.json", _move_receiver), message="geometry", klass="silent_wrong",
+     note="the folder's manifest is checked as with --input ds")
+case("track/input-dataset-h5-out-inside-the-dataset", f"{TRK} --input ds/tracks.h5 --out ds/est.csv",
+     message="inside the input", klass="data_loss")
+case("track/input-h5-outside-its-dataset", f"{TRK} --input loose/tracks.h5 --out est.csv",
+     setup=steps(mkdir("loose"), copy("ds/tracks.h5", "loose/tracks.h5")), message="loose/tracks.h5",
+     klass="silent_wrong", note="no manifest beside it: no geometry to check")
+case("track/input-foreign-h5", f"{TRK} --input other.h5 --out est.csv", setup=new_foreign_h5("other.h5"),
+     message="other.h5", klass="refusal")
+case("track/ok-dataset-without-splits", f"{TRK} --input small/tracks.h5 --split test --out est.csv", "ok",
+     setup=unsplit_copy("ds", "small"), outputs=("est.csv",), verify=v_csv("est.csv", 12 * 120), klass="refusal")
+case("track/split-val-of-dataset-without-splits", f"{TRK} --input small --split val --out est.csv",
+     setup=unsplit_copy("ds", "small"), message="no val split", klass="refusal")
 case("track/input-dataset-manifest", f"{TRK} --input ds/manifest.json --out est.csv", message="manifest.json",
      klass="silent_wrong")
 case("track/input-user-folder", f"{TRK} --input user --out est.csv", message="user", klass="refusal")
