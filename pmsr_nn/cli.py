@@ -209,6 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.add_argument("--out", type=Path, default=DEMO_DIR, help=f"output folder (default {DEMO_DIR}; a previous demo there is replaced)")
     d.add_argument("--mc-runs", type=_mc_runs, default=20, help="Monte Carlo runs per trajectory (default 20)")
+    d.add_argument("--verbose", action="store_true", help="Lightning's own progress bars and messages while training")
     return p
 
 
@@ -556,31 +557,39 @@ def cmd_info(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .harness.demo import run_demo
+    from .harness.demo import DEMO_EXPECTED, demo_summary, run_demo
 
-    _quiet_lightning()
-    res = run_demo(args.out, mc_runs=args.mc_runs)
-    print("\nbold = below its own bound")
-    print_summary({k: v for k, v in res.items() if k != "shared_drones"})
-    print(f"\nreport    {args.out / 'evaluation' / 'report.md'}\n\nthree drones, every method on the same draws:")
-    print_summary(res["shared_drones"])
-    print(f"\nreport    {args.out / 'shared_drones' / 'report.md'}   ({res['demo']['total_seconds'] / 60:.1f} min in all)")
-    print("full study: pmsr evaluate evaluate/fitee2023_three_trajectories.yaml --out runs/eval")
+    if not args.verbose:
+        _quiet_lightning()
+    print(f"pmsr demo: simulate, train two small networks, compare with EKF, UKF, SI+KF and the PCRB ({DEMO_EXPECTED})",
+          flush=True)
+    # Bars (with time left) only on a terminal: a log file keeps the one line per stage.
+    res = run_demo(args.out, mc_runs=args.mc_runs, progress=sys.stderr.isatty(), verbose=args.verbose,
+                   log=lambda line: print(line, flush=True))
+    print("\n".join(demo_summary(res, args.out)))
     return 0
 
 
-def summarise(path: Path, manifest: dict, seconds: float | None = None) -> str:
-    """A human-readable summary of a dataset: sizes, splits, envelope statistics, motion percentiles."""
+def summarise(path: Path, manifest: dict, seconds: float | None = None, why_unsplit: str | None = None) -> str:
+    """A human-readable summary of a dataset: sizes, splits, envelope statistics, motion percentiles.
+    ``why_unsplit``: why a dataset has no train/val split (appended to its splits line)."""
     from .data.store import open_dataset
 
     n, K, dx = manifest["shapes"]["states"]
     env = manifest["envelope"]
+    splits = manifest["splits"]
+    if not splits.get("train") and not splits.get("val"):  # every track a test track (simulate --no-splits)
+        split_line = (f"splits    none: all {splits.get('test', n)} tracks are test tracks, for tracking, not training"
+                      + (f"; {why_unsplit}" if why_unsplit else ""))
+    else:
+        split_line = ("splits    " + ", ".join(f"{k} {v} tracks / {manifest['windows'].get(k, 0)} windows"
+                                               for k, v in splits.items())
+                      + f"  (window {manifest['window']}, {manifest['windows_per_track']} per track)")
     lines = [
         f"dataset   {path}  ({manifest['name']}, variant '{manifest['variant']}', seed {manifest['seed']})",
         f"tracks    {n} x {K} samples (dt {manifest['dt_s']} s), state dim {dx}, measurement dim "
         f"{manifest['shapes']['measurements'][2]}, stored as {manifest['dtype']}",
-        "splits    " + ", ".join(f"{k} {v} tracks / {manifest['windows'][k]} windows" for k, v in manifest["splits"].items())
-        + f"  (window {manifest['window']}, {manifest['windows_per_track']} per track)",
+        split_line,
         f"envelope  {env['fraction_left']:.1%} of tracks leave Table 1 ("
         + ", ".join(f"{k} {v:.1%}" for k, v in env["fraction_left_by_criterion"].items())
         + f"); acceptance of the draws {env['acceptance']:.1%}",

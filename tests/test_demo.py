@@ -43,8 +43,15 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
         "kalmannet": {**demo.DEMO_MODELS["kalmannet"], "rnn_hidden": 4}})
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--mc-runs", "2"]) == 0
-    printed = capsys.readouterr().out
+    out_err = capsys.readouterr()
+    printed = out_err.out
     assert "| MDFNN |" in printed and "report" in printed and "| S-MSJPDA | detections |" in printed
+    # One screen: a header, two lines per stage, two tables; no third-party banners, tips or bars.
+    lines = printed.splitlines()
+    assert [line[:5] for line in lines if line.startswith("[")] == [f"[{i}/5]" for i in range(1, 6)]
+    assert len(lines) <= 40 and max(len(line.replace(str(out), "runs/demo")) for line in lines) <= 120
+    for chatter in ("GPU available", "LOCAL_RANK", "Tip", "Epoch 0", "Sanity", "it/s]"):
+        assert chatter not in out_err.out + out_err.err
     check_demo_folder(out, 2)
     assert main(["demo", "--out", str(out), "--mc-runs", "1"]) == 0  # a previous demo is replaced
     check_demo_folder(out, 1)

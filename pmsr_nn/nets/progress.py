@@ -38,7 +38,7 @@ class EpochProgress(Callback):
             raise ValueError(f"unknown progress style {style!r}")
         self.style, self.max_epochs, self.label = style, max_epochs, label
         self.max_seconds = None if max_time_minutes is None else 60.0 * max_time_minutes
-        self.stream = stream or sys.stdout
+        self.stream = stream or sys.stderr  # the lines go to stdout (print); a bar to stderr
         self._bar = None
         self._t_start = self._t_epoch = None
         self._first_epoch = 0
@@ -85,7 +85,7 @@ class EpochProgress(Callback):
               + (f"   last batch loss {float(loss):.4g}" if loss is not None else "")
               + f"   {val}" + (f", velocity {float(vel):.2f} m/s" if vel is not None else "")
               + f"   {now - (self._t_epoch or now):.1f} s"
-              + (f"   ~{_duration(left)} left" if left > 0 else ""), file=self.stream, flush=True)
+              + (f"   ~{_duration(left)} left" if left > 0 else ""), flush=True)
 
     def teardown(self, trainer, pl_module, stage):
         if self._bar is not None:
