@@ -44,7 +44,6 @@ it is taken again (up to ``--retries`` times; every attempt is recorded).
 from __future__ import annotations
 
 import argparse
-import datetime
 import math
 import os
 import time
@@ -58,6 +57,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import median_seconds, write_figures  # noqa: E402
 
+from pmsr_nn.errors import ConfigError  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402
 from pmsr_nn.trackers.labelling import LabelSpec, label_tracks  # noqa: E402
 from pmsr_nn.trackers.phd import PHDSpec, PHDState, SMCPHD  # noqa: E402
@@ -163,18 +163,19 @@ def busy(load: dict) -> str:
 def stone_soup(args, phd: SMCPHD, z: torch.Tensor, valid: torch.Tensor, kappa: float) -> dict:
     try:
         import stonesoup
+        from pmsr_nn.interop import stonesoup as ss
         from stonesoup.models.measurement.linear import LinearGaussian
         from stonesoup.models.transition.linear import LinearGaussianTimeInvariantTransitionModel
         from stonesoup.predictor.particle import SMCPHDPredictor
         from stonesoup.resampler.particle import SystematicResampler
         from stonesoup.sampler.particle import ParticleSampler
         from stonesoup.types.array import StateVectors
-        from stonesoup.types.detection import Detection, MissedDetection
+        from stonesoup.types.detection import MissedDetection
         from stonesoup.types.hypothesis import SingleHypothesis
         from stonesoup.types.multihypothesis import MultipleHypothesis
         from stonesoup.types.state import ParticleState
         from stonesoup.updater.particle import SMCPHDUpdater
-    except ImportError:
+    except (ImportError, ConfigError):  # ConfigError: pmsr_nn.interop.stonesoup without Stone Soup
         print("Stone Soup not installed (pip install stonesoup==1.9.1): its comparison is skipped")
         return {"skipped": "stonesoup not installed"}
     spec = phd.spec
@@ -192,10 +193,8 @@ def stone_soup(args, phd: SMCPHD, z: torch.Tensor, valid: torch.Tensor, kappa: f
     G, sd = phd.G.numpy(), np.array(SD)
     transition = LinearGaussianTimeInvariantTransitionModel(transition_matrix=F, covariance_matrix=Q)
     measurement = LinearGaussian(ndim_state=2, mapping=(0, 1), noise_covar=R)
-    t0 = datetime.datetime(2026, 1, 1)
-    when = [t0 + datetime.timedelta(seconds=k * DT) for k in range(z.shape[1])]
-    dets = [[Detection(np.array(zj, dtype=float).reshape(2, 1), timestamp=when[k], measurement_model=measurement)
-             for zj in z[0, k][valid[0, k]].tolist()] for k in range(z.shape[1])]
+    when = ss.scan_times(z.shape[1], DT)
+    dets = [lists[0] for lists in ss.scan_detections(z[0][:, None], valid[0][:, None], [measurement], DT)]
     rng = np.random.default_rng(args.seed)
 
     def births(num_samples: int, seeds: np.ndarray) -> np.ndarray:

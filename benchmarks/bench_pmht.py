@@ -14,9 +14,10 @@ dependency: ``pip install stonesoup==1.9.1``) runs beside ours on a near-clutter
 it can take: one transmitter-receiver pair (its tracker has one measurement model, so the
 illuminator is known), the first ``--ss-scans`` scans, Pd 0.8, ``--ss-clutter`` clutter points per
 scan, tracks from the same priors (truth + N(0, 50 m / 5 m/s)); the same window (10 scans, 5
-shared), 6 EM iterations, fixed priors. Stone Soup has no bistatic measurement model: ours is
-written below (range and Doppler of one pair, the package's conventions). Both trackers' position
-RMSE and seconds per run are recorded, and the ratio.
+shared), 6 EM iterations, fixed priors. Stone Soup has no bistatic measurement model: ours (range
+and Doppler of one pair) and our motion model go in through ``pmsr_nn.interop.stonesoup``, which
+also converts the detections, priors and tracks. Both trackers' position RMSE and seconds per run
+are recorded, and the ratio.
 
     python benchmarks/bench_pmht.py --json benchmarks/results/bench_pmht.json
     python benchmarks/bench_pmht.py --device cuda --memory-runs 1000 --no-stonesoup   # on a GPU
@@ -26,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
 import resource
 import statistics
 import sys
@@ -40,8 +40,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
 
-from pmsr_nn import SPEED_OF_LIGHT  # noqa: E402
 from pmsr_nn.config import load_yaml  # noqa: E402
+from pmsr_nn.errors import ConfigError  # noqa: E402
 from pmsr_nn.filters import Gaussian  # noqa: E402
 from pmsr_nn.harness.multitarget import multitarget_from_dict  # noqa: E402
 from pmsr_nn.harness.runner import draw_block, prepare  # noqa: E402
@@ -142,41 +142,14 @@ def ours(args) -> tuple[dict, object]:
 
 def stone_soup(args, setup, case) -> dict:
     try:
-        from stonesoup.base import Property
-        from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
-        from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
+        from pmsr_nn.interop import stonesoup as ss
         from stonesoup.predictor.kalman import UnscentedKalmanPredictor
         from stonesoup.smoother.kalman import UnscentedKalmanSmoother
         from stonesoup.tracker.pmht import PMHTTracker
-        from stonesoup.types.array import CovarianceMatrix, StateVector, StateVectors
-        from stonesoup.types.detection import Detection
-        from stonesoup.types.state import GaussianState
         from stonesoup.updater.kalman import UnscentedKalmanUpdater
-    except ImportError:
+    except ConfigError:  # pmsr_nn.interop.stonesoup without Stone Soup
         print("Stone Soup not installed (pip install stonesoup==1.9.1): its comparison is skipped")
         return {"skipped": "stonesoup not installed"}
-
-    class BistaticRangeDoppler(NonLinearGaussianMeasurement):
-        """One pair: [|p - tx| + |p - rx| (m), -(f_c / c) d/dt of it (Hz)] of [x, vx, y, vy, z, vz]."""
-
-        tx: np.ndarray = Property(doc="transmitter position (3,), m")
-        rx: np.ndarray = Property(doc="receiver position (3,), m")
-        carrier_hz: float = Property(doc="carrier, Hz")
-
-        @property
-        def ndim_meas(self):
-            return 2
-
-        def function(self, state, noise=False, **kwargs):
-            X = np.asarray(state.state_vector, dtype=float)
-            p, v = X[[0, 2, 4]], X[[1, 3, 5]]
-            to_tx, to_rx = p - self.tx[:, None], p - self.rx[:, None]
-            d_tx, d_rx = np.linalg.norm(to_tx, axis=0), np.linalg.norm(to_rx, axis=0)
-            rate = (v * to_tx).sum(0) / d_tx + (v * to_rx).sum(0) / d_rx
-            out = np.vstack([d_tx + d_rx, -rate * self.carrier_hz / SPEED_OF_LIGHT])
-            if noise is True:
-                out = out + self.rvs(num_samples=out.shape[1], **kwargs)
-            return StateVectors(out) if out.shape[1] > 1 else StateVector(out)
 
     K, m = args.ss_scans, setup.models
     sub = case.sensing.detection_model.for_pairs([0])  # one pair: Stone Soup's tracker has one model
@@ -198,23 +171,15 @@ def stone_soup(args, setup, case) -> dict:
                              m.q, sub, sub.R(), s).x for r in range(B)])
     ours_s = (time.perf_counter() - t0) / B
 
-    g_ = sub.geometry
-    ss_model = BistaticRangeDoppler(ndim_state=6, mapping=(0, 2, 4), noise_covar=np.diag(np.square(sub.noise_std)),
-                                    tx=np.array(g_.transmitters[0].position_m), rx=np.array(g_.receivers[0].position_m),
-                                    carrier_hz=g_.transmitters[0].carrier_hz)
-    qa = [float(v) for v in torch.as_tensor(m.q, dtype=torch.float64).expand(3)]
-    cv = CombinedLinearGaussianTransitionModel([ConstantVelocity(v) for v in qa])  # continuous white acceleration
+    ss_model = ss.measurement_model(sub, n)  # our range-Doppler model of the pair
+    cv = ss.transition_model(m.motion, m.q)  # ours; equals Stone Soup's ConstantVelocity per axis
     lo, span = box.box(sub.components)
     meas_range = np.array([[lo[i], lo[i] + span[i]] for i in range(2)])
-    t_start = datetime.datetime(2021, 10, 1)
-    x_ss, ss_seconds = np.zeros((B, K, T, n)), []
+    times = ss.scan_times(K, m.dt)
+    ss_seconds, estimates = [], []
     for r in range(B):
-        times = [t_start + datetime.timedelta(seconds=k * m.dt) for k in range(K)]
-        detector = [(times[k], {Detection(StateVector(scans.z[r, k, 0, i].numpy()), timestamp=times[k],
-                                          measurement_model=ss_model)
-                                for i in range(scans.shape[3]) if scans.valid[r, k, 0, i]}) for k in range(K)]
-        priors = [GaussianState(StateVector(prior.x[r, t].numpy()), CovarianceMatrix(prior.P[r, t].numpy()),
-                                timestamp=times[0]) for t in range(T)]
+        detector = ss.detector_feed(ss.scan_detections(scans.z[r], scans.valid[r], [ss_model], m.dt), m.dt)
+        priors = [ss.gaussian_state(prior.x[r, t], prior.P[r, t], times[0]) for t in range(T)]
         tracker = PMHTTracker(detector=detector, predictor=UnscentedKalmanPredictor(cv),
                               updater=UnscentedKalmanUpdater(measurement_model=ss_model),
                               smoother=UnscentedKalmanSmoother(transition_model=cv), meas_range=meas_range,
@@ -227,11 +192,9 @@ def stone_soup(args, setup, case) -> dict:
             for _ in tracker:
                 pass
         ss_seconds.append(time.perf_counter() - t0)
-        for t, p in enumerate(priors):
-            track = next(tr for tr in tracker.tracks if tr[0] is p)
-            est = np.array([np.asarray(st.state_vector, dtype=float).ravel() for st in track.states[1:]])
-            x_ss[r, :len(est), t] = est[:K]
-            x_ss[r, len(est):, t] = np.nan
+        # each prior's track, the prior itself left out
+        estimates.append([next(tr for tr in tracker.tracks if tr[0] is p).states[1:] for p in priors])
+    x_ss = ss.tracks_to_estimates(estimates, K, m.dt, n).x.numpy()
     pos = list(m.motion.pos_idx)
 
     def rmse(x) -> float:

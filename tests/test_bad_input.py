@@ -1,4 +1,4 @@
-"""The fault catalogue (``tests/faults/cases.py``, 401 bad inputs and faults over the ten ``pmsr``
+"""The fault catalogue (``tests/faults/cases.py``, 413 bad inputs and faults over the ten ``pmsr``
 commands), held to account.
 
 Each case runs in a fresh sandbox (a copy of small fixtures: a dataset, a trained run, shards,
@@ -8,7 +8,7 @@ sandbox is hashed before and after, and the outcome is classified exactly as the
 code 2, one line ``pmsr: error: ...`` naming what is at fault, nothing changed and nothing left
 behind; a valid input must succeed and touch nothing but its outputs.
 
-The default run calls ``pmsr``'s ``main`` in-process for the 390 cases without a signal (about
+The default run calls ``pmsr``'s ``main`` in-process for the 402 cases without a signal (about
 45 s; a hang would trip a 60 s alarm). The 11 cases that send a signal run as real subprocesses
 in the slow tier (``make test-all``).
 """

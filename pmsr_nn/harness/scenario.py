@@ -47,6 +47,11 @@ def _check_option(method: str, key: str, value, opt) -> None:
         return
     if value == "tuned" and opt.tunable:
         return
+    if opt.choices:
+        if value not in opt.choices:
+            raise ConfigError(f"method {method!r}: option {key} must be one of {', '.join(opt.choices)}, "
+                              f"got {value!r:.40}")
+        return
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if not number or (opt.kind is int and not isinstance(value, int)) or not (opt.lo <= value <= opt.hi):
         extra = " or 'tuned'" if opt.tunable else ""

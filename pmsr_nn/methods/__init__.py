@@ -9,7 +9,9 @@ one module here (plus its tests): the runner and the report need no edit.
 * :mod:`.single_target`: EKF, UKF, IMM, SI+KF, particle filter and learned trackers, each run
   on every target's own stream (association known);
 * :mod:`.msjpda`: S-/P-MSJPDA and the true-assignment reference, on the detections;
-* :mod:`.pmht`: PMHT, 3-D association PMHT and the true-assignment smoother, on the detections.
+* :mod:`.pmht`: PMHT, 3-D association PMHT and the true-assignment smoother, on the detections;
+* :mod:`.stonesoup`: Stone Soup's JPDA or GNN on the detections (optional extra; checked when a
+  scenario uses it).
 """
 
 from __future__ import annotations
@@ -62,7 +64,8 @@ class MethodCall:
 @dataclass(frozen=True)
 class Option:
     """An option: ``default``, ``kind`` (int or float), inclusive range; ``nullable``: null means
-    a default taken elsewhere; ``tunable``: may be ``tuned`` (a grid search picks it)."""
+    a default taken elsewhere; ``tunable``: may be ``tuned`` (a grid search picks it); ``choices``:
+    a string option, one of these names (``kind`` str; the range does not apply)."""
 
     default: Any
     kind: type = float
@@ -70,6 +73,11 @@ class Option:
     hi: float = 1.0e6
     nullable: bool = False
     tunable: bool = False
+    choices: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.choices and (self.kind is not str or self.tunable or self.default not in self.choices):
+            raise ValueError(f"a choice option is a str, not tunable, its default one of {self.choices}")
 
 
 @dataclass(frozen=True)

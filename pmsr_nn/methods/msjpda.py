@@ -18,14 +18,19 @@ from . import MethodCall, MethodKind, Option, register
 ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
 
 
-def settings(call: MethodCall) -> JPDASettings:
-    """The JPDA settings of a call: the case's Pd and clutter density (floored: a tracker needs
-    a positive clutter density even where none was simulated) and the method's options."""
-    s, spec = call.sensing, call.spec
+def clutter_density(s) -> float:
+    """Expected clutter per unit of one pair's measurement space (``SensorSetup`` ``s``), floored:
+    a tracker needs a positive clutter density even where none was simulated."""
     components = s.detection_model.components
     clutter = s.pair_clutter()  # the clutter of each pair's list
-    density = max(clutter.density_of(components), 1e-3 / clutter.volume_of(components))
-    return JPDASettings(pd=s.pd, clutter_density=density, m_best=int(spec.option("m_best")),
+    return max(clutter.density_of(components), 1e-3 / clutter.volume_of(components))
+
+
+def settings(call: MethodCall) -> JPDASettings:
+    """The JPDA settings of a call: the case's Pd and clutter density (:func:`clutter_density`)
+    and the method's options."""
+    s, spec = call.sensing, call.spec
+    return JPDASettings(pd=s.pd, clutter_density=clutter_density(s), m_best=int(spec.option("m_best")),
                         gate_probability=float(spec.option("gate_probability")),
                         relaxation_iterations=int(spec.option("relaxation_iterations")))
 

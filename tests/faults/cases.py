@@ -1218,6 +1218,10 @@ case("evaluate/pmht-2d-target-in-3d-scenario", "evaluate p.yaml --out out",
 case("evaluate/pmht-anneal-below-one", "evaluate p.yaml --out out",
      setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(anneal=0.5)),
      message="anneal", klass="refusal")
+case("evaluate/stonesoup-unknown-tracker", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"].append({"name": "S", "kind": "stonesoup",
+                                                                        "options": {"tracker": "mht"}})),
+     message="must be one of jpda, gnn", klass="refusal")
 FM_YAML = """\
 kind: multitarget
 name: fm_tiny

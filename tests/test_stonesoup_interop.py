@@ -1,0 +1,405 @@
+"""Stone Soup interoperability (pmsr_nn.interop.stonesoup) and the method kind stonesoup.
+
+Tolerances: Stone Soup and we compute the same float64 formulas in a different order (its gain
+``C S^-1`` and ``P - K S K^T``, our Cholesky solves and ``P - W^T W``), so results differ by
+round-off only. Differences are measured in units of the state's own deviation (``|dx_i| /
+sd_i``, ``|dP_ij| / (sd_i sd_j)``), which is scale-free across metres and m/s^2; 1e-8 leaves
+three orders of magnitude above the ~1e-11 measured over 300 steps (the test runs 150), while any real difference (a
+missed wrap, another Q, a step out of order) is of order 1.
+"""
+
+from __future__ import annotations
+
+import datetime
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from pmsr_nn.config import load_yaml
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.harness import evaluate
+from pmsr_nn.harness.multitarget import multitarget_from_dict, prepare_multitarget
+from pmsr_nn.harness.scenario import MethodSpec
+from pmsr_nn.methods import method_kind
+
+ROOT = Path(__file__).resolve().parents[1]
+TOL = 1e-8
+
+
+def _small_mt(tmp_path: Path, methods: list[dict], **over) -> Path:
+    """evaluate/stonesoup_jpda.yaml cut to 2 runs of 6 scans, 2 targets, 5 clutter points."""
+    data = load_yaml(ROOT / "evaluate" / "stonesoup_jpda.yaml")
+    data.update(mc_runs=2, block_runs=2, scans=6, converged_from_scan=2, methods=methods,
+                targets={**data["targets"], "count": 2}, clutter={**data["clutter"], "per_scan": 5})
+    data["reference"]["file"] = str(ROOT / "evaluate" / "reference" / "paper_tables.json")
+    data.update(over)
+    p = tmp_path / "ss.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p
+
+
+def _sd_scaled(a: np.ndarray, b: np.ndarray, P: np.ndarray) -> tuple[float, float]:
+    """Largest ``|a_x - b_x| / sd`` and ``|a_P - b_P| / (sd sd^T)`` (``a``, ``b``: (x, P) pairs, P
+    giving the deviations)."""
+    sd = np.sqrt(np.diagonal(P, axis1=-2, axis2=-1))
+    return (float(np.max(np.abs(a[0] - b[0]) / sd)),
+            float(np.max(np.abs(a[1] - b[1]) / (sd[..., :, None] * sd[..., None, :]))))
+
+
+# ------------------------------------------------------------------------- without Stone Soup
+
+
+def test_nothing_imports_stonesoup_at_import_time():
+    code = ("import sys; import pmsr_nn, pmsr_nn.interop, pmsr_nn.harness, pmsr_nn.cli; from pmsr_nn.methods import "
+            "registry; assert 'stonesoup' in registry(); bad = sorted(m for m in sys.modules if m == 'stonesoup' or "
+            "m.startswith('stonesoup.')); assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT, timeout=120)
+
+
+def test_without_stonesoup_the_kind_is_listed_and_a_scenario_fails_at_load(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "stonesoup", None)  # `import stonesoup` raises ImportError
+    monkeypatch.delitem(sys.modules, "pmsr_nn.interop.stonesoup", raising=False)
+    import pmsr_nn.interop
+
+    monkeypatch.delattr(pmsr_nn.interop, "stonesoup", raising=False)  # `from ..interop import stonesoup` reads it
+    assert method_kind("stonesoup").reads == "detections"
+    with pytest.raises(ConfigError) as exc:
+        import pmsr_nn.interop.stonesoup  # noqa: F401
+    assert str(exc.value) == 'Stone Soup is not installed: pip install "pmsr-nn[stonesoup]"'
+    path = _small_mt(tmp_path, [{"name": "S-MSJPDA", "kind": "s_msjpda"}, {"name": "SS", "kind": "stonesoup"}])
+    with pytest.raises(ConfigError) as exc:
+        evaluate(path, tmp_path / "out", progress=False)
+    msg = str(exc.value)
+    assert "\n" not in msg and "'SS'" in msg and 'pip install "pmsr-nn[stonesoup]"' in msg
+    assert not (tmp_path / "out").exists()
+
+
+def test_tracker_option_is_a_checked_choice(tmp_path):
+    assert MethodSpec("a", "stonesoup", options={"tracker": "gnn"}).option("tracker") == "gnn"
+    assert MethodSpec("a", "stonesoup").option("tracker") == "jpda"
+    for bad in ("mht", 3, None):
+        with pytest.raises(ConfigError, match="option tracker must be one of jpda, gnn") as exc:
+            MethodSpec("a", "stonesoup", options={"tracker": bad})
+        assert "\n" not in str(exc.value)
+    with pytest.raises(ConfigError, match="option tracker must be one of jpda, gnn"):
+        evaluate(_small_mt(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {"tracker": "mht"}}]),
+                 tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------------------------- the models
+
+
+def _stream_models():
+    """The stream model (CA, range / range-rate / azimuth, component layout) of the default recipe."""
+    from pmsr_nn.simulation.recipe import TrackRecipe
+    from pmsr_nn.simulation.tracks import build_models
+
+    return build_models(TrackRecipe())
+
+
+def _mt_models():
+    """The multi-target model (CV, range / Doppler, pair layout) of evaluate/stonesoup_jpda.yaml."""
+    sc = multitarget_from_dict(load_yaml(ROOT / "evaluate" / "stonesoup_jpda.yaml"), ROOT / "evaluate")
+    setup = prepare_multitarget(sc)
+    return setup.models.motion, setup.cases[0].sensing.detection_model
+
+
+@pytest.mark.parametrize("which", ["stream", "detections"])
+def test_measurement_model_is_ours(which):
+    pytest.importorskip("stonesoup")
+    from stonesoup.types.angle import Bearing
+    from stonesoup.types.array import StateVectors
+    from stonesoup.types.state import State
+
+    from pmsr_nn.interop import stonesoup as ss
+
+    motion, model = _stream_models() if which == "stream" else _mt_models()
+    n = motion.dim_x
+    mm = ss.measurement_model(model, n)
+    g = torch.Generator().manual_seed(1)
+    x = torch.randn(5, n, generator=g, dtype=torch.float64) * torch.tensor([3000.0, 20.0, 0.1] * 2 if n == 6 else
+                                                                           [3000.0, 20.0] * 2, dtype=torch.float64)
+    x[:, list(motion.pos_idx)] += torch.tensor([-20000.0, -15000.0], dtype=torch.float64)
+    z = mm.function(State(StateVectors(x.numpy().T)))
+    assert z.shape == (model.dim_z, 5) and mm.ndim_meas == model.dim_z and mm.ndim_state == n
+    np.testing.assert_array_equal(np.asarray(z, dtype=np.float64).T[:, ~model.angle_mask.numpy()],
+                                  model.h(x).numpy()[:, ~model.angle_mask.numpy()])
+    angles = model.angle_mask.numpy()
+    assert all(isinstance(v, Bearing) for v in np.asarray(z)[angles].ravel())
+    # Bearing wraps to [-pi, pi): the same angle as ours to round-off
+    assert np.allclose(np.asarray(z, dtype=np.float64).T[:, angles], model.h(x).numpy()[:, angles], rtol=0, atol=1e-15)
+    for i in range(5):
+        np.testing.assert_array_equal(mm.jacobian(State(x[i].numpy()[:, None])), model.jacobian(x[i]).numpy())
+    np.testing.assert_array_equal(mm.covar(), model.R().numpy())
+
+
+def test_azimuth_residual_wraps_as_ours():
+    """A target due south of the receiver: predicted azimuth just under pi, measured just over
+    -pi. Stone Soup's EKF update (Bearing rows) equals ours (wrapped residual); without the wrap
+    the innovation would be 2 pi off."""
+    pytest.importorskip("stonesoup")
+    from stonesoup.types.hypothesis import SingleHypothesis
+    from stonesoup.updater.kalman import ExtendedKalmanUpdater
+
+    from pmsr_nn.filters import Gaussian, kalman_update, linearised_moments
+    from pmsr_nn.interop import stonesoup as ss
+    from pmsr_nn.measurements import wrap_angle
+
+    motion, model = _stream_models()
+    rx = model.geometry.receivers[0].position_m
+    x = torch.tensor([rx[0] + 5.0, 10.0, 0.0, rx[1] - 8000.0, 3.0, 0.0], dtype=torch.float64)
+    P = torch.diag(torch.tensor([400.0, 9.0, 0.01] * 2, dtype=torch.float64))
+    z = model.h(x)
+    az = model.angle_mask
+    assert bool((z[az].abs() > 3.1).any())
+    z = torch.where(az, wrap_angle(z + 0.003), z + torch.tensor(1.0, dtype=torch.float64))
+    assert bool(((z[az] < 0) & (model.h(x)[az] > 0)).any())  # the measurement crosses the cut
+    ours, nu, _ = kalman_update(Gaussian(x, P), z, linearised_moments(Gaussian(x, P), model, model.R()), model)
+    assert float(nu[az].abs().max()) < 0.01
+    mm = ss.measurement_model(model, 6)
+    det = ss.stream_detections(z[None], mm, 1.0)[0]
+    post = ExtendedKalmanUpdater(measurement_model=mm).update(SingleHypothesis(ss.gaussian_state(x, P, det.timestamp), det))
+    dx, dP = _sd_scaled((np.asarray(post.state_vector, dtype=np.float64)[:, 0], np.asarray(post.covar)),
+                        (ours.x.numpy(), ours.P.numpy()), ours.P.numpy())
+    assert dx < TOL and dP < TOL
+
+
+def test_transition_is_ours_and_stone_soups_own():
+    pytest.importorskip("stonesoup")
+    from stonesoup.models.transition.linear import (CombinedLinearGaussianTransitionModel, ConstantAcceleration,
+                                                    ConstantVelocity)
+
+    from pmsr_nn.interop import stonesoup as ss
+    from pmsr_nn.motion import motion_model
+
+    dt = datetime.timedelta(seconds=2.5)
+    for name, theirs, dims, q in (("ca", ConstantAcceleration, 2, 0.3), ("cv_continuous", ConstantVelocity, 2, 5.0),
+                                  ("cv_continuous", ConstantVelocity, 3, torch.tensor([5.0, 5.0, 0.05]))):
+        motion = motion_model(name, dims)
+        t = ss.transition_model(motion, q)
+        per_axis = torch.as_tensor(q, dtype=torch.float64).expand(dims).tolist()
+        other = CombinedLinearGaussianTransitionModel([theirs(v) for v in per_axis])  # same axis-major layout
+        np.testing.assert_allclose(t.matrix(time_interval=dt), other.matrix(time_interval=dt), rtol=1e-15, atol=0)
+        np.testing.assert_allclose(t.covar(time_interval=dt), other.covar(time_interval=dt), rtol=1e-14, atol=0)
+        np.testing.assert_array_equal(t.covar(time_interval=dt), motion.Q(2.5, q).numpy())
+        assert t.ndim_state == motion.dim_x
+    # our discrete-acceleration CV (no Stone Soup counterpart): our F and Q; a zero interval is a no-op
+    motion = motion_model("cv", 2)
+    t = ss.transition_model(motion, 1.0)
+    np.testing.assert_array_equal(t.matrix(time_interval=dt), motion.F(2.5).numpy())
+    np.testing.assert_array_equal(t.covar(time_interval=dt), motion.Q(2.5, 1.0).numpy())
+    zero = datetime.timedelta(0)
+    np.testing.assert_array_equal(t.matrix(time_interval=zero), np.eye(4))
+    np.testing.assert_array_equal(t.covar(time_interval=zero), np.zeros((4, 4)))
+    with pytest.raises(ConfigError, match="q must be"):
+        ss.transition_model(motion, [1.0, 2.0, 3.0])
+
+
+def test_stone_soup_ekf_on_our_measurements_is_our_ekf(make_tracks):
+    """150 steps of two CA tracks of the default recipe (range, range-rate, azimuth of three pairs,
+    per-track deviations): Stone Soup's ExtendedKalmanPredictor / Updater with the converted models
+    and measurements against pmsr_nn.filters.ekf (the single-target EKF row)."""
+    pytest.importorskip("stonesoup")
+    from stonesoup.predictor.kalman import ExtendedKalmanPredictor
+    from stonesoup.types.hypothesis import SingleHypothesis
+    from stonesoup.updater.kalman import ExtendedKalmanUpdater
+
+    from conftest import perturbed_prior
+    from pmsr_nn.filters import ekf
+    from pmsr_nn.interop import stonesoup as ss
+    from pmsr_nn.simulation.recipe import TrackRecipe
+
+    motion, model, batch = make_tracks(150, 2, 3)
+    dt, q = TrackRecipe().motion.dt_s, TrackRecipe().effective_motion().q_psd
+    prior = perturbed_prior(batch.states[:, 0])
+    ours = ekf(prior, batch.measurements, motion, dt, q, model, model.R(batch.noise_std))
+    predictor = ExtendedKalmanPredictor(ss.transition_model(motion, q))
+    for b in range(2):
+        updater = ExtendedKalmanUpdater(measurement_model=ss.measurement_model(model, motion.dim_x, batch.noise_std[b]))
+        state = ss.gaussian_state(prior.x[b], prior.P[b], ss.EPOCH)
+        xs, Ps = [], []
+        for det in ss.stream_detections(batch.measurements[b], updater.measurement_model, dt):
+            state = updater.update(SingleHypothesis(predictor.predict(state, timestamp=det.timestamp), det))
+            xs.append(np.asarray(state.state_vector, dtype=np.float64)[:, 0])
+            Ps.append(np.asarray(state.covar, dtype=np.float64))
+        assert len(xs) == 150
+        dx, dP = _sd_scaled((np.array(xs), np.array(Ps)), (ours.x[b].numpy(), ours.P[b].numpy()), ours.P[b].numpy())
+        assert dx < TOL and dP < TOL, (dx, dP)
+
+
+# ------------------------------------------------------------------------------ the converters
+
+
+def test_truth_round_trip():
+    pytest.importorskip("stonesoup")
+    from pmsr_nn.interop import stonesoup as ss
+
+    x = np.arange(40, dtype=np.float64).reshape(10, 4) * 1.5
+    x[:3] = np.nan  # born at scan 3
+    x[8:] = np.nan  # dead from scan 8
+    start = datetime.datetime(2021, 5, 1, 12)
+    path = ss.ground_truth_path(torch.from_numpy(x), 2.0, start, path_id="target 1")
+    assert len(path) == 5 and path.id == "target 1"
+    assert path[0].timestamp == start + datetime.timedelta(seconds=6.0)
+    np.testing.assert_array_equal(ss.path_states(path, 10, 2.0, start), x)
+    with pytest.raises(ConfigError, match="not one of the 10 scans"):
+        ss.path_states(path, 10, 3.0, start)
+
+
+def test_detections_convert_with_their_models_times_and_origins():
+    pytest.importorskip("stonesoup")
+    from pmsr_nn.interop import stonesoup as ss
+    from pmsr_nn.rng import seeded_generator
+    from pmsr_nn.simulation.detections import ClutterSpec, simulate_scans
+
+    motion, model = _mt_models()
+    truth = torch.tensor([[-25000.0, 200.0, -20000.0, 244.1]], dtype=torch.float64) \
+        + torch.arange(4, dtype=torch.float64)[:, None, None] * torch.tensor([200.0, 0.0, 244.1, 0.0])
+    scans = simulate_scans(truth[None], model, 0.7, ClutterSpec(per_scan=3), seeded_generator(4))  # (1, 4, 3, M, 2)
+    models = [ss.measurement_model(model.for_pairs([p]), 4) for p in range(3)]
+    lists = ss.scan_detections(scans.z[0], scans.valid[0], models, 2.0, origin=scans.origin[0])
+    assert len(lists) == 4 and all(len(per) == 3 for per in lists)
+    for k, per in enumerate(lists):
+        for p, dets in enumerate(per):
+            keep = scans.valid[0, k, p]
+            assert len(dets) == int(keep.sum())
+            np.testing.assert_array_equal(np.array([d.state_vector[:, 0] for d in dets], dtype=np.float64).reshape(-1, 2),
+                                          scans.z[0, k, p][keep].numpy())
+            assert [d.metadata["origin"] for d in dets] == scans.origin[0, k, p][keep].tolist()
+            assert all(d.measurement_model is models[p] and d.timestamp == ss.EPOCH + datetime.timedelta(seconds=2 * k)
+                       for d in dets)
+    feed = ss.detector_feed(lists, 2.0)
+    assert [len(s) for _, s in feed] == scans.valid[0].sum((1, 2)).tolist()
+    # a stream: rows with a NaN (no measurement) are left out
+    z = model.h(truth[:, 0])
+    z[1] = float("nan")
+    dets = ss.stream_detections(z, ss.measurement_model(model, 4), 1.0)
+    assert [d.metadata["scan"] for d in dets] == [0, 2, 3]
+    np.testing.assert_array_equal(np.asarray(dets[1].state_vector, dtype=np.float64)[:, 0], z[2].numpy())
+
+
+def test_tracks_round_trip_to_estimates():
+    pytest.importorskip("stonesoup")
+    from stonesoup.types.state import State
+    from stonesoup.types.track import Track
+
+    from pmsr_nn.interop import stonesoup as ss
+
+    g = torch.Generator().manual_seed(0)
+    K, n = 6, 4
+    x = torch.randn(2, K, 3, n, generator=g, dtype=torch.float64)
+    A = torch.randn(2, K, 3, n, n, generator=g, dtype=torch.float64)
+    P = A @ A.transpose(-1, -2)
+    exists = torch.zeros(2, K, 3, dtype=torch.bool)
+    exists[0, :, 0] = True
+    exists[0, 2:5, 1] = True
+    exists[1, 1:, 0] = True  # run 1 has one track: its other slots never exist
+    times = ss.scan_times(K, 0.5)
+    runs = []
+    for b in range(2):
+        tracks = []
+        for i in range(3):
+            if bool(exists[b, :, i].any()):
+                states = []
+                for k in torch.nonzero(exists[b, :, i]).flatten().tolist():
+                    states.append(State(x[b, k, i].numpy()[:, None] + 7.0, timestamp=times[k]))  # replaced below
+                    states.append(ss.gaussian_state(x[b, k, i], P[b, k, i], times[k]))  # the last at a scan counts
+                tracks.append(Track(states))
+        runs.append(tracks)
+    est = ss.tracks_to_estimates(runs, K, 0.5, n)
+    assert tuple(est.x.shape) == (2, K, 2, n)  # the most tracks of a run
+    assert torch.equal(est.exists, exists[:, :, :2])
+    live = est.exists
+    assert torch.equal(est.x[live], x[:, :, :2][live]) and torch.equal(est.P[live], P[:, :, :2][live])
+    assert bool(torch.isnan(est.x[~live]).all())
+
+
+# -------------------------------------------------------------------------- the method kind
+
+
+def _two_targets(tmp_path: Path, methods: list[dict]) -> Path:
+    """A designed scenario (CA, range / range-rate / azimuth): target a lives over scans 0-15, b
+    over 8-31; Pd 1 and no clutter."""
+    flight = {"start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0, "heading_deg": 20.0,
+              "segments": [{"duration_s": 24.0}]}
+    other = {"start_range_m": 7800.0, "start_bearing_deg": 140.0, "speed_mps": 12.0, "heading_deg": 0.0,
+             "segments": [{"duration_s": 24.0}]}
+    d = {"name": "two", "seed": 5, "mc_runs": 2, "block_runs": 2, "warmup_steps": 5, "random_streams": "per_product",
+         "detections": {"pd": 1.0, "clutter": {"per_scan": 0, "range_m": [0.0, 25000.0], "range_rate_mps": [-40.0, 40.0]}},
+         "cases": [{"name": "c", "targets": [{"name": "a", "death_s": 16.0, **flight},
+                                             {"name": "b", "birth_s": 8.0, **other}]}],
+         "methods": methods}
+    path = tmp_path / "two.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+@pytest.mark.parametrize("tracker", ["jpda", "gnn"])
+def test_without_clutter_the_trackers_are_a_sequential_ekf_over_each_life(tmp_path, tracker):
+    """Pd 1, no clutter, a gate of probability 1 - 1e-12: every association is certain (a
+    missed-detection weight below 1e-15), so Stone Soup's JPDA and GNN are the EKF updated pair by
+    pair, started at each target's birth from its prior and stopped at its death; checked
+    against pmsr_nn.filters.sequential_update with our own predict, to 1e-8 deviations."""
+    pytest.importorskip("stonesoup")
+    from pmsr_nn.filters import Gaussian, linearised_moments, predict, sequential_update
+    from pmsr_nn.harness.runner import call_method, draw_block, prepare
+    from pmsr_nn.harness.scenario import load_scenario
+
+    setup = prepare(load_scenario(_two_targets(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {
+        "tracker": tracker, "gate_probability": 1.0 - 1e-12}}])))
+    case = setup.cases[0]
+    _, products = draw_block(setup, 0, 0)
+    det = products["detections"]
+    est = call_method(setup, setup.methods[0], case, products, (5, 0, 0))
+    assert torch.equal(est.exists, case.alive.expand(2, *case.alive.shape))
+    assert not bool(est.extras["dummy_most_probable"].any())
+    m, model = setup.models, case.sensing.detection_model
+    F, Q, R = m.motion.F(m.dt), m.motion.Q(m.dt, m.q), model.R()
+    B, K, T = est.exists.shape
+    z = det.scans.target_measurements(T).flatten(-2)  # (B, K, T, N d), pair layout
+    assert not bool(torch.isnan(z[est.exists]).any())
+    for t in range(T):
+        life = torch.nonzero(case.alive[:, t]).flatten().tolist()
+        g = Gaussian(det.prior.x[:, t], det.prior.P[:, t])
+        for k in life:
+            if k > life[0]:
+                g = predict(g, F, Q)
+            g, _ = sequential_update(g, z[:, k, t], model, R, linearised_moments)
+            dx, dP = _sd_scaled((est.x[:, k, t].numpy(), est.P[:, k, t].numpy()), (g.x.numpy(), g.P.numpy()),
+                                g.P.numpy())
+            assert dx < TOL and dP < TOL, (t, k, dx, dP)
+    # the predicted range deviation the loss rule reads: between R's 30 m and the prior's spread
+    sd = est.extras["gate_range_sd_m"][est.exists]
+    assert bool((sd > 30.0).all() and (sd < 1000.0).all())
+
+
+def test_harness_reports_stone_soup_rows_with_run_time(tmp_path):
+    pytest.importorskip("stonesoup")
+    methods = [{"name": "S-MSJPDA", "kind": "s_msjpda"},
+               {"name": "Stone Soup JPDA", "kind": "stonesoup", "options": {"tracker": "jpda"}},
+               {"name": "Stone Soup GNN", "kind": "stonesoup", "options": {"tracker": "gnn"}}]
+    res = evaluate(_small_mt(tmp_path, methods), tmp_path / "out", progress=False)
+    rows = res["cases"]["nominal"]["methods"]
+    for name in ("Stone Soup JPDA", "Stone Soup GNN"):
+        r = rows[name]
+        assert r["seconds_per_run"] > 0 and 0 <= r["loss_probability"] <= 1
+        # 1000 m range noise, priors 100 m off: a track that followed clutter would be km away
+        assert 0 < r["rmse_pos_m"] < 500.0
+    assert res["settings"]["methods"]["Stone Soup GNN"] == {"kind": "stonesoup", "reads": "detections",
+                                                           "tracker": "gnn", "gate_probability": 0.999}
+    report = (tmp_path / "out" / "report.md").read_text()
+    lines = report.splitlines()
+    head = [c.strip() for c in next(line for line in lines if line.startswith("| method | reads |")).strip("|").split("|")]
+    for name in ("Stone Soup JPDA", "Stone Soup GNN"):
+        row = next(line for line in lines if line.startswith(f"| {name} | detections |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert float(cells[head.index("s / run")]) == pytest.approx(rows[name]["seconds_per_run"], abs=1e-3)
+        timing = next(line for line in report.splitlines()
+                      if line.startswith(f"| {name} |") and line.count("|") == 5)  # the run-time table
+        assert float(timing.split("|")[2]) == pytest.approx(1e3 * rows[name]["seconds_per_run"], rel=1e-3, abs=0.01)
