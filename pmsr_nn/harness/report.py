@@ -494,6 +494,16 @@ def _plt():
     return plt
 
 
+def method_colours(names) -> dict[str, object]:
+    """One colour per method, the same in every figure: matplotlib's ten-colour cycle, or tab20
+    for more methods (the cycle would repeat a colour)."""
+    names = list(dict.fromkeys(names))
+    if len(names) <= 10:
+        return {m: f"C{i}" for i, m in enumerate(names)}
+    cmap = _plt().get_cmap("tab20")
+    return {m: cmap(i % 20) for i, m in enumerate(names)}
+
+
 def _per_target(curve) -> list:
     """A curve as a list of per-target curves (one target: ``[curve]``)."""
     return curve if curve and isinstance(curve[0], list) else [curve]
@@ -515,15 +525,16 @@ def plot_rmse(res: dict, out: Path) -> list[Path]:
         T = len(next(iter(rmse.values())))
         cols = min(T, 5)  # more targets wrap onto more rows, so no panel is squashed
         rows = -(-T // cols)
-        fig, axes = plt.subplots(rows, cols, figsize=(8, 4.8) if T == 1 else (3.6 * cols, 3.2 * rows + 0.6),
+        fig, axes = plt.subplots(rows, cols, figsize=(9.6, 4.8) if T == 1 else (3.6 * cols, 3.2 * rows + 0.6),
                                  sharey=True, squeeze=False)
         for ax in axes.flat[T:]:
             ax.set_visible(False)
         names = case.get("targets", [])
+        colours = method_colours(rmse)
         for i, ax in enumerate(axes.flat[:T]):
             t = np.arange(case["steps"]) * dt
             for m, per in rmse.items():
-                ax.semilogy(t, per[i], lw=1.2, label=m)
+                ax.semilogy(t, per[i], lw=1.2, label=m, color=colours[m])
             if "pcrb_pos_m" in cv:
                 ax.semilogy(t, _per_target(cv["pcrb_pos_m"])[i], "k--", lw=1.4, label="PCRB (filtering)")
                 ax.semilogy(t, _per_target(cv["pcrb_q0_pos_m"])[i], "--", color="grey", lw=1.0, label="PCRB, q = 0 (floor)")
@@ -536,8 +547,8 @@ def plot_rmse(res: dict, out: Path) -> list[Path]:
             ax.grid(True, which="both", alpha=0.3)
         for row in axes:
             row[0].set_ylabel("position RMSE (m)")
-        if T == 1:
-            axes[0][0].legend(fontsize=8, ncol=2)
+        if T == 1:  # outside the data, right of the panel
+            axes[0][0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         else:  # one legend for all panels, below them
             handles, labels = axes[0][0].get_legend_handles_labels()
             fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=8, frameon=False)
@@ -559,55 +570,88 @@ def plot_set_metrics(res: dict, out: Path) -> list[Path]:
             continue
         t = np.arange(case["steps"]) * dt
         fig, axes = plt.subplots(1, 3, figsize=(15, 4.0))
+        colours = method_colours(cv["set"])
         for m, c in cv["set"].items():
-            axes[0].plot(t, c["ospa_m"], lw=1.1, label=m)
-            axes[1].plot(t, c["cardinality"], lw=1.1, label=m)
+            axes[0].plot(t, c["ospa_m"], lw=1.1, label=m, color=colours[m])
+            axes[1].plot(t, c["cardinality"], lw=1.1, label=m, color=colours[m])
             per = np.asarray(_per_target(cv["rmse_pos_m"][m]), dtype=float)
             with np.errstate(invalid="ignore"):
                 mean_sq = np.nanmean(per**2, axis=0) if np.isfinite(per).any() else per[0]
-            axes[2].semilogy(t, np.sqrt(mean_sq), lw=1.1, label=m)
+            axes[2].semilogy(t, np.sqrt(mean_sq), lw=1.1, label=m, color=colours[m])
         axes[1].step(t, cv["cardinality_truth"], "k", where="post", lw=1.6, label="truth")
         for ax, ylabel in zip(axes, (f"OSPA (m, c = {res['settings']['set_metrics']['c_m']:g} m)",
                                      "mean number of tracks", "position RMSE over living targets (m)")):
             ax.set(xlabel="time (s)", ylabel=ylabel)
             ax.grid(True, which="both", alpha=0.3)
-        axes[0].legend(fontsize=7)
+        axes[1].yaxis.get_major_locator().set_params(integer=True)  # a count
+        handles, labels = axes[1].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
         fig.suptitle(f"{case['title']}: {res['mc_runs']} runs")
-        paths.append(save_figure(fig, out / f"{name}_set_metrics.png", dpi=100))
+        rect = (0, (0.3 + 0.25 * -(-len(labels) // 6)) / fig.get_figheight(), 1, 0.97)
+        paths.append(save_figure(fig, out / f"{name}_set_metrics.png", dpi=100, rect=rect))
     return paths
+
+
+def _path_extent(paths: list[np.ndarray], margin: float = 0.08) -> tuple[np.ndarray, float]:
+    """Centre ``(2,)`` and side (same units) of the square holding the finite points of ``paths``
+    (each ``(K, ..., 2)``), with ``margin`` of the side added."""
+    pts = np.concatenate([p.reshape(-1, 2) for p in paths if p.size]) if paths else np.zeros((1, 2))
+    pts = pts[np.isfinite(pts).all(1)]
+    if not len(pts):
+        return np.zeros(2), 1.0
+    lo, hi = pts.min(0), pts.max(0)
+    return 0.5 * (lo + hi), max(float((hi - lo).max()), 1e-3) * (1 + 2 * margin)
 
 
 def plot_trajectories(res: dict, examples: dict, geometry, path: Path) -> Path:
     """Sensors and every case's true paths, then per case run 0's truth and each method's
-    estimates (Fig. 8 / 12 analogue)."""
+    estimates (Fig. 8 / 12 analogue).
+
+    The per-case panels share one extent: each is a square window of the same side (the largest
+    case's true path, with a margin) centred on its own path, so every panel has the same scale
+    and none is squashed; the legends sit below the panels."""
     plt = _plt()
     names = list(res["cases"])
-    fig, axes = plt.subplots(1, len(names) + 1, figsize=(4.2 * (len(names) + 1), 4.4), squeeze=False)
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.8 * (len(names) + 1), 4.6), squeeze=False)
     axes = axes[0]
     ax0 = axes[0]
-    for tx in geometry.transmitters:
-        ax0.plot(tx.position_m[0] / 1e3, tx.position_m[1] / 1e3, "k^", ms=9)
-    for rx in geometry.receivers:
-        ax0.plot(rx.position_m[0] / 1e3, rx.position_m[1] / 1e3, "bv", ms=7)
+    for i, tx in enumerate(geometry.transmitters):
+        ax0.plot(tx.position_m[0] / 1e3, tx.position_m[1] / 1e3, "k^", ms=9, label="transmitter" if i == 0 else None)
+    for i, rx in enumerate(geometry.receivers):
+        ax0.plot(rx.position_m[0] / 1e3, rx.position_m[1] / 1e3, "bv", ms=7, label="receiver" if i == 0 else None)
+    truths = {n: np.asarray(examples.get(n, {}).get("truth", np.zeros((0, 1, 2))), dtype=float) / 1e3 for n in names}
     for j, name in enumerate(names):
-        truth = np.asarray(examples.get(name, {}).get("truth", np.zeros((0, 1, 2))))
+        truth = truths[name]
         for t in range(truth.shape[1]):
-            ax0.plot(truth[:, t, 0] / 1e3, truth[:, t, 1] / 1e3, color=f"C{j}", lw=1.6, label=name if t == 0 else None)
-    ax0.set(xlabel="east (km)", ylabel="north (km)", title="sensors (^ Tx, v Rx)\nand true trajectories", aspect="equal")
-    ax0.legend(fontsize=7)
+            ax0.plot(truth[:, t, 0], truth[:, t, 1], color=f"C{j}", lw=1.6, label=name if t == 0 else None)
+    ax0.set(xlabel="east (km)", ylabel="north (km)", title="sensors and true trajectories", aspect="equal")
+    ax0.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
+    side = max(_path_extent([t])[1] for t in truths.values()) if truths else 1.0
+    methods = method_colours(m for n in names for m in examples.get(n, {}) if m != "truth" and not m.startswith("@"))
     for ax, name in zip(axes[1:], names):
         ex = examples.get(name, {})
-        truth = np.asarray(ex.get("truth", np.zeros((0, 1, 2))))
+        truth = truths[name]
         for t in range(truth.shape[1]):
-            ax.plot(truth[:, t, 0] / 1e3, truth[:, t, 1] / 1e3, "k", lw=2.2, label="truth" if t == 0 else None)
-        for j, m in enumerate(k for k in ex if k != "truth" and not k.startswith("@")):
-            est = np.asarray(ex[m])
+            ax.plot(truth[:, t, 0], truth[:, t, 1], "k", lw=2.2, label="truth" if t == 0 else None)
+        for m in (k for k in ex if k != "truth" and not k.startswith("@")):
+            colour = methods[m]  # one colour per method in every panel and figure
+            est = np.asarray(ex[m], dtype=float) / 1e3
             est = est[:, None] if est.ndim == 2 else est
             for t in range(est.shape[1]):
-                ax.plot(est[:, t, 0] / 1e3, est[:, t, 1] / 1e3, color=f"C{j}", lw=0.8, label=m if t == 0 else None)
-        ax.set(xlabel="east (km)", title=textwrap.fill(f"{res['cases'][name]['title']}: run 0", 40), aspect="equal")
-        ax.legend(fontsize=6)
-    return save_figure(fig, path)
+                ax.plot(est[:, t, 0], est[:, t, 1], color=colour, lw=0.8, label=m if t == 0 else None)
+        centre, _ = _path_extent([truth])
+        ax.set(xlim=(centre[0] - side / 2, centre[0] + side / 2), ylim=(centre[1] - side / 2, centre[1] + side / 2),
+               xlabel="east (km)", ylabel="north (km)", aspect="equal",
+               title=textwrap.fill(f"{res['cases'][name]['title']}: run 0", 36))
+        ax.grid(True, alpha=0.3)
+    entries = {}  # every panel's methods (a case may run fewer), first handle per label
+    for ax in axes[1:]:
+        for h, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, h)
+    if entries:
+        fig.legend(list(entries.values()), list(entries), loc="lower center", bbox_to_anchor=(0.6, 0.0),
+                   ncol=min(len(entries), 6), fontsize=8, frameon=False)
+    return save_figure(fig, path, rect=(0, 0.1, 1, 1))
 
 
 def plot_sweep(res: dict, path: Path) -> Path:
@@ -625,5 +669,5 @@ def plot_sweep(res: dict, path: Path) -> Path:
                                  "swap probability (last scan)", "seconds per run (ours)")):
         ax.set(xlabel=SWEEP_LABELS[sweep], ylabel=ylabel)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=7)
+    axes[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # outside the data
     return save_figure(fig, path, dpi=100)
