@@ -154,13 +154,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     ox = sub.add_parser(
         "export-onnx",
-        help="write a trained tracker as an ONNX model",
+        help="write a trained tracker as an ONNX model (onnxruntime checks it against pmsr track)",
         description="Write a DFNN / MDFNN / RNN tracker (tracker.pt or a run's .ckpt) as one ONNX graph: "
         "normalisation, network and read-out, float32, SI units in and out, named inputs 'measurements' "
         "(and 'state_fixes' for trackers that read fixes) and output 'states', dynamic batch and scan "
         "axes; columns, geometry, dt and window in the model's metadata. The graph is one pass over "
         "the sequence it is given (equal to 'pmsr track' for feedforward trackers; for an RNN on "
-        "sequences of up to its window). Needs the onnx extra: pip install \"pmsr-nn[onnx]\".",
+        "sequences of up to its window); a KalmanNet-style tracker is exported as its per-scan step, "
+        "for a loop of your own. Needs the onnx extra: pip install \"pmsr-nn[onnx]\".",
     )
     ox.add_argument("--checkpoint", type=Path, required=True, help="tracker.pt or a run's .ckpt")
     ox.add_argument("--out", type=Path, required=True, help="ONNX file to write (.onnx)")
@@ -417,9 +418,11 @@ def cmd_export_onnx(args) -> int:
     with atomic_file(args.out, overwrite=args.overwrite, inputs=[args.checkpoint], suffixes=(".onnx",)) as tmp:
         meta = export_onnx(tracker, tmp)
         check = check_with_onnxruntime(tracker, tmp)
-    names = ", ".join(json.loads(meta["inputs"]))
-    print(f"exported  {tracker.meta['model']['kind']} tracker -> {args.out}  "
-          f"({args.out.stat().st_size / 1e6:.1f} MB; inputs {names}; output states; dynamic batch and scan axes)")
+    step = meta["graph"] == "per_scan_step"
+    print(f"exported  {tracker.meta['model']['kind']} tracker -> {args.out}  ({args.out.stat().st_size / 1e6:.1f} MB; "
+          + ("one scan per call, your loop around it (metadata 'loop'); dynamic batch axis)" if step else
+             "dynamic batch and scan axes)"))
+    print(f"graph     inputs {', '.join(json.loads(meta['inputs']))} -> outputs {', '.join(json.loads(meta['outputs']))}")
     if check is None:
         print("checked   not run: onnxruntime is not installed (pip install \"pmsr-nn[onnx]\")")
     else:

@@ -17,7 +17,7 @@ import torch
 from pmsr_nn.cli import main
 from pmsr_nn.data.sequences import write_csv_measurements
 from pmsr_nn.nets.inference import Tracker
-from pmsr_nn.nets.onnx_export import FIXES, INPUT, run_onnx
+from pmsr_nn.nets.onnx_export import FIXES, INPUT, run_kalmannet_onnx, run_onnx
 
 pytest.importorskip("onnxruntime")
 
@@ -99,9 +99,27 @@ def test_the_model_names_its_axes_and_carries_its_columns_and_geometry(tmp_path)
     assert dims == ["batch", "scans", 9]
 
 
-def test_a_kalmannet_is_refused_and_nothing_is_written(tmp_path, capsys):
-    out = tmp_path / "k.onnx"
-    code = main(["export-onnx", "--checkpoint", str(RELEASED / "kalmannet_s0.pt"), "--out", str(out)])
+@pytest.mark.parametrize("name", ["kalmannet_s0", "kalmannet_mismatch_s0"])
+def test_a_kalmannet_step_graph_in_a_loop_matches_pmsr_track(tmp_path, measurements, name):
+    """The per-scan step graph run over one window of scans by run_kalmannet_onnx (the loop a
+    deployment writes) against pmsr track. The recursion carries float32 rounding from scan to
+    scan; the tolerance stays 1e-5 (measured: a few 1e-6 of a column's span)."""
+    checkpoint = RELEASED / f"{name}.pt"
+    z = measurements[:, :100]
+    path = _export(tmp_path, checkpoint)
+    tracker, expected = _track(tmp_path, checkpoint, z)
+    got = run_kalmannet_onnx(path, z, tracker.representation.fixes(z))
+    assert got.shape == expected.shape == (3, 100, 6)
+    assert_parity(got, expected, tracker.state_scaler.span.numpy())
+    meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert meta["graph"] == "per_scan_step" and "state fix" in meta["loop"]
+
+
+def test_an_unreadable_checkpoint_is_refused_and_nothing_is_written(tmp_path, capsys):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    out = tmp_path / "t.onnx"
+    code = main(["export-onnx", "--checkpoint", str(bad), "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and "KalmanNet" in err[0]
-    assert list(tmp_path.iterdir()) == []
+    assert code == 2 and len(err) == 1 and "bad.pt" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.pt"]

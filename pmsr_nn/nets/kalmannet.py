@@ -78,24 +78,34 @@ class KalmanNetTracker(nn.Module):
         F = self.F.to(z.dtype)
         out = [x]
         for k in range(1, T):
-            x_pred = x @ F.T
-            nu = self.model.residual(z[:, k], self.model.h(x_pred))
             if gain is None:
-                if self.cfg.innovation_clip is not None:  # bounded influence of an outlier (Huber-like)
-                    c = self.cfg.innovation_clip * self.s_z
-                    nu = torch.maximum(torch.minimum(nu, c), -c)
-                feats = torch.cat([self.model.residual(z[:, k], z[:, k - 1]) / self.s_z, nu / self.s_z,
-                                   (x - x_prev) / self.s_x, (x - x_pred_prev) / self.s_x], -1)
-                if self.cfg.innovation_clip is not None:
-                    feats = feats.clamp(-10 * self.cfg.innovation_clip, 10 * self.cfg.innovation_clip)
-                K, hidden = self.learned_gain(feats.to(self.s_x.dtype), hidden)
-                K = K.to(z.dtype)
+                x_new, x_pred, hidden = self.step(z[:, k], z[:, k - 1], x, x_prev, x_pred_prev, hidden)
             else:
-                K = gain(x_pred, nu)
-            x_prev, x_pred_prev = x, x_pred
-            x = x_pred + (K @ nu.unsqueeze(-1)).squeeze(-1)
+                x_pred = x @ F.T
+                nu = self.model.residual(z[:, k], self.model.h(x_pred))
+                x_new = x_pred + (gain(x_pred, nu) @ nu.unsqueeze(-1)).squeeze(-1)
+            x_prev, x_pred_prev, x = x, x_pred, x_new
             out.append(x)
         return torch.stack(out, 1)
+
+    def step(self, z: torch.Tensor, z_prev: torch.Tensor, x: torch.Tensor, x_prev: torch.Tensor,
+             x_pred_prev: torch.Tensor, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One scan with the learned gain: ``(x_k, x_pred_k, hidden_k)`` from the scan's measurements
+        ``z (B, m)``, the previous scan's ``z_prev``, the filtered states ``x = x_{k-1}`` and
+        ``x_prev = x_{k-2}``, the previous prediction ``x_pred_prev`` (all ``(B, n)``, SI) and the
+        GRU state ``hidden (B, H)``. (The ONNX export runs this as its per-scan graph.)"""
+        x_pred = x @ self.F.to(z.dtype).T
+        nu = self.model.residual(z, self.model.h(x_pred))
+        if self.cfg.innovation_clip is not None:  # bounded influence of an outlier (Huber-like)
+            c = self.cfg.innovation_clip * self.s_z
+            nu = torch.maximum(torch.minimum(nu, c), -c)
+        feats = torch.cat([self.model.residual(z, z_prev) / self.s_z, nu / self.s_z,
+                           (x - x_prev) / self.s_x, (x - x_pred_prev) / self.s_x], -1)
+        if self.cfg.innovation_clip is not None:
+            feats = feats.clamp(-10 * self.cfg.innovation_clip, 10 * self.cfg.innovation_clip)
+        K, hidden = self.learned_gain(feats.to(self.s_x.dtype), hidden)
+        x_new = x_pred + (K.to(z.dtype) @ nu.unsqueeze(-1)).squeeze(-1)
+        return x_new, x_pred, hidden
 
     def forward(self, u: torch.Tensor) -> torch.Tensor:
         z, fix = u[..., : self.m], u[..., self.m :]

@@ -17,8 +17,11 @@ Representations that read state fixes (``inputs: local_fixes`` or ``output: resi
 the fixes as an input, ``state_fixes``: computing them is a spherical-interpolation solve
 with Gauss-Newton steps and conditioning checks (eigenvalues), which ONNX has no operators
 for. They come from :func:`pmsr_nn.filters.fixes.state_fixes` with missing ones held
-(:meth:`~pmsr_nn.nets.representation.Representation.fixes`). The KalmanNet-style tracker
-(a per-scan loop around a learned gain) is not exported.
+(:meth:`~pmsr_nn.nets.representation.Representation.fixes`).
+
+The KalmanNet-style tracker is a loop over scans around a learned gain; it is exported as its
+per-scan step (:class:`KalmanNetStepGraph`, dynamic batch axis), which the deployment runs in its
+own loop, started at the first scan's state fix (:func:`run_kalmannet_onnx` is that loop).
 
 The model's metadata (``metadata_props``) carry what a user of the file needs: the measurement
 and state columns, the sensor geometry, the sampling interval, the training window, the
@@ -60,9 +63,6 @@ class ExportGraph(nn.Module):
     def __init__(self, tracker: Tracker):
         super().__init__()
         rep = tracker.representation
-        if tracker.model.kind == "kalmannet":
-            raise CheckpointError(f"{tracker.source}: a KalmanNet-style tracker runs a per-scan loop around its "
-                                  "learned gain; ONNX export covers DFNN, MDFNN and RNN trackers")
         self.net = tracker.net.float().eval()
         self.inputs, self.output = rep.inputs, rep.output
         self.uses_fixes = rep.needs_fixes
@@ -98,6 +98,49 @@ class ExportGraph(nn.Module):
         if self.output == "residual":
             return fixes + self.x_scale * y
         return (y + 1.0) * 0.5 * self.x_span + self.x_lo
+
+
+STEP_INPUTS = ("measurements", "previous_measurements", "previous_state", "state_before_previous",
+               "previous_prediction", "previous_hidden")
+STEP_OUTPUTS = ("state", "prediction", "hidden")
+
+
+class KalmanNetStepGraph(nn.Module):
+    """One scan of a KalmanNet-style tracker (:meth:`KalmanNetTracker.step`), float32, SI units:
+    ``(z_k, z_{k-1}, x_{k-1}, x_{k-2}, x_pred_{k-1}, h_{k-1}) -> (x_k, x_pred_k, h_k)``, each
+    ``(batch, columns)`` (``h``: the GRU state, ``(batch, hidden)``)."""
+
+    def __init__(self, tracker: Tracker):
+        super().__init__()
+        self.net = tracker.net.float().eval()
+
+    @property
+    def hidden_size(self) -> int:
+        return self.net.gru.hidden_size
+
+    def forward(self, z, z_prev, x, x_prev, x_pred_prev, hidden):
+        return self.net.step(z, z_prev, x, x_prev, x_pred_prev, hidden)
+
+
+def run_kalmannet_onnx(path: Path, z: torch.Tensor, fixes: torch.Tensor):
+    """States ``(B, K, n)`` (float32 NumPy) of an exported KalmanNet step graph run by onnxruntime
+    over measurements ``z (B, K, m)`` (SI) with their state fixes ``(B, K, n)``: the loop a
+    deployment writes (the filter starts at the first scan's fix, GRU state zero)."""
+    import numpy as np
+    import onnxruntime
+
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    hidden_size = session.get_inputs()[STEP_INPUTS.index("previous_hidden")].shape[1]
+    z = z.float().numpy()
+    x = x_prev = x_pred = fixes[:, 0].float().numpy()
+    hidden = np.zeros((z.shape[0], hidden_size), dtype=np.float32)
+    out = [x]
+    for k in range(1, z.shape[1]):
+        x_new, x_pred, hidden = session.run(list(STEP_OUTPUTS), dict(zip(STEP_INPUTS, (z[:, k], z[:, k - 1], x, x_prev,
+                                                                                      x_pred, hidden))))
+        x_prev, x = x, x_new
+        out.append(x)
+    return np.stack(out, 1)
 
 
 def export_metadata(tracker: Tracker, names: list[str]) -> dict[str, str]:
@@ -159,10 +202,20 @@ def export_onnx(tracker: Tracker, out: Path, opset: int = OPSET) -> dict[str, st
 
     import onnx
 
-    graph = ExportGraph(tracker)
-    names = graph.input_names
-    args = tuple(a.float() for a in graph_inputs(graph, *example_inputs(tracker)))
-    axes = {n: {0: "batch", 1: "scans"} for n in [*names, OUTPUT]}
+    if tracker.model.kind == "kalmannet":
+        graph = KalmanNetStepGraph(tracker)
+        names, outputs = list(STEP_INPUTS), list(STEP_OUTPUTS)
+        z, fixes = (a.float() for a in example_inputs(tracker, scans=3))
+        x = fixes[:, 1]
+        args = (z[:, 2], z[:, 1], x, fixes[:, 0], x, torch.zeros(len(z), graph.hidden_size, dtype=torch.float32))
+        axes = {n: {0: "batch"} for n in [*names, *outputs]}
+        shapes = "(batch, columns) per scan"
+    else:
+        graph = ExportGraph(tracker)
+        names, outputs = graph.input_names, [OUTPUT]
+        args = tuple(a.float() for a in graph_inputs(graph, *example_inputs(tracker)))
+        axes = {n: {0: "batch", 1: "scans"} for n in [*names, *outputs]}
+        shapes = "(batch, scans, columns)"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         level = logging.getLogger("torch.onnx").level
@@ -170,18 +223,26 @@ def export_onnx(tracker: Tracker, out: Path, opset: int = OPSET) -> dict[str, st
         try:
             # The TorchScript exporter: torch.export (dynamo=True) cannot yet trace the recurrent
             # layers or the fix features with symbolic batch and scan sizes (torch 2.13).
-            torch.onnx.export(graph, args, str(out), input_names=names, output_names=[OUTPUT],
+            torch.onnx.export(graph, args, str(out), input_names=names, output_names=outputs,
                               dynamic_axes=axes, opset_version=opset, dynamo=False)
         finally:
             logging.getLogger("torch.onnx").setLevel(level)
     proto = onnx.load(str(out))
     meta = export_metadata(tracker, names)
+    meta["outputs"] = json.dumps(outputs)
+    meta["graph"] = "per_scan_step" if tracker.model.kind == "kalmannet" else "whole_sequence"
+    if meta["graph"] == "per_scan_step":
+        meta["state_fixes"] = "pmsr_nn.nets.representation.Representation.fixes"
+        meta["loop"] = ("scan 0: state = the scan's state fix; then per scan k >= 1: (measurements z_k, previous_measurements "
+                        "z_{k-1}, previous_state x_{k-1}, state_before_previous x_{k-2}, previous_prediction, previous_hidden) "
+                        "-> (state x_k, prediction, hidden); at k = 1, x_{k-2} and the previous prediction are x_0 and "
+                        "the hidden state is zero (pmsr_nn.nets.onnx_export.run_kalmannet_onnx)")
     for key, value in meta.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
     proto.producer_name, proto.producer_version = "pmsr_nn", __version__
-    proto.doc_string = (f"{tracker.model.kind} tracker: {', '.join(names)} (batch, scans, columns; SI units, float32) "
-                        f"-> {OUTPUT} (batch, scans, {len(tracker.state_columns)}); columns in metadata_props")
+    proto.doc_string = (f"{tracker.model.kind} tracker: {', '.join(names)} -> {', '.join(outputs)}, {shapes}, SI units, "
+                        "float32; columns in metadata_props (pmsr_nn.nets.onnx_export)")
     onnx.checker.check_model(proto)
     onnx.save(proto, str(out))
     return meta
@@ -206,7 +267,10 @@ def check_with_onnxruntime(tracker: Tracker, path: Path, batch: int = 4, toleran
     except ImportError:
         return None
     ins = example_inputs(tracker, batch=batch, seed=1)
-    got = torch.from_numpy(run_onnx(path, dict(zip([INPUT, FIXES], ins)))).double()
+    if tracker.model.kind == "kalmannet":
+        got = torch.from_numpy(run_kalmannet_onnx(path, *ins)).double()
+    else:
+        got = torch.from_numpy(run_onnx(path, dict(zip([INPUT, FIXES], ins)))).double()
     ref = tracker.track(ins[0])
     worst = float(((got - ref).abs() / tracker.state_scaler.span).max())
     if not worst <= tolerance:  # NaN fails too
