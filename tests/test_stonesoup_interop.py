@@ -62,7 +62,9 @@ def test_nothing_imports_stonesoup_at_import_time():
 
 
 def test_without_stonesoup_the_kind_is_listed_and_a_scenario_fails_at_load(tmp_path, monkeypatch):
-    monkeypatch.setitem(sys.modules, "stonesoup", None)  # `import stonesoup` raises ImportError
+    # `import stonesoup` (and of any submodule an earlier test left in sys.modules) raises ImportError
+    for name in [m for m in sys.modules if m.startswith("stonesoup.")] + ["stonesoup"]:
+        monkeypatch.setitem(sys.modules, name, None)
     monkeypatch.delitem(sys.modules, "pmsr_nn.interop.stonesoup", raising=False)
     import pmsr_nn.interop
 

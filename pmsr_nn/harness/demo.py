@@ -137,8 +137,18 @@ def _fresh(out: Path) -> None:
 
 DEMO_STAGES = 5
 DEMO_EXPECTED = "about 2 min on 2 CPU cores"
-"""What the header promises: ``make demo`` took 1.7 min on this project's 2-core reference machine
+"""What the header promises: ``make demo`` took 1.5 min on this project's 2-core reference machine
 (2026-11-24); each stage's bar shows its own time left as it runs."""
+
+REFERENCE_SECONDS = {"batch": {"mdfnn": 0.11, "kalmannet": 0.23}, "run": {"evaluation": 1.0, "shared_drones": 2.0}}
+"""Seconds per training batch and per Monte Carlo run of each stage on the 2-core reference machine
+(the default demo, 2026-11-24: 33 s for 300 MDFNN batches, 28 s for 120 KalmanNet batches, 20 s
+for 20 runs of the three trajectories, 10 s for 5 runs of the drones): each stage line says what
+it took there."""
+
+
+def _about(seconds: float) -> str:
+    return f"(about {max(seconds, 1):.0f} s on 2 CPU cores)"
 
 
 def run_demo(out: Path, mc_runs: int = 20, progress: bool = True, log=print, verbose: bool = False) -> dict:
@@ -188,18 +198,21 @@ def _run(out: Path, mc_runs: int, progress: bool, log, verbose: bool) -> dict:
     for kind in DEMO_MODELS:
         cfg = demo_train_config(kind, out / "data")
         name = DEMO_NAMES.get(kind, kind.upper())
+        batches = cfg.trainer.max_epochs * (cfg.trainer.train_batches_per_epoch or 0)
         stages.start(f"train a small {name}: {cfg.trainer.max_epochs} epochs x {cfg.trainer.train_batches_per_epoch} "
-                     f"batches of {cfg.data.batch_size} windows")
+                     f"batches of {cfg.data.batch_size} windows "
+                     + _about(batches * REFERENCE_SECONDS["batch"].get(kind, 0.2)))
         m = train(cfg, out / "train" / kind, console=console, label=f"train {name}")
         train_seconds[kind] = stages.done(f"validation position RMSE {m['val']['pos_rmse_m']:.1f} m")
         checkpoints[name] = out / "train" / kind / "tracker.pt"
     scenario = demo_scenario(checkpoints, mc_runs)
-    stages.start(f"evaluate {', '.join(m.name for m in scenario.methods)} and the PCRB on the three built-in "
-                 f"trajectories, {mc_runs} runs each")
+    stages.start(f"evaluate {', '.join(m.name for m in scenario.methods)}, PCRB on 3 trajectories x {mc_runs} runs "
+                 + _about(mc_runs * REFERENCE_SECONDS["run"]["evaluation"]))
     res = evaluate(scenario, out / "evaluation", progress=progress)
     stages.done()
     runs = min(mc_runs, SHARED_DRONES_RUNS)
-    stages.start(f"three drones, every method on the same draws (evaluate/shared_drones.yaml), {runs} runs")
+    stages.start(f"three drones, every method on the same draws (evaluate/shared_drones.yaml), {runs} runs "
+                 + _about(runs * REFERENCE_SECONDS["run"]["shared_drones"]))
     res["shared_drones"] = evaluate(demo_shared_scenario(checkpoints, runs), out / "shared_drones", progress=progress)
     res["demo"] = {"train_seconds": train_seconds, "shared_drones_seconds": stages.done(),
                    "total_seconds": time.perf_counter() - t_start}
