@@ -405,3 +405,4 @@ def test_harness_reports_stone_soup_rows_with_run_time(tmp_path):
         timing = next(line for line in report.splitlines()
                       if line.startswith(f"| {name} |") and line.count("|") == 5)  # the run-time table
         assert float(timing.split("|")[2]) == pytest.approx(1e3 * rows[name]["seconds_per_run"], rel=1e-3, abs=0.01)
+    assert "Stone Soup rows (Stone Soup JPDA, Stone Soup GNN): Stone Soup 1.9.1's EKF" in report

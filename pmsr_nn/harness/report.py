@@ -369,6 +369,10 @@ def _setting_lines(res: dict) -> list[str]:
         truth = "the truth flies straight lines, the same in every run" if mo["truth"] == "straight" else "the truth's"
         pooled = ("; detections pooled per receiver (single-frequency network: the illuminator of a detection is "
                   "unknown; clutter per receiver list)" if st.get("illuminator_known") is False else "")
+        peers = [m for m, v in tr.items() if v.get("kind") == "stonesoup"]
+        peers = (f" Stone Soup rows ({', '.join(peers)}): Stone Soup 1.9.1's EKF with its JPDA (every joint event) or "
+                 "GNN, given the same Pd, clutter density and priors and our motion and bistatic models, the pairs in "
+                 "turn (pmsr_nn/methods/stonesoup.py); the UKF moments and m best events are ours." if peers else "")
         return [f"{st['scans']} scans of {st['dt_s']} s, {st.get('dimensions', 2)}-D. Transmitters {tx}; receiver at "
                 f"{st['receivers'][0]}. Noise: range "
                 f"{st['noise']['range_m']} m, Doppler {st['noise']['doppler_hz']} Hz. Clutter: {st['clutter']['model']}, "
@@ -377,7 +381,7 @@ def _setting_lines(res: dict) -> list[str]:
                 f"{st['tracker']['gate_probability']}, CV with q = {st['q']} {unit}{vertical} ({truth}). Loss rule: "
                 f"{st['loss']['successive_scans']} scans dummy-most-probable, or predicted range deviation > "
                 f"{st['loss']['gate_range_sd_m']:g} m. OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
-                f"{st['set_metrics']['p']:g}. Position RMSE = {res['definitions']['rmse_pos_m']}.", ""]
+                f"{st['set_metrics']['p']:g}. Position RMSE = {res['definitions']['rmse_pos_m']}.{peers}", ""]
     outliers = (f" ({100 * st['noise']['range_outlier_prob']:g} % of range errors with {st['noise']['range_outlier_scale']:g}x "
                 "the deviation; the filters assume the nominal one)" if "range_outlier_prob" in st["noise"] else "")
     lines = [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg{outliers}; "
