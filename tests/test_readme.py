@@ -62,13 +62,16 @@ def has_placeholder(command: str) -> bool:
 class Rule:
     """How a README command runs small: ``pattern`` matches it; ``tiny(argv) -> argv`` shrinks it;
     ``setup``: commands (argv lists, as given, already tiny) or callables run first; ``slow``: only in the slow tier;
-    ``refused``: an example of what pmsr refuses (exit code 2 expected)."""
+    ``refused``: an example of what pmsr refuses (exit code 2 expected); ``own_process``: run as
+    ``python -m pmsr_nn.cli`` (DDP starts its workers by re-running the command line, which
+    in-process would be pytest's)."""
 
     pattern: str
     tiny: callable = lambda argv: argv
     setup: list[list[str]] = field(default_factory=list)
     slow: bool = False
     refused: bool = False
+    own_process: bool = False
 
 
 def _mc1(argv):
@@ -120,7 +123,8 @@ RULES = [
     Rule(r"pmsr info data/fitee --verify --plot fitee\.png", setup=[FITEE]),
     Rule(r"pmsr train train/mdfnn\.yaml --out runs/mdfnn( trainer\.max_epochs=60 model\.filter_order=30)?", _train_tiny),
     Rule(r"pmsr train --resume --out runs/mdfnn", setup=[MDFNN]),
-    Rule(r"pmsr train train/mdfnn\.yaml --out runs/ddp trainer\.devices=2 trainer\.strategy=ddp", _train_tiny, slow=True),
+    Rule(r"pmsr train train/mdfnn\.yaml --out runs/ddp trainer\.devices=2 trainer\.strategy=ddp", _train_tiny, slow=True,
+         own_process=True),
     Rule(r"pmsr track --checkpoint runs/mdfnn/tracker\.pt --input data/fitee --split test --out est\.h5",
          setup=[FITEE, MDFNN]),
     Rule(r"pmsr export-onnx --checkpoint runs/mdfnn/tracker\.pt --out mdfnn\.onnx", setup=[MDFNN]),
@@ -199,10 +203,11 @@ def sandbox(tmp_path, monkeypatch):
     return tmp_path
 
 
-def run(argv: list[str]) -> None:
-    """One command in the sandbox (``pmsr``: in-process; ``python``: a subprocess)."""
-    if argv[0] == "python":
-        proc = subprocess.run([sys.executable, *argv[1:]], capture_output=True, text=True, timeout=600,
+def run(argv: list[str], own_process: bool = False) -> None:
+    """One command in the sandbox (``pmsr``: in-process unless ``own_process``; ``python``: a subprocess)."""
+    if argv[0] == "python" or own_process:
+        command = [sys.executable, *argv[1:]] if argv[0] == "python" else [sys.executable, "-m", "pmsr_nn.cli", *argv]
+        proc = subprocess.run(command, capture_output=True, text=True, timeout=600,
                               env={**os.environ, "PYTHONPATH": str(ROOT)})
         assert proc.returncode == 0, proc.stderr[-2000:]
         return
@@ -245,7 +250,7 @@ def _run_with_rule(command: str) -> None:
         assert main(argv) == 2, f"pmsr {' '.join(argv)} was not refused"
         assert sorted(p for p in Path.cwd().rglob("*") if p.is_file()) == before
     else:
-        run(argv)
+        run(argv, own_process=r.own_process)
 
 
 @pytest.mark.parametrize("command", _other_commands(slow=False))
