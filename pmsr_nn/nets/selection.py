@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -100,13 +102,17 @@ def select_best(cfg: TrainConfig, out: str | Path, *, members: int = 10, fresh_t
     with atomic_folder(out, command="select", inputs=inputs) as tmp:
         fresh = fresh_tracks(cfg, fresh_tracks_n, tmp / "fresh")
         rows = []
+        console = "bar" if sys.stderr.isatty() else "none"  # one line per member; a bar while it trains
         for i in range(members):
-            print(f"select: member {i + 1}/{members}", flush=True)
             data = replace(cfg.data, fold=i, folds=members) if members > 1 else cfg.data
             member = replace(cfg, name=f"{cfg.name}-member{i:02d}", seed=cfg.seed + i, data=data)
             name = f"member-{i:02d}"
-            m = train(member, tmp / name)
+            t0 = time.perf_counter()
+            m = train(member, tmp / name, console=console, label=f"member {i + 1}/{members}")
             scores = score_on(Tracker.load(tmp / name / "tracker.pt"), fresh)
+            print(f"member {i + 1:>{len(str(members))}}/{members}  seed {member.seed}, fold {data.fold}: {m['epochs']} epochs "
+                  f"in {time.perf_counter() - t0:.0f} s, validation position RMSE {m['val']['pos_rmse_m']:.1f} m, "
+                  f"fresh tracks {scores['pos_rmse_m']:.1f} m", flush=True)
             rows.append({"member": i, "seed": member.seed, "fold": data.fold, "run": name,
                          "val_pos_rmse_m": m["val"]["pos_rmse_m"], "val_vel_rmse_mps": m["val"]["vel_rmse_mps"],
                          "fresh_pos_rmse_m": scores["pos_rmse_m"], "fresh_vel_rmse_mps": scores["vel_rmse_mps"],
