@@ -290,20 +290,6 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def _quiet_lightning() -> None:
-    """Keep Lightning's start-up chatter and hardware tips out of the command's output."""
-    import logging
-    import warnings
-
-    import lightning.pytorch  # noqa: F401  (importing it sets its loggers to INFO: import first, then quieten)
-
-    for name in ("lightning.pytorch", "lightning.fabric", "pytorch_lightning"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
-    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
-    warnings.filterwarnings("ignore", message=".*number of training batches.*")
-
-
 def _split_overrides(config: str | None, overrides: list[str]) -> tuple[str | None, list[str]]:
     if config is not None and "=" in config and not config.endswith((".yaml", ".yml")):
         return None, [config, *overrides]
@@ -313,8 +299,6 @@ def _split_overrides(config: str | None, overrides: list[str]) -> tuple[str | No
 def cmd_train(args) -> int:
     from .nets.training import load_train_config, train
 
-    if not args.verbose:
-        _quiet_lightning()
     config, overrides = _split_overrides(args.config, args.overrides)
     if config is None and not args.resume:
         raise PmsrError("give a training config (e.g. train/smoke.yaml), or --resume an existing run")
@@ -337,7 +321,6 @@ def cmd_select(args) -> int:
     from .nets.selection import select_best
     from .nets.training import load_train_config
 
-    _quiet_lightning()
     cfg = load_train_config(args.config, args.overrides)
     result = select_best(cfg, args.out, members=args.members, fresh_tracks_n=args.fresh_tracks)
     print(result["table"])
@@ -562,8 +545,6 @@ def cmd_info(args) -> int:
 def cmd_demo(args) -> int:
     from .harness.demo import DEMO_EXPECTED, demo_summary, run_demo
 
-    if not args.verbose:
-        _quiet_lightning()
     print(f"pmsr demo: simulate, train two small networks, compare with EKF, UKF, SI+KF and the PCRB ({DEMO_EXPECTED})",
           flush=True)
     # Bars (with time left) only on a terminal: a log file keeps the one line per stage.

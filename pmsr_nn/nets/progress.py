@@ -17,12 +17,42 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
+import warnings
+from contextlib import contextmanager
 
 from lightning.pytorch.callbacks import Callback
 
 CONSOLES = ("lines", "bar", "lightning", "none")
+
+
+_LIGHTNING_LOGGERS = ("lightning.pytorch", "lightning.fabric", "pytorch_lightning")
+_HARMLESS = (".*does not have many workers.*", ".*LeafSpec.*", ".*number of training batches.*")
+"""Lightning warnings that say nothing about a run of ours: one data-loader process is our
+default on purpose; LeafSpec is a deprecation inside Lightning; small smoke datasets have fewer
+batches than the logging interval."""
+
+
+@contextmanager
+def quiet_lightning(enabled: bool = True):
+    """Lightning's start-up messages ("GPU available", tips) and :data:`_HARMLESS` warnings kept out
+    of the console while the block runs; the loggers' levels are restored after it."""
+    if not enabled:
+        yield
+        return
+    levels = {name: logging.getLogger(name).level for name in _LIGHTNING_LOGGERS}
+    try:
+        for name in _LIGHTNING_LOGGERS:
+            logging.getLogger(name).setLevel(logging.WARNING)
+        with warnings.catch_warnings():
+            for message in _HARMLESS:
+                warnings.filterwarnings("ignore", message=message)
+            yield
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
 
 
 def _duration(seconds: float) -> str:

@@ -268,10 +268,15 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False, con
     equal it. ``console``: what the run prints (:mod:`pmsr_nn.nets.progress`; ``trainer.progress:
     false`` silences it), ``label`` the progress bar's.
     """
-    from .progress import CONSOLES, EpochProgress
+    from .progress import CONSOLES, quiet_lightning
 
     if console not in CONSOLES:
         raise ValueError(f"console must be one of {CONSOLES}, got {console!r}")
+    with quiet_lightning(console != "lightning"):
+        return _train(cfg, Path(out), resume, console, label)
+
+
+def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label: str) -> dict:
     import lightning as L
     import torch
     from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
@@ -279,8 +284,8 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False, con
 
     from ..data.datamodule import TrackWindowDataModule
     from .module import TrackerModule
+    from .progress import EpochProgress
 
-    out = Path(out)
     _check_run_folder(out, resume, inputs=[p for p in (cfg and cfg.data.path, cfg and cfg.data.recipe) if p])
     if resume:
         stored = from_dict(TrainConfig, load_yaml(out / "config.yaml"), where=f"{out}/config.yaml")
