@@ -100,17 +100,28 @@ def test_the_model_names_its_axes_and_carries_its_columns_and_geometry(tmp_path)
 
 
 @pytest.mark.parametrize("name", ["kalmannet_s0", "kalmannet_mismatch_s0"])
-def test_a_kalmannet_step_graph_in_a_loop_matches_pmsr_track(tmp_path, measurements, name):
+def test_a_kalmannet_step_graph_in_a_loop_is_as_exact_as_torch_float32(tmp_path, measurements, name):
     """The per-scan step graph run over one window of scans by run_kalmannet_onnx (the loop a
-    deployment writes) against pmsr track. The recursion carries float32 rounding from scan to
-    scan; the tolerance stays 1e-5 (measured: a few 1e-6 of a column's span)."""
+    deployment writes). Float32 rounding compounds through the recursion, so the reference is the
+    network in float64: onnxruntime's float32 must be no further from it than torch's own float32
+    run (pmsr track), with 2x and 1e-6 of a span to spare; and both agree to 1e-4 of a span (the
+    export check's STEP_TOLERANCE)."""
+    import copy
+
     checkpoint = RELEASED / f"{name}.pt"
     z = measurements[:, :100]
     path = _export(tmp_path, checkpoint)
     tracker, expected = _track(tmp_path, checkpoint, z)
-    got = run_kalmannet_onnx(path, z, tracker.representation.fixes(z))
+    rep = tracker.representation
+    got = run_kalmannet_onnx(path, z, rep.fixes(z))
+    with torch.no_grad():
+        exact = rep.states(copy.deepcopy(tracker.net).double()(rep.features(z)), rep.base(z)).numpy()
+    span = tracker.state_scaler.span.numpy()
     assert got.shape == expected.shape == (3, 100, 6)
-    assert_parity(got, expected, tracker.state_scaler.span.numpy())
+    ort_error = np.max(np.abs(got - exact) / span)
+    torch_error = np.max(np.abs(expected - exact) / span)
+    assert ort_error <= 2 * torch_error + 1e-6, (ort_error, torch_error)
+    assert np.max(np.abs(got - expected) / span) <= 1e-4
     meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
     assert meta["graph"] == "per_scan_step" and "state fix" in meta["loop"]
 

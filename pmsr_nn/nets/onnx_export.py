@@ -258,16 +258,25 @@ def run_onnx(path: Path, feed: dict[str, torch.Tensor]):
     return session.run([OUTPUT], {k: v.float().numpy() for k, v in feed.items() if k in wanted})[0]
 
 
+STEP_TOLERANCE = 1e-4
+"""The check's tolerance for a per-scan step graph: float32 rounding compounds through the filter
+recursion (torch's own float32 run of a released KalmanNet differs from float64 by 3e-5 of the
+acceleration column's span over 64 x 100 scans, benchmarks/bench_onnx.py's inputs); a wrong graph
+is off by order 1."""
+
+
 def check_with_onnxruntime(tracker: Tracker, path: Path, batch: int = 4, tolerance: float = 1e-5) -> dict | None:
     """Run the exported model with onnxruntime beside :meth:`Tracker.track` on example inputs of
     one training window; None when onnxruntime is not installed. A difference beyond
-    ``tolerance`` times a state column's training span (float32 arithmetic is ~1e-7) is an error."""
+    ``tolerance`` times a state column's training span (float32 arithmetic is ~1e-7; a step graph
+    gets :data:`STEP_TOLERANCE`) is an error."""
     try:
         import onnxruntime
     except ImportError:
         return None
     ins = example_inputs(tracker, batch=batch, seed=1)
     if tracker.model.kind == "kalmannet":
+        tolerance = max(tolerance, STEP_TOLERANCE)
         got = torch.from_numpy(run_kalmannet_onnx(path, *ins)).double()
     else:
         got = torch.from_numpy(run_onnx(path, dict(zip([INPUT, FIXES], ins)))).double()
