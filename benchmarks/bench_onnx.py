@@ -21,9 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
+import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -34,17 +33,10 @@ from pmsr_nn.nets.inference import Tracker
 from pmsr_nn.nets.onnx_export import (OUTPUT, STEP_INPUTS, STEP_OUTPUTS, ExportGraph, KalmanNetStepGraph,
                                       example_inputs, export_onnx, graph_inputs)
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from run_info import median_seconds  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _median_seconds(fn, repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def bench_one(name: str, batch: int, scans: int, repeats: int, tmp: Path) -> dict:
@@ -77,7 +69,7 @@ def bench_one(name: str, batch: int, scans: int, repeats: int, tmp: Path) -> dic
             run_torch = lambda: loop(step)  # noqa: E731
             run_ort = lambda: loop(ort_step)  # noqa: E731
             ref, got = run_torch(), run_ort()
-            t_torch, t_ort = _median_seconds(run_torch, repeats), _median_seconds(run_ort, repeats)
+            t_torch, t_ort = median_seconds(run_torch, repeats), median_seconds(run_ort, repeats)
     else:
         graph = ExportGraph(tracker)
         args = tuple(a.float() for a in graph_inputs(graph, z, *fixes))
@@ -86,7 +78,7 @@ def bench_one(name: str, batch: int, scans: int, repeats: int, tmp: Path) -> dic
             run_torch = lambda: graph(*args)  # noqa: E731
             run_ort = lambda: session.run([OUTPUT], feed)[0]  # noqa: E731
             ref, got = run_torch(), torch.from_numpy(run_ort())
-            t_torch, t_ort = _median_seconds(run_torch, repeats), _median_seconds(run_ort, repeats)
+            t_torch, t_ort = median_seconds(run_torch, repeats), median_seconds(run_ort, repeats)
     span = tracker.state_scaler.span.float()
     steps = batch * scans
     row = {"checkpoint": name, "kind": tracker.model.kind, "batch": batch, "scans": scans,
