@@ -170,24 +170,22 @@ def graph_inputs(graph: ExportGraph, z: torch.Tensor, fixes: torch.Tensor | None
 
 
 def example_inputs(tracker: Tracker, batch: int = 2, scans: int | None = None, seed: int = 0):
-    """Plausible inputs ``(z (B, K, m) float64 SI [, fixes (B, K, n)])`` inside the training span:
-    measurement rows of states drawn uniformly over the training states' range (exported with
-    them, and the CLI's check runs on them)."""
+    """Plausible inputs ``(z (B, K, m) float64 SI [, fixes (B, K, n)])``: per sequence a
+    constant-velocity path (the package's CA motion model, acceleration zero) started at a state
+    drawn uniformly over the middle half of the training states' range, its measurement rows with
+    noise of 1e-4 of the measurements' span (exported with them; the CLI's check runs on them)."""
+    from ..motion import ConstantAcceleration
     from .representation import measurement_model
 
     g = torch.Generator().manual_seed(seed)
     K = scans or tracker.window
     lo, span = tracker.state_scaler.lo, tracker.state_scaler.span
-    # A straight constant-velocity path per sequence, inside the training box.
-    start = lo + span * (0.25 + 0.5 * torch.rand(batch, 1, len(lo), generator=g, dtype=torch.float64))
     model = measurement_model(tracker.meta["geometry"], tracker.measurement_columns, tracker.meta["dim_x"])
-    x = start.expand(batch, K, -1).clone()
-    t = torch.arange(K, dtype=torch.float64)[None, :, None] * tracker.meta["dt_s"]
-    for p, v in zip(model.pos_idx, model.vel_idx):
-        x[..., p] = x[..., p] + x[..., v] * t[..., 0]
-    for i in range(len(lo)):
-        if i not in model.pos_idx and i not in model.vel_idx:
-            x[..., i] = 0.0  # accelerations
+    x0 = lo + span * (0.25 + 0.5 * torch.rand(batch, len(lo), generator=g, dtype=torch.float64))
+    x0[:, [i for i in range(len(lo)) if i not in (*model.pos_idx, *model.vel_idx)]] = 0.0  # accelerations
+    t = torch.arange(K, dtype=torch.float64) * tracker.meta["dt_s"]
+    F = ConstantAcceleration(spatial_dim=len(lo) // 3).F(t)  # (K, n, n): scan 0 to each scan
+    x = torch.einsum("kij,bj->bki", F, x0)  # (B, K, n)
     z = model.h(x)
     z = z + 1e-4 * tracker.measurement_scaler.span * torch.randn(z.shape, generator=g, dtype=torch.float64)
     rep = tracker.representation
