@@ -16,6 +16,7 @@ from .pointwise import (
     velocity_columns,
 )
 from .sets import GOSPA, SetScores, cardinality_error, fragmentations, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, set_scores
+from .tracks import TrackScores, matched_errors, matched_tracks, track_scores
 
 __all__ = [
     "position_columns",
@@ -35,4 +36,8 @@ __all__ = [
     "labelled_assignment",
     "label_switches",
     "fragmentations",
+    "TrackScores",
+    "track_scores",
+    "matched_errors",
+    "matched_tracks",
 ]
