@@ -175,7 +175,7 @@ def test_bad_scenarios_are_one_line_errors_and_write_nothing(tmp_path, capsys, c
 def test_the_report_shows_every_method_and_the_set_metrics(tmp_path):
     evaluate(two_drones(tmp_path, mc_runs=2), tmp_path / "out", progress=False)
     report = (tmp_path / "out" / "report.md").read_text()
-    for text in ("| EKF | measurements |", "| S-MSJPDA | detections |", "OSPA (m)", "GOSPA (m)", "Random streams: per_product"):
+    for text in ("| EKF | measurements (association known) |", "| S-MSJPDA | detections (oracle births) |", "OSPA (m)", "GOSPA (m)", "Random streams: per_product"):
         assert text in report, text
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     assert res["settings"]["methods"]["S-MSJPDA"]["reads"] == "detections"

@@ -365,6 +365,8 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
         for spec in methods:
             if kinds[spec.name].check:
                 kinds[spec.name].check(spec, alive, None, c.name)
+            if kinds[spec.name].check_sensing:
+                kinds[spec.name].check_sensing(spec, sensing)
         info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
                 "reference_key": c.reference_key, "formation": not sc.initial_states,
                 "clutter_list": "sensor" if sc.illuminator_known else "receiver",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -262,10 +263,10 @@ def multi_target_tables(res: dict, timing: dict | None, label: str) -> list[str]
             assigned = " / ".join("-" if v is None else f"{v:.0f}" for v in r["rmse_pos_assigned_per_target_m"])
             split = (f"{_f(r['gospa_m'], 1)}: " + " / ".join(f"{100 * r[f'gospa_{p}_share']:.0f}"
                                                               for p in ("localisation", "missed", "false")))
-            line = (f"| {m} | {res['settings']['methods'][m].get('reads', '-')} | {_f(r['rmse_pos_m'], 1)} | "
+            line = (f"| {m} | {res['settings']['methods'][m].get('reads', '-')}{_starts(r)} | {_f(r['rmse_pos_m'], 1)} | "
                     f"{_f(r['rmse_pos_all_scans_m'], 1)} | {per} | {assigned} | {_f(r['ospa_m'], 1)} | {split} | "
                     f"{_f(r['cardinality_mean_abs_error'], 3)} | {_f(r['label_switches_per_run'], 2)} | "
-                    f"{_f(r['swap_probability'], 3)} | {_f(r.get('loss_probability'), 3)} | {_f(r['seconds_per_run'], 3)} |")
+                    f"{_f(r.get('swap_probability'), 3)} | {_f(r.get('loss_probability'), 3)} | {_f(r['seconds_per_run'], 3)} |")
             if paper:
                 line += f" {_f(_paper_seconds(timing, m, key))} |"
             lines.append(line)
@@ -275,7 +276,32 @@ def multi_target_tables(res: dict, timing: dict | None, label: str) -> list[str]
                       + ", ".join(f"{m} {v:.3g} nats" for m, v in gaps.items()) + "."]
         if "pcrb" in case and case["pcrb"] is not None:
             lines += ["", f"PCRB (filtering, per target from its birth, clean streams): {_f(case['pcrb']['pos_m'])} m."]
+        lines += track_table(rows, res["settings"].get("dt_s", 1.0))
         lines += ["", f"![OSPA, cardinality and RMSE vs time]({name}_set_metrics.png)", ""]
+    return lines
+
+
+def _starts(row: dict) -> str:
+    """How a row's tracks start, where it is not its own initiator: said in every row it applies to."""
+    return {"oracle": " (oracle births)", "association known": " (association known)"}.get(row.get("initiation"), "")
+
+
+def track_table(rows: dict, dt: float) -> list[str]:
+    """Track-level figures of every row (per-scan assignment to the living targets)."""
+    have = {m: r for m, r in rows.items() if "confirmed_tracks_per_target" in r}
+    if not have:
+        return []
+    lines = ["", "Tracks, matched to the living targets scan by scan (OSPA assignment, cut-off c) over each target's "
+                 "whole life; oracle rows are handed each target's birth:", "",
+             "| method | tracks start | confirmed tracks / target | false tracks / run | missed-target fraction | "
+             "first track after birth (s) | track loss prob. | fragmentations / run |",
+             "|---|---|" + "---:|" * 6]
+    for m, r in have.items():
+        first = r.get("scans_to_first_track")
+        lines.append(f"| {m} | {r.get('initiation', '-')} | {_f(r['confirmed_tracks_per_target'], 2)} | "
+                     f"{_f(r['false_tracks_per_run'], 2)} | {_f(r['missed_target_fraction'], 4)} | "
+                     f"{_f(None if first is None else first * dt, 2)} | {_f(r['track_loss_probability'], 3)} | "
+                     f"{_f(r['fragmentations_per_run'], 2)} |")
     return lines
 
 
@@ -579,7 +605,8 @@ def plot_set_metrics(res: dict, out: Path) -> list[Path]:
             axes[0].plot(t, c["ospa_m"], lw=1.1, label=m, color=colours[m])
             axes[1].plot(t, c["cardinality"], lw=1.1, label=m, color=colours[m])
             per = np.asarray(_per_target(cv["rmse_pos_m"][m]), dtype=float)
-            with np.errstate(invalid="ignore"):
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # scans without a matched track: NaN, not plotted
                 mean_sq = np.nanmean(per**2, axis=0) if np.isfinite(per).any() else per[0]
             axes[2].semilogy(t, np.sqrt(mean_sq), lw=1.1, label=m, color=colours[m])
         axes[1].step(t, cv["cardinality_truth"], "k", where="post", lw=1.6, label="truth")

@@ -317,6 +317,8 @@ def prepare(sc, device: str = "cpu") -> Setup:
         for spec in sc.methods:
             if kinds[spec.name].check:
                 kinds[spec.name].check(spec, alive, resources[spec.name], c.name)
+            if kinds[spec.name].check_sensing:
+                kinds[spec.name].check_sensing(spec, sensing)
         bounds = case_bounds(x, alive, models, torch.diag(prior_sd**2))
         mb = memory_bounds(x, alive, sc.methods, resources, causal, models)
         info = {"lives": [{"name": t.name, "first_scan": int(k0), "end_scan": int(k1)}
@@ -462,10 +464,16 @@ class BlockSums:
 def score(setup: Setup, case: Case, est, truth: Truth) -> dict[str, np.ndarray]:
     """Every sum :mod:`.scoring` keeps for one method's estimates of one block."""
     pos, vel = list(setup.models.motion.pos_idx), list(setup.models.motion.vel_idx)
-    out = scoring.point_sums(est, truth, case.scored, pos, vel)
-    if case.multi_target:
-        out.update(scoring.swaps(est, truth, pos))
-        out.update(scoring.set_sums(est, truth, pos, *setup.set_metric))
+    if not (case.multi_target or not est.paired):
+        out = scoring.point_sums(est, truth, case.scored, pos, vel)
+    else:
+        sets = scoring.per_scan_sets(est, truth, pos, *setup.set_metric)
+        view = est if est.paired else scoring.matched_view(est, sets.assignment, truth.x.shape[2])
+        out = scoring.point_sums(view, truth, case.scored, pos, vel)
+        if est.paired:
+            out.update(scoring.swaps(est, truth, pos))
+        out.update(scoring.set_sums(est, truth, pos, *setup.set_metric, sc=sets))
+        out.update(scoring.track_sums(sets.assignment, est.exists, truth))
     if setup.loss is not None:
         out.update(scoring.loss_counts(est, setup.loss.successive_scans, setup.loss.gate_range_sd_m))
     if "max_duality_gap" in est.extras:
@@ -543,10 +551,29 @@ def _set_figures(s: dict, R: int, scored: np.ndarray, p: float) -> tuple[dict, d
            "gospa_false_share": float((s["gospa_false"][k] / R).mean() / total) if total > 0 else 0.0,
            "cardinality_mean_abs_error": float((s["abs_card"][k] / R).mean()),
            "rmse_pos_assigned_per_target_m": per_target,
-           "label_switches_per_run": float(s["switches"].sum() / R),
-           "swap_probability": float(s["swap"].sum() / max(s["swap_n"].sum(), 1))}
+           "label_switches_per_run": float(s["switches"].sum() / R)}
+    if "swap" in s:  # paired slots only
+        row["swap_probability"] = float(s["swap"].sum() / max(s["swap_n"].sum(), 1))
+    if "tracks_per_target" in s:
+        N = len(s["tracks_per_target"])
+        first = s["first_track_scans"].sum() / s["first_track_count"].sum() if s["first_track_count"].sum() else None
+        row.update({"confirmed_tracks_per_target": float(s["tracks_per_target"].sum() / (R * N)),
+                    "false_tracks_per_run": float(s["false_tracks"] / R),
+                    "missed_target_fraction": float(s["missed_scans"].sum() / max(s["alive_scans"].sum(), 1)),
+                    "scans_to_first_track": None if first is None else float(first),
+                    "track_loss_probability": float(s["lost_tracks"].sum() / (R * N)),
+                    "fragmentations_per_run": float(s["fragmentations"].sum() / R)})
     curves = {"ospa_m": ospa_c.tolist(), "gospa_m": (gp ** (1 / p)).tolist(), "cardinality": (s["n_est"] / R).tolist()}
     return row, curves
+
+
+def initiation(setup: Setup, spec: MethodSpec) -> str:
+    """How a method's tracks start: ``association known`` (each target's own stream), ``oracle``
+    (handed each target's birth: truth plus a prior draw) or ``detections`` (its own initiator)."""
+    kind = setup.kinds[spec.name]
+    if kind.reads == "measurements":
+        return "association known"
+    return "detections" if "initiation" in kind.options and spec.option("initiation") == "detections" else "oracle"
 
 
 def finalise(setup: Setup, bs: BlockSums) -> dict:
@@ -569,33 +596,38 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
             mse = s["run_mse"]  # (R, N)
             per_run = np.sqrt(mse.mean(1))  # per run: root of the mean over its targets' mean squared errors
             run_rmse[spec.name] = per_run
-            rmse = _mean(rmse_p, scored)
-            row = {"kind": spec.kind, "causal": setup.causal[spec.name],
-                   "rmse_pos_m": rmse, "rmse_vel_mps": _mean(rmse_v, scored),
-                   "anees": None if np.isnan(s["nees"]).all() else _mean(nees, scored),
+            starts = initiation(setup, spec)
+            if starts == "detections":  # matched tracks: the scans some run had one (missed scans score elsewhere)
+                m_scored, m_alive = scored & (s["count"] > 0), alive & (s["count"] > 0)
+            else:
+                m_scored, m_alive = scored, alive
+            rmse = _mean(rmse_p, m_scored)
+            row = {"kind": spec.kind, "causal": setup.causal[spec.name], "initiation": starts,
+                   "rmse_pos_m": rmse, "rmse_vel_mps": _mean(rmse_v, m_scored),
+                   "anees": None if np.isnan(s["nees"]).all() else _mean(nees, m_scored),
                    "seconds_per_run": float(bs.seconds[case.name][spec.name].sum() / R),
-                   "rmse_pos_pooled_m": float(np.sqrt(s["pos"][scored].sum() / s["count"][scored].sum())) if N > 1
-                   else float(np.sqrt((s["pos"][:, 0] / R)[scored[:, 0]].mean())),
-                   "rmse_pos_all_scans_m": _mean(rmse_p, alive),
+                   "rmse_pos_pooled_m": float(np.sqrt(s["pos"][m_scored].sum() / s["count"][m_scored].sum())) if N > 1
+                   else float(np.sqrt((s["pos"][:, 0] / R)[m_scored[:, 0]].mean())),
+                   "rmse_pos_all_scans_m": _mean(rmse_p, m_alive),
                    "median_run_rmse_pos_m": float(np.median(per_run)), "runs": R}
             if N > 1:
-                row["rmse_pos_per_target_m"] = [float(rmse_p[scored[:, t], t].mean()) for t in range(N)]
-                row["rmse_vel_per_target_mps"] = [float(rmse_v[scored[:, t], t].mean()) for t in range(N)]
+                row["rmse_pos_per_target_m"] = [float(rmse_p[m_scored[:, t], t].mean()) for t in range(N)]
+                row["rmse_vel_per_target_mps"] = [float(rmse_v[m_scored[:, t], t].mean()) for t in range(N)]
                 row["anees_per_target"] = None if row["anees"] is None else \
-                    [float(nees[scored[:, t], t].mean()) for t in range(N)]
+                    [float(nees[m_scored[:, t], t].mean()) for t in range(N)]
             if setup.divergence_m is not None:
                 row["diverged_runs"] = int((~np.isfinite(per_run) | (per_run > setup.divergence_m)).sum())
             if "lost" in s:
                 row["loss_probability"] = float(s["lost"].sum() / (R * N))
             if "gap" in s:
                 row["max_duality_gap"] = float(bs.sums[case.name][spec.name]["gap"].max())
-            if case.multi_target:
+            if "ospa" in s:
                 extra, set_curves[spec.name] = _set_figures(s, R, scored, setup.set_metric[1])
                 row.update(extra)
             if b is not None:
                 which = "filtering" if setup.causal[spec.name] else "smoothing"
-                bound_p = _mean(b.pos if which == "filtering" else b.smoothing_pos, scored)
-                floor = _mean(b.q0_pos if which == "filtering" else b.q0_smoothing_pos, scored)
+                bound_p = _mean(b.pos if which == "filtering" else b.smoothing_pos, m_scored)
+                floor = _mean(b.q0_pos if which == "filtering" else b.q0_smoothing_pos, m_scored)
                 row.update({"bound": which, "bound_pos_m": bound_p, "over_bound": rmse / bound_p,
                             "below_bound": bool(rmse < bound_p), "bound_q0_pos_m": floor, "below_q0_bound": bool(rmse < floor)})
             res = setup.resources[spec.name]
@@ -603,10 +635,10 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
                 row.update({"checkpoint": res.source, "model": res.meta["model"]["kind"], "window": res.window})
                 if spec.name in case.memory_bounds:
                     scans, curve = case.memory_bounds[spec.name]
-                    mem = _mean(curve, scored)
+                    mem = _mean(curve, m_scored)
                     # per run: mean squared error over the bound's mean square; "below" only when the
                     # mean ratio is more than two Monte Carlo standard errors under 1
-                    ratio = mse.mean(1) / float(np.mean(curve[scored] ** 2))
+                    ratio = mse.mean(1) / float(np.mean(curve[m_scored] ** 2))
                     se = float(ratio.std(ddof=1) / np.sqrt(len(ratio))) if len(ratio) > 1 else float("inf")
                     row.update({"memory_scans": scans, "memory_bound_pos_m": mem, "over_memory_bound": rmse / mem,
                                 "mse_over_memory_bound": float(ratio.mean()), "mse_over_memory_bound_se": se,

@@ -12,12 +12,18 @@ lives and its track exists:
 * ``nees`` ``(K, N)``: summed NEES over the full state / its dimension (NaN: no covariances);
 * ``run_mse`` ``(B, N)``: per run and target, the mean squared position error over its scored scans.
 
-Multi-target metrics (cases with more than one target), from the labelled estimates as sets:
-OSPA and GOSPA (split into localisation, missed and false parts) per scan, the cardinality
-error, per-target squared error after the best fixed assignment of track labels to targets over
-the run (``assigned_pos``, ``assigned_count``), label switches per target, the swaps of the
-S-MSJPDA study (at the last scan, a track nearer another target than its own) and, for trackers
-that report the flags, the paper's track-loss rule.
+Multi-target metrics (cases with more than one target, and every tracker that starts its own
+tracks), from the labelled estimates as sets: OSPA and GOSPA (split into localisation, missed and
+false parts) per scan, the cardinality error, per-target squared error after the best fixed
+assignment of track labels to targets over the run (``assigned_pos``, ``assigned_count``), label
+switches per target, the swaps of the S-MSJPDA study (at the last scan, a track nearer another
+target than its own; paired slots only) and, for trackers that report the flags, the paper's
+track-loss rule. Track-level sums (:func:`track_sums`) come from the same per-scan assignment.
+
+Estimates whose slots are tracks the tracker started (``paired=False``) enter the point metrics
+through their *matched view* (:func:`matched_view`): at each scan each target's track is the one
+the per-scan OSPA/GOSPA assignment gives it, so ``pos`` is the squared error of matched tracks
+and ``count`` how often a target had one.
 """
 
 from __future__ import annotations
@@ -25,7 +31,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..metrics import label_switches, labelled_assignment, normalised_nees, set_scores, squared_error, track_loss
+from ..metrics import (SetScores, label_switches, labelled_assignment, matched_tracks, normalised_nees, set_scores,
+                       squared_error, track_loss, track_scores)
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
@@ -82,15 +89,49 @@ def loss_counts(est: Estimates, successive: int, gate_limit_m: float) -> dict[st
     return {"lost": (lost >= 0).sum(0).to(torch.float64).numpy()}
 
 
-def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float) -> dict[str, np.ndarray]:
+def per_scan_sets(est: Estimates, truth: Truth, pos: list[int], c: float, p: float) -> SetScores:
+    """OSPA, GOSPA and their per-scan assignment ``(B, K, M)`` of the reported tracks to the
+    living targets (position columns ``pos``, cut-off ``c``, order ``p``)."""
+    B, K, M = est.exists.shape
+    N = truth.x.shape[2]
+    return set_scores(est.x[..., pos], est.exists, truth.x[..., pos], truth.alive.expand(B, K, N), c, p)
+
+
+def matched_view(est: Estimates, assignment: torch.Tensor, N: int) -> Estimates:
+    """Paired estimates ``(B, K, N)`` of unpaired tracks: each target's matched track per scan."""
+    x, P, matched = matched_tracks(assignment, est.x, est.P, N)
+    return Estimates(x, matched, P, paired=True)
+
+
+def track_sums(assignment: torch.Tensor, exists: torch.Tensor, truth: Truth) -> dict[str, np.ndarray]:
+    """Track-level sums over the runs (:func:`~pmsr_nn.metrics.track_scores` over each target's
+    whole life): ``tracks_per_target``, ``missed_scans``, ``alive_scans``, ``lost_tracks``,
+    ``fragmentations`` ``(N,)``, ``first_track_scans`` / ``first_track_count`` ``(N,)`` (sum and
+    count of the scans from birth to the first matched track, over runs that had one) and
+    ``false_tracks`` (a scalar)."""
+    B, K, N = truth.x.shape[:3]
+    ts = track_scores(assignment, exists, truth.alive.expand(B, K, N))
+    first = ts.scans_to_first_track
+    found = torch.isfinite(first)
+    as64 = lambda t: t.to(torch.float64).sum(0).numpy()
+    return {"tracks_per_target": as64(ts.tracks_per_target), "missed_scans": as64(ts.missed_scans),
+            "alive_scans": as64(ts.alive_scans), "lost_tracks": as64(ts.lost), "fragmentations": as64(ts.fragmentations),
+            "first_track_scans": as64(torch.where(found, first, torch.zeros((), dtype=first.dtype))),
+            "first_track_count": as64(found), "false_tracks": np.asarray(float(ts.false_tracks.sum()))}
+
+
+def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
+             sc: SetScores | None = None) -> dict[str, np.ndarray]:
     """Multi-target sums over the runs (module docstring): per scan ``(K,)`` ``ospa``,
     ``gospa_loc``, ``gospa_missed``, ``gospa_false`` (p-th powers, m^p), ``n_est``, ``abs_card``;
-    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)``. ``pos``: position columns."""
+    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)``. ``pos``: position columns;
+    ``sc``: :func:`per_scan_sets` when already computed."""
     n = est.x.shape[-1]
-    B, K, N = est.exists.shape
+    B, K, M = est.exists.shape
+    N = truth.x.shape[2]
     e, e_mask = est.x[..., pos], est.exists
     t, t_mask = truth.x[..., pos], truth.alive.expand(B, K, N)
-    sc = set_scores(e, e_mask, t, t_mask, c, p)
+    sc = set_scores(e, e_mask, t, t_mask, c, p) if sc is None else sc
     g = sc.gospa
     out = {"ospa": sc.ospa.sum(0).numpy(), "gospa_loc": g.localisation.sum(0).numpy(), "gospa_missed": g.missed.sum(0).numpy(),
            "gospa_false": g.false.sum(0).numpy(),

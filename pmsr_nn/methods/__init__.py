@@ -86,7 +86,9 @@ class MethodKind:
 
     ``load(spec, context) -> resource`` runs before anything is written (it loads and checks a
     checkpoint); ``causal(resource)`` says whether an estimate at scan k reads only scans up to k;
-    ``check(spec, alive, resource)`` refuses a case the method can not run (one-line error).
+    ``check(spec, alive, resource, case)`` refuses a case the method can not run and
+    ``check_sensing(spec, sensing)`` one whose sensing (a :class:`SensorSetup`) it can not read
+    (one-line errors).
     """
 
     name: str
@@ -97,6 +99,7 @@ class MethodKind:
     load: Callable | None = None
     causal: Callable[[Any], bool] = lambda resource: True
     check: Callable | None = None
+    check_sensing: Callable | None = None
     description: str = ""
     multi_target: bool = False
 

@@ -1,9 +1,18 @@
 """S-MSJPDA, P-MSJPDA and the true-assignment reference (:mod:`pmsr_nn.trackers.msjpda`) on the
-detections. Tracks are started at each target's birth from its initiation prior (the paper:
-"the true state plus some random noise") and associate only while the target lives.
+detections.
 
-Extras (read by the paper's loss rule and the report): ``dummy_most_probable (B, K, N)``,
-``gate_range_sd_m (B, K, N)`` and, for P-MSJPDA, ``max_duality_gap`` (nats).
+Option ``initiation`` says how S-/P-MSJPDA's tracks start:
+
+* ``oracle`` (the paper's study, the default): at each target's birth from its initiation prior
+  ("the true state plus some random noise"), one slot per target, associating only while the
+  target lives. A reference row: the tracker is handed the births.
+* ``detections``: the tracker starts, confirms and deletes its own tracks with the shared
+  components of :mod:`pmsr_nn.trackers.management` (a multi-pair fix initiator, M-of-N
+  confirmation, a deleter on misses); it returns unpaired tracks, scored as tracks.
+
+Extras of oracle-initiated rows (read by the paper's loss rule and the report):
+``dummy_most_probable (B, K, N)``, ``gate_range_sd_m (B, K, N)`` and, for P-MSJPDA,
+``max_duality_gap`` (nats).
 """
 
 from __future__ import annotations
@@ -12,7 +21,8 @@ import torch
 
 from ..errors import ConfigError
 from ..trackers.base import Estimates
-from ..trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
+from ..trackers.management import Confirmer, Deleter, FixInitiator, Management
+from ..trackers.msjpda import JPDASettings, managed_msjpda, msjpda, true_assignment_ukf
 from . import MethodCall, MethodKind, Option, register
 
 ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
@@ -44,9 +54,23 @@ def _estimates(res, alive: torch.Tensor, gap: float | None) -> Estimates:
     return Estimates(res.x, live, res.P, extras)
 
 
+def management(spec, sensing) -> Management:
+    """The track-management components a method's options describe (``initiation: detections``)."""
+    o = spec.option
+    return Management(FixInitiator(float(o("birth_velocity_sd_mps")), int(o("init_pairs")),
+                                   float(o("init_gate_probability"))),
+                      Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
+                      sensing.prior_sd, int(o("hit_pairs")), float(o("survival")), float(o("initial_existence")),
+                      float(o("report_existence")))
+
+
 def run_msjpda(call: MethodCall) -> Estimates:
     m, s = call.models, call.sensing
     det = call.product
+    if call.spec.option("initiation") == "detections":
+        rep = managed_msjpda(det.scans, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(), settings(call),
+                             ARCHITECTURE[call.spec.kind], management(call.spec, s))
+        return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
     active = None if bool(call.alive.all()) else call.alive
     res = msjpda(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(), settings(call),
                  ARCHITECTURE[call.spec.kind], active=active)
@@ -65,11 +89,33 @@ def _all_from_start(spec, alive: torch.Tensor, resource, case: str) -> None:
                           "has targets born later")
 
 
+def check_initiation(spec, sensing) -> None:
+    """Track management that could never confirm a track, or detections the initiator can not
+    fix positions from (``initiation: detections`` only)."""
+    if spec.option("initiation") != "detections":
+        return
+    try:
+        management(spec, sensing).check(sensing.detection_model, "initiation from detections")
+    except ConfigError as exc:
+        raise ConfigError(f"method {spec.name!r}: {exc}") from None
+
+
+INITIATIONS = ("oracle", "detections")
+# how tracks start and, with initiation: detections, the track management (pmsr_nn.trackers.management):
+# shared by every kind that offers initiation from detections (with :func:`management` and :func:`check_initiation`)
+MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS),
+                      "init_pairs": Option(2, int, 1, 64),
+                      "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+                      "birth_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
+                      "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),
+                      "hit_pairs": Option(2, int, 1, 64), "delete_misses": Option(2, int, 0, 10_000),
+                      "survival": Option(0.99, float, 1e-6, 1.0), "initial_existence": Option(0.5, float, 1e-6, 1.0),
+                      "report_existence": Option(0.5, float, 0.0, 1.0)}
 OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
-           "relaxation_iterations": Option(20, int, 1, 10_000)}
-register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, multi_target=True,
+           "relaxation_iterations": Option(20, int, 1, 10_000), **MANAGEMENT_OPTIONS}
+register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, multi_target=True, check_sensing=check_initiation,
                     description="sequential multi-sensor JPDA (Lyu & Wang 2019)"))
-register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, multi_target=True,
+register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, multi_target=True, check_sensing=check_initiation,
                     description="parallel multi-sensor JPDA with (N+1)-D assignment (Lyu & Wang 2019)"))
 register(MethodKind("true_assignment", "detections", run_true_assignment, {}, check=_all_from_start,
                     multi_target=True, description="UKF per target on exactly its own detections"))

@@ -1,10 +1,20 @@
 """What every tracker returns to the harness: labelled estimates per run and scan.
 
 A single-target filter, a learned tracker and a multi-target tracker all answer with
-:class:`Estimates`: ``N`` labelled slots (track ids ``0..N-1``) per run and scan, each with a
+:class:`Estimates`: ``M`` labelled slots (track ids ``0..M-1``) per run and scan, each with a
 mean, optionally a covariance, and whether the slot holds a track at that scan. Method-specific
 diagnostics (the JPDA's loss-rule flags, a relaxation's duality gap) travel in ``extras``, so
 the harness never reads a field only one tracker has.
+
+Two kinds of slots:
+
+* ``paired=True``: slot ``i`` is target ``i``'s track for the whole run (``M = N``). Single-target
+  methods on each target's own stream and trackers handed their targets' births (the *oracle
+  initiator*) answer so, and are scored against their own target.
+* ``paired=False``: the slots are tracks the tracker started itself (``M`` is the most it kept in
+  any run; a slot holds one track id for the whole run and never a second). ``exists`` is where
+  the track is *reported* (confirmed and not yet deleted); scoring matches reported tracks to
+  the living targets scan by scan (:mod:`pmsr_nn.metrics.tracks`).
 """
 
 from __future__ import annotations
@@ -16,14 +26,18 @@ import torch
 
 @dataclass
 class Estimates:
-    """``x (B, K, N, n)`` means (float64, SI), ``P (B, K, N, n, n)`` covariances or ``None``,
-    ``exists (B, K, N)`` bool (the slot holds a track at that scan; ``x`` there is meaningless
-    otherwise), ``extras`` named diagnostics (tensors or floats) a metric may read."""
+    """``x (B, K, M, n)`` means (float64, SI), ``P (B, K, M, n, n)`` covariances or ``None``,
+    ``exists (B, K, M)`` bool (the slot holds a reported track at that scan; ``x`` there is
+    meaningless otherwise), ``extras`` named diagnostics (tensors or floats) a metric may read,
+    ``paired`` whether slot ``i`` is target ``i`` (module docstring) and ``existence (B, K, M)``
+    the track's existence probability where the tracker carries one."""
 
     x: torch.Tensor
     exists: torch.Tensor
     P: torch.Tensor | None = None
     extras: dict = field(default_factory=dict)
+    paired: bool = True
+    existence: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         B, K, N, n = self.x.shape
@@ -31,8 +45,10 @@ class Estimates:
             raise ValueError(f"exists must be (B, K, N) = {(B, K, N)}, got {tuple(self.exists.shape)}")
         if self.P is not None and tuple(self.P.shape) != (B, K, N, n, n):
             raise ValueError(f"P must be (B, K, N, n, n) = {(B, K, N, n, n)}, got {tuple(self.P.shape)}")
+        if self.existence is not None and tuple(self.existence.shape) != (B, K, N):
+            raise ValueError(f"existence must be (B, K, M) = {(B, K, N)}, got {tuple(self.existence.shape)}")
 
     @property
     def labels(self) -> torch.Tensor:
-        """Track ids ``(N,)``: slot ``i`` is track ``i`` for the whole run."""
+        """Track ids ``(M,)``: slot ``i`` is track ``i`` for the whole run."""
         return torch.arange(self.x.shape[2])

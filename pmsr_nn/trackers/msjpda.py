@@ -42,6 +42,7 @@ from ..motion import KinematicModel
 from ..simulation.detections import Scans, check_model_for_detections
 from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood
+from .management import Management, TrackReport, TrackTable, parked_state
 from .jpda import assignment_matrix, candidate_marginals, detection_costs, miss_cost, single_sensor_marginals
 
 
@@ -108,9 +109,13 @@ def _expand(m: MeasurementMoments) -> MeasurementMoments:
 
 
 def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
-                 s: JPDASettings, gamma: float, active: torch.Tensor | None = None) -> tuple[Gaussian, np.ndarray, torch.Tensor]:
+                 s: JPDASettings, gamma: float, active: torch.Tensor | None = None
+                 ) -> tuple[Gaussian, np.ndarray, torch.Tensor, np.ndarray, torch.Tensor]:
     """One sensor's detections ``z (B, M, d)`` update tracks ``g`` ``(B, T, n)`` (Eqs. 15-21);
-    a track outside ``active (B, T)`` gates nothing (it is only predicted)."""
+    a track outside ``active (B, T)`` gates nothing (it is only predicted). Returns the
+    posterior, whether no detection was the likeliest association ``(B, T)``, the predicted
+    range deviation ``(B, T)``, the gates ``(B, T, M)`` and the summed likelihood ratio of the
+    gated detections to clutter ``(B, T)`` (what a track's existence is updated with)."""
     mom = unscented_moments(g, sub, R)
     nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d)
     d2, log_lik = gaussian_log_likelihood(nu, mom.S)
@@ -132,7 +137,8 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     x_all = torch.cat([post.x, g.x.unsqueeze(-2)], dim=-2)
     P_all = torch.cat([post.P, g.P.unsqueeze(-3)], dim=-3)
     dummy = alpha[..., M] >= alpha[..., :M].max(-1, initial=0.0)
-    return _collapse(w, x_all, P_all), dummy, mom.S[..., 0, 0].sqrt()
+    ratio = torch.where(torch.from_numpy(gated), log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
+    return _collapse(w, x_all, P_all), dummy, mom.S[..., 0, 0].sqrt(), gated, ratio / s.clutter_density
 
 
 def _wrap(nu: torch.Tensor, model: MeasurementModel) -> torch.Tensor:
@@ -165,9 +171,14 @@ def _pattern_inverses(S: torch.Tensor, N: int, d: int) -> tuple[np.ndarray, np.n
 
 
 def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: MeasurementModel, R: torch.Tensor,
-                s: JPDASettings, gamma: float, active: torch.Tensor | None = None) -> tuple[Gaussian, np.ndarray, torch.Tensor, float]:
+                s: JPDASettings, gamma: float, active: torch.Tensor | None = None
+                ) -> tuple[Gaussian, np.ndarray, torch.Tensor, float, np.ndarray, np.ndarray, torch.Tensor]:
     """All sensors' detections ``z (B, N, M, d)`` update tracks ``g`` jointly (Eqs. 9-14); a
-    track outside ``active (B, T)`` gates nothing."""
+    track outside ``active (B, T)`` gates nothing. Returns the posterior, the loss-rule flag
+    ``(B, T)``, the predicted range deviation ``(B, T)``, the largest duality gap, the gates
+    ``(B, T, N, M)``, at how many sensors each track was detected ``(B, T)`` (a detection more
+    probable than none) and each sensor's summed likelihood ratio of its gated detections to
+    clutter ``(B, T, N)`` (under that sensor's own block of the joint moments)."""
     B, N, M, d = z.shape
     T = g.x.shape[1]
     mom = unscented_moments(g, model, R)  # pair layout: sensor s owns rows s*d .. s*d+d-1
@@ -175,7 +186,7 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
     # each sensor's diagonal block of the joint S, (B, T, N, d, d), gates that sensor's detections
     S_blocks = mom.S.reshape(B, T, N, d, N, d).diagonal(dim1=2, dim2=4).permute(0, 1, 4, 2, 3)
     nu = _wrap(z.unsqueeze(1) - zhat.unsqueeze(3), model)  # (B, T, N, M, d)
-    d2, _ = gaussian_log_likelihood(nu, S_blocks)
+    d2, block_log_lik = gaussian_log_likelihood(nu, S_blocks)
     gate = (d2 <= gamma) & valid.unsqueeze(1)
     gated = (gate if active is None else gate & active[:, :, None, None]).numpy()  # (B, T, N, M)
     inv, half_logdet = _pattern_inverses(mom.S, N, d)
@@ -185,6 +196,7 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
     cand_z = [[np.full((1, N * d), np.nan)] * T for _ in range(B)]  # per run and track: candidate measurements
     cand_w = [[np.ones(1)] * T for _ in range(B)]
     dummy = np.ones((B, T), dtype=bool)
+    detected = np.zeros((B, T), dtype=np.int64)
     worst_gap = 0.0
     for b in range(B):
         for cl in track_clusters(gated[b].reshape(T, N * M)):
@@ -224,6 +236,7 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
                     p_det = np.bincount(idx[:, k][idx[:, k] >= 0], weights=w[keep][idx[:, k] >= 0], minlength=1)
                     flags.append(p_miss >= p_det.max(initial=0.0))
                 dummy[b, t] = all(flags)
+                detected[b, t] = N - sum(flags)
     Lmax = max(len(w) for row in cand_w for w in row)
     Zc = np.full((B, T, Lmax, N * d), np.nan)
     Wc = np.zeros((B, T, Lmax))
@@ -233,7 +246,9 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
             Zc[b, t, :L], Wc[b, t, :L] = cand_z[b][t], cand_w[b][t]
     post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), torch.from_numpy(Zc), _expand(mom), model)
     range_sd = mom.S.diagonal(dim1=-2, dim2=-1)[..., 0::d].sqrt().amax(-1)
-    return _collapse(torch.from_numpy(Wc), post.x, post.P), dummy, range_sd, worst_gap
+    ratio = torch.where(torch.from_numpy(gated), block_log_lik.exp(), torch.zeros((), dtype=d2.dtype)).sum(-1)
+    return (_collapse(torch.from_numpy(Wc), post.x, post.P), dummy, range_sd, worst_gap, gated, detected,
+            ratio / s.clutter_density)
 
 
 def _births(active: torch.Tensor | None, B: int, K: int, T: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
@@ -288,18 +303,79 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
         if architecture == "sequential":
             flags, sds = [], []
             for j in range(N):
-                g, f, sd = _sensor_step(g, scans.z[:, k, j], scans.valid[:, k, j], subs[j], R[rows[j]][:, rows[j]],
-                                        settings, gamma, act)
+                g, f, sd, _, _ = _sensor_step(g, scans.z[:, k, j], scans.valid[:, k, j], subs[j], R[rows[j]][:, rows[j]],
+                                           settings, gamma, act)
                 flags.append(f)
                 sds.append(sd)
             dummy[:, k] = np.logical_and.reduce(flags)
             gate_sd[:, k] = torch.stack(sds, -1).amax(-1)
         else:
-            g, dummy[:, k], gate_sd[:, k], gap = _joint_step(g, scans.z[:, k], scans.valid[:, k], model, R, settings, gamma,
-                                                             act)
+            g, dummy[:, k], gate_sd[:, k], gap, _, _, _ = _joint_step(g, scans.z[:, k], scans.valid[:, k], model, R, settings,
+                                                                   gamma, act)
             worst_gap = max(worst_gap, gap)
         x[:, k], P[:, k] = g.x, g.P
     return MultiTargetResult(x, P, torch.from_numpy(dummy), gate_sd, worst_gap)
+
+
+def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
+                   settings: JPDASettings, architecture: Literal["sequential", "parallel"],
+                   management: Management) -> TrackReport:
+    """S-/P-MSJPDA that start, confirm and delete their own tracks (:mod:`.management`).
+
+    Every scan: predict the table's tracks, associate and update them as :func:`msjpda` does
+    (tentative and confirmed tracks alike) and update their existence probabilities (IPDA:
+    each pair's gated detections against clutter), count at how many pairs each was detected,
+    confirm and delete, then start tentative tracks from the detections no track gated. Step 0
+    has no prediction. Returns the confirmed tracks as reported at each scan (those whose
+    existence is at least the management's ``report_existence``).
+    """
+    check_model_for_detections(model)
+    B, K, N, M = scans.shape
+    if N != model.n_pairs or scans.z.shape[-1] != len(model.components):
+        raise ConfigError(f"detections are from {N} sensors with {scans.z.shape[-1]} values each; the model has "
+                          f"{model.n_pairs} sensors with {len(model.components)}")
+    if bool(torch.isnan(scans.z[scans.valid]).any()) or bool(torch.isinf(scans.z).any()):
+        raise ConfigError("a valid detection is NaN or infinite")
+    management.check(model, f"{architecture} MSJPDA")
+    n, dtype = motion.dim_x, scans.z.dtype
+    gamma = gate_threshold(settings.gate_probability, len(model.components))
+    F, Q = motion.F(dt, dtype), motion.Q(dt, q, dtype)
+    subs = [model.for_pairs([k]) for k in range(N)]
+    rows = [model.rows_for_pairs([k]) for k in range(N)]
+    table = TrackTable.empty(B, n, parked_state(model, n, dtype))
+    report = TrackReport.empty(B, K, n, dtype)
+    pos = list(motion.pos_idx)
+    for k in range(K):
+        if k > 0:
+            table.g = predict(table.g, F, Q)
+            table.free(~table.active)  # keep free slots parked
+            table.predict_existence(management.survival)
+        act = table.active
+        used = np.zeros((B, N, M), dtype=bool)
+        pd_pg = settings.pd * settings.gate_probability
+        if architecture == "sequential":
+            detected = torch.zeros(act.shape, dtype=torch.int64)
+            for j in range(N):
+                table.g, missed, _, gated, ratio = _sensor_step(table.g, scans.z[:, k, j], scans.valid[:, k, j], subs[j],
+                                                                R[rows[j]][:, rows[j]], settings, gamma, act)
+                detected += torch.from_numpy(~missed) & act
+                used[:, j] = gated.any(1)
+                table.update_existence(ratio, pd_pg)
+        else:
+            table.g, _, _, _, gated, det, ratio = _joint_step(table.g, scans.z[:, k], scans.valid[:, k], model, R,
+                                                              settings, gamma, act)
+            detected = torch.from_numpy(det)
+            used = gated.any(1)
+            for j in range(N):
+                table.update_existence(ratio[..., j], pd_pg)
+        table.record(detected, management.hit_pairs)
+        table.manage(management.confirmer, management.deleter, pos)
+        unused = scans.valid[:, k] & ~torch.from_numpy(used)
+        if bool(unused.any()):
+            table.add(*management.initiator.initiate(scans.z[:, k], unused, model, n, management.other_sd),
+                      management.initial_existence)
+        report.write(k, table, management.report_existence)
+    return report.trimmed()
 
 
 def true_assignment_ukf(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: float,
