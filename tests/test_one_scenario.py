@@ -48,7 +48,10 @@ def test_shipped_shared_drones_is_the_demo_scenario():
     assert shipped.cases == built.cases and shipped.detections == built.detections
     for key in ("noise", "warmup_steps", "random_streams", "set_metrics", "seed", "block_runs"):
         assert getattr(shipped, key) == getattr(built, key), key
-    assert [m.kind for m in shipped.methods] == ["ekf", "ukf", "learned", "learned", "s_msjpda"]
+    kinds = [(m.kind, m.options.get("initiation")) for m in shipped.methods]
+    assert kinds == [("ekf", None), ("ukf", None), ("learned", None), ("learned", None), ("s_msjpda", None),
+                     ("s_msjpda", "detections"), ("p_msjpda", "detections")]
+    assert [(m.kind, m.options.get("initiation")) for m in built.methods] == kinds[:2] + kinds[4:6]
 
 
 def test_births_and_deaths_give_the_cardinality_and_lives(tmp_path):

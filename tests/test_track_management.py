@@ -254,6 +254,7 @@ def test_initiation_from_detections_is_scored_as_tracks_in_the_report(tmp_path):
     ({"delete_misses": 0}, "method 'S': a deleter needs misses >= 1"),
     ({"hit_pairs": 4}, "method 'S': initiation from detections: hit_pairs (4) must be in [1, 3]"),
     ({"init_pairs": 4}, "method 'S': min_pairs (4) is more than the 3 pairs"),
+    ({"report_existence": 1.5}, "method 'S': option report_existence must be a number in [0.0, 1.0], got 1.5"),
 ])
 def test_settings_that_never_confirm_are_one_line_errors_and_write_nothing(tmp_path, capsys, options, message):
     path = scenario(tmp_path, methods=[{"name": "S", "kind": "s_msjpda",
@@ -280,3 +281,14 @@ def test_initiation_from_range_and_doppler_alone_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "fixes positions from (bistatic range, azimuth)" in err and "use initiation: oracle" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_every_refusal_of_one_file_comes_in_one_message(tmp_path, capsys):
+    path = scenario(tmp_path, methods=[
+        {"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections", "confirm_m": 5, "confirm_n": 3}},
+        {"name": "P", "kind": "p_msjpda", "options": {"initiation": "detections", "delete_misses": 0}}])
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "method 'S': confirmation needs" in err[0] and "method 'P': a deleter needs" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -320,7 +320,7 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
     noise drawn per run, or on straight lines), seen through detections with the case's Pd and
     clutter (pooled per receiver when the illuminator is unknown). Straight flights also get the
     PCRB of each target (every run flies them)."""
-    from .runner import case_bounds
+    from .runner import case_bounds, method_refusals, raise_refusals
 
     if device != "cpu":
         raise ConfigError("the multi-target trackers run on the CPU (their assignment step is NumPy/SciPy)")
@@ -341,7 +341,7 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
     methods = _methods(sc)
     kinds = {m.name: method_kind(m.kind) for m in methods}
     straight = sc.motion.truth == "straight"
-    cases = []
+    cases, refusals = [], []
     for c in sc.cases:  # every target's whole flight must stay clear of the sensors
         pd, clutter, spacing = sc.case_settings(c)
         x0 = sc.initial_states_for(spacing)
@@ -362,17 +362,14 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
         else:
             truth = SampledTruth(x0, motion, sc.scans, sc.motion.dt_s, q)
         scored = alive & (torch.arange(sc.scans) >= sc.converged_from_scan)[:, None]
-        for spec in methods:
-            if kinds[spec.name].check:
-                kinds[spec.name].check(spec, alive, None, c.name)
-            if kinds[spec.name].check_sensing:
-                kinds[spec.name].check_sensing(spec, sensing)
+        refusals += method_refusals(methods, kinds, {}, alive, c.name, sensing)
         info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
                 "reference_key": c.reference_key, "formation": not sc.initial_states,
                 "clutter_list": "sensor" if sc.illuminator_known else "receiver",
                 "detections_from": "signals" if front_end is not None else "model"}
         cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored,
                           [f"target {i + 1}" for i in range(len(x0))], info, bounds))
+    raise_refusals(refusals)
     left_out = MT_LEFT_OUT if not straight else tuple(k for k in MT_LEFT_OUT if k not in ("pcrb", "bound", "pcrb_q0"))
     definitions = {k: v for k, v in DEFINITIONS.items() if k not in left_out}
     definitions.update(MT_DEFINITIONS)

@@ -287,6 +287,30 @@ def _models(sc: Scenario, recipe: TrackRecipe) -> tuple[Models, MeasurementModel
     return models, detection_model
 
 
+def method_refusals(methods, kinds: dict, resources: dict, alive: torch.Tensor, case: str,
+                    sensing: SensorSetup) -> list[str]:
+    """What each method's kind refuses of one case (its ``check`` and ``check_sensing``), one
+    message per refusal."""
+    out = []
+    for spec in methods:
+        kind = kinds[spec.name]
+        for check, args in ((kind.check, (spec, alive, resources.get(spec.name), case)),
+                            (kind.check_sensing, (spec, sensing))):
+            if check is None:
+                continue
+            try:
+                check(*args)
+            except ConfigError as exc:
+                out.append(str(exc))
+    return out
+
+
+def raise_refusals(refusals: list[str]) -> None:
+    """Every refusal of a scenario file in one message (each said once, in order)."""
+    if refusals:
+        raise ConfigError("; ".join(dict.fromkeys(refusals)))
+
+
 def prepare(sc, device: str = "cpu") -> Setup:
     """Resolve, design and check everything a scenario needs (every user error surfaces here,
     before any output is written): a :class:`~.scenario.Scenario` here, a multi-target study
@@ -307,24 +331,23 @@ def prepare(sc, device: str = "cpu") -> Setup:
     det = sc.detections
     sensing = SensorSetup(models.model, prior_sd, sc.noise.range_outlier_prob, sc.noise.range_outlier_scale,
                           detection_model, det.pd if det else None, det.clutter if det else None)
-    cases = []
+    cases, refusals = [], []
     for c in sc.cases:
         x, alive = design_case(c, recipe, sc.ramp_s)
         targets = [t.name for t in c.flights()]
         scored = _scored(alive, sc.warmup_steps, c.name, targets)
         if detection_model is not None and bool(detection_model.near_sensor(x[alive], recipe.min_sensor_distance_m).any()):
             raise ConfigError(f"case {c.name!r}: a target passes within {recipe.min_sensor_distance_m} m of a sensor")
-        for spec in sc.methods:
-            if kinds[spec.name].check:
-                kinds[spec.name].check(spec, alive, resources[spec.name], c.name)
-            if kinds[spec.name].check_sensing:
-                kinds[spec.name].check_sensing(spec, sensing)
+        refusals += method_refusals(sc.methods, kinds, resources, alive, c.name, sensing)
+        if refusals:
+            continue  # said once every case is checked; no bound is worth computing now
         bounds = case_bounds(x, alive, models, torch.diag(prior_sd**2))
         mb = memory_bounds(x, alive, sc.methods, resources, causal, models)
         info = {"lives": [{"name": t.name, "first_scan": int(k0), "end_scan": int(k1)}
                             for t, (k0, k1) in zip(c.flights(), _lives(c, models.dt)[1])]}
         cases.append(Case(c.name, c.title or c.name, DesignedTruth(x, alive), sensing, alive, scored, targets, info,
                           bounds, mb))
+    raise_refusals(refusals)
     methods, tuning = sc.methods, {}
     if any(m.tuned() for m in sc.methods):  # last: the slowest check, after every quick one
         from .tuning import tune
