@@ -50,7 +50,8 @@ def test_shipped_shared_drones_is_the_demo_scenario():
         assert getattr(shipped, key) == getattr(built, key), key
     kinds = [(m.kind, m.options.get("initiation")) for m in shipped.methods]
     assert kinds == [("ekf", None), ("ukf", None), ("learned", None), ("learned", None), ("s_msjpda", None),
-                     ("s_msjpda", "detections"), ("p_msjpda", "detections")]
+                     ("s_msjpda", "detections"), ("p_msjpda", "detections"), ("pmht", "detections"),
+                     ("pmht_3d", "detections")]
     assert [(m.kind, m.options.get("initiation")) for m in built.methods] == kinds[:2] + kinds[4:6]
 
 

@@ -9,7 +9,11 @@
 * detections with known illuminators give the same estimates through the 3-D variant's pooled
   lists as through the standard PMHT's per-pair lists;
 * pooling per receiver loses and invents nothing; the clutter splits as the scenario says;
-* bad input: one-line errors.
+* bad input: one-line errors;
+* ``initiation: detections`` (PMHT that starts, confirms and deletes its own tracks): births and
+  deaths on a clutter-free case give one confirmed track per target, reported from the scan after
+  birth to the scan before death; settings that could never confirm a track, and pooled
+  detections for PMHT-3D, are one-line refusals that write nothing.
 """
 
 from __future__ import annotations
@@ -21,13 +25,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 from scipy.stats import multivariate_normal
 
+from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ukf
 from pmsr_nn.filters.smoothing import unscented_rts_smoother
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
+from pmsr_nn.harness.runner import call_method, draw_block, prepare
+from pmsr_nn.harness.scenario import load_scenario
 from pmsr_nn.measurements import LinearMeasurementModel, MeasurementModel
+from pmsr_nn.metrics import set_scores, track_scores
 from pmsr_nn.motion import ConstantVelocity, ContinuousConstantVelocity
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import CLUTTER, ClutterSpec, Scans, pool_by_receiver, simulate_scans
@@ -303,3 +312,106 @@ def test_a_pmht_study_runs_through_the_harness(tmp_path):
     report = (tmp_path / "out" / "report.md").read_text()
     assert "Velocity RMSE per target" in report and "paper: PMHT-3D (m/s)" in report
     assert "detections pooled per receiver" in report
+
+
+# ------------------------------------------------------------------------------------ tracks from detections
+
+def _births_scenario(tmp_path: Path, methods, pd=1.0, clutter=0) -> Path:
+    """Two drones of the FITEE geometry (1 transmitter, 3 receivers; range, range-rate, azimuth):
+    ``a`` lives from scan 0 to 39, ``b`` from scan 15 (the second scan committed by the window
+    starting at 14, with the defaults window 10, overlap 3) to the end, 60 scans, 2 runs."""
+    flight = {"start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0, "heading_deg": 20.0,
+              "segments": [{"duration_s": 200.0}]}
+    other = {"start_range_m": 7800.0, "start_bearing_deg": 140.0, "speed_mps": 12.0, "heading_deg": 0.0,
+             "segments": [{"duration_s": 200.0}]}
+    d = {"name": "births", "seed": 3, "mc_runs": 2, "block_runs": 2, "warmup_steps": 10, "random_streams": "per_product",
+         "detections": {"pd": pd, "clutter": {"per_scan": clutter, "range_m": [0.0, 25000.0],
+                                              "range_rate_mps": [-40.0, 40.0]}},
+         "set_metrics": {"c_m": 300.0, "p": 2.0},
+         "cases": [{"name": "c", "targets": [{"name": "a", "death_s": 40.0, **flight},
+                                             {"name": "b", "birth_s": 15.0, "death_s": 60.0, **other}]}],
+         "methods": methods}
+    path = tmp_path / "births.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+@pytest.mark.parametrize("kind", ["pmht", "pmht_3d"])
+def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(tmp_path, kind):
+    path = _births_scenario(tmp_path, [{"name": "P", "kind": kind, "options": {"initiation": "detections"}}])
+    setup = prepare(load_scenario(path))  # births and deaths are no longer refused
+    case = setup.cases[0]
+    truth, products = draw_block(setup, 0, 0)
+    est = call_method(setup, setup.methods[0], case, products, (3, 0, 0))
+    assert not est.paired and est.x.shape[2] == 2  # two tracks in all, per run: no false or second track
+    B, K, _ = est.exists.shape
+    alive = case.alive.expand(B, K, 2)
+    pos = [0, 3]  # the CA state (x, vx, ax, y, vy, ay)
+    sets = set_scores(est.x[..., pos], est.exists, truth.x[..., pos], alive, 300.0, 2.0)
+    ts = track_scores(sets.assignment, est.exists, alive)
+    assert ts.tracks_per_target.tolist() == [[1.0, 1.0]] * B and ts.false_tracks.tolist() == [0.0] * B
+    # Pd 1 at three pairs: a 3-pair fix starts a tentative track at the birth scan k; EM runs
+    # again on the window with it from k, so at k + 1 its weight is ~1 at every pair (a hit):
+    # 2 of 3, confirmed, existence near 1, reported from k + 1; never earlier than that bound either
+    assert ts.scans_to_first_track.tolist() == [[1.0, 1.0]] * B
+    assert not bool(ts.lost.any())
+    for t, (k0, k1) in enumerate(((0, 40), (15, 60))):
+        slot = [sets.assignment[b, k1 - 1].tolist().index(t) for b in range(B)]
+        for b in range(B):
+            shown = est.exists[b, :, slot[b]]
+            # reported at every scan from k0 + 1 while it lives, at none after its death (no
+            # detection at any pair: existence 0 at once at Pd 1) and none before k0 + 1
+            assert shown[k0 + 1:k1].all() and not shown[k1:].any() and not shown[:k0 + 1].any()
+            # the smoothed states: 30 m range and 3 deg azimuth through three pairs
+            err = (est.x[b, k0 + 1:k1, slot[b]][:, pos] - truth.x[b, k0 + 1:k1, t][:, pos]).norm(dim=-1)
+            assert float(err.max()) < 150.0, float(err.max())
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"confirm_m": 4, "confirm_n": 3}, "method 'P': confirmation needs 1 <= M <= N <= 62 (M of N scans); got M = 4, N = 3"),
+    ({"hit_pairs": 4}, "method 'P': initiation from detections: hit_pairs (4) must be in [1, 3]"),
+    ({"init_pairs": 4}, "method 'P': min_pairs (4) is more than the 3 pairs"),
+])
+def test_pmht_settings_that_never_confirm_are_one_line_errors_and_write_nothing(tmp_path, capsys, options, message):
+    path = _births_scenario(tmp_path, [{"name": "P", "kind": "pmht", "options": {"initiation": "detections", **options}}])
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_oracle_pmht_still_refuses_births_and_deaths(tmp_path, capsys):
+    path = _births_scenario(tmp_path, [{"name": "P", "kind": "pmht"}])
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "keeps every track from scan 0 to the end" in err[0], err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("pmht_3d", "method 'P': initiation from detections fixes positions from per-pair lists; the detections are "
+                "pooled per receiver (illuminator unknown): use initiation: oracle"),
+    ("pmht", "fixes positions from (bistatic range, azimuth) in 2-D"),
+])
+def test_initiation_from_detections_the_receiver_can_not_fix_is_refused(tmp_path, capsys, kind, message):
+    """The JEIT study pools detections per receiver (illuminator unknown) and measures range and
+    Doppler: PMHT-3D can not initiate from per-pair lists it does not have (the scenario's
+    per-pair lists are information the receiver lacks), and neither kind can fix positions
+    without azimuth."""
+    sc = {"kind": "multitarget", "name": "pmht_small", "mc_runs": 1, "block_runs": 1, "scans": 20, "dimensions": 3,
+          "geometry": {"transmitters": [{"position_m": [29434.0, -34761.0, 293.0], "carrier_hz": 500.0e6}],
+                       "receivers": [{"position_m": [0.0, 0.0, 0.0]}]},
+          "initial_states": [{"position_m": X0[0, 0::2].tolist(), "velocity_mps": X0[0, 1::2].tolist()}],
+          "noise": {"range_m": 50.0, "doppler_hz": 20.0},
+          "motion": {"dt_s": 1.0, "q": 5.0, "model": "cv_continuous", "vertical_q": 0.05, "truth": "straight"},
+          "prior": {"position_m": 50.0, "velocity_mps": 3.0, "altitude_m": 50.0, "vertical_mps": 1.0},
+          "pd": 0.9, "clutter": {"per_scan": 6, "model": "poisson", "range_m": [40000.0, 260000.0],
+                                 "doppler_hz": [-1000.0, 1000.0]},
+          "illuminator_known": False, "cases": [{"name": "c"}],
+          "methods": [{"name": "P", "kind": kind, "options": {"window": 8, "overlap": 3, "initiation": "detections"}}]}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(sc))
+    assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "out").exists()

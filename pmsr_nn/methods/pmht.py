@@ -10,8 +10,17 @@
 * ``true_assignment_smoother``: a UKF and RTS smoother per target on exactly its own detections,
   the floor of what any association can reach with the same smoother.
 
-Tracks start at scan 0 from the initiation prior (truth at scan 0 plus a draw from ``N(0, P0)``)
-and last the whole scenario. The association priors are fixed from the case's Pd and clutter.
+Option ``initiation`` of ``pmht`` and ``pmht_3d`` says how tracks start (as for S-/P-MSJPDA,
+:mod:`.msjpda`, with the same track-management options):
+
+* ``oracle`` (the default): at scan 0 from the initiation prior (truth at scan 0 plus a draw from
+  ``N(0, P0)``), lasting the whole scenario; a case with births or deaths is refused;
+* ``detections``: the tracker starts, confirms and deletes its own tracks
+  (:func:`~pmsr_nn.trackers.pmht.managed_pmht`) and returns unpaired tracks, scored as tracks.
+  It needs each detection's illuminator (the fix initiator reads per-pair lists), so
+  ``pmht_3d`` refuses it on detections pooled per receiver.
+
+The association priors are fixed from the case's Pd and clutter.
 """
 
 from __future__ import annotations
@@ -22,8 +31,9 @@ from ..errors import ConfigError
 from ..filters.smoothing import rts_backward
 from ..trackers.base import Estimates
 from ..trackers.msjpda import true_assignment_ukf
-from ..trackers.pmht import AssociationLists, PMHTSettings, pmht
+from ..trackers.pmht import AssociationLists, PMHTSettings, managed_pmht, pmht
 from . import MethodCall, MethodKind, Option, register
+from .msjpda import MANAGEMENT_OPTIONS, check_initiation, management
 
 MIN_CLUTTER_PER_SCAN = 1e-3
 """A tracker needs a positive clutter rate even where none is simulated (as the JPDA's density floor)."""
@@ -53,6 +63,10 @@ def lists_of(call: MethodCall) -> AssociationLists:
 
 def run_pmht(call: MethodCall) -> Estimates:
     m, s = call.models, call.sensing
+    if call.spec.option("initiation") == "detections":
+        rep = managed_pmht(call.product.scans, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
+                           settings(call), management(call.spec, s))
+        return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
     res = pmht(lists_of(call), call.product.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
                settings(call))
     B, K, N = res.x.shape[:3]
@@ -76,7 +90,17 @@ def _check_pmht(spec, alive: torch.Tensor, resource, case: str) -> None:
         raise ConfigError(f"method {spec.name!r}: window of {window} scans is longer than case {case!r} ({K} scans)")
     if overlap >= window:
         raise ConfigError(f"method {spec.name!r}: overlap {overlap} must be smaller than the window ({window})")
-    _all_throughout(spec, alive, resource, case)
+    if spec.option("initiation") == "oracle":  # tracks that start and end themselves follow births and deaths
+        _all_throughout(spec, alive, resource, case)
+
+
+def _check_sensing(spec, sensing) -> None:
+    """Track management that could never confirm a track, detections the fix initiator can not
+    read; for ``pmht_3d`` also detections pooled per receiver (``initiation: detections``)."""
+    if spec.option("initiation") == "detections" and spec.kind == "pmht_3d" and not sensing.illuminator_known:
+        raise ConfigError(f"method {spec.name!r}: initiation from detections fixes positions from per-pair lists; the "
+                          "detections are pooled per receiver (illuminator unknown): use initiation: oracle")
+    check_initiation(spec, sensing)
 
 
 def _all_throughout(spec, alive: torch.Tensor, resource, case: str) -> None:
@@ -87,14 +111,16 @@ def _all_throughout(spec, alive: torch.Tensor, resource, case: str) -> None:
 
 OPTIONS = {"window": Option(10, int, 1, 100_000), "overlap": Option(3, int, 0, 99_999),
            "em_iterations": Option(6, int, 1, 1000), "tolerance_m": Option(0.0, float, 0.0, 1e6),
-           "anneal": Option(1.0, float, 1.0, 1e6)}
+           "anneal": Option(1.0, float, 1.0, 1e6), **MANAGEMENT_OPTIONS}
 OPTIONS_3D = {**OPTIONS, "wide_kappa": Option(4.0, float, 1.0, 1e4), "wide_weight": Option(0.5, float, 0.0, 0.99)}
 register(MethodKind("pmht", "detections", run_pmht, OPTIONS, causal=lambda r: False, check=_check_pmht,
-                    multi_target=True, description="PMHT with an unscented smoother, illuminator of each detection given "
-                                                   "(Streit & Luginbuhl 1995)"))
+                    check_sensing=_check_sensing, multi_target=True,
+                    description="PMHT with an unscented smoother, illuminator of each detection given "
+                                "(Streit & Luginbuhl 1995)"))
 register(MethodKind("pmht_3d", "detections", run_pmht, OPTIONS_3D, causal=lambda r: False, check=_check_pmht,
-                    multi_target=True, description="target-detection-illuminator PMHT with a Gaussian scale mixture "
-                                                   "(Li et al., JEIT 2021): per receiver, illuminator unknown"))
+                    check_sensing=_check_sensing, multi_target=True,
+                    description="target-detection-illuminator PMHT with a Gaussian scale mixture "
+                                "(Li et al., JEIT 2021): per receiver, illuminator unknown"))
 register(MethodKind("true_assignment_smoother", "detections", run_true_assignment_smoother, {},
                     causal=lambda r: False, check=_all_throughout, multi_target=True,
                     description="UKF + RTS smoother per target on exactly its own detections"))

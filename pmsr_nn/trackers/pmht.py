@@ -4,7 +4,8 @@ of scans, all Monte Carlo runs at once.
 
 Model
 -----
-``T`` targets, each present at every scan (tracks start from a prior; no birth or death).
+``T`` targets, each present at every scan (:func:`pmht`: tracks start from a prior at scan 0;
+no birth or death; :func:`managed_pmht` starts and ends its own, below).
 Detections arrive in *lists*: one per transmitter-receiver pair when each detection's illuminator
 is known, one per receiver in a single-frequency network (SFN), where it is not. Detection ``r``
 was caused by clutter (uniform over the measurement box of volume ``V``) or by target ``t`` through
@@ -45,23 +46,32 @@ last scan). The scans leaving a window keep its smoothed estimates (a fixed-lag 
 causal); the next window's prior is the last iteration's forward filter predicted to its first
 scan, so no detection counts twice; EM starts from the previous smoothed states on the overlap
 and their CV prediction beyond.
+
+Track management (:func:`managed_pmht`)
+---------------------------------------
+The tracks of :mod:`.management` (a table of slots, a fix initiator, M-of-N confirmation, a
+deleter, IPDA existence) in the sliding window: EM runs on every slot, a free one explaining no
+detection; after EM, each scan the window commits reads the association weights (a hit where a
+track's summed weight at a pair is >= 0.5, a start from the detections whose weight on all
+tracks is < 0.5), and a track started at a scan of the window joins EM from that scan on.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from ..config import require
 from ..errors import ConfigError
-from ..filters.gaussian import Gaussian, SigmaPoints, safe_cholesky
+from ..filters.gaussian import Gaussian, SigmaPoints, predict, safe_cholesky
 from ..filters.smoothing import rts_from_predictions
 from ..measurements import wrap_angle
 from ..motion import KinematicModel
 from ..simulation.detections import PooledScans, Scans
 from .gating import gaussian_log_likelihood
+from .management import Management, TrackReport, TrackTable, parked_state
 
 
 @dataclass(frozen=True)
@@ -215,12 +225,13 @@ def problem(model, motion: KinematicModel, dt: float, q, R: torch.Tensor, s: PMH
                     SigmaPoints().weights(motion.dim_x, dtype, device), s)
 
 
-def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
-               inflate: float = 1.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflate: float = 1.0,
+               alive: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """For states ``X (B, W, T, n)`` and a window's lists: residuals ``nu (B, W, L, M, T, S, d)``,
     ``log(Pd c_p N(z_r; h_s(x_t), kappa_p R_s)) (B, W, L, M, T, S, P)`` (-inf where pair ``s`` is
     not a candidate or the slot is padding) and the clutter term ``log(lambda_A / V) (B, W, L, M)``;
-    ``inflate`` scales every ``kappa`` (annealing)."""
+    ``inflate`` scales every ``kappa`` (annealing); a track outside ``alive (B, W, T)`` (default:
+    every track at every scan) explains no detection there (-inf)."""
     B, W, T, _ = X.shape
     S, d = pr.pairs, pr.R_inv_chol.shape[-1]
     h = pr.model.h(X).reshape(B, W, 1, 1, T, S, d)
@@ -235,6 +246,8 @@ def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
     ok = lists.candidates & lists.valid.unsqueeze(-1)  # (B, W, L, M, S)
     log_t = torch.where(ok[:, :, :, :, None, :, None], math.log(pr.settings.pd) + pr.log_c + log_n,
                         torch.full((), -math.inf, dtype=X.dtype, device=X.device))
+    if alive is not None:
+        log_t = log_t.masked_fill(~alive[:, :, None, None, :, None, None], -math.inf)
     lam = (lists.candidates.to(X.dtype) * pr.rate).sum(-1)  # (B, W, L, M)
     log_clutter = torch.log(lam.clamp_min(1e-300)) - math.log(pr.settings.volume)
     return nu, log_t, log_clutter
@@ -245,10 +258,11 @@ def _log_density(log_t: torch.Tensor, log_clutter: torch.Tensor) -> torch.Tensor
     return torch.logsumexp(torch.cat([log_clutter.unsqueeze(-1), log_t.flatten(-3)], -1), -1)
 
 
-def association_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
-                        inflate: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
-    """E-step: weights ``w (B, W, L, M, T, S, P)`` (0 on padding) and the residuals ``nu``."""
-    nu, log_t, log_clutter = _log_terms(pr, X, lists, inflate)
+def association_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflate: float = 1.0,
+                        alive: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """E-step: weights ``w (B, W, L, M, T, S, P)`` (0 on padding and where a track is not
+    ``alive (B, W, T)``) and the residuals ``nu``."""
+    nu, log_t, log_clutter = _log_terms(pr, X, lists, inflate, alive)
     w = torch.exp(log_t - _log_density(log_t, log_clutter)[..., None, None, None])
     return torch.where(lists.valid[..., None, None, None], w, torch.zeros((), dtype=w.dtype, device=w.device)), nu
 
@@ -269,14 +283,20 @@ def synthetic_measurements(pr: PMHTProblem, X: torch.Tensor, w: torch.Tensor, nu
     return z.masked_fill(missing, float("nan")).reshape(B, W, T, S * d), scale.reshape(B, W, T, S * d)
 
 
-def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tensor, hand_off: int):
+def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tensor, hand_off: int,
+            born: torch.Tensor | None = None, start: Gaussian | None = None):
     """Unscented Kalman smoother over synthetic measurements ``z (R, W, m)`` (NaN rows missing;
     covariance ``D R D``, ``D = diag(sqrt(scale))``) from ``prior`` (predicted moments at the
     window's first scan, ``(R, n)``): a UKF forward (the update of
     :func:`~pmsr_nn.filters.gaussian.kalman_update` with the moments of
     :func:`~pmsr_nn.filters.gaussian.unscented_moments`, written out once for the fixed shapes of
     this loop), then the RTS pass. Returns smoothed ``x (R, W, n)``, ``P (R, W, n, n)`` and the
-    filter's prediction at scan ``hand_off`` of the window (the next window's prior)."""
+    filter's prediction at scan ``hand_off`` of the window (the next window's prior).
+
+    ``born (R,)`` (optional, -1: none) and ``start`` ``(R, n)``: a row born at scan ``born`` of
+    the window is filtered as ``start`` there (the initiator's Gaussian, made from that scan's
+    detections: they are not counted twice); before it, it only has ``prior`` and no measurement,
+    and its smoothed states there mean nothing."""
     Rn, W, m = z.shape
     wm, wc, c = pr.sigma
     missing = torch.isnan(z)
@@ -308,6 +328,9 @@ def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tens
         x = x + (nu[:, None, :] @ Kt)[:, 0]
         P = P - C @ Kt
         P = 0.5 * (P + P.transpose(-1, -2))
+        if born is not None and bool((born == k).any()):
+            here = born == k
+            x, P = torch.where(here[:, None], start.x, x), torch.where(here[:, None, None], start.P, P)
         xf.append(x)
         Pf.append(P)
     xp.append(x @ pr.F.T)
@@ -346,14 +369,17 @@ def expected_complete_log_likelihood(pr: PMHTProblem, X: torch.Tensor, prior: Ga
     return state_log_prior(pr, X, prior) + wt + (w0 * log_clutter).sum((1, 2, 3))
 
 
-def check_lists(lists: AssociationLists, prior: Gaussian, n_pairs: int, n: int) -> None:
-    """One-line errors for detections and priors that do not fit."""
+def check_lists(lists: AssociationLists, prior: Gaussian | None, n_pairs: int, n: int) -> None:
+    """One-line errors for detections and priors (``None``: none, the tracker starts its own
+    tracks) that do not fit."""
     B, K, L, M, _ = lists.z.shape
     if lists.candidates.shape[-1] != n_pairs:
         raise ConfigError(f"the detections name {lists.candidates.shape[-1]} illuminator pair(s); the measurement "
                           f"model has {n_pairs}")
     if bool(torch.isnan(lists.z[lists.valid]).any()) or bool(torch.isinf(lists.z).any()):
         raise ConfigError("a valid detection is NaN or infinite")
+    if prior is None:
+        return
     if prior.x.dim() != 3 or prior.x.shape[0] != B or prior.x.shape[-1] != n:
         raise ConfigError(f"prior must be x (B={B}, T, {n}); got {tuple(prior.x.shape)}")
     if not bool(torch.isfinite(prior.x).all()):
@@ -420,15 +446,19 @@ def pmht(lists: AssociationLists, prior: Gaussian, motion: KinematicModel, dt: f
 
 
 def em_step(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists, inflate: float = 1.0,
-            hand_off: int | None = None):
+            hand_off: int | None = None, alive: torch.Tensor | None = None, born: torch.Tensor | None = None,
+            start: Gaussian | None = None):
     """One EM iteration on a window: states ``X (b, W, T, n)``, ``prior`` the predicted moments at
     its first scan (one row per run and target, ``(b T, n)``). Returns the new states, their
     covariances ``(b, W, T, n, n)``, the forward filter's prediction at scan ``hand_off`` (default:
-    after the window) and the E-step's weights."""
+    after the window) and the E-step's weights. Tracks that start inside the window (track
+    management): ``alive (b, W, T)`` where each explains detections, ``born (b, T)`` the scan of
+    the window each starts at (-1: before it) as ``start`` ``(b T, n)`` (see :func:`_smooth`)."""
     b, W, T, n = X.shape
-    w, nu = association_weights(pr, X, lists, inflate)
+    w, nu = association_weights(pr, X, lists, inflate, alive)
     z, scale = synthetic_measurements(pr, X, w, nu, inflate)
-    xs, Ps, handed = _smooth(pr, prior, _rows(z), _rows(scale), W if hand_off is None else hand_off)
+    xs, Ps, handed = _smooth(pr, prior, _rows(z), _rows(scale), W if hand_off is None else hand_off,
+                             None if born is None else born.reshape(b * T), start)
     return xs.reshape(b, T, W, n).transpose(1, 2), Ps.reshape(b, T, W, n, n).transpose(1, 2), handed, w
 
 
@@ -452,3 +482,145 @@ def _initial_states(pr: PMHTProblem, g: Gaussian, X_prev: torch.Tensor | None, s
         out.append(cur)
         cur = cur @ pr.F.transpose(-1, -2)
     return torch.stack(out, 1)
+
+
+# ------------------------------------------------------------------------------ track management
+
+def window_evidence(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
+                    alive: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What track management reads from a window's final states ``X (b, W, T, n)`` (tracks
+    ``alive (b, W, T)``): each track's summed association weight per pair ``(b, W, T, S)``, its
+    IPDA likelihood ratio per pair ``(b, W, T, S)`` (the sum over the pair's detections of
+    ``sum_p c_p N(z_r; h_s(x_t), kappa_p R_s)`` over the clutter density ``lambda_A / V``: PMHT's
+    own measurement density at the smoothed state) and each detection's total weight on a target
+    ``(b, W, L, M)``."""
+    _, log_t, log_clutter = _log_terms(pr, X, lists, 1.0, alive)
+    w = torch.exp(log_t - _log_density(log_t, log_clutter)[..., None, None, None])  # 0 on padding: log_t = -inf
+    ratio = torch.exp(log_t - log_clutter[..., None, None, None]).sum((2, 3, 6)) / pr.settings.pd
+    return w.sum((2, 3, 6)), ratio, w.sum((4, 5, 6))
+
+
+def _pad_slots(t: torch.Tensor, C: int, fill, dim: int = 2) -> torch.Tensor:
+    """``t`` with its slot axis ``dim`` padded to ``C`` with ``fill``."""
+    extra = C - t.shape[dim]
+    if extra <= 0:
+        return t
+    shape = list(t.shape)
+    shape[dim] = extra
+    return torch.cat([t, t.new_full(shape, fill)], dim)
+
+
+def _started_rows(pr: PMHTProblem, X: torch.Tensor, rows: torch.Tensor, born: torch.Tensor,
+                  x0: torch.Tensor) -> torch.Tensor:
+    """EM's starting states ``X (b, W, C, n)`` with the tracks ``rows (b, C)`` started inside the
+    window at scan ``born (b, C)`` set to their initiator mean ``x0 (b, C, n)`` there, its CV
+    predictions after and the same mean before (where they explain nothing)."""
+    W = X.shape[1]
+    powers = torch.stack([torch.linalg.matrix_power(pr.F, k) for k in range(W)])  # (W, n, n)
+    steps = (torch.arange(W)[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
+    xk = (powers[steps] @ x0[:, None, :, :, None]).squeeze(-1)
+    return torch.where(rows[:, None, :, None], xk, X)
+
+
+def managed_pmht(scans: Scans, motion: KinematicModel, dt: float, q, model, R: torch.Tensor, settings: PMHTSettings,
+                 management: Management) -> TrackReport:
+    """PMHT that starts, confirms and deletes its own tracks (:mod:`.management`), on per-pair
+    lists (each detection's illuminator known: the fix initiator needs them).
+
+    The tracks live in a :class:`~.management.TrackTable` whose Gaussians are the priors at the
+    current window's first scan; EM runs on every slot (a free slot explains no detection). After
+    EM on a window, each scan the window commits (hands on: the scans before the next window's
+    first), in order:
+
+    1. existence: predicted by ``survival``, then each pair's IPDA update with the ratio of
+       :func:`window_evidence` (no gate: ``Pd Pg = Pd``);
+    2. a track whose summed association weight at a pair is >= 0.5 was detected there; hit and
+       miss, M-of-N confirmation and deletion as the table does;
+    3. the confirmed tracks whose existence is >= ``report_existence`` are reported with their
+       smoothed states at that scan;
+    4. the detections whose total weight on the tracks is < 0.5 (explained mostly by clutter)
+       start tentative tracks (:class:`~.management.FixInitiator`).
+
+    A track started at scan ``k`` of the window takes part in it from ``k`` on: it explains no
+    detection before ``k`` and its filter is the initiator's Gaussian at ``k`` (see
+    :func:`_smooth`). So that it explains its own later detections in the window (and starts no
+    second track from them, and can be confirmed at ``k + 1``), EM is run again on the window
+    with the new tracks and the committed scans go on from ``k + 1``; a track started at the last
+    committed scan is only predicted into the next window. Returns the reported confirmed tracks
+    (:class:`~.management.TrackReport`, ``(B, K, T, n)``), smoothed: not causal.
+    """
+    S = getattr(model, "n_pairs", 1)
+    lists = AssociationLists.per_pair(scans)
+    check_lists(lists, None, S, motion.dim_x)
+    management.check(model, "PMHT")
+    B, K = scans.shape[:2]
+    pr = problem(model, motion, dt, q, R, settings, scans.z.dtype, scans.z.device)
+    starts = window_starts(K, settings)
+    parts = [_managed_runs(pr, lists.take(slice(c0, min(B, c0 + settings.chunk_runs))), starts, management,
+                           list(motion.pos_idx)) for c0 in range(0, B, settings.chunk_runs)]
+    T = max(p.x.shape[2] for p in parts)
+    cat = lambda name, fill: torch.cat([_pad_slots(getattr(p, name), T, fill) for p in parts], 0)
+    return TrackReport(cat("x", math.nan), cat("P", 0.0), cat("exists", False), cat("existence", 0.0)).trimmed()
+
+
+def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], mg: Management,
+                  pos: list[int]) -> TrackReport:
+    """:func:`managed_pmht` on one chunk of ``b`` runs."""
+    b, K, S = lists.z.shape[:3]
+    s, model, n, dtype = pr.settings, pr.model, pr.F.shape[0], lists.z.dtype
+    table = TrackTable.empty(b, n, parked_state(model, n, dtype))
+    report = TrackReport.empty(b, K, n, dtype)
+    X = None
+    for i, a in enumerate(starts):
+        W = min(s.window, K - a)
+        h = (starts[i + 1] if i + 1 < len(starts) else K) - a  # scans this window commits
+        win = lists.take(slice(None), slice(a, a + W))
+        C = table.g.x.shape[1]
+        X = _initial_states(pr, table.g, X, a - starts[i - 1] if i else 0, W, b, C)
+        born = torch.full((b, C), -1, dtype=torch.int64)  # scan of the window a track started at (-1: before)
+        k = 0
+        while True:  # EM on the window, again after each committed scan that started tracks
+            C = table.g.x.shape[1]
+            born = torch.where(table.active, born, -1)
+            alive = table.active[:, None, :] & (born[:, None, :] <= torch.arange(W)[None, :, None])
+            # table.g: the prior at the window's first scan of a track that was there, the
+            # initiator's Gaussian of one started inside it (the smoother's start at its scan)
+            g = Gaussian(table.g.x.reshape(b * C, n), table.g.P.reshape(b * C, n, n))
+            for it in range(s.em_iterations):
+                X_new, P, handed, _ = em_step(pr, X, g, win, s.inflation(it), h, alive, born, g)
+                moved = (X_new - X)[..., pos].norm(dim=-1).max()
+                X = X_new
+                if s.tolerance_m > 0 and float(moved) < s.tolerance_m:
+                    break
+            pair_w, ratio, target_w = window_evidence(pr, X, win, alive)
+            late = torch.zeros(b, C, dtype=torch.bool)  # started after this EM
+            while k < h and not bool(late.any()):
+                if a + k > 0:
+                    table.predict_existence(mg.survival)
+                for j in range(S):
+                    table.update_existence(ratio[:, k, :, j], s.pd)
+                table.record((pair_w[:, k] >= 0.5).sum(-1), mg.hit_pairs)
+                table.manage(mg.confirmer, mg.deleter, pos)
+                shown = replace(table, g=Gaussian(X[:, k], P[:, k]))  # the smoothed states at this scan
+                report.write(a + k, shown, mg.report_existence)
+                unused = win.valid[:, k] & (target_w[:, k] < 0.5)  # (b, S, M): per-pair lists
+                before = table.active
+                if bool(unused.any()):
+                    table.add(*mg.initiator.initiate(win.z[:, k], unused, model, n, mg.other_sd), mg.initial_existence)
+                late = table.active & ~_pad_slots(before, table.g.x.shape[1], False, 1)
+                if bool(late.any()):
+                    C = table.g.x.shape[1]
+                    born = torch.where(late, k, _pad_slots(born, C, -1, 1))
+                    X = _started_rows(pr, _pad_slots(X, C, 0.0), late, born, table.g.x)
+                k += 1
+            if k >= h:
+                break
+        # hand on: the last EM's forward prediction at the next window's first scan; a track
+        # started at the last committed scan (after that EM) predicted from its initiator
+        C = table.g.x.shape[1]
+        hx = _pad_slots(handed.x.reshape(b, -1, n), C, 0.0, 1)
+        hP = _pad_slots(handed.P.reshape(b, -1, n, n), C, 0.0, 1)
+        step = predict(table.g, pr.F, pr.Q)
+        table.g = Gaussian(torch.where(late[..., None], step.x, hx), torch.where(late[..., None, None], step.P, hP))
+        table.free(~table.active)  # keep free slots parked
+    return report
