@@ -317,3 +317,35 @@ def test_a_case_can_take_its_detections_from_the_fm_front_end(tmp_path):
     assert case["detections"] == "signals" and case["front_end"]["cpis"] == 2 * 4  # two runs of four scans
     assert case["front_end"]["pd_measured"] > 0.5
     assert "FM front end" in (tmp_path / "out" / "report.md").read_text()
+
+
+@pytest.mark.parametrize("method", ["gtda", "hungarian"])
+def test_labels_go_only_to_confirmed_tracks(method):
+    """Hand-made estimates over 6 scans (one run, [r, rdot]): a steady track at 10 km from scan 0,
+    a one-scan false estimate at scan 1 and a second track from scan 2. With 2 of 3 the steady
+    track is labelled from scan 1 (its second estimate), the second from scan 3, the false one
+    never; 1 of 1 labels all three at first sight."""
+    F, Q = cv_matrices(1.0, 20.0)
+    K = 6
+    x = torch.full((1, K, 3, 2), float("nan"), dtype=torch.float64)
+    exists = torch.zeros(1, K, 3, dtype=torch.bool)
+    for k in range(K):
+        x[0, k, 0] = torch.tensor([10_000.0 + 100.0 * k, 100.0])
+        exists[0, k, 0] = True
+    x[0, 1, 1], exists[0, 1, 1] = torch.tensor([40_000.0, -50.0]), True
+    for k in range(2, K):
+        x[0, k, 2], exists[0, k, 2] = torch.tensor([25_000.0 - 80.0 * k, -80.0]), True
+    P = torch.diag(SD**2).expand(1, K, 3, 2, 2).clone()
+    g = torch.Generator().manual_seed(0)
+    lab = label_tracks(x, P, exists, F, Q, LabelSpec(method=method, confirm_m=2, confirm_n=3), g)
+    assert not lab.paired and lab.extras["labels"].tolist() == [2] and lab.extras["started"].tolist() == [3]
+    assert lab.exists[0, :, 0].tolist() == [False] + [True] * 5  # the steady track, confirmed at scan 1
+    assert lab.exists[0, :, 1].tolist() == [False] * 3 + [True] * 3  # the second, confirmed at scan 3
+    assert torch.equal(lab.x[0, 3, 1], x[0, 3, 2])
+    every = label_tracks(x, P, exists, F, Q, LabelSpec(method=method), torch.Generator().manual_seed(0))
+    assert every.extras["labels"].tolist() == [3] and int(every.exists.sum()) == int(exists.sum())
+
+
+def test_a_labelling_that_could_never_confirm_is_refused():
+    with pytest.raises(ConfigError, match="M = 4, N = 3: a track could never be confirmed"):
+        LabelSpec(confirm_m=4, confirm_n=3)

@@ -60,8 +60,9 @@ KNOWN = "known_association_kf"
 @dataclass(frozen=True)
 class PHDMethodSpec:
     """A labelling of the PHD estimates: ``labelling`` ``gtda`` or ``hungarian``; ``options``
-    overrides the study's ``labelling`` settings (``gate_probability``, ``max_missed``, and for
-    GTDA ``forgetting``, ``iterations``, ``conflict``, ``alpha_scale``)."""
+    overrides the study's ``labelling`` settings (``gate_probability``, ``max_missed``,
+    ``confirm_m``, ``confirm_n``, and for GTDA ``forgetting``, ``iterations``, ``conflict``,
+    ``alpha_scale``)."""
 
     name: str
     labelling: Literal["gtda", "hungarian"] = "gtda"
@@ -149,10 +150,13 @@ class BistaticNoiseSpec:
 
 @dataclass(frozen=True)
 class LabellingSpec:
-    """The labelling settings every method starts from (:class:`~pmsr_nn.trackers.labelling.LabelSpec`)."""
+    """The labelling settings every method starts from (:class:`~pmsr_nn.trackers.labelling.LabelSpec`):
+    a new track is labelled once it took an estimate in ``confirm_m`` of its first ``confirm_n`` scans."""
 
     gate_probability: float = 0.999
     max_missed: int = 3
+    confirm_m: int = 1
+    confirm_n: int = 1
     game: GameSpec = GameSpec()
 
 
@@ -230,9 +234,10 @@ class PHDScenario(StudyFile):
         base = to_dict(self.labelling)
         game_keys = set(to_dict(GameSpec()))
         opts = dict(m.options)
-        unknown = sorted(set(opts) - game_keys - {"gate_probability", "max_missed"})
+        own = {"gate_probability", "max_missed", "confirm_m", "confirm_n"}
+        unknown = sorted(set(opts) - game_keys - own)
         if unknown:
-            raise ConfigError(f"method {m.name!r}: unknown option(s) {unknown} (known: gate_probability, max_missed, "
+            raise ConfigError(f"method {m.name!r}: unknown option(s) {unknown} (known: {', '.join(sorted(own))}, "
                               f"{', '.join(sorted(game_keys))})")
         base["game"] = {**base["game"], **{k: v for k, v in opts.items() if k in game_keys}}
         base.update({k: v for k, v in opts.items() if k not in game_keys})

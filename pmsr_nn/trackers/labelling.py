@@ -10,10 +10,13 @@ each scan the living tracks (players) and the scan's estimates are associated by
 ``d2`` being the Mahalanobis distance of an estimate from a track's prediction (covariance: the
 track's predicted one plus the estimate's). A track that takes an estimate reports it under its
 label; a track missing more than ``max_missed`` scans in a row ends (a player leaves); an estimate
-no track takes starts a new track with a new label (a player joins). Labels count up per run from 0.
-A living track that took no estimate reports its prediction (it coasts) once it has taken at
-least two estimates, so a missed detection does not cut a labelled track while a one-scan false
-estimate does not linger.
+no track takes starts a new, tentative track (a player joins). A tentative track is confirmed by
+the shared M-of-N :class:`~.management.Confirmer` (``confirm_m`` estimates taken in its first
+``confirm_n`` scans; 1 of 1, the default, confirms at once) and only then gets a label and is
+reported, from that scan on; one that can no longer be confirmed ends. Labels count up per run
+from 0, in order of confirmation. A living confirmed track that took no estimate reports its
+prediction (it coasts) once it has taken at least two estimates, so a missed detection does not
+cut a labelled track while a one-scan false estimate does not linger.
 """
 
 from __future__ import annotations
@@ -29,16 +32,24 @@ from ..config import require
 from .gating import gate_threshold
 from .base import Estimates
 from .gtda import GameSpec, play
+from .management import Confirmer
 
 @dataclass(frozen=True)
 class LabelSpec:
     """``method`` (``gtda`` or ``hungarian``), ``gate`` on ``d2``, ``max_missed`` scans a track
-    coasts before it ends, ``game`` the GTDA settings."""
+    coasts before it ends, ``confirm_m`` of its first ``confirm_n`` scans a new track must take an
+    estimate in before it is reported, ``game`` the GTDA settings."""
 
     method: Literal["gtda", "hungarian"] = "gtda"
     gate_probability: float = 0.999
     max_missed: int = 3
+    confirm_m: int = 1
+    confirm_n: int = 1
     game: GameSpec = field(default_factory=GameSpec)
+
+    @property
+    def confirmer(self) -> Confirmer:
+        return Confirmer(self.confirm_m, self.confirm_n)
 
     @property
     def gate(self) -> float:
@@ -49,6 +60,7 @@ class LabelSpec:
         require(self.method in ("gtda", "hungarian"), f"labelling must be gtda or hungarian, got {self.method!r}")
         require(0 < self.gate_probability < 1, f"gate_probability must be in (0, 1), got {self.gate_probability}")
         require(self.max_missed >= 0, f"max_missed must be >= 0, got {self.max_missed}")
+        self.confirmer  # refuses an M-of-N that could never confirm
 
 
 def mahalanobis(x: torch.Tensor, P: torch.Tensor, e: torch.Tensor, Pe: torch.Tensor) -> torch.Tensor:
@@ -81,17 +93,22 @@ def hungarian(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor,
 def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torch.Tensor, Q: torch.Tensor,
                  spec: LabelSpec, g: torch.Generator) -> Estimates:
     """Labelled tracks (module docstring) of estimates ``x (B, K, C, 2)``, ``P (B, K, C, 2, 2)``,
-    ``exists (B, K, C)``: :class:`~.base.Estimates` with one slot per label; extras
-    ``game_rounds (K,)`` and ``repaired (B,)`` (GTDA only), ``labels (B,)`` labels started per run."""
+    ``exists (B, K, C)``: :class:`~.base.Estimates` with one slot per label (unpaired); extras
+    ``game_rounds (K,)`` and ``repaired (B,)`` (GTDA only), ``labels (B,)`` labels confirmed per run,
+    ``started (B,)`` tracks started per run (tentative ones included)."""
     B, K, C, n = x.shape
     cap = max(C, 1)
     tx = torch.zeros(B, cap, n, dtype=torch.float64)
     tP = torch.eye(n, dtype=torch.float64).expand(B, cap, n, n).clone()
     alive = torch.zeros(B, cap, dtype=torch.bool)
-    label = torch.zeros(B, cap, dtype=torch.int64)
+    label = torch.full((B, cap), -1, dtype=torch.int64)
     missed = torch.zeros(B, cap, dtype=torch.int64)
     hits = torch.zeros(B, cap, dtype=torch.int64)
+    age = torch.zeros(B, cap, dtype=torch.int64)
     next_label = torch.zeros(B, dtype=torch.int64)
+    started = torch.zeros(B, dtype=torch.int64)
+    confirmer = spec.confirmer
+    at_once = bool(confirmer.confirms(torch.ones((), dtype=torch.int64)))  # 1 of 1: labelled when started
     rounds, repaired = [], torch.zeros(B, dtype=torch.int64)
     rows_out = []  # per scan: (b, label, estimate index)
     gate = spec.gate
@@ -113,10 +130,18 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
         tP = torch.where(took[..., None, None], Pk.gather(1, pick[..., None, None].expand(B, cap, n, n)), tP)
         missed = torch.where(took, torch.zeros_like(missed), missed + 1)
         hits = hits + took
+        age = age + alive
         alive = alive & (missed <= spec.max_missed)
-        b, p = took.nonzero(as_tuple=True)
+        tentative = alive & (label < 0)
+        alive = alive & ~(tentative & confirmer.hopeless(hits, age))
+        new_conf = alive & (label < 0) & confirmer.confirms(hits)
+        rank = new_conf.cumsum(1) - 1
+        label = torch.where(new_conf, next_label[:, None] + rank, label)
+        next_label += new_conf.sum(1)
+        shown = took & (label >= 0)
+        b, p = shown.nonzero(as_tuple=True)
         rows_out.append((k, b, label[b, p], ek[b, choice[b, p]], Pk[b, choice[b, p]]))
-        b, p = (alive & ~took & (hits >= 2)).nonzero(as_tuple=True)  # coasting: the prediction under the label
+        b, p = (alive & ~took & (hits >= 2) & (label >= 0)).nonzero(as_tuple=True)  # coasting: the prediction under the label
         rows_out.append((k, b, label[b, p], tx[b, p], tP[b, p]))
         # estimates no track took start tracks in free slots
         taken = torch.zeros(B, C + 1, dtype=torch.bool).scatter_(1, torch.where(took, choice, C), True)[:, :C]
@@ -125,7 +150,8 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
         short = int((n_new - (~alive).sum(1)).max()) if B else 0
         if short > 0:
             grow = lambda t, fill: torch.cat([t, torch.full((B, short) + t.shape[2:], fill, dtype=t.dtype)], 1)
-            tx, alive, label, missed, hits = grow(tx, 0.0), grow(alive, False), grow(label, 0), grow(missed, 0), grow(hits, 0)
+            tx, alive, label, missed, hits, age = (grow(tx, 0.0), grow(alive, False), grow(label, -1), grow(missed, 0),
+                                                   grow(hits, 0), grow(age, 0))
             tP = torch.cat([tP, torch.eye(n, dtype=torch.float64).expand(B, short, n, n)], 1)
             cap += short
         if bool(new.any()):
@@ -134,17 +160,21 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
             rank = (new.cumsum(1) - 1)[b, c]
             slot = free_first[b, rank]
             tx[b, slot], tP[b, slot] = ek[b, c], Pk[b, c]
-            alive[b, slot], missed[b, slot], hits[b, slot] = True, 0, 1
-            label[b, slot] = next_label[b] + rank
-            next_label += n_new
-            rows_out.append((k, b, label[b, slot], ek[b, c], Pk[b, c]))
+            alive[b, slot], missed[b, slot], hits[b, slot], age[b, slot] = True, 0, 1, 0
+            started += n_new
+            if at_once:
+                label[b, slot] = next_label[b] + rank
+                next_label += n_new
+                rows_out.append((k, b, label[b, slot], ek[b, c], Pk[b, c]))
+            else:
+                label[b, slot] = -1
     L = int(next_label.max()) if B else 0
     out_x = torch.full((B, K, L, n), float("nan"), dtype=torch.float64)
     out_P = torch.zeros(B, K, L, n, n, dtype=torch.float64)
     out_e = torch.zeros(B, K, L, dtype=torch.bool)
     for k, b, lab, xv, Pv in rows_out:
         out_x[b, k, lab], out_P[b, k, lab], out_e[b, k, lab] = xv, Pv, True
-    extras = {"labels": next_label}
+    extras = {"labels": next_label, "started": started}
     if spec.method == "gtda":
         extras.update(game_rounds=torch.tensor(rounds), repaired=repaired)
-    return Estimates(out_x, out_e, out_P, extras)
+    return Estimates(out_x, out_e, out_P, extras, paired=False)
