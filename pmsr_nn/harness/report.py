@@ -255,13 +255,14 @@ def multi_target_tables(res: dict, timing: dict | None, label: str) -> list[str]
         paper = timing is not None and key is not None
         lines += [_case_heading(name, case), "",
                   "| method | reads | pos RMSE (m) | pos RMSE, all scans (m) | per target (m) | per target, assigned (m) | "
-                  "OSPA (m) | GOSPA (m): % localisation / missed / false | mean abs. cardinality error | label switches / run | "
+                  "OSPA (m) | GOSPA (m) ± s.e.: % localisation / missed / false | mean abs. cardinality error | label switches / run | "
                   "swap prob. | loss prob. | s / run |" + (f" {label}: s / run |" if paper else ""),
                   "|---|---|" + "---:|" * 2 + "---|---|" + "---:|" * 7 + ("---:|" if paper else "")]
         for m, r in rows.items():
             per = " / ".join(f"{v:.0f}" for v in r["rmse_pos_per_target_m"])
             assigned = " / ".join("-" if v is None else f"{v:.0f}" for v in r["rmse_pos_assigned_per_target_m"])
-            split = (f"{_f(r['gospa_m'], 1)}: " + " / ".join(f"{100 * r[f'gospa_{p}_share']:.0f}"
+            se = f" ± {r['gospa_se_m']:.1f}" if r.get("gospa_se_m") is not None else ""
+            split = (f"{_f(r['gospa_m'], 1)}{se}: " + " / ".join(f"{100 * r[f'gospa_{p}_share']:.0f}"
                                                               for p in ("localisation", "missed", "false")))
             line = (f"| {m} | {res['settings']['methods'][m].get('reads', '-')}{_starts(r)} | {_f(r['rmse_pos_m'], 1)} | "
                     f"{_f(r['rmse_pos_all_scans_m'], 1)} | {per} | {assigned} | {_f(r['ospa_m'], 1)} | {split} | "

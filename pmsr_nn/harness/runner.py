@@ -496,6 +496,7 @@ def score(setup: Setup, case: Case, est, truth: Truth) -> dict[str, np.ndarray]:
         if est.paired:
             out.update(scoring.swaps(est, truth, pos))
         out.update(scoring.set_sums(est, truth, pos, *setup.set_metric, sc=sets))
+        out.update(scoring.gospa_per_run(sets, case.scored.any(1)))
         out.update(scoring.track_sums(sets.assignment, est.exists, truth))
     if setup.loss is not None:
         out.update(scoring.loss_counts(est, setup.loss.successive_scans, setup.loss.gate_range_sd_m))
@@ -556,6 +557,15 @@ def _mean(curve: np.ndarray, mask: np.ndarray) -> float:
     return float(curve[mask].mean())
 
 
+def _root_se(per_run: np.ndarray | None, mean: float, p: float) -> float | None:
+    """Standard error of ``mean ** (1/p)`` from the per-run values whose mean is ``mean`` (the
+    delta method: ``se(mean) * mean ** (1/p - 1) / p``); None with fewer than two runs."""
+    if per_run is None or len(per_run) < 2 or mean <= 0:
+        return None
+    se = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
+    return se * mean ** (1.0 / p - 1.0) / p
+
+
 def _set_figures(s: dict, R: int, scored: np.ndarray, p: float) -> tuple[dict, dict]:
     """Multi-target figures of one method: the row's fields and its per-scan curves."""
     k = scored.any(1)
@@ -569,6 +579,7 @@ def _set_figures(s: dict, R: int, scored: np.ndarray, p: float) -> tuple[dict, d
     gp = (s["gospa_loc"] + s["gospa_missed"] + s["gospa_false"]) / R  # (K,) mean GOSPA^p per scan
     total = float(gp[k].mean())
     row = {"ospa_m": float(ospa_c[k].mean()), "gospa_m": total ** (1 / p),
+           "gospa_se_m": _root_se(s.get("gospa_run"), total, p),
            "gospa_localisation_share": float((s["gospa_loc"][k] / R).mean() / total) if total > 0 else 0.0,
            "gospa_missed_share": float((s["gospa_missed"][k] / R).mean() / total) if total > 0 else 0.0,
            "gospa_false_share": float((s["gospa_false"][k] / R).mean() / total) if total > 0 else 0.0,
@@ -730,7 +741,17 @@ DEFINITIONS = {
     "gospa_m": "GOSPA (alpha = 2, Rahmathullah et al. 2017): the p-th root of the mean over runs and scans after the "
                "warm-up of GOSPA^p; gospa_localisation_share, gospa_missed_share and gospa_false_share split that "
                "mean into its parts (sum of d^p over assigned pairs, c^p/2 per missed target, c^p/2 per false track), "
-               "which add up to 1",
+               "which add up to 1; gospa_se_m its Monte Carlo standard error (the spread of the runs' mean GOSPA^p, "
+               "through the p-th root by the delta method)",
+    "confirmed_tracks_per_target": "reported tracks matched to a target (per-scan OSPA assignment) at some scan of "
+                                   "its life, per target and run",
+    "false_tracks_per_run": "reported tracks never matched to any target",
+    "missed_target_fraction": "fraction of (run, target, scan) where the target lives and no track is matched to it",
+    "scans_to_first_track": "scans from a target's birth to its first matched track, over the runs that had one",
+    "track_loss_probability": "fraction of (run, target) whose matched tracks ended while the target still lived",
+    "fragmentations_per_run": "interruptions of a target's matched coverage that resumed later, per run",
+    "initiation": "how a row's tracks start: association known (each target's own stream), oracle (handed each "
+                  "target's birth: truth plus a prior draw) or detections (the tracker's own initiator)",
     "cardinality_mean_abs_error": "mean over runs and scans after the warm-up of |number of tracks - number of targets|",
     "rmse_pos_assigned_per_target_m": "per target: each run's track labels are assigned to targets once (the assignment "
                                       "minimising the summed capped squared distances over the run), then the RMSE of "

@@ -36,7 +36,7 @@ from ..metrics import (SetScores, label_switches, labelled_assignment, matched_t
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
-PER_RUN = ("run_mse",)
+PER_RUN = ("run_mse", "gospa_run")
 """Quantities kept per run (concatenated over blocks); every other one is summed per block."""
 
 
@@ -118,6 +118,14 @@ def track_sums(assignment: torch.Tensor, exists: torch.Tensor, truth: Truth) -> 
             "alive_scans": as64(ts.alive_scans), "lost_tracks": as64(ts.lost), "fragmentations": as64(ts.fragmentations),
             "first_track_scans": as64(torch.where(found, first, torch.zeros((), dtype=first.dtype))),
             "first_track_count": as64(found), "false_tracks": np.asarray(float(ts.false_tracks.sum()))}
+
+
+def gospa_per_run(sc: SetScores, scored_scans: torch.Tensor) -> dict[str, np.ndarray]:
+    """``gospa_run (B,)``: each run's mean over the scored scans ``(K,)`` of GOSPA^p (m^p), what
+    the Monte Carlo error of the GOSPA row is computed from."""
+    g = sc.gospa
+    per_scan = g.localisation + g.missed + g.false  # (B, K)
+    return {"gospa_run": per_scan[:, scored_scans].mean(1).numpy()}
 
 
 def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,

@@ -137,7 +137,8 @@ class FixInitiator:
         H = torch.stack(H, 1)  # (B, S, M, 2, 2)
         sd = torch.tensor([model.noise_std[comps.index("range")], model.noise_std[comps.index("azimuth")]], dtype=z.dtype)
         det = H[..., 0, 0] * H[..., 1, 1] - H[..., 0, 1] * H[..., 1, 0]
-        ok = ok & (det.abs() > 1e-12)
+        # the two gradients nearly parallel (the sine of their angle below 1e-6): no fix along it
+        ok = ok & (det.abs() > 1e-6 * H[..., 0, :].norm(dim=-1) * H[..., 1, :].norm(dim=-1))
         H = torch.where(ok[..., None, None], H, torch.eye(2, dtype=z.dtype))
         Hinv = torch.linalg.inv(H)
         return pos, Hinv @ torch.diag(sd**2) @ Hinv.transpose(-1, -2), ok
