@@ -22,11 +22,48 @@ ROOT = Path(__file__).resolve().parents[1]
 DRONE = ROOT / "datasets" / "drone_manoeuvres.yaml"
 
 
-def digest(*tensors) -> str:
-    h = hashlib.sha256()
-    for t in tensors:
-        h.update(t.contiguous().numpy().tobytes())
-    return h.hexdigest()[:16]
+with np.load(ROOT / "tests" / "data" / "draws_2ef52e8.npz") as _f:
+    REFERENCE = dict(_f)
+"""Draws computed at commit 2ef52e8, before manoeuvres and range outliers existed (every 25th
+scan and the last of test_without_the_new_options_the_draws_are_those_of_before's tracks)."""
+EPS = 2.2e-16  # float64 machine epsilon
+SAME_NORMALS = torch.backends.cpu.get_cpu_capability() in ("AVX2", "AVX512")
+"""Whether torch draws its float32 normals with its AVX2 kernel (any x86 CPU with AVX2 and FMA,
+whatever its maker): those are the same bits everywhere (integer generator output through IEEE
+operations). Its scalar kernel (a CPU without AVX2, or ``ATEN_CPU_CAPABILITY=default``) computes
+log and cos otherwise: the same draws to a few float32 ulps (2e-6 measured on N(0, 1) draws)."""
+
+
+def stream_position(g: torch.Generator) -> bytes:
+    """The integer part of a CPU generator's state: mt19937's seed, position and 624 words
+    (``get_state()``'s first 5016 bytes) and whether a double / float normal is cached (bytes
+    5040, 5052). It moves only with the number and kind of draws, so it is the same on any CPU;
+    the cached normals' values (computed by libm) are left out."""
+    s = g.get_state().numpy().tobytes()
+    assert len(s) == 5056, "torch's CPU generator state has another layout: see stream_position"
+    return s[:5016] + s[5040:5044] + s[5052:5053]
+
+
+def assert_as_recorded(got: np.ndarray, ref: np.ndarray, rounds: int, angles=None, what: str = "") -> None:
+    """Element-wise ``|got - ref| <= tol * scale``, ``scale`` the largest ``|ref|`` of each component
+    (last axis; the rounding of a sum is relative to its largest terms, not to a result near
+    zero), angles compared modulo 2 pi (one near +-pi may wrap to the other side).
+
+    ``tol = rounds * 4 * EPS * 10``: float64 rounding of ``rounds`` successive operations of up to
+    4 terms each (first-order bound), times a safety factor of 10; plus 1e-5 where the float32
+    normals may come from torch's scalar kernel (:data:`SAME_NORMALS`: a few float32 ulps of
+    draws no larger than the component, 5e-7 of it measured). A changed draw moves the
+    measurement or acceleration it enters by its deviation, 1e-3 of the component or more."""
+    assert got.shape == ref.shape, what
+    diff = got - ref
+    if angles is not None:
+        diff[..., angles] = np.remainder(diff[..., angles] + np.pi, 2 * np.pi) - np.pi
+    scale = np.abs(ref).reshape(-1, ref.shape[-1]).max(0)
+    tol = (rounds * 4 * EPS * 10 + (0.0 if SAME_NORMALS else 1e-5)) * scale
+    bad = np.abs(diff) > tol
+    worst = np.unravel_index(np.argmax(np.abs(diff) / np.maximum(tol, np.finfo(float).tiny)), diff.shape)
+    assert not bad.any(), (f"{what}: {int(bad.sum())} of {bad.size} values differ from those of 2ef52e8 by more "
+                           f"than the rounding; at {tuple(map(int, worst))}: {got[worst]!r} vs {ref[worst]!r}")
 
 
 def with_steps(recipe: TrackRecipe, steps: int) -> TrackRecipe:
@@ -52,12 +89,26 @@ def lateral_acceleration(states: torch.Tensor) -> torch.Tensor:
 # -- defaults unchanged --------------------------------------------------------------------------
 
 def test_without_the_new_options_the_draws_are_those_of_before():
-    # Hash of generate_tracks(TrackRecipe() at 200 steps, 16 tracks, seeded_generator(5, 1)) computed
-    # at commit 2ef52e8, before manoeuvres and range outliers existed (states, measurements,
-    # noise_std as float64 bytes, sha256, first 16 hex digits).
+    # generate_tracks(TrackRecipe() at 200 steps, 16 tracks, seeded_generator(5, 1)) against the
+    # same call at commit 2ef52e8, before manoeuvres and range outliers existed. Exact: the
+    # generator's integer state after the draws (sha256 of stream_position, first 16 hex digits,
+    # computed at 2ef52e8), so one draw more, fewer or of another kind fails on any CPU.
+    # To rounding: the arrays on every 25th scan and the last (REFERENCE); the states are CA
+    # states propagated by cumulative sums over 200 scans, the measurements bistatic range,
+    # range-rate and azimuth of them: rounds = 200 in assert_as_recorded (1.8e-12 of each
+    # component; BLAS and vectorised maths of other CPUs moved them by 5e-16 of it).
     r = with_steps(TrackRecipe(), 200)
-    batch, _ = generate_tracks(r, 16, seeded_generator(5, 1))
-    assert digest(batch.states, batch.measurements, batch.noise_std) == "80c9962cdbbbdd07"
+    g = seeded_generator(5, 1)
+    batch, _ = generate_tracks(r, 16, g)
+    assert hashlib.sha256(stream_position(g)).hexdigest()[:16] == "6efd781e98887f35"
+    assert batch.states.shape == (16, 200, 6) and batch.measurements.shape == (16, 200, 9)
+    scans = REFERENCE["tracks_scans"]
+    assert scans.tolist() == [0, 25, 50, 75, 100, 125, 150, 175, 199]
+    angles = build_models(r)[1].angle_mask.numpy()
+    assert_as_recorded(batch.states.numpy()[:, scans], REFERENCE["tracks_states"], 200, what="states")
+    assert_as_recorded(batch.measurements.numpy()[:, scans], REFERENCE["tracks_measurements"], 200, angles,
+                       what="measurements")
+    assert_as_recorded(batch.noise_std.numpy(), REFERENCE["tracks_noise_std"], 1, what="noise_std")
     # and the recipe's plain data (manifest, training-cache key) does not mention them
     d = TrackRecipe().to_dict()
     assert "manoeuvres" not in d["motion"] and "range_outlier_prob" not in d["noise"]
