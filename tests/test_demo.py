@@ -26,7 +26,7 @@ def check_demo_folder(out, mc_runs):
     shared = json.loads((out / "shared_drones" / "results.json").read_text())
     assert shared["mc_runs"] == min(mc_runs, demo.SHARED_DRONES_RUNS)
     rows = shared["cases"]["three_drones"]["methods"]
-    assert set(rows) == {"EKF", "UKF", "MDFNN", "KalmanNet", "S-MSJPDA"}
+    assert set(rows) == {"EKF", "UKF", "MDFNN", "KalmanNet", "S-MSJPDA", "S-MSJPDA from detections"}
     for r in rows.values():
         assert 0 < r["ospa_m"] <= 500.0 and len(r["rmse_pos_per_target_m"]) == 3
     for f in ("report.md", "three_drones_set_metrics.png", "three_drones_rmse.png"):
@@ -45,7 +45,8 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
     assert main(["demo", "--out", str(out), "--mc-runs", "2"]) == 0
     out_err = capsys.readouterr()
     printed = out_err.out
-    assert "| MDFNN |" in printed and "report" in printed and "| S-MSJPDA | detections |" in printed
+    assert "| MDFNN |" in printed and "report" in printed and "| S-MSJPDA | detections | oracle |" in printed
+    assert "| S-MSJPDA from detections | detections | detections |" in printed
     # One screen: a header, two lines per stage, two tables; no third-party banners, tips or bars.
     lines = printed.splitlines()
     assert [line[:5] for line in lines if line.startswith("[")] == [f"[{i}/5]" for i in range(1, 6)]

@@ -128,7 +128,9 @@ RULES = [
     Rule(r"pmsr track --checkpoint runs/mdfnn/tracker\.pt --input data/fitee --split test --out est\.h5",
          setup=[FITEE, MDFNN]),
     Rule(r"pmsr export-onnx --checkpoint runs/mdfnn/tracker\.pt --out mdfnn\.onnx", setup=[MDFNN]),
-    Rule(r"pmsr evaluate evaluate/(shared_drones|stonesoup_jpda)\.yaml --out runs/\w+", _mc1),
+    Rule(r"pmsr evaluate evaluate/stonesoup_jpda\.yaml --out runs/\w+", _mc1),
+    # every tracker of the package on one run (PMHT from detections alone takes ~15 s): the slow tier
+    Rule(r"pmsr evaluate evaluate/shared_drones\.yaml --out runs/\w+", _mc1, slow=True),
     # The first hour runs this scenario (with --checkpoint); as written, with the released networks:
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval", _mc1, slow=True),
     Rule(r"pmsr evaluate evaluate/(" + "|".join(STUDIES) + r")\.yaml( --mc-runs \d+)? --out runs/\w+", _mc1, slow=True),
