@@ -51,7 +51,7 @@ def test_shipped_shared_drones_is_the_demo_scenario():
     kinds = [(m.kind, m.options.get("initiation")) for m in shipped.methods]
     assert kinds == [("ekf", None), ("ukf", None), ("learned", None), ("learned", None), ("s_msjpda", None),
                      ("s_msjpda", "detections"), ("p_msjpda", "detections"), ("pmht", "detections"),
-                     ("pmht_3d", "detections")]
+                     ("pmht_3d", "detections"), ("stonesoup", "detections")]
     assert [(m.kind, m.options.get("initiation")) for m in built.methods] == kinds[:2] + kinds[4:6]
 
 

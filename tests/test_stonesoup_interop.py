@@ -94,6 +94,17 @@ def test_tracker_option_is_a_checked_choice(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_initiation_option_is_a_checked_choice():
+    assert MethodSpec("a", "stonesoup").option("initiation") == "oracle"
+    assert MethodSpec("a", "stonesoup", options={"initiation": "detections"}).option("initiation") == "detections"
+    with pytest.raises(ConfigError, match="option initiation must be one of oracle, detections") as exc:
+        MethodSpec("a", "stonesoup", options={"initiation": "births"})
+    assert "\n" not in str(exc.value)
+    with pytest.raises(ConfigError, match="option confirm_points must be an integer") as exc:
+        MethodSpec("a", "stonesoup", options={"initiation": "detections", "confirm_points": 2.5})
+    assert "\n" not in str(exc.value)
+
+
 # ---------------------------------------------------------------------------------- the models
 
 
@@ -172,6 +183,65 @@ def test_azimuth_residual_wraps_as_ours():
     dx, dP = _sd_scaled((np.asarray(post.state_vector, dtype=np.float64)[:, 0], np.asarray(post.covar)),
                         (ours.x.numpy(), ours.P.numpy()), ours.P.numpy())
     assert dx < TOL and dP < TOL
+
+
+def test_inverse_function_fixes_the_position_our_model_measures():
+    """A pair's bistatic range and azimuth fix a planar position (ellipse with foci tx, rx cut by
+    the ray from rx): h(inverse(z)) gives back z's range and azimuth, for each pair of the stream
+    model (component layout) and of the detection model (pair layout, and delay instead of range);
+    a range below the baseline fixes none, a model without azimuth is not invertible."""
+    pytest.importorskip("stonesoup")
+    from stonesoup.models.base import ReversibleModel
+    from stonesoup.types.detection import Detection
+
+    from pmsr_nn.interop import stonesoup as ss
+    from pmsr_nn.measurements import MeasurementModel
+
+    motion, model = _stream_models()
+    g = torch.Generator().manual_seed(3)
+    x = torch.zeros(40, motion.dim_x, dtype=torch.float64)
+    x[:, list(motion.pos_idx)] = (torch.rand(40, 2, generator=g, dtype=torch.float64) - 0.5) * 30000.0
+    x[:, list(motion.vel_idx)] = torch.randn(40, 2, generator=g, dtype=torch.float64) * 20.0
+    delay = MeasurementModel(model.geometry, ("delay", "doppler", "azimuth"), (1e-7, 5.0, 0.05), model.pos_idx,
+                             model.vel_idx, layout="pair")
+    checked = 0
+    for base in (model, delay):
+        for pairs in ([0], [1], [2], [1, 0, 2]):
+            sub = base.for_pairs(pairs)
+            mm = ss.measurement_model(sub, motion.dim_x)
+            assert isinstance(mm, ReversibleModel)
+            r_row, _, a_row, _, _ = mm.fix_rows
+            assert sub.labels[r_row].split("_")[0] in ("range", "delay") and sub.labels[a_row].startswith("azimuth_")
+            z = sub.h(x)
+            for i in range(len(x)):
+                det = Detection(ss._vectors(z[i].numpy()[:, None], mm.angle_rows), measurement_model=mm)
+                assert mm.fixes_position(det)
+                back = np.asarray(mm.inverse_function(det), dtype=np.float64)
+                assert back.shape == (motion.dim_x, 1)
+                assert not back[list(motion.vel_idx)].any()  # only the position is fixed
+                zb = sub.h(torch.from_numpy(back[:, 0])).numpy()
+                for row in (r_row, a_row):
+                    assert abs(zb[row] - float(z[i, row])) <= 1e-9 * abs(float(z[i, row])), (pairs, i, row)
+                np.testing.assert_allclose(back[list(motion.pos_idx), 0], x[i, list(motion.pos_idx)].numpy(),
+                                           rtol=0, atol=1e-6)
+                checked += 1
+    assert checked == 2 * 4 * 40
+    # clutter below the baseline lies on no ellipse
+    mm = ss.measurement_model(model.for_pairs([0]), motion.dim_x)
+    z = model.for_pairs([0]).h(x[0])
+    z[mm.fix_rows[0]] = 0.9 * model.geometry.baselines_m()[0]
+    det = Detection(ss._vectors(z.numpy()[:, None], mm.angle_rows), measurement_model=mm)
+    assert not mm.fixes_position(det)
+    with pytest.raises(ValueError, match="not above the baseline"):
+        mm.inverse_function(det)
+    # range-Doppler (no azimuth): no fix
+    _, rd = _mt_models()
+    mm = ss.measurement_model(rd.for_pairs([0]), 4)
+    assert mm.fix_rows is None
+    det = Detection(ss._vectors(np.array([[9000.0], [3.0]]), []), measurement_model=mm)
+    assert not mm.fixes_position(det)
+    with pytest.raises(NotImplementedError, match="fixes no position"):
+        mm.inverse_function(det)
 
 
 def test_transition_is_ours_and_stone_soups_own():
@@ -324,20 +394,49 @@ def test_tracks_round_trip_to_estimates():
     assert bool(torch.isnan(est.x[~live]).all())
 
 
+def test_reported_tracks_to_unpaired_estimates():
+    """Tracks a tracker started itself: a slot exists only over the scans it reported the track
+    at (its tentative start left out), runs with fewer tracks padded, estimates unpaired."""
+    pytest.importorskip("stonesoup")
+    from stonesoup.types.track import Track
+
+    from pmsr_nn.interop import stonesoup as ss
+
+    K, n = 8, 4
+    times = ss.scan_times(K, 1.0)
+    state = lambda k, v: ss.gaussian_state(np.full(n, float(v)), np.eye(n) * (k + 1), times[k])
+    a = Track([state(k, 10 + k) for k in range(1, 7)])  # tentative at 1, confirmed at 2, deleted at 5
+    b = Track([state(k, 20 + k) for k in range(3, 8)])  # confirmed at 4, never deleted
+    c = Track([state(k, 30 + k) for k in range(0, 3)])
+    est = ss.tracks_to_estimates([[a, b], [c]], K, 1.0, n, reported=[[(2, 5), (4, K)], [(0, 3)]])
+    assert not est.paired and tuple(est.x.shape) == (2, K, 2, n)
+    expect = torch.zeros(2, K, 2, dtype=torch.bool)
+    expect[0, 2:5, 0] = True
+    expect[0, 4:, 1] = True
+    expect[1, :3, 0] = True
+    assert torch.equal(est.exists, expect)
+    assert est.x[0, 2, 0, 0] == 12.0 and est.x[0, 7, 1, 0] == 27.0 and est.P[0, 4, 0, 0, 0] == 5.0
+    assert bool(torch.isnan(est.x[~expect]).all()) and bool(torch.isnan(est.P[~expect]).all())
+    assert ss.tracks_to_estimates([[a]], K, 1.0, n).paired  # without reported: paired, as before
+    with pytest.raises(ConfigError, match="one \\(first, end\\) per track"):
+        ss.tracks_to_estimates([[a, b]], K, 1.0, n, reported=[[(0, 1)]])
+
+
 # -------------------------------------------------------------------------- the method kind
 
 
-def _two_targets(tmp_path: Path, methods: list[dict]) -> Path:
+def _two_targets(tmp_path: Path, methods: list[dict], death_a: float = 16.0, birth_b: float = 8.0,
+                 flight_s: float = 24.0) -> Path:
     """A designed scenario (CA, range / range-rate / azimuth): target a lives over scans 0-15, b
-    over 8-31; Pd 1 and no clutter."""
+    over 8-31 (by default); Pd 1 and no clutter."""
     flight = {"start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0, "heading_deg": 20.0,
-              "segments": [{"duration_s": 24.0}]}
+              "segments": [{"duration_s": flight_s}]}
     other = {"start_range_m": 7800.0, "start_bearing_deg": 140.0, "speed_mps": 12.0, "heading_deg": 0.0,
-             "segments": [{"duration_s": 24.0}]}
+             "segments": [{"duration_s": flight_s}]}
     d = {"name": "two", "seed": 5, "mc_runs": 2, "block_runs": 2, "warmup_steps": 5, "random_streams": "per_product",
          "detections": {"pd": 1.0, "clutter": {"per_scan": 0, "range_m": [0.0, 25000.0], "range_rate_mps": [-40.0, 40.0]}},
-         "cases": [{"name": "c", "targets": [{"name": "a", "death_s": 16.0, **flight},
-                                             {"name": "b", "birth_s": 8.0, **other}]}],
+         "cases": [{"name": "c", "targets": [{"name": "a", "death_s": death_a, **flight},
+                                             {"name": "b", "birth_s": birth_b, **other}]}],
          "methods": methods}
     path = tmp_path / "two.yaml"
     path.write_text(yaml.safe_dump(d))
@@ -383,6 +482,75 @@ def test_without_clutter_the_trackers_are_a_sequential_ekf_over_each_life(tmp_pa
     assert bool((sd > 30.0).all() and (sd < 1000.0).all())
 
 
+@pytest.mark.parametrize("tracker", ["jpda", "gnn"])
+def test_initiation_from_detections_starts_one_track_per_target(tmp_path, tracker):
+    """Pd 1, no clutter, two well-separated targets (a over scans 0-29, b over 20-59): Stone Soup's
+    own track management gives exactly one reported track per target, confirmed within
+    confirm_points scans of its birth, following it, deleted within delete_after_misses + 1 scans
+    of its death, and no other track; unpaired estimates without loss-rule extras."""
+    pytest.importorskip("stonesoup")
+    from pmsr_nn.harness.runner import call_method, draw_block, prepare
+    from pmsr_nn.harness.scenario import load_scenario
+
+    confirm, misses = 4, 3
+    setup = prepare(load_scenario(_two_targets(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {
+        "tracker": tracker, "initiation": "detections", "confirm_points": confirm, "delete_after_misses": misses}}],
+        death_a=30.0, birth_b=20.0, flight_s=40.0)))
+    case = setup.cases[0]
+    truth, products = draw_block(setup, 0, 0)
+    est = call_method(setup, setup.methods[0], case, products, (5, 0, 0))
+    B, K, T = 2, *case.alive.shape
+    assert K == 60 and not est.paired and est.extras == {} and est.x.shape[:3] == (B, K, 2)
+    pos = list(setup.models.motion.pos_idx)
+    for b in range(B):
+        owner = []
+        for i in range(2):
+            scans = torch.nonzero(est.exists[b, :, i]).flatten()
+            first, last = int(scans[0]), int(scans[-1])
+            assert len(scans) == last - first + 1  # reported from confirmation to deletion, no gap
+            d = torch.linalg.vector_norm(est.x[b, scans, i][:, pos, None].transpose(-1, -2)
+                                         - truth.x[b, scans][..., pos], dim=-1)  # (scans, T)
+            t = int(torch.nan_to_num(d, nan=float("inf")).min(1).indices.mode().values)
+            owner.append(t)
+            life = torch.nonzero(case.alive[:, t]).flatten()
+            birth, death = int(life[0]), int(life[-1]) + 1
+            assert birth <= first < birth + confirm, (b, i, first, birth)
+            assert last < death + misses + 1 if death < K else last == K - 1, (b, i, last, death)
+            assert bool((d[scans < death, t] < 1000.0).all())  # it follows its target while it lives
+            assert float(d[(scans >= birth + 10) & (scans < death), t].max()) < 150.0
+        assert sorted(owner) == [0, 1], owner  # one track per target, no other
+        assert bool(torch.isnan(est.x[b][~est.exists[b]]).all())
+
+
+def test_harness_scores_the_tracks_stone_soup_started(tmp_path):
+    """Through the harness: the unpaired tracks are matched to the targets (one confirmed track
+    per target, no false track) and the row says how its tracks start."""
+    pytest.importorskip("stonesoup")
+    path = _two_targets(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {"initiation": "detections"}}],
+                        death_a=30.0, birth_b=20.0, flight_s=40.0)
+    res = evaluate(path, tmp_path / "out", progress=False)
+    row = res["cases"]["c"]["methods"]["SS"]
+    assert row["initiation"] == "detections" and row["confirmed_tracks_per_target"] == 1.0
+    assert row["false_tracks_per_run"] == 0.0 and row["fragmentations_per_run"] == 0.0
+    assert row["scans_to_first_track"] <= method_kind("stonesoup").options["confirm_points"].default
+    assert 0 < row["rmse_pos_m"] < 100.0
+
+
+def test_initiation_from_detections_needs_range_and_azimuth(tmp_path):
+    """Range-Doppler detections (no azimuth) fix no position: a one-line refusal."""
+    pytest.importorskip("stonesoup")
+    from pmsr_nn.harness.multitarget import multitarget_from_dict
+    from pmsr_nn.harness.runner import call_method, draw_block, prepare
+
+    path = _small_mt(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {"initiation": "detections"}}])
+    refusal = "starts tracks from a pair's bistatic range \\(or delay\\) and azimuth"
+    with pytest.raises(ConfigError, match=refusal) as exc:
+        setup = prepare(multitarget_from_dict(load_yaml(path), tmp_path))
+        _, products = draw_block(setup, 0, 0)
+        call_method(setup, setup.methods[0], setup.cases[0], products, (0, 0, 0))
+    assert "\n" not in str(exc.value) and "'SS'" in str(exc.value)
+
+
 def test_harness_reports_stone_soup_rows_with_run_time(tmp_path):
     pytest.importorskip("stonesoup")
     methods = [{"name": "S-MSJPDA", "kind": "s_msjpda"},
@@ -401,7 +569,7 @@ def test_harness_reports_stone_soup_rows_with_run_time(tmp_path):
     lines = report.splitlines()
     head = [c.strip() for c in next(line for line in lines if line.startswith("| method | reads |")).strip("|").split("|")]
     for name in ("Stone Soup JPDA", "Stone Soup GNN"):
-        row = next(line for line in lines if line.startswith(f"| {name} | detections |"))
+        row = next(line for line in lines if line.startswith(f"| {name} | detections"))  # "(oracle births)"
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert float(cells[head.index("s / run")]) == pytest.approx(rows[name]["seconds_per_run"], abs=1e-3)
         timing = next(line for line in report.splitlines()

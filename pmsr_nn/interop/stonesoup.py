@@ -12,6 +12,10 @@ Models
   ``function`` is our ``h``, ``jacobian`` our analytic Jacobian, ``covar`` our ``R``. Azimuth rows
   are Stone Soup ``Bearing`` values, so a residual ``z - h(x)`` that Stone Soup takes wraps to
   (-pi, pi] as our ``residual`` does (Stone Soup's interval is [-pi, pi); they differ only at pi).
+  It is a Stone Soup ``ReversibleModel``: ``inverse_function`` gives the planar position one
+  pair's bistatic range (or delay) and azimuth fix (the bistatic ellipse with foci at the
+  transmitter and the receiver, cut by the ray from the receiver), what Stone Soup's measurement
+  initiators start a track from.
 * :class:`KinematicTransition`: one of our :class:`~pmsr_nn.motion.KinematicModel` (``cv``,
   ``cv_continuous``, ``ca``) with its ``q`` as a Stone Soup ``LinearGaussianTransitionModel``:
   our ``F(dt)`` and ``Q(dt, q)``. For ``ca`` it equals Stone Soup's ``ConstantAcceleration`` per
@@ -52,7 +56,7 @@ MISSING = 'Stone Soup is not installed: pip install "pmsr-nn[stonesoup]"'
 
 try:
     from stonesoup.base import Property
-    from stonesoup.models.base import TimeVariantModel
+    from stonesoup.models.base import ReversibleModel, TimeVariantModel
     from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
     from stonesoup.models.transition.linear import LinearGaussianTransitionModel
     from stonesoup.types.angle import Bearing
@@ -88,7 +92,7 @@ def _vectors(values: np.ndarray, angle_rows: Sequence[int]):
 # --------------------------------------------------------------------------------------- models
 
 
-class BistaticMeasurement(NonLinearGaussianMeasurement):
+class BistaticMeasurement(NonLinearGaussianMeasurement, ReversibleModel):
     """Our measurement model as a Stone Soup one (module docstring); build it with
     :func:`measurement_model`. ``mapping`` lists the state rows it reads (positions, velocities)."""
 
@@ -119,6 +123,63 @@ class BistaticMeasurement(NonLinearGaussianMeasurement):
         """Our analytic Jacobian ``dh/dx (m, n)`` at ``state.state_vector (n, 1)``."""
         x = np.asarray(state.state_vector, dtype=np.float64)[:, 0]
         return self.model.jacobian(torch.from_numpy(np.ascontiguousarray(x))).numpy()
+
+    @functools.cached_property
+    def fix_rows(self) -> tuple[int, float, int, np.ndarray, np.ndarray] | None:
+        """What :meth:`inverse_function` reads: the first pair with a range (or delay) and an
+        azimuth row, as ``(range row, metres per unit of that row, azimuth row, tx, rx)``;
+        ``None`` when no pair has both or the geometry is not planar."""
+        from .. import SPEED_OF_LIGHT
+
+        if self.model.geometry.dim != 2:
+            return None
+        labels = self.model.labels
+        tx, rx = self.model.geometry.pair_tx_positions().numpy(), self.model.geometry.pair_rx_positions().numpy()
+        for n in range(self.model.n_pairs):
+            az = f"azimuth_{n + 1}"
+            for comp, scale in (("range", 1.0), ("delay", SPEED_OF_LIGHT)):
+                if f"{comp}_{n + 1}" in labels and az in labels:
+                    return labels.index(f"{comp}_{n + 1}"), float(scale), labels.index(az), tx[n], rx[n]
+        return None
+
+    def _fix(self, z: np.ndarray) -> np.ndarray | None:
+        """The planar position a measurement ``z (m,)`` fixes (:meth:`inverse_function`), or
+        ``None`` where its bistatic range is not above the baseline."""
+        rows = self.fix_rows
+        if rows is None:
+            raise NotImplementedError(f"no pair of {self.model.labels} has a range (or delay) and an azimuth in a "
+                                      "planar geometry: a measurement fixes no position")
+        r_row, scale, a_row, tx, rx = rows
+        S, az = float(z[r_row]) * scale, float(z[a_row])
+        d = rx - tx
+        base = float(np.hypot(d[0], d[1]))
+        if not S > base:
+            return None
+        ray = np.array([np.sin(az), np.cos(az)])  # clockwise from north
+        # |rx + r ray - tx| = S - r  <=>  r = (S^2 - |d|^2) / (2 (S + d . ray)), and S + d . ray >= S - |d| > 0
+        r = (S - base) * (S + base) / (2.0 * (S + float(d @ ray)))
+        return rx + r * ray
+
+    def fixes_position(self, detection) -> bool:
+        """Whether ``detection`` fixes a position: its bistatic range exceeds the pair's
+        baseline (clutter below it lies on no bistatic ellipse); ``False`` for a model whose
+        measurements fix none."""
+        if self.fix_rows is None:
+            return False
+        return self._fix(np.asarray(detection.state_vector, dtype=np.float64)[:, 0]) is not None
+
+    def inverse_function(self, detection, **kwargs) -> StateVector:
+        """The state ``(n, 1)`` whose position is the detection's fix (first pair with a range or
+        delay and an azimuth: the bistatic ellipse with foci tx, rx cut by the ray from rx; ``h``
+        of it gives back that range and azimuth), zero elsewhere. Raises ``NotImplementedError``
+        for a model whose measurements fix no position (Stone Soup's initiators can skip those)
+        and ``ValueError`` for a range not above the baseline (:meth:`fixes_position`)."""
+        pos = self._fix(np.asarray(detection.state_vector, dtype=np.float64)[:, 0])
+        if pos is None:
+            raise ValueError("the bistatic range is not above the baseline: the detection fixes no position")
+        x = np.zeros((self.ndim_state, 1))
+        x[list(self.model.pos_idx), 0] = pos
+        return StateVector(x)
 
 
 def measurement_model(model: MeasurementModel, ndim_state: int, noise_std=None) -> BistaticMeasurement:
@@ -264,21 +325,33 @@ def detector_feed(detections: list[list[list[Detection]]], dt: float,
 
 
 def tracks_to_estimates(tracks: Sequence[Sequence], K: int, dt: float, ndim_state: int,
-                        start: datetime.datetime = EPOCH) -> Estimates:
+                        start: datetime.datetime = EPOCH, reported: Sequence[Sequence] | None = None,
+                        paired: bool | None = None) -> Estimates:
     """Stone Soup tracks (any sequence of states with ``state_vector``, ``timestamp`` and,
     where Gaussian, ``covar``) per run, ``tracks[b][i]``, as estimates ``x (B, K, N, n)`` with slot
-    ``i`` = track ``i`` of its run (``N`` the most tracks of a run): a slot exists at the scans its
-    track has a state at (the last of several at one scan, e.g. one per sensor); ``x`` and ``P``
-    are NaN elsewhere; ``P`` is ``None`` when no state has a covariance."""
+    ``i`` = track ``i`` of its run (``N`` the most tracks of a run; a run with fewer leaves its last
+    slots empty): a slot exists at the scans its track has a state at (the last of several at one
+    scan, e.g. one per sensor) and, where ``reported[b][i] = (first, end)`` is given, only at
+    scans ``first <= k < end`` (where a tracker reported the track: confirmed and not deleted;
+    states before, e.g. of its tentative start, are left out); ``x`` and ``P`` are NaN elsewhere;
+    ``P`` is ``None`` when no state has a covariance. ``paired``: slot ``i`` is target ``i``
+    (:class:`~pmsr_nn.trackers.base.Estimates`); default: without ``reported`` (tracks a tracker
+    started itself come with the scans it reported them at)."""
     B, N, n = len(tracks), max((len(t) for t in tracks), default=0), ndim_state
+    if reported is not None and [len(r) for r in reported] != [len(t) for t in tracks]:
+        raise ConfigError(f"reported needs one (first, end) per track: {[len(t) for t in tracks]} tracks per run, got "
+                          f"{[len(r) for r in reported]}")
     x = np.full((B, K, N, n), np.nan)
     P = np.full((B, K, N, n, n), np.nan)
     exists = np.zeros((B, K, N), dtype=bool)
     has_covar = False
     for b, run in enumerate(tracks):
         for i, track in enumerate(run):
+            first, end = (0, K) if reported is None else (int(v) for v in reported[b][i])
             for s in track:
                 k = _scan_of(s.timestamp, K, dt, start)
+                if not first <= k < end:
+                    continue
                 sv = np.asarray(s.state_vector, dtype=np.float64)
                 if sv.shape != (n, 1):
                     raise ConfigError(f"run {b}, track {i}: a state of {sv.shape[0]} entries, expected {n}")
@@ -286,5 +359,5 @@ def tracks_to_estimates(tracks: Sequence[Sequence], K: int, dt: float, ndim_stat
                 covar = getattr(s, "covar", None)
                 if covar is not None:
                     P[b, k, i], has_covar = np.asarray(covar, dtype=np.float64), True
-    return Estimates(torch.from_numpy(x), torch.from_numpy(exists), torch.from_numpy(P) if has_covar else None)
-
+    return Estimates(torch.from_numpy(x), torch.from_numpy(exists), torch.from_numpy(P) if has_covar else None,
+                     paired=reported is None if paired is None else bool(paired))
