@@ -42,6 +42,7 @@ from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import CLUTTER, ClutterSpec, Scans, pool_by_receiver, simulate_scans
 from pmsr_nn.trackers.pmht import (AssociationLists, PMHTSettings, association_weights, em_step,
                                    expected_complete_log_likelihood, pmht, problem)
+from test_track_management import scenario as births_scenario
 
 MOTION = ContinuousConstantVelocity(3)
 TX = [Transmitter((29434.0, -34761.0, 293.0), 500e6), Transmitter((12845.0, -106922.0, 293.0), 500e6)]
@@ -319,21 +320,9 @@ def test_a_pmht_study_runs_through_the_harness(tmp_path):
 def _births_scenario(tmp_path: Path, methods, pd=1.0, clutter=0) -> Path:
     """Two drones of the FITEE geometry (1 transmitter, 3 receivers; range, range-rate, azimuth):
     ``a`` lives from scan 0 to 39, ``b`` from scan 15 (the second scan committed by the window
-    starting at 14, with the defaults window 10, overlap 3) to the end, 60 scans, 2 runs."""
-    flight = {"start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0, "heading_deg": 20.0,
-              "segments": [{"duration_s": 200.0}]}
-    other = {"start_range_m": 7800.0, "start_bearing_deg": 140.0, "speed_mps": 12.0, "heading_deg": 0.0,
-             "segments": [{"duration_s": 200.0}]}
-    d = {"name": "births", "seed": 3, "mc_runs": 2, "block_runs": 2, "warmup_steps": 10, "random_streams": "per_product",
-         "detections": {"pd": pd, "clutter": {"per_scan": clutter, "range_m": [0.0, 25000.0],
-                                              "range_rate_mps": [-40.0, 40.0]}},
-         "set_metrics": {"c_m": 300.0, "p": 2.0},
-         "cases": [{"name": "c", "targets": [{"name": "a", "death_s": 40.0, **flight},
-                                             {"name": "b", "birth_s": 15.0, "death_s": 60.0, **other}]}],
-         "methods": methods}
-    path = tmp_path / "births.yaml"
-    path.write_text(yaml.safe_dump(d))
-    return path
+    starting at 14, with the defaults window 10, overlap 3) to the end, 60 scans, 2 runs: the
+    scenario of tests/test_track_management.py."""
+    return births_scenario(tmp_path, pd=pd, clutter=clutter, methods=methods)
 
 
 @pytest.mark.parametrize("kind", ["pmht", "pmht_3d"])
