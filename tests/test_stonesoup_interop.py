@@ -209,6 +209,7 @@ def test_inverse_function_fixes_the_position_our_model_measures():
         for pairs in ([0], [1], [2], [1, 0, 2]):
             sub = base.for_pairs(pairs)
             mm = ss.measurement_model(sub, motion.dim_x)
+            # the contract Stone Soup's initiators test before they call inverse_function
             assert isinstance(mm, ReversibleModel)
             r_row, _, a_row, _, _ = mm.fix_rows
             assert sub.labels[r_row].split("_")[0] in ("range", "delay") and sub.labels[a_row].startswith("azimuth_")

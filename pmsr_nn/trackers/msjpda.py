@@ -80,18 +80,24 @@ class MultiTargetResult:
     max_duality_gap: float = 0.0
 
 
-def check_tracker_inputs(scans: Scans, prior: Gaussian, motion: KinematicModel, model: MeasurementModel) -> None:
+def check_scans(scans: Scans, model: MeasurementModel) -> None:
+    """One-line errors for detections ``model`` can not read (sensor count, values, NaN)."""
     check_model_for_detections(model)
     B, K, N, M = scans.shape
     if N != model.n_pairs or scans.z.shape[-1] != len(model.components):
         raise ConfigError(f"detections are from {N} sensors with {scans.z.shape[-1]} values each; the model has "
                           f"{model.n_pairs} sensors with {len(model.components)}")
+    if bool(torch.isnan(scans.z[scans.valid]).any()) or bool(torch.isinf(scans.z).any()):
+        raise ConfigError("a valid detection is NaN or infinite")
+
+
+def check_tracker_inputs(scans: Scans, prior: Gaussian, motion: KinematicModel, model: MeasurementModel) -> None:
+    check_scans(scans, model)
+    B = scans.shape[0]
     n = motion.dim_x
     if prior.x.dim() != 3 or prior.x.shape[0] != B or prior.x.shape[-1] != n or prior.P.shape != (*prior.x.shape, n):
         raise ConfigError(f"prior must be x (B={B}, T, {n}) and P (B, T, {n}, {n}); got {tuple(prior.x.shape)}, "
                           f"{tuple(prior.P.shape)}")
-    if bool(torch.isnan(scans.z[scans.valid]).any()) or bool(torch.isinf(scans.z).any()):
-        raise ConfigError("a valid detection is NaN or infinite")
     if not bool(torch.isfinite(prior.x).all()):
         raise ConfigError("the prior mean is not finite")
 
@@ -329,13 +335,8 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
     has no prediction. Returns the confirmed tracks as reported at each scan (those whose
     existence is at least the management's ``report_existence``).
     """
-    check_model_for_detections(model)
+    check_scans(scans, model)
     B, K, N, M = scans.shape
-    if N != model.n_pairs or scans.z.shape[-1] != len(model.components):
-        raise ConfigError(f"detections are from {N} sensors with {scans.z.shape[-1]} values each; the model has "
-                          f"{model.n_pairs} sensors with {len(model.components)}")
-    if bool(torch.isnan(scans.z[scans.valid]).any()) or bool(torch.isinf(scans.z).any()):
-        raise ConfigError("a valid detection is NaN or infinite")
     management.check(model, f"{architecture} MSJPDA")
     n, dtype = motion.dim_x, scans.z.dtype
     gamma = gate_threshold(settings.gate_probability, len(model.components))
