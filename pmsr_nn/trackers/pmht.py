@@ -565,7 +565,9 @@ def managed_pmht(scans: Scans, motion: KinematicModel, dt: float, q, model, R: t
 
 def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], mg: Management,
                   pos: list[int]) -> TrackReport:
-    """:func:`managed_pmht` on one chunk of ``b`` runs."""
+    """:func:`managed_pmht` on one chunk of ``b`` runs. Each run's EM is re-run only when that run
+    started tracks, and stops on that run's own movement: a run's tracks do not depend on which
+    other runs share its chunk."""
     b, K, S = lists.z.shape[:3]
     s, model, n, dtype = pr.settings, pr.model, pr.F.shape[0], lists.z.dtype
     table = TrackTable.empty(b, n, parked_state(model, n, dtype))
@@ -578,49 +580,103 @@ def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], m
         C = table.g.x.shape[1]
         X = _initial_states(pr, table.g, X, a - starts[i - 1] if i else 0, W, b, C)
         born = torch.full((b, C), -1, dtype=torch.int64)  # scan of the window a track started at (-1: before)
-        k = 0
-        while True:  # EM on the window, again after each committed scan that started tracks
+        fit = _WindowFit.empty(X, lists.z.shape[3], S)
+        redo = torch.ones(b, dtype=torch.bool)  # runs whose EM must run (again) before scan k
+        late = torch.zeros(b, C, dtype=torch.bool)  # tracks started at the last committed scan
+        for k in range(h):
+            if bool(redo.any()):
+                C = table.g.x.shape[1]
+                born = torch.where(table.active, born, -1)
+                alive = table.active[:, None, :] & (born[:, None, :] <= torch.arange(W)[None, :, None])
+                # table.g: the prior at the window's first scan of a track that was there, the
+                # initiator's Gaussian of one started inside it (the smoother's start at its scan)
+                rows = redo.nonzero()[:, 0]
+                fit = fit.padded(C).put(rows, _window_em(pr, X[rows], Gaussian(table.g.x[rows], table.g.P[rows]),
+                                                         win.take(rows), h, alive[rows], born[rows], pos))
+                X = fit.X
+            if a + k > 0:
+                table.predict_existence(mg.survival)
+            for j in range(S):
+                table.update_existence(fit.ratio[:, k, :, j], s.pd)
+            table.record((fit.pair_w[:, k] >= 0.5).sum(-1), mg.hit_pairs)
+            table.manage(mg.confirmer, mg.deleter, pos)
+            shown = replace(table, g=Gaussian(X[:, k], fit.P[:, k]))  # the smoothed states at this scan
+            report.write(a + k, shown, mg.report_existence)
+            unused = win.valid[:, k] & (fit.target_w[:, k] < 0.5)  # (b, S, M): per-pair lists
+            before = table.active
+            if bool(unused.any()):
+                table.add(*mg.initiator.initiate(win.z[:, k], unused, model, n, mg.other_sd), mg.initial_existence)
             C = table.g.x.shape[1]
-            born = torch.where(table.active, born, -1)
-            alive = table.active[:, None, :] & (born[:, None, :] <= torch.arange(W)[None, :, None])
-            # table.g: the prior at the window's first scan of a track that was there, the
-            # initiator's Gaussian of one started inside it (the smoother's start at its scan)
-            g = Gaussian(table.g.x.reshape(b * C, n), table.g.P.reshape(b * C, n, n))
-            for it in range(s.em_iterations):
-                X_new, P, handed, _ = em_step(pr, X, g, win, s.inflation(it), h, alive, born, g)
-                moved = (X_new - X)[..., pos].norm(dim=-1).max()
-                X = X_new
-                if s.tolerance_m > 0 and float(moved) < s.tolerance_m:
-                    break
-            pair_w, ratio, target_w = window_evidence(pr, X, win, alive)
-            late = torch.zeros(b, C, dtype=torch.bool)  # started after this EM
-            while k < h and not bool(late.any()):
-                if a + k > 0:
-                    table.predict_existence(mg.survival)
-                for j in range(S):
-                    table.update_existence(ratio[:, k, :, j], s.pd)
-                table.record((pair_w[:, k] >= 0.5).sum(-1), mg.hit_pairs)
-                table.manage(mg.confirmer, mg.deleter, pos)
-                shown = replace(table, g=Gaussian(X[:, k], P[:, k]))  # the smoothed states at this scan
-                report.write(a + k, shown, mg.report_existence)
-                unused = win.valid[:, k] & (target_w[:, k] < 0.5)  # (b, S, M): per-pair lists
-                before = table.active
-                if bool(unused.any()):
-                    table.add(*mg.initiator.initiate(win.z[:, k], unused, model, n, mg.other_sd), mg.initial_existence)
-                late = table.active & ~_pad_slots(before, table.g.x.shape[1], False, 1)
-                if bool(late.any()):
-                    C = table.g.x.shape[1]
-                    born = torch.where(late, k, _pad_slots(born, C, -1, 1))
-                    X = _started_rows(pr, _pad_slots(X, C, 0.0), late, born, table.g.x)
-                k += 1
-            if k >= h:
-                break
+            late = table.active & ~_pad_slots(before, C, False, 1)
+            redo = late.any(-1)
+            if bool(redo.any()):
+                born = torch.where(late, k, _pad_slots(born, C, -1, 1))
+                X = _started_rows(pr, _pad_slots(X, C, 0.0), late, born, table.g.x)
         # hand on: the last EM's forward prediction at the next window's first scan; a track
         # started at the last committed scan (after that EM) predicted from its initiator
-        C = table.g.x.shape[1]
-        hx = _pad_slots(handed.x.reshape(b, -1, n), C, 0.0, 1)
-        hP = _pad_slots(handed.P.reshape(b, -1, n, n), C, 0.0, 1)
+        fit = fit.padded(table.g.x.shape[1])
         step = predict(table.g, pr.F, pr.Q)
-        table.g = Gaussian(torch.where(late[..., None], step.x, hx), torch.where(late[..., None, None], step.P, hP))
+        table.g = Gaussian(torch.where(late[..., None], step.x, fit.handed.x),
+                           torch.where(late[..., None, None], step.P, fit.handed.P))
         table.free(~table.active)  # keep free slots parked
     return report
+
+
+@dataclass
+class _WindowFit:
+    """What EM on a window gives each run: states ``X (b, W, C, n)``, covariances ``P``, the
+    forward prediction handed to the next window ``(b, C, n)`` and :func:`window_evidence`."""
+
+    X: torch.Tensor
+    P: torch.Tensor
+    handed: Gaussian
+    pair_w: torch.Tensor
+    ratio: torch.Tensor
+    target_w: torch.Tensor
+
+    @classmethod
+    def empty(cls, X: torch.Tensor, M: int, S: int) -> "_WindowFit":
+        b, W, C, n = X.shape
+        z = X.new_zeros
+        return cls(X, z(b, W, C, n, n), Gaussian(z(b, C, n), z(b, C, n, n)), z(b, W, C, S), z(b, W, C, S),
+                   z(b, W, S, M))
+
+    def padded(self, C: int) -> "_WindowFit":
+        """Slots up to ``C``; the new slots are free (no weight, no evidence)."""
+        return _WindowFit(_pad_slots(self.X, C, 0.0), _pad_slots(self.P, C, 0.0),
+                          Gaussian(_pad_slots(self.handed.x, C, 0.0, 1), _pad_slots(self.handed.P, C, 0.0, 1)),
+                          _pad_slots(self.pair_w, C, 0.0), _pad_slots(self.ratio, C, 0.0), self.target_w)
+
+    def put(self, rows: torch.Tensor, part: "_WindowFit") -> "_WindowFit":
+        """A copy with the runs ``rows`` replaced by ``part``."""
+        def put(full, new):
+            out = full.clone()
+            out[rows] = new
+            return out
+        return _WindowFit(put(self.X, part.X), put(self.P, part.P),
+                          Gaussian(put(self.handed.x, part.handed.x), put(self.handed.P, part.handed.P)),
+                          put(self.pair_w, part.pair_w), put(self.ratio, part.ratio), put(self.target_w, part.target_w))
+
+
+def _window_em(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, win: AssociationLists, h: int,
+               alive: torch.Tensor, born: torch.Tensor, pos: list[int]) -> _WindowFit:
+    """EM of :func:`managed_pmht` on a window for ``b`` runs from states ``X (b, W, C, n)`` and
+    ``prior`` ``(b, C, n)``: ``em_iterations`` per run, fewer for a run whose positions all move
+    less than ``tolerance_m``."""
+    b, W, C, n = X.shape
+    s = pr.settings
+    X, P = X.clone(), X.new_zeros(b, W, C, n, n)
+    hx, hP = X.new_zeros(b, C, n), X.new_zeros(b, C, n, n)
+    todo = torch.arange(b)
+    for it in range(s.em_iterations):
+        g = Gaussian(prior.x[todo].reshape(-1, n), prior.P[todo].reshape(-1, n, n))
+        X_new, P_new, handed, _ = em_step(pr, X[todo], g, win.take(todo), s.inflation(it), h, alive[todo],
+                                          born[todo], g)
+        moved = (X_new - X[todo])[..., pos].norm(dim=-1).flatten(1).amax(1)
+        X[todo], P[todo] = X_new, P_new
+        hx[todo], hP[todo] = handed.x.reshape(-1, C, n), handed.P.reshape(-1, C, n, n)
+        if s.tolerance_m > 0:
+            todo = todo[moved >= s.tolerance_m]
+            if len(todo) == 0:
+                break
+    return _WindowFit(X, P, Gaussian(hx, hP), *window_evidence(pr, X, win, alive))
