@@ -194,6 +194,11 @@ def build_parser() -> argparse.ArgumentParser:
     fe.add_argument("--out", type=Path, required=True, help="output folder (new or empty unless --overwrite)")
     fe.add_argument("--overwrite", action="store_true", help="replace a folder an earlier front-end run wrote")
 
+    me = sub.add_parser("methods", help="list the method kinds a scenario can run, with their options",
+                        description="Each method kind of a scenario's 'methods:' list: the product it reads, what it is, "
+                        "its options with default and range; and where the trackers that are not method kinds live.")
+    me.add_argument("kinds", nargs="*", help="only these kinds (default: all)")
+
     mg = sub.add_parser("merge", help="combine the shards of a scenario run",
                         description="Combine the output folders of 'pmsr evaluate --shard I/N' runs (all N of them) "
                         "into the results, report and figures of the whole run.")
@@ -224,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     commands = {"simulate": cmd_simulate, "info": cmd_info, "train": cmd_train, "select": cmd_select,
                 "track": cmd_track, "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge,
-                "demo": cmd_demo, "front-end": cmd_front_end, "export-onnx": cmd_export_onnx}
+                "demo": cmd_demo, "front-end": cmd_front_end, "export-onnx": cmd_export_onnx, "methods": cmd_methods}
     from .interrupts import signals_raise
 
     try:
@@ -505,6 +510,13 @@ def cmd_front_end(args) -> int:
     print(f"front end {s['cpis']} CPIs -> {s['detections']} detections on {s['map'][0]} x {s['map'][1]} (Doppler x "
           f"range) maps, cancellation {s['cancellation_depth_db']:.1f} dB, {time.perf_counter() - t0:.1f} s -> "
           f"{args.out / 'detections.csv'}, {args.out / 'maps.h5'}")
+    return 0
+
+
+def cmd_methods(args) -> int:
+    from .methods import catalogue
+
+    print("\n".join(catalogue(args.kinds)).rstrip())
     return 0
 
 

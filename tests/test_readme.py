@@ -149,6 +149,7 @@ RULES = [
          setup=[SMOKE, ["simulate", "datasets/fitee2023_ca.yaml", "--out", "data/z", "--tracks", "3", "--quiet"],
                 ["export", "data/z", "--out", "z.csv"]]),
     Rule(r"pmsr --help|pmsr simulate --help"),
+    Rule(r"pmsr methods( \w+)*"),
     # Scripts: their own tests cover them; here their options must exist (`--help` lists them).
     Rule(r"python (evaluate|benchmarks)/\w+\.py( --\S+( \S+)?)*"),
 ]

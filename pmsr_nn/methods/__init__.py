@@ -65,7 +65,8 @@ class MethodCall:
 class Option:
     """An option: ``default``, ``kind`` (int or float), inclusive range; ``nullable``: null means
     a default taken elsewhere; ``tunable``: may be ``tuned`` (a grid search picks it); ``choices``:
-    a string option, one of these names (``kind`` str; the range does not apply)."""
+    a string option, one of these names (``kind`` str; the range does not apply); ``null``: what
+    null means, for ``pmsr methods``."""
 
     default: Any
     kind: type = float
@@ -74,6 +75,7 @@ class Option:
     nullable: bool = False
     tunable: bool = False
     choices: tuple[str, ...] = ()
+    null: str = ""
 
     def __post_init__(self) -> None:
         if self.choices and (self.kind is not str or self.tunable or self.default not in self.choices):
@@ -101,7 +103,6 @@ class MethodKind:
     check: Callable | None = None
     check_sensing: Callable | None = None
     description: str = ""
-    multi_target: bool = False
 
 
 REGISTRY: dict[str, MethodKind] = {}
@@ -127,12 +128,73 @@ def registry() -> dict[str, MethodKind]:
     return REGISTRY
 
 
+PRODUCTS = {"measurements": "each target's own measurement stream (association known)",
+            "detections": "per-pair detections with misses and clutter (association unknown)"}
+"""What each product a kind reads is (:mod:`pmsr_nn.simulation.products`)."""
+
+ELSEWHERE = (
+    (("icmb", "modified_icmb", "micmb", "mb", "pmb", "mbm", "tbd", "track_before_detect", "detect_then_track"),
+     "the track-before-detect filters (modified ICMB, ICMB, PMB, detect-then-track) run in study files of their "
+     "own, 'kind: tbd' at the top of the file (e.g. evaluate/remotesensing2020_icmb.yaml; pmsr_nn/harness/tbd_study.py)"),
+    (("phd", "smcphd", "smc_phd", "gtda", "hungarian"),
+     "SMC-PHD with GTDA or Hungarian labelling runs in study files of its own, 'kind: phd' at the top of the "
+     "file (e.g. evaluate/daniyan_smcphd.yaml; pmsr_nn/harness/phd_study.py)"),
+    (("pcrb", "crb", "bound"),
+     "the PCRB is not a method: the report of a scenario of designed targets has its row in every case"),
+)
+"""Names a user may try for trackers that are not method kinds, and where they live."""
+
+
 def method_kind(name: str) -> MethodKind:
-    """The kind ``name``, or a one-line error listing the known kinds."""
+    """The kind ``name``, or a one-line error that names the nearest kinds, or where a tracker
+    that is not a method kind lives."""
+    import difflib
+
     kinds = registry()
-    if name not in kinds:
-        raise ConfigError(f"unknown method kind {name!r} (known: {', '.join(sorted(kinds))})")
-    return kinds[name]
+    if name in kinds:
+        return kinds[name]
+    key = str(name).lower().replace("-", "_").replace(" ", "_")
+    for names, where in ELSEWHERE:
+        if key in names:
+            raise ConfigError(f"unknown method kind {name!r}: {where}")
+    near = difflib.get_close_matches(key, list(kinds), n=3, cutoff=0.6)
+    hint = f" (did you mean {' or '.join(near)}?)" if near else ""
+    raise ConfigError(f"unknown method kind {name!r}{hint}; known: {', '.join(sorted(kinds))} "
+                      "('pmsr methods' describes each)")
+
+
+def describe_option(name: str, o: Option) -> str:
+    """``name: default`` and its range, choices or null meaning, in one line."""
+    if o.choices:
+        allowed = " | ".join(o.choices)
+        return f"{name}: {o.default} (one of {allowed})"
+    default = "null" if o.default is None else f"{o.default:g}" if isinstance(o.default, float) else str(o.default)
+    kind = "integer" if o.kind is int else "number"
+    # an open end (e.g. a probability below 1) shows as ")": "1" alone would read as allowed
+    close = "]" if float(f"{o.hi:g}") == o.hi else ")"
+    text = f"{name}: {default} ({kind} in [{o.lo:g}, {o.hi:g}{close}"
+    text += f", or null: {o.null or 'a default taken elsewhere'}" if o.nullable else ""
+    text += ", tunable)" if o.tunable else ")"
+    return text
+
+
+def catalogue(names: list[str] | None = None) -> list[str]:
+    """The lines of ``pmsr methods``: each kind (or those ``names``) with the product it reads,
+    its description and options."""
+    kinds = registry()
+    chosen = [method_kind(n) for n in names] if names else [kinds[k] for k in sorted(kinds)]
+    lines = ["Method kinds of a scenario's 'methods:' list ({name: ..., kind: KIND, options: {...}}):", ""]
+    for k in chosen:
+        lines.append(f"{k.name}  (reads {k.reads}: {PRODUCTS.get(k.reads, k.reads)})")
+        lines.append(f"    {k.description}")
+        if k.needs_checkpoint:
+            lines.append("    needs: checkpoint: PATH (a tracker.pt of pmsr train)")
+        lines.extend(f"    {describe_option(n, o)}" for n, o in k.options.items())
+        lines.append("")
+    if not names:
+        lines.append("Not method kinds:")
+        lines.extend(f"  - {where}" for _, where in ELSEWHERE)
+    return lines
 
 
 def method_stream(name: str) -> int:

@@ -113,9 +113,11 @@ MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS),
                       "report_existence": Option(0.5, float, 0.0, 1.0)}
 OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
            "relaxation_iterations": Option(20, int, 1, 10_000), **MANAGEMENT_OPTIONS}
-register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, multi_target=True, check_sensing=check_initiation,
-                    description="sequential multi-sensor JPDA (Lyu & Wang 2019)"))
-register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, multi_target=True, check_sensing=check_initiation,
-                    description="parallel multi-sensor JPDA with (N+1)-D assignment (Lyu & Wang 2019)"))
+register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
+                    description="sequential multi-sensor JPDA (Lyu & Wang, IEEE Access 2019), pair by pair; "
+                                "initiation: oracle (handed the births) or detections (starts its own tracks)"))
+register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
+                    description="parallel multi-sensor JPDA, (N+1)-D joint events (Lyu & Wang, IEEE Access 2019); "
+                                "initiation: oracle or detections"))
 register(MethodKind("true_assignment", "detections", run_true_assignment, {}, check=_all_from_start,
-                    multi_target=True, description="UKF per target on exactly its own detections"))
+                    description="reference: a UKF per target on exactly its own detections (true origins)"))

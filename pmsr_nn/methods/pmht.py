@@ -114,13 +114,13 @@ OPTIONS = {"window": Option(10, int, 1, 100_000), "overlap": Option(3, int, 0, 9
            "anneal": Option(1.0, float, 1.0, 1e6), **MANAGEMENT_OPTIONS}
 OPTIONS_3D = {**OPTIONS, "wide_kappa": Option(4.0, float, 1.0, 1e4), "wide_weight": Option(0.5, float, 0.0, 0.99)}
 register(MethodKind("pmht", "detections", run_pmht, OPTIONS, causal=lambda r: False, check=_check_pmht,
-                    check_sensing=_check_sensing, multi_target=True,
+                    check_sensing=_check_sensing,
                     description="PMHT with an unscented smoother, illuminator of each detection given "
-                                "(Streit & Luginbuhl 1995)"))
+                                "(Streit & Luginbuhl 1995); smoothed, not causal; initiation: oracle or detections"))
 register(MethodKind("pmht_3d", "detections", run_pmht, OPTIONS_3D, causal=lambda r: False, check=_check_pmht,
-                    check_sensing=_check_sensing, multi_target=True,
+                    check_sensing=_check_sensing,
                     description="target-detection-illuminator PMHT with a Gaussian scale mixture "
-                                "(Li et al., JEIT 2021): per receiver, illuminator unknown"))
+                                "(Li et al., JEIT 2021): per receiver, illuminator unknown; initiation: oracle or detections"))
 register(MethodKind("true_assignment_smoother", "detections", run_true_assignment_smoother, {},
-                    causal=lambda r: False, check=_all_throughout, multi_target=True,
-                    description="UKF + RTS smoother per target on exactly its own detections"))
+                    causal=lambda r: False, check=_all_throughout,
+                    description="reference: a UKF + RTS smoother per target on exactly its own detections"))

@@ -151,19 +151,23 @@ def _check_imm(spec, alive, resource, case) -> None:
                           "installation lacks") from None
 
 
-Q = Option(None, float, 0.0, 1.0e6, nullable=True, tunable=True)  # jerk PSD (m^2/s^5); null: the recipe's q
+Q = Option(None, float, 0.0, 1.0e6, nullable=True, tunable=True, null="the recipe's q")  # jerk PSD (m^2/s^5); null: the recipe's q
 for _kind, _options, _extra in (
-    ("ekf", {"q": Q}, {}),
-    ("ukf", {"q": Q}, {}),
+    ("ekf", {"q": Q}, {"description": "extended Kalman filter, CA motion (the FITEE 2023 baseline)"}),
+    ("ukf", {"q": Q}, {"description": "unscented Kalman filter, CA motion"}),
     # two CA modes (EKF moments): quiet (null = the recipe's q) and manoeuvring, and the probability of
     # staying in a mode per step (diagonal of the 2x2 Markov matrix)
     ("imm", {"q_quiet": Q, "q_manoeuvre": Option(1.0, float, 0.0, 1.0e6, tunable=True),
-             "stay": Option(0.95, float, 0.0, 1.0, tunable=True)}, {"check": _check_imm}),
+             "stay": Option(0.95, float, 0.0, 1.0, tunable=True)},
+     {"check": _check_imm, "description": "interacting multiple model: two CA modes, quiet and manoeuvring"}),
     # refine_steps 0 is the paper's plain spherical interpolation
-    ("si_kf", {"refine_steps": Option(0, int, 0, 100)}, {}),
+    ("si_kf", {"refine_steps": Option(0, int, 0, 100)},
+     {"description": "spherical-interpolation position fixes fed to a linear Kalman filter (SI+KF)"}),
     # a block of runs x particles x 9 states must fit in memory
-    ("particle_filter", {"particles": Option(2000, int, 1, 1_000_000), "roughening": Option(0.2, float, 0.0, 10.0)}, {}),
-    ("learned", {"stride": Option(None, int, 1, 1_000_000, nullable=True)},
-     {"needs_checkpoint": True, "load": _load_learned, "causal": lambda t: not t.looks_ahead, "check": _check_learned}),
+    ("particle_filter", {"particles": Option(2000, int, 1, 1_000_000), "roughening": Option(0.2, float, 0.0, 10.0)},
+     {"description": "bootstrap particle filter with roughening"}),
+    ("learned", {"stride": Option(None, int, 1, 1_000_000, nullable=True, null="the checkpoint's default stride")},
+     {"needs_checkpoint": True, "load": _load_learned, "causal": lambda t: not t.looks_ahead, "check": _check_learned,
+      "description": "a trained DFNN, MDFNN, RNN or KalmanNet (pmsr train) from its checkpoint"}),
 ):
     register(MethodKind(_kind, "measurements", per_target, _options, **_extra))

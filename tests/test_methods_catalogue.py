@@ -1,0 +1,67 @@
+"""``pmsr methods``: every registered method kind with the product it reads, its description and
+each option's default and range; unknown kinds named with the nearest ones, or where a tracker
+that is not a method kind lives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pmsr_nn.cli import main
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.methods import ELSEWHERE, PRODUCTS, Option, describe_option, method_kind, registry
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_kind_is_listed_with_its_product_description_and_options(capsys):
+    assert main(["methods"]) == 0
+    out = capsys.readouterr().out
+    blocks = {b.splitlines()[0].split()[0]: b for b in out.split("\n\n")[1:] if b and not b.startswith("Not")}
+    kinds = registry()
+    assert sorted(blocks) == sorted(kinds)
+    for name, k in kinds.items():
+        lines = blocks[name].splitlines()
+        assert k.reads in PRODUCTS and lines[0] == f"{name}  (reads {k.reads}: {PRODUCTS[k.reads]})"
+        assert k.description and lines[1].strip() == k.description
+        shown = [ln.strip() for ln in lines[2:] if not ln.strip().startswith("needs:")]
+        assert shown == [describe_option(n, o) for n, o in k.options.items()]
+        assert ("needs: checkpoint" in blocks[name]) == k.needs_checkpoint
+    for _, where in ELSEWHERE:
+        assert where in out
+
+
+def test_one_kind_and_its_options():
+    o = method_kind("s_msjpda").options
+    assert describe_option("confirm_m", o["confirm_m"]) == "confirm_m: 2 (integer in [1, 62])"
+    assert describe_option("gate_probability", o["gate_probability"]) == "gate_probability: 0.999 (number in [0.5, 1))"
+    assert describe_option("initiation", o["initiation"]) == "initiation: oracle (one of oracle | detections)"
+    q = method_kind("ekf").options["q"]
+    assert describe_option("q", q) == "q: null (number in [0, 1e+06], or null: the recipe's q, tunable)"
+    assert describe_option("x", Option(None, int, 1, 5, nullable=True)) == \
+        "x: null (integer in [1, 5], or null: a default taken elsewhere)"
+
+
+@pytest.mark.parametrize("name, message", [
+    ("ekff", "unknown method kind 'ekff' (did you mean ekf?); known: ekf,"),
+    ("smsjpda", "(did you mean s_msjpda or p_msjpda?)"),
+    ("ICMB", "'kind: tbd' at the top of the file (e.g. evaluate/remotesensing2020_icmb.yaml; pmsr_nn/harness/tbd_study.py)"),
+    ("gtda", "'kind: phd' at the top of the file (e.g. evaluate/daniyan_smcphd.yaml; pmsr_nn/harness/phd_study.py)"),
+    ("pcrb", "the PCRB is not a method"),
+    ("zzzz", "unknown method kind 'zzzz'; known: ekf,"),
+])
+def test_unknown_kinds_name_the_nearest_or_where_they_live(capsys, name, message):
+    with pytest.raises(ConfigError) as err:
+        method_kind(name)
+    assert message in str(err.value) and "\n" not in str(err.value)
+    assert main(["methods", name]) == 2
+    cap = capsys.readouterr()
+    assert cap.out == "" and cap.err.strip() == f"pmsr: error: {err.value}"
+
+
+def test_the_places_the_hints_name_exist():
+    for _, where in ELSEWHERE:
+        for word in where.replace(";", " ").replace(")", " ").split():
+            if word.startswith(("evaluate/", "pmsr_nn/")):
+                assert (ROOT / word).is_file(), word
