@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import Interrupted, PmsrError
+from .errors import ConfigError, Interrupted, PmsrError
 
 DEMO_DIR = Path("runs/demo")
 
@@ -183,6 +183,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--device", default="cpu", help="torch device for the learned trackers (default cpu)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
+    ev.add_argument("--executor", choices=("local", "slurm"),
+                    help="run the scenario as --shards jobs of submitit on this machine (local) or a SLURM array "
+                    "(slurm), then merge them into --out")
+    ev.add_argument("--shards", type=int, default=2, help="jobs for --executor (default 2; at most the blocks of runs)")
+    ev.add_argument("--partition", help="SLURM partition for --executor slurm")
+    ev.add_argument("--timeout-min", type=int, default=60, help="time limit per shard job for --executor (default 60)")
 
     fe = sub.add_parser(
         "front-end", help="run the FM front end on recorded I/Q samples",
@@ -484,6 +490,20 @@ def cmd_evaluate(args) -> int:
     shard = parse_shard(args.shard)
     resolve_device(args.device)
     t0 = time.perf_counter()
+    if args.executor:
+        from .harness.dispatch import dispatch
+
+        if shard != (1, 1):
+            raise ConfigError("--executor runs every shard itself: give --shards N, not --shard I/N")
+        res = dispatch(args.scenario, args.out, shards=args.shards, executor=args.executor, mc_runs=args.mc_runs,
+                       checkpoints=_checkpoint_overrides(args.checkpoint), device=args.device,
+                       overwrite=args.overwrite, partition=args.partition, timeout_min=args.timeout_min,
+                       progress=not args.quiet)
+        if not args.quiet:
+            print_summary(res)
+            print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s, {args.shards} "
+                  f"{args.executor} jobs)")
+        return 0
     res = evaluate(args.scenario, args.out, mc_runs=args.mc_runs, checkpoints=_checkpoint_overrides(args.checkpoint),
                    shard=shard, device=args.device, progress=not args.quiet, overwrite=args.overwrite)
     if args.quiet:

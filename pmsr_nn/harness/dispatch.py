@@ -1,0 +1,96 @@
+"""``pmsr evaluate --executor local|slurm``: the shards of a scenario as jobs of an existing engine.
+
+`submitit <https://github.com/facebookincubator/submitit>`_ runs ``pmsr evaluate --shard I/N``
+for each ``I`` as one job of an array, on this machine (``local``: one process per shard) or on
+a SLURM cluster (``slurm``: one array task per shard, submitted from a login node; the shared
+file system holds the scenario, the checkpoints and the output's parent folder), waits for
+them, and merges the shards with :func:`~pmsr_nn.harness.evaluate.merge`: the figures of the
+unsharded run, bit for bit, timings aside.
+
+The shards and the engine's logs live in a staging folder beside ``out``
+(``.<out>.shards-<pid>``) that this command creates and removes; nothing is written to ``out``
+unless every shard succeeded (the merge is atomic like every results folder).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from ..errors import ConfigError
+from ..outputs import check_folder_target
+
+EXECUTORS = ("local", "slurm")
+
+
+def _submitit():
+    try:
+        import submitit
+    except ImportError:
+        raise ConfigError("--executor needs submitit, which this installation lacks: pip install "
+                          "'pmsr_nn[cluster]' (or pip install submitit)") from None
+    return submitit
+
+
+def run_shard(scenario: str, out: str, shard: tuple[int, int], mc_runs: int | None, checkpoints: dict | None,
+              device: str) -> str:
+    """One job: shard ``shard`` of ``scenario`` into ``out`` (what ``pmsr evaluate --shard`` does)."""
+    from .evaluate import evaluate
+
+    evaluate(Path(scenario), Path(out), mc_runs=mc_runs, checkpoints=checkpoints, shard=tuple(shard), device=device,
+             progress=False)
+    return out
+
+
+def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "local", mc_runs: int | None = None,
+             checkpoints: dict[str, str] | None = None, device: str = "cpu", overwrite: bool = False,
+             partition: str | None = None, timeout_min: int = 60, progress: bool = True) -> dict:
+    """Run ``scenario`` as ``shards`` jobs on ``executor`` and merge them into ``out``; returns
+    results.json's content. ``partition`` and ``timeout_min`` (per shard) are SLURM's."""
+    from .evaluate import RESULT_COMMANDS, _inputs, load_any, merge
+    from .phd_study import PHDScenario
+    from .runner import prepare
+    from .tbd_study import TBDScenario
+
+    if executor not in EXECUTORS:
+        raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    submitit = _submitit()
+    out = Path(out)
+    scenario = Path(scenario)
+    check_folder_target(out, overwrite=overwrite, inputs=[scenario], allow=RESULT_COMMANDS)
+    sc = load_any(scenario, mc_runs, checkpoints)
+    if isinstance(sc, (TBDScenario, PHDScenario)):
+        raise ConfigError(f"{scenario}: a track-before-detect or SMC-PHD study runs unsharded; run it without --executor")
+    if not 1 <= shards <= sc.n_blocks:
+        raise ConfigError(f"--shards must be in 1..{sc.n_blocks} (the scenario's blocks of runs), got {shards}")
+    if not isinstance(timeout_min, int) or timeout_min < 1:
+        raise ConfigError(f"--timeout-min must be a positive number of minutes, got {timeout_min}")
+    check_folder_target(out, overwrite=overwrite, inputs=_inputs(scenario, sc), allow=RESULT_COMMANDS)
+    prepare(sc, device)  # a method that can not run is refused here, before any job is submitted
+    work = out.parent / f".{out.name}.shards-{os.getpid()}"
+    work.mkdir(parents=True)
+    try:
+        engine = submitit.AutoExecutor(folder=work / "logs", cluster=executor)
+        params = {"timeout_min": timeout_min, "name": f"pmsr-{sc.name}"}
+        if executor == "slurm":
+            params["slurm_array_parallelism"] = shards
+            if partition:
+                params["slurm_partition"] = partition
+        engine.update_parameters(**params)
+        folders = [str(work / f"shard{i}") for i in range(1, shards + 1)]
+        jobs = engine.map_array(run_shard, [str(scenario.resolve())] * shards, folders,
+                                [(i, shards) for i in range(1, shards + 1)], [mc_runs] * shards,
+                                [checkpoints] * shards, [device] * shards)
+        if progress:
+            print(f"submitted {shards} shard job(s) to {executor}: {', '.join(str(j.job_id) for j in jobs)}")
+        for i, job in enumerate(jobs, start=1):
+            try:
+                job.result()
+            except Exception as exc:  # the job's own error, re-raised by submitit with its traceback
+                text = str(exc).strip().splitlines()
+                last = next((ln.strip() for ln in reversed(text) if ln.strip()), type(exc).__name__)
+                raise ConfigError(f"shard {i}/{shards} (job {job.job_id}) failed: {last[:300]}") from None
+        return merge([Path(f) for f in folders], out, device=device, overwrite=overwrite)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)  # only the staging folder this call created
