@@ -266,20 +266,24 @@ def test_settings_that_never_confirm_are_one_line_errors_and_write_nothing(tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
-def test_initiation_from_range_and_doppler_alone_is_refused(tmp_path, capsys):
-    """The Access study measures range and Doppler only: no single-pair fix, so the fix
-    initiator refuses it by name (oracle initiation still runs)."""
+def test_initiation_from_range_and_doppler_at_pairs_that_share_no_sensor_is_refused(tmp_path, capsys):
+    """The Access study measures range and Doppler only: no single-pair fix, so the spherical
+    initiator takes it (tests/test_spherical_initiator.py); with a second receiver its pairs
+    share neither a transmitter nor a receiver, which neither initiator handles: refused by name
+    (oracle initiation still runs)."""
     root = Path(__file__).resolve().parents[1]
     data = yaml.safe_load((root / "evaluate" / "access2019_msjpda.yaml").read_text())
     data["methods"] = [{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}}]
     data["mc_runs"], data["block_runs"] = 1, 1
+    data["geometry"]["receivers"].append({"position_m": [5000.0, 5000.0]})
     if "reference" in data:
         data["reference"]["file"] = str((root / "evaluate" / data["reference"].get("file", "reference/paper_tables.json")))
     path = tmp_path / "a.yaml"
     path.write_text(yaml.safe_dump(data))
     assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "fixes positions from (bistatic range, azimuth)" in err and "use initiation: oracle" in err
+    assert "\n" not in err and "method 'S'" in err
+    assert "share one transmitter or one receiver" in err and "use initiation: oracle" in err
     assert not (tmp_path / "out").exists()
 
 

@@ -7,8 +7,13 @@ Option ``initiation`` says how S-/P-MSJPDA's tracks start:
   ("the true state plus some random noise"), one slot per target, associating only while the
   target lives. A reference row: the tracker is handed the births.
 * ``detections``: the tracker starts, confirms and deletes its own tracks with the shared
-  components of :mod:`pmsr_nn.trackers.management` (a multi-pair fix initiator, M-of-N
-  confirmation, a deleter on misses); it returns unpaired tracks, scored as tracks.
+  components of :mod:`pmsr_nn.trackers.management` (an initiator, M-of-N confirmation, a deleter
+  on misses); it returns unpaired tracks, scored as tracks. The initiator follows what the
+  detections measure: with azimuth, the fix initiator (each pair's (range, azimuth) fixes a
+  position; fixes of ``init_pairs`` pairs that agree start a track); with range and range-rate
+  (or Doppler) but no azimuth, the spherical initiator (every combination of one detection per
+  pair, at 3 or 4 pairs that share one transmitter or one receiver, whose joint fit of ranges
+  and rates passes the gate).
 
 Extras of oracle-initiated rows (read by the paper's loss rule and the report):
 ``dummy_most_probable (B, K, N)``, ``gate_range_sd_m (B, K, N)`` and, for P-MSJPDA,
@@ -21,7 +26,8 @@ import torch
 
 from ..errors import ConfigError
 from ..trackers.base import Estimates
-from ..trackers.management import Confirmer, Deleter, FixInitiator, Management
+from ..trackers.initiators import FixInitiator, SphericalInitiator
+from ..trackers.management import Confirmer, Deleter, Management
 from ..trackers.msjpda import JPDASettings, managed_msjpda, msjpda, true_assignment_ukf
 from . import MethodCall, MethodKind, Option, register
 
@@ -55,11 +61,20 @@ def _estimates(res, alive: torch.Tensor, gap: float | None) -> Estimates:
 
 
 def management(spec, sensing) -> Management:
-    """The track-management components a method's options describe (``initiation: detections``)."""
+    """The track-management components a method's options describe (``initiation: detections``).
+
+    The initiator follows the detection model: azimuth among its components, the
+    :class:`FixInitiator` (``init_pairs`` null: 2 pairs); otherwise the
+    :class:`SphericalInitiator` (range and range-rate or Doppler; ``init_pairs`` null: every
+    pair), whose :meth:`~SphericalInitiator.check` refuses what neither can start tracks from."""
     o = spec.option
-    return Management(FixInitiator(float(o("birth_velocity_sd_mps")), int(o("init_pairs")),
-                                   float(o("init_gate_probability"))),
-                      Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
+    pairs = o("init_pairs")
+    velocity_sd, gate = float(o("birth_velocity_sd_mps")), float(o("init_gate_probability"))
+    if "azimuth" in sensing.detection_model.components:
+        initiator = FixInitiator(velocity_sd, 2 if pairs is None else int(pairs), gate)
+    else:
+        initiator = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
+    return Management(initiator, Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
                       sensing.prior_sd, int(o("hit_pairs")), float(o("survival")), float(o("initial_existence")),
                       float(o("report_existence")))
 
@@ -90,8 +105,8 @@ def _all_from_start(spec, alive: torch.Tensor, resource, case: str) -> None:
 
 
 def check_initiation(spec, sensing) -> None:
-    """Track management that could never confirm a track, or detections the initiator can not
-    fix positions from (``initiation: detections`` only)."""
+    """Track management that could never confirm a track, or detections neither initiator can
+    start tracks from (``initiation: detections`` only; see :func:`management`)."""
     if spec.option("initiation") != "detections":
         return
     try:
@@ -104,7 +119,8 @@ INITIATIONS = ("oracle", "detections")
 # how tracks start and, with initiation: detections, the track management (pmsr_nn.trackers.management):
 # shared by every kind that offers initiation from detections (with :func:`management` and :func:`check_initiation`)
 MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS),
-                      "init_pairs": Option(2, int, 1, 64),
+                      "init_pairs": Option(None, int, 1, 64, nullable=True,
+                                           null="2 with azimuth (fix initiator), else every pair (spherical initiator)"),
                       "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
                       "birth_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
                       "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),
