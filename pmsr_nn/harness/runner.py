@@ -607,6 +607,8 @@ def initiation(setup: Setup, spec: MethodSpec) -> str:
     kind = setup.kinds[spec.name]
     if kind.reads == "measurements":
         return "association known"
+    if kind.starts_tracks:
+        return "detections"
     return "detections" if "initiation" in kind.options and spec.option("initiation") == "detections" else "oracle"
 
 

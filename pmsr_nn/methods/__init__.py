@@ -10,6 +10,7 @@ one module here (plus its tests): the runner and the report need no edit.
   on every target's own stream (association known);
 * :mod:`.msjpda`: S-/P-MSJPDA and the true-assignment reference, on the detections;
 * :mod:`.pmht`: PMHT, 3-D association PMHT and the true-assignment smoother, on the detections;
+* :mod:`.phd`: the multi-sensor SMC-PHD with GTDA or Hungarian track labelling, on the detections;
 * :mod:`.stonesoup`: Stone Soup's JPDA or GNN on the detections (optional extra; checked when a
   scenario uses it).
 """
@@ -90,7 +91,8 @@ class MethodKind:
     checkpoint); ``causal(resource)`` says whether an estimate at scan k reads only scans up to k;
     ``check(spec, alive, resource, case)`` refuses a case the method can not run and
     ``check_sensing(spec, sensing)`` one whose sensing (a :class:`SensorSetup`) it can not read
-    (one-line errors).
+    (one-line errors); ``starts_tracks``: the kind always starts its own tracks from the detections
+    (no ``initiation`` option to say so; the report scores its rows as tracks started from detections).
     """
 
     name: str
@@ -103,6 +105,7 @@ class MethodKind:
     check: Callable | None = None
     check_sensing: Callable | None = None
     description: str = ""
+    starts_tracks: bool = False
 
 
 REGISTRY: dict[str, MethodKind] = {}
@@ -136,9 +139,11 @@ ELSEWHERE = (
     (("icmb", "modified_icmb", "micmb", "mb", "pmb", "mbm", "tbd", "track_before_detect", "detect_then_track"),
      "the track-before-detect filters (modified ICMB, ICMB, PMB, detect-then-track) run in study files of their "
      "own, 'kind: tbd' at the top of the file (e.g. evaluate/remotesensing2020_icmb.yaml; pmsr_nn/harness/tbd_study.py)"),
-    (("phd", "smcphd", "smc_phd", "gtda", "hungarian"),
-     "SMC-PHD with GTDA or Hungarian labelling runs in study files of its own, 'kind: phd' at the top of the "
-     "file (e.g. evaluate/daniyan_smcphd.yaml; pmsr_nn/harness/phd_study.py)"),
+    (("phd", "smcphd", "gtda", "hungarian"),
+     "SMC-PHD with GTDA or Hungarian labelling in one bistatic plane (one pair's range and range-rate) runs in "
+     "study files of its own, 'kind: phd' at the top of the file (e.g. evaluate/daniyan_smcphd.yaml; "
+     "pmsr_nn/harness/phd_study.py); in a scenario's methods, kind smc_phd (Cartesian, every pair; option "
+     "labelling: gtda | hungarian)"),
     (("pcrb", "crb", "bound"),
      "the PCRB is not a method: the report of a scenario of designed targets has its row in every case"),
 )

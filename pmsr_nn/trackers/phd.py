@@ -119,6 +119,83 @@ def check_detections(z: torch.Tensor, valid: torch.Tensor) -> None:
                           "finite range and range-rate for every valid detection")
 
 
+def correct(st: PHDState, pg: torch.Tensor, valid: torch.Tensor, pd: float, kappa: float
+            ) -> tuple[PHDState, torch.Tensor, torch.Tensor]:
+    """The PHD update (step 3 of the module docstring) of particles ``st`` given ``pg (B, M, J)``, the
+    weighted likelihoods ``Pd g_ij w_i`` of detections ``valid (B, J)``, and the clutter intensity
+    ``kappa`` (per unit of the measurement space, as ``g``): the updated state, and each detection's
+    partition, the mass it takes ``part_w (B, J)`` (negative where ``j`` is padding) and its weighted
+    mean ``part_x (B, J, n)``."""
+    taken = pg.sum(1)  # (B, J)
+    denom = kappa + taken
+    inv = torch.where(denom > 0, 1.0 / denom, torch.zeros((), dtype=denom.dtype))
+    part_w = taken * inv
+    # sum_j Pd g_ij w_i / denom_j as one product (no (B, M, J) ratio tensor)
+    w = (1 - pd) * st.w + torch.bmm(pg, inv[:, :, None])[..., 0]
+    part_x = torch.bmm(pg.transpose(1, 2), st.x) / taken.clamp(min=1e-300)[..., None]
+    expected = (1 - pd) * st.expected + part_w.sum(1)
+    part_w = torch.where(valid & (taken > 0), part_w, torch.full((), -1.0, dtype=w.dtype))
+    return PHDState(st.x, w, expected), part_x, part_w
+
+
+def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate: float, least: float,
+            iterations: int, keep: float | None = None, near_seeds: torch.Tensor | None = None):
+    """Gated weighted k-means of the particles ``st.x (B, M, n)`` (weights ``st.w``) from candidate
+    centres ``seeds (B, S, n)`` ranked by ``seed_mass (B, S)`` (negative: not a candidate), in the
+    metric ``d2(points (B, P, n), centres (B, C, n), which (B, C)) -> (B, P, C)`` (squared, gated at
+    ``gate``; ``which``: the seed each centre came from, for a metric per seed): greedily the
+    heaviest seed of mass at least ``least``, dropping the seeds inside its gate (``near_seeds (B, S,
+    S)``, null: row ``i`` of ``d2(seeds, seeds) < gate``); then ``iterations`` Lloyd passes, each
+    particle joining its nearest centre when inside the gate.
+    Returns ``x (B, C, n)`` (the weighted means), ``P (B, C, n, n)`` (the weighted spreads),
+    ``mass (B, C)``, ``exists (B, C)`` (a positive mass of at least ``keep``, null: ``least``) and
+    ``owner (B, M)`` (each particle's cluster, ``C``: none)."""
+    B, M = st.w.shape
+    n = st.x.shape[-1]
+    S = seeds.shape[1]
+    if near_seeds is None:
+        near_seeds = d2(seeds, seeds, torch.arange(S).expand(B, S)) < gate  # (B, S, S)
+    centres, exists, picked = [], [], []
+    for _ in range(S):  # greedy: the heaviest seed, then drop the seeds inside its gate
+        best = seed_mass.argmax(1)
+        ok = seed_mass.gather(1, best[:, None])[:, 0] >= least
+        if not bool(ok.any()):
+            break
+        centres.append(seeds.gather(1, best[:, None, None].expand(B, 1, n))[:, 0])
+        exists.append(ok)
+        picked.append(best)
+        near = near_seeds.gather(1, best[:, None, None].expand(B, 1, S))[:, 0]
+        seed_mass = torch.where(near & ok[:, None], torch.full((), -1.0, dtype=torch.float64), seed_mass)
+    C = len(centres)
+    if C == 0:
+        return (torch.zeros(B, 0, n, dtype=torch.float64), torch.zeros(B, 0, n, n, dtype=torch.float64),
+                torch.zeros(B, 0, dtype=torch.float64), torch.zeros(B, 0, dtype=torch.bool),
+                torch.zeros(B, M, dtype=torch.int64))
+    # (B, C, n), (B, C), (B, C)
+    centre, exists, which = torch.stack(centres, 1), torch.stack(exists, 1), torch.stack(picked, 1)
+    base = (torch.arange(B) * (C + 1))[:, None]
+    w = st.w.reshape(-1)
+    binned = lambda owner, v: torch.bincount(owner, v, minlength=B * (C + 1)).reshape(B, C + 1)[:, :C]
+    for it in range(iterations + 1):  # the last pass only assigns (and gives P)
+        dist = d2(st.x, centre, which).masked_fill_(~exists[:, None, :], math.inf)
+        near_d2, owner = dist.min(2)
+        owner = (torch.where(near_d2 < gate, owner, torch.full_like(owner, C)) + base).reshape(-1)  # C: no gate
+        mass = binned(owner, w)
+        if it == iterations:
+            break
+        mean = torch.stack([binned(owner, w * st.x[..., d].reshape(-1)) for d in range(n)], -1)
+        centre = torch.where((mass > 0)[..., None], mean / mass.clamp(min=1e-300)[..., None], centre)
+    padded = torch.cat([centre, centre.new_zeros(B, 1, n)], 1).reshape(-1, n)
+    dev = st.x.reshape(-1, n) - padded[owner]
+    P = centre.new_zeros(B, C, n, n)
+    for i in range(n):
+        for j in range(i, n):
+            P[..., i, j] = P[..., j, i] = binned(owner, w * dev[:, i] * dev[:, j])
+    P = P / mass.clamp(min=1e-300)[..., None, None]
+    keep = least if keep is None else keep
+    return centre, P, mass, exists & (mass >= keep) & (mass > 0), owner.reshape(B, M) - base
+
+
 class SMCPHD:
     """The filter of the module docstring for detections with deviations ``sd (2,)`` (m, m/s),
     detection probability ``pd`` and clutter intensity ``kappa`` (per scan, per m x m/s), scans
@@ -176,17 +253,7 @@ class SMCPHD:
     def update(self, st: PHDState, z: torch.Tensor, valid: torch.Tensor) -> tuple[PHDState, torch.Tensor, torch.Tensor]:
         """The PHD update with detections ``z (B, J, 2)``; also each detection's partition: the mass it
         takes ``part_w (B, J)`` (negative where ``j`` is padding) and its weighted mean ``part_x (B, J, 2)``."""
-        pg = self.weighted_likelihood(st, z, valid)  # (B, M, J)
-        taken = pg.sum(1)  # (B, J)
-        denom = self.kappa + taken
-        inv = torch.where(denom > 0, 1.0 / denom, torch.zeros((), dtype=denom.dtype))
-        part_w = taken * inv
-        # sum_j Pd g_ij w_i / denom_j as one product (no (B, M, J) ratio tensor)
-        w = (1 - self.pd) * st.w + torch.bmm(pg, inv[:, :, None])[..., 0]
-        part_x = torch.bmm(pg.transpose(1, 2), st.x) / taken.clamp(min=1e-300)[..., None]
-        expected = (1 - self.pd) * st.expected + part_w.sum(1)
-        part_w = torch.where(valid & (taken > 0), part_w, torch.full((), -1.0, dtype=w.dtype))
-        return PHDState(st.x, w, expected), part_x, part_w
+        return correct(st, self.weighted_likelihood(st, z, valid), valid, self.pd, self.kappa)
 
     def _d2(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
         """Squared distances ``(B, M, C)`` between points ``x (B, M, 2)`` and ``c (B, C, 2)`` in units of the
@@ -198,45 +265,11 @@ class SMCPHD:
         return d2.clamp_(min=0.0)
 
     def estimate(self, st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor):
-        """Gated weighted k-means (module docstring) from candidate centres ``seeds (B, S, 2)`` ranked by
-        ``seed_mass (B, S)`` (the mass of each detection's partition; negative: not a candidate):
+        """Gated weighted k-means (module docstring, :func:`cluster`) from candidate centres ``seeds (B, S, 2)``
+        ranked by ``seed_mass (B, S)`` (the mass of each detection's partition; negative: not a candidate):
         ``(x (B, C, 2), P (B, C, 2, 2), mass (B, C), exists (B, C))``."""
-        B, M = st.w.shape
-        gate, least = self.gate, self.spec.estimate_mass
-        near_seeds = self._d2(seeds, seeds) < gate  # (B, S, S)
-        centres, exists = [], []
-        for _ in range(seeds.shape[1]):  # greedy: the heaviest seed, then drop the seeds inside its gate
-            best = seed_mass.argmax(1)
-            ok = seed_mass.gather(1, best[:, None])[:, 0] >= least
-            if not bool(ok.any()):
-                break
-            centres.append(seeds.gather(1, best[:, None, None].expand(B, 1, 2))[:, 0])
-            exists.append(ok)
-            near = near_seeds.gather(1, best[:, None, None].expand(B, 1, seeds.shape[1]))[:, 0]
-            seed_mass = torch.where(near & ok[:, None], torch.full((), -1.0, dtype=torch.float64), seed_mass)
-        C = len(centres)
-        if C == 0:
-            return (torch.zeros(B, 0, 2, dtype=torch.float64), torch.zeros(B, 0, 2, 2, dtype=torch.float64),
-                    torch.zeros(B, 0, dtype=torch.float64), torch.zeros(B, 0, dtype=torch.bool))
-        centre, exists = torch.stack(centres, 1), torch.stack(exists, 1)  # (B, C, 2), (B, C)
-        base = (torch.arange(B) * (C + 1))[:, None]
-        w = st.w.reshape(-1)
-        binned = lambda owner, v: torch.bincount(owner, v, minlength=B * (C + 1)).reshape(B, C + 1)[:, :C]
-        for it in range(self.spec.kmeans_iterations + 1):  # the last pass only assigns (and gives P)
-            d2 = self._d2(st.x, centre).masked_fill_(~exists[:, None, :], math.inf)
-            near_d2, owner = d2.min(2)
-            owner = (torch.where(near_d2 < gate, owner, torch.full_like(owner, C)) + base).reshape(-1)  # C: no gate
-            mass = binned(owner, w)
-            if it == self.spec.kmeans_iterations:
-                break
-            mean = torch.stack([binned(owner, w * st.x[..., d].reshape(-1)) for d in range(2)], -1)
-            centre = torch.where((mass > 0)[..., None], mean / mass.clamp(min=1e-300)[..., None], centre)
-        padded = torch.cat([centre, centre.new_zeros(B, 1, 2)], 1).reshape(-1, 2)
-        dev = st.x.reshape(-1, 2) - padded[owner]
-        cross = [binned(owner, w * dev[:, i] * dev[:, j]) for i, j in ((0, 0), (0, 1), (1, 1))]
-        P = torch.stack([torch.stack(cross[:2], -1), torch.stack(cross[1:], -1)], -2)
-        P = P / mass.clamp(min=1e-300)[..., None, None]
-        return centre, P, mass, exists & (mass >= least)
+        return cluster(st, seeds, seed_mass, lambda x, c, which: self._d2(x, c), self.gate, self.spec.estimate_mass,
+                       self.spec.kmeans_iterations)[:4]
 
     def resample(self, st: PHDState, g: torch.Generator) -> PHDState:
         """Systematic resampling to the particle budget of the expected number (module docstring)."""
