@@ -17,7 +17,7 @@ Option ``initiation`` of ``pmht`` and ``pmht_3d`` says how tracks start (as for 
   ``N(0, P0)``), lasting the whole scenario; a case with births or deaths is refused;
 * ``detections``: the tracker starts, confirms and deletes its own tracks
   (:func:`~pmsr_nn.trackers.pmht.managed_pmht`) and returns unpaired tracks, scored as tracks.
-  It needs each detection's illuminator (the fix initiator reads per-pair lists), so
+  It needs each detection's illuminator (the initiators read per-pair lists), so
   ``pmht_3d`` refuses it on detections pooled per receiver.
 
 The association priors are fixed from the case's Pd and clutter.
@@ -95,7 +95,7 @@ def _check_pmht(spec, alive: torch.Tensor, resource, case: str) -> None:
 
 
 def _check_sensing(spec, sensing) -> None:
-    """Track management that could never confirm a track, detections the fix initiator can not
+    """Track management that could never confirm a track, detections no initiator can
     read; for ``pmht_3d`` also detections pooled per receiver (``initiation: detections``)."""
     if spec.option("initiation") == "detections" and spec.kind == "pmht_3d" and not sensing.illuminator_known:
         raise ConfigError(f"method {spec.name!r}: initiation from detections fixes positions from per-pair lists; the "

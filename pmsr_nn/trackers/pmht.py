@@ -49,7 +49,7 @@ and their CV prediction beyond.
 
 Track management (:func:`managed_pmht`)
 ---------------------------------------
-The tracks of :mod:`.management` (a table of slots, a fix initiator, M-of-N confirmation, a
+The tracks of :mod:`.management` (a table of slots, an initiator, M-of-N confirmation, a
 deleter, IPDA existence) in the sliding window: EM runs on every slot, a free one explaining no
 detection; after EM, each scan the window commits reads the association weights (a hit where a
 track's summed weight at a pair is >= 0.5, a start from the detections whose weight on all
@@ -525,7 +525,7 @@ def _started_rows(pr: PMHTProblem, X: torch.Tensor, rows: torch.Tensor, born: to
 def managed_pmht(scans: Scans, motion: KinematicModel, dt: float, q, model, R: torch.Tensor, settings: PMHTSettings,
                  management: Management) -> TrackReport:
     """PMHT that starts, confirms and deletes its own tracks (:mod:`.management`), on per-pair
-    lists (each detection's illuminator known: the fix initiator needs them).
+    lists (each detection's illuminator known: the initiators need them).
 
     The tracks live in a :class:`~.management.TrackTable` whose Gaussians are the priors at the
     current window's first scan; EM runs on every slot (a free slot explains no detection). After
@@ -539,7 +539,7 @@ def managed_pmht(scans: Scans, motion: KinematicModel, dt: float, q, model, R: t
     3. the confirmed tracks whose existence is >= ``report_existence`` are reported with their
        smoothed states at that scan;
     4. the detections whose total weight on the tracks is < 0.5 (explained mostly by clutter)
-       start tentative tracks (:class:`~.management.FixInitiator`).
+       start tentative tracks (the management's initiator, :mod:`.initiators`).
 
     A track started at scan ``k`` of the window takes part in it from ``k`` on: it explains no
     detection before ``k`` and its filter is the initiator's Gaussian at ``k`` (see
