@@ -62,18 +62,24 @@ class PHDSpec:
         return gate_threshold(self.gate_probability, 2)
 
     def __post_init__(self) -> None:
-        require(self.particles_per_target >= 10 and self.particles_per_birth >= 10,
-                f"particles per target and per birth must be at least 10, got {self.particles_per_target} and "
-                f"{self.particles_per_birth}")
-        require(self.birth_rate > 0 and math.isfinite(self.birth_rate),
-                f"the birth intensity has no mass: birth_rate must be positive (expected newborn targets per scan), "
-                f"got {self.birth_rate}")
-        require(0 < self.survival <= 1, f"survival must be in (0, 1], got {self.survival}")
+        check_phd_settings(self)
         require(self.process_sd_mps2 >= 0 and math.isfinite(self.process_sd_mps2),
                 f"process_sd_mps2 must be finite and >= 0, got {self.process_sd_mps2}")
-        require(0 < self.estimate_mass <= 1, f"estimate_mass must be in (0, 1], got {self.estimate_mass}")
-        require(self.kmeans_iterations >= 0, f"kmeans_iterations must be >= 0, got {self.kmeans_iterations}")
-        require(0 < self.gate_probability < 1, f"gate_probability must be in (0, 1), got {self.gate_probability}")
+
+
+def check_phd_settings(spec) -> None:
+    """The checks every SMC-PHD's settings share (this module's and
+    :mod:`.phd_cartesian`'s): particle counts, birth mass, survival, estimate mass, clustering."""
+    require(spec.particles_per_target >= 10 and spec.particles_per_birth >= 10,
+            f"particles per target and per birth must be at least 10, got {spec.particles_per_target} and "
+            f"{spec.particles_per_birth}")
+    require(spec.birth_rate > 0 and math.isfinite(spec.birth_rate),
+            f"the birth intensity has no mass: birth_rate must be positive (expected newborn targets per scan), "
+            f"got {spec.birth_rate}")
+    require(0 < spec.survival <= 1, f"survival must be in (0, 1], got {spec.survival}")
+    require(0 < spec.estimate_mass <= 1, f"estimate_mass must be in (0, 1], got {spec.estimate_mass}")
+    require(spec.kmeans_iterations >= 0, f"kmeans_iterations must be >= 0, got {spec.kmeans_iterations}")
+    require(0 < spec.gate_probability < 1, f"gate_probability must be in (0, 1), got {spec.gate_probability}")
 
 
 def cv_matrices(dt: float, sigma: float) -> tuple[torch.Tensor, torch.Tensor]:

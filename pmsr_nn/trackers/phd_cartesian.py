@@ -68,7 +68,7 @@ from ..motion import KinematicModel
 from ..rng import standard_normal
 from .gating import gate_threshold
 from .initiators import FixInitiator, rate_component
-from .phd import PHDEstimates, PHDState, cluster, correct
+from .phd import PHDEstimates, PHDState, check_phd_settings, cluster, correct
 
 
 @dataclass(frozen=True)
@@ -92,19 +92,11 @@ class CartesianPHDSpec:
         return gate_threshold(self.gate_probability, 2)
 
     def __post_init__(self) -> None:
-        require(self.particles_per_target >= 10 and self.particles_per_birth >= 10,
-                f"particles per target and per birth must be at least 10, got {self.particles_per_target} and "
-                f"{self.particles_per_birth}")
-        require(self.birth_rate > 0 and math.isfinite(self.birth_rate),
-                f"the birth intensity has no mass: birth_rate must be positive, got {self.birth_rate}")
-        require(0 < self.survival <= 1, f"survival must be in (0, 1], got {self.survival}")
+        check_phd_settings(self)
         require(self.birth_velocity_sd_mps > 0 and math.isfinite(self.birth_velocity_sd_mps),
                 f"birth_velocity_sd_mps must be positive, got {self.birth_velocity_sd_mps}")
-        require(0 < self.estimate_mass <= 1, f"estimate_mass must be in (0, 1], got {self.estimate_mass}")
         require(self.cluster_sd_m > 0 and math.isfinite(self.cluster_sd_m),
                 f"cluster_sd_m must be positive, got {self.cluster_sd_m}")
-        require(0 < self.gate_probability < 1, f"gate_probability must be in (0, 1), got {self.gate_probability}")
-        require(self.kmeans_iterations >= 0, f"kmeans_iterations must be >= 0, got {self.kmeans_iterations}")
         require(self.regularisation >= 0 and math.isfinite(self.regularisation),
                 f"regularisation must be finite and >= 0, got {self.regularisation}")
 
