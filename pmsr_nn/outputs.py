@@ -6,8 +6,10 @@ raised before anything is written):
 * an output is never the working directory, one of its parents, the home folder or ``/``;
 * an output is never an input of the same command, a folder holding one, or a path inside one;
 * an existing folder is replaced only with ``overwrite`` and only when it carries our marker
-  (:data:`MARKER`, written into every folder a command completes); an existing file only with
-  ``overwrite``; a symbolic link never (the link target would be what is replaced);
+  (:data:`MARKER`, written into every folder a command completes); where the marker lists the
+  files the command wrote (every folder :func:`atomic_folder` completes), only when the folder
+  holds nothing else (a file a user added to one of our outputs is never deleted); an existing
+  file only with ``overwrite``; a symbolic link never (the link target would be what is replaced);
 * the parent folder must exist or be creatable, and be writable.
 
 Writing happens in a hidden temporary sibling ``.NAME.partial-PID`` (never inside the target),
@@ -162,7 +164,36 @@ def check_folder_target(out: Path, *, overwrite: bool, inputs: Iterable[Path] = 
                                   "choose another path")
             if not overwrite:
                 raise OutputError(f"{what} {out} already exists; pass --overwrite to replace it")
+            foreign = foreign_files(out)
+            if foreign:
+                more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+                raise OutputError(f"{what} {out} holds files pmsr did not write ({', '.join(foreign[:3])}{more}); pmsr "
+                                  "never deletes what it did not write: move them out or choose another path")
     _check_parent(out, what)
+
+
+def folder_contents(folder: Path) -> list[str]:
+    """Every file and folder under ``folder``, as sorted relative POSIX paths (our marker aside)."""
+    folder = Path(folder)
+    out = []
+    for dirpath, dirs, files in os.walk(folder):
+        rel = Path(dirpath).relative_to(folder)
+        out += [(rel / name).as_posix() for name in dirs + files]
+    return sorted(p for p in out if p != MARKER)
+
+
+def foreign_files(folder: Path) -> list[str]:
+    """What ``folder`` holds beyond the files its marker says our command wrote (empty where the
+    marker lists none: folders of earlier releases, or of commands that write as they go)."""
+    try:
+        marker = json.loads((Path(folder) / MARKER).read_text())
+    except (OSError, ValueError):
+        return []
+    listed = marker.get("contents") if isinstance(marker, dict) else None
+    if not isinstance(listed, list):
+        return []
+    known = set(listed)
+    return [p for p in folder_contents(folder) if p not in known]
 
 
 def clean_stale(out: Path) -> list[Path]:
@@ -241,7 +272,7 @@ def atomic_folder(out: Path, *, command: str, overwrite: bool = False, inputs: I
         # The work may have taken hours: what is at ``out`` now must still be ours to replace.
         check_folder_target(out, overwrite=overwrite, inputs=inputs, what=what, allow=allow)
         (tmp / PARTIAL_MARKER).unlink()
-        write_marker(tmp, command, **facts)
+        write_marker(tmp, command, contents=folder_contents(tmp), **facts)
         _fsync_tree(tmp)
         replace_folder(tmp, out)
     except BaseException:

@@ -207,6 +207,26 @@ def test_overwrite_replaces_only_what_evaluate_wrote(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir() if ".partial" in p.name or ".old-" in p.name) == []
 
 
+def test_overwrite_never_deletes_a_file_a_user_added_to_our_output(tmp_path, capsys):
+    path = tiny(tmp_path, methods=[{"name": "EKF", "kind": "ekf"}], mc_runs=2)
+    ours = tmp_path / "ours"
+    evaluate(path, ours, progress=False)
+    listed = json.loads((ours / ".pmsr_output.json").read_text())["contents"]
+    assert listed == sorted(p.name for p in ours.iterdir() if p.name != ".pmsr_output.json")
+    (ours / "notes.txt").write_text("my notes")
+    (ours / "figs").mkdir()
+    before = sorted((p.relative_to(tmp_path).as_posix(), p.stat().st_mtime_ns) for p in tmp_path.rglob("*"))
+    assert main(["evaluate", str(path), "--out", str(ours), "--overwrite", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"pmsr: error: --out {ours} holds files pmsr did not write (figs, notes.txt); pmsr never deletes "
+                   "what it did not write: move them out or choose another path")
+    assert sorted((p.relative_to(tmp_path).as_posix(), p.stat().st_mtime_ns) for p in tmp_path.rglob("*")) == before
+    (ours / "notes.txt").unlink()
+    (ours / "figs").rmdir()
+    evaluate(path, ours, progress=False, overwrite=True)  # ours alone again: replaced
+    assert not (ours / "notes.txt").exists() and (ours / "results.json").is_file()
+
+
 def test_checkpoint_override_swaps_a_learned_method(tmp_path):
     path = tiny(tmp_path, mc_runs=2)
     res = evaluate(load_scenario(path).with_checkpoints({"MDFNN": str(ROOT / "models/released/dfnn.pt")}),

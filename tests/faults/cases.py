@@ -1055,6 +1055,8 @@ case("evaluate/out-readonly-dir", f"{EV} --out ro/ev", setup=RO, outputs=("ro/ev
 case("evaluate/ok", f"{EV} --out out", "ok", outputs=("out",), verify=v_results("out"), klass="refusal")
 case("evaluate/ok-overwrite-previous-result", f"{EV} --out ev --overwrite", "ok", outputs=("ev",),
      verify=v_results("ev"), klass="data_loss")
+case("evaluate/own-result-holding-a-user-file-overwrite", f"{EV} --out ev --overwrite", setup=write("ev/notes.txt", "mine"),
+     message="notes.txt", klass="data_loss", note="a file the user added to an earlier result is never deleted")
 case("evaluate/ok-existing-empty-folder", f"{EV} --out empty", "ok", setup=mkdir("empty"), outputs=("empty",),
      verify=v_results("empty"), klass="refusal")
 case("evaluate/ok-new-parent-folders", f"{EV} --out a/b/c", "ok", outputs=("a",), verify=v_results("a/b/c"),
