@@ -38,8 +38,9 @@ MAX_YAML_BYTES = 4 * 2**20
 MAX_YAML_DEPTH = 64
 """Deepest nesting of lists and mappings accepted."""
 
-MAX_YAML_NODES = 100_000
-"""Most values a document may hold once its aliases are expanded."""
+MAX_YAML_NODES = 20_000
+"""Most values a document may hold once its aliases are expanded (the largest shipped config holds
+about 400; a huge list is refused as it is read, in well under a second)."""
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -49,13 +50,20 @@ class _StrictLoader(yaml.SafeLoader):
         super().__init__(stream)
         self.where = where
         self.depth = 0
+        self.nodes = 0
 
     def compose_node(self, parent, index):
         self.depth += 1
+        self.nodes += 1
         try:
             if self.depth > MAX_YAML_DEPTH:
                 raise ConfigError(f"{self.where}: nested more than {MAX_YAML_DEPTH} levels deep "
                                   f"(line {self.peek_event().start_mark.line + 1})")
+            # counted as the file is read, so a huge list is refused at once, not after building it
+            if self.nodes > MAX_YAML_NODES:
+                raise ConfigError(f"{self.where}: holds more than {MAX_YAML_NODES:,} values (at line "
+                                  f"{self.peek_event().start_mark.line + 1}); a config holds a few hundred: is a long "
+                                  "list pasted where a few numbers belong?")
             return super().compose_node(parent, index)
         finally:
             self.depth -= 1

@@ -188,6 +188,15 @@ def test_an_alias_bomb_is_refused_at_once():
     assert time.perf_counter() - t0 < 1.0  # 9^9 = 387 M values if expanded; the check walks 82 nodes
 
 
+def test_a_huge_plain_list_is_refused_as_it_is_read_and_not_called_an_alias_bomb():
+    text = "noise: {range_m: 30.0}\nrange_m: [" + ",".join(["1"] * (5 * MAX_YAML_NODES)) + "]\n"
+    with pytest.raises(ConfigError) as err:
+        parse_yaml_value(text, "long.yaml")
+    assert str(err.value) == (f"long.yaml: holds more than {MAX_YAML_NODES:,} values (at line 2); a config holds a few "
+                              "hundred: is a long list pasted where a few numbers belong?")
+    parse_yaml_value("[" + ",".join(["1"] * (MAX_YAML_NODES - 1)) + "]", "fits.yaml")  # the list node + its values
+
+
 def test_aliases_within_the_budget_still_work():
     text = "base: &b {lr: 1.0e-3, epochs: 5}\nrun: {<<: *b, epochs: 7}\ncopy: *b\n"
     assert parse_yaml_value(text) == {"base": {"lr": 1e-3, "epochs": 5}, "run": {"lr": 1e-3, "epochs": 7},

@@ -1088,6 +1088,10 @@ case("evaluate/device-unknown", f"{EV} --out out --device banana", outputs=("out
 case("evaluate/device-cuda-without-gpu", f"{EV} --out out --device cuda", message="cuda", klass="traceback")
 case("evaluate/scenario-alias-bomb", "evaluate s.yaml --out out",
      setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", f"seed: {BOMB}"), message="alias", klass="hang")
+case("evaluate/scenario-million-element-list", "evaluate s.yaml --out out",
+     setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", "seed: [" + ",".join(["3"] * 1_000_000) + "]"),
+     message="holds more than 20,000 values", klass="hang",
+     note="no alias in it: refused as it is read (0.6 s here), not called an alias bomb after 30 s")
 case("evaluate/scenario-deep-nesting", "evaluate s.yaml --out out",
      setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", f"seed: {DEEP}"), message="s.yaml", klass="traceback")
 case("evaluate/scenario-50mb", "evaluate s.yaml --out out", setup=big_yaml("s.yaml", SCENARIO_YAML, 50, key="description"),
