@@ -87,10 +87,21 @@ def check_disk_space(recipe: TrackRecipe, out: Path) -> None:
     anc = Path(os.path.abspath(out)).parent
     while not anc.exists():
         anc = anc.parent
-    free = shutil.disk_usage(anc).free
-    if need > free:
-        raise DatasetError(f"{recipe.tracks:,} tracks x {recipe.motion.steps} steps need {need / 1e9:,.1f} GB; "
-                           f"{anc} has {free / 1e9:,.1f} GB free (ask for fewer --tracks)")
+    usage = shutil.disk_usage(anc)
+    if usage.total == 0:  # /proc, /sys: no disk behind them, nothing can be stored there
+        raise DatasetError(f"--out {out}: {anc} is a virtual file system with no disk behind it (like /proc or /sys); "
+                           "give a folder on a disk")
+    if need > usage.free:
+        raise DatasetError(f"{recipe.tracks:,} tracks x {recipe.motion.steps} steps need {_size(need)}; "
+                           f"{anc} has {_size(usage.free)} free (ask for fewer --tracks)")
+
+
+def _size(n: int) -> str:
+    """Bytes as a short human figure: 1.2 kB, 3.4 MB, 5.6 GB."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:,.1f} {unit}"
+    return f"{n} bytes"
 
 
 def assign_splits(recipe: TrackRecipe) -> np.ndarray:

@@ -107,7 +107,7 @@ def remove(rel: str) -> Callable[[Path], None]:
 def symlink(rel: str, target: str) -> Callable[[Path], None]:
     """A symbolic link ``rel`` -> ``target`` (target as written: relative to the link's folder, or
     one of the fixed absolute system paths below)."""
-    assert not target.startswith("/") or target in ("/sys", "/dev/full"), target
+    assert not target.startswith("/") or target in ("/sys", "/proc", "/dev/full"), target
     return lambda root: os.symlink(target, root / rel)
 
 
@@ -545,6 +545,9 @@ case("simulate/out-dataset-overwrite-ok", f"{SIM} --out ds --overwrite", "ok", o
      verify=v_manifest("ds", "recipe.tracks", 12), klass="data_loss", note="replacing our own dataset is the documented use")
 case("simulate/out-unwritable-sysfs", f"{SIM} --out locked/pmsr-census-new", setup=LOCK, message="locked",
      klass="traceback", note="locked -> /sys: no one may create files there, root included")
+case("simulate/out-in-proc", f"{SIM} --out proc/pmsr-census-new", setup=symlink("proc", "/proc"),
+     message="virtual file system with no disk behind it",
+     klass="silent_wrong", note="was: '0.0 GB needed, 0.0 GB free (ask for fewer --tracks)'")
 case("simulate/out-readonly-dir", f"{SIM} --out ro/new", setup=RO, outputs=("ro/new",), message="ro",
      root_expect="ok", klass="traceback")
 case("simulate/recipe-missing", "simulate nope.yaml --out new", message="nope.yaml", klass="refusal")
