@@ -384,6 +384,14 @@ def cmd_track(args) -> int:
     kind = "smoother (looks ahead)" if tracker.looks_ahead else "causal filter"
     print(f"tracked   {len(seqs.z)} sequence(s), {steps} scans with {tracker.meta['model']['kind']} ({kind}) in "
           f"{seconds:.2f} s -> {args.out}")
+    import torch
+
+    bad = sum(int((~torch.isfinite(e).all(-1)).sum()) for e in estimates)
+    if bad:  # e.g. --force past the plausibility checks on values far outside the training span
+        rows = [(seqs.track[i], int(seqs.rows[i][int(k)]) + 1) for i, e in enumerate(estimates)
+                for k in torch.nonzero(~torch.isfinite(e).all(-1)).flatten()[:1]]
+        print(f"warning   {bad} of {steps} estimates are not finite (NaN or inf), first at track {rows[0][0]!r} row "
+              f"{rows[0][1]}: the input is outside what the network can track", file=sys.stderr)
     return 0
 
 

@@ -1,6 +1,7 @@
 """The pmsr command: every bad input is a one-line error, a non-zero exit, and nothing written."""
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -177,3 +178,30 @@ def test_console_script_help_and_error_without_traceback(tmp_path):
     assert "Traceback" not in failed.stderr and failed.stderr.strip().count("\n") == 0
 
 
+
+
+def test_track_force_past_the_checks_warns_how_many_estimates_are_not_finite(tmp_path, capsys, make_tracks):
+    import csv
+
+    from pmsr_nn.data.sequences import write_csv_measurements
+    from pmsr_nn.nets.inference import Tracker
+
+    ckpt = ROOT / "models" / "released" / "mdfnn.pt"
+    tracker = Tracker.load(ckpt)
+    _, _, batch = make_tracks(120, 1, 5)
+    z = batch.measurements.double().clone()
+    z[0, 60:, :3] = 1e300  # every bistatic range far beyond the training span from row 61 on
+    csv_in = tmp_path / "z.csv"
+    write_csv_measurements(csv_in, z, tracker.measurement_columns)
+    argv = ["track", "--checkpoint", str(ckpt), "--input", str(csv_in)]
+    assert main([*argv, "--out", str(tmp_path / "refused.csv")]) == 2  # the plausibility check
+    assert "--force" in capsys.readouterr().err and not (tmp_path / "refused.csv").exists()
+    assert main([*argv, "--out", str(tmp_path / "est.csv"), "--force"]) == 0
+    err = capsys.readouterr().err.strip()
+    with open(tmp_path / "est.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    cols = [c for c in rows[0] if c not in ("track", "time_s", "row")]
+    bad = [i for i, r in enumerate(rows) if not all(math.isfinite(float(r[c])) for c in cols)]
+    assert len(rows) == 120 and bad, "the forced values should break the estimates"
+    assert err == (f"warning   {len(bad)} of 120 estimates are not finite (NaN or inf), first at track "
+                   f"{rows[bad[0]]['track']!r} row {bad[0] + 1}: the input is outside what the network can track")
