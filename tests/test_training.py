@@ -398,3 +398,19 @@ def test_train_verbose_restores_lightnings_console(tmp_path, capsys):
     assert main(["train", str(cfg), "--out", str(tmp_path / "run"), "--verbose"]) == 0
     out = capsys.readouterr()
     assert "Epoch 0" in out.out + out.err and not any(line.startswith("epoch ") for line in out.out.splitlines())
+
+
+@pytest.mark.parametrize("hidden, message", [
+    ([10] * 1_000, "model.hidden lists 1,000 layers; at most 64 are accepted"),
+    ([16_384] * 3, "model.hidden: 536,870,912 weights between the hidden layers; at most 100,000,000 are accepted"),
+])
+def test_a_network_too_big_to_build_is_refused_before_it_is_built(tmp_path, capsys, hidden, message):
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump({"kind": "mdfnn", "hidden": hidden}))
+    cfg = yaml.safe_load((Path(__file__).resolve().parents[1] / "train" / "smoke.yaml").read_text())
+    cfg["model"] = "m.yaml"
+    (tmp_path / "t.yaml").write_text(yaml.safe_dump(cfg))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["train", str(tmp_path / "t.yaml"), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and message in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -13,6 +13,13 @@ Activation = Literal["tanh", "sigmoid", "relu", "gelu", "identity"]
 MAX_WIDTH = 16_384
 """Widest layer accepted (a 16k x 16k layer already holds 268 M weights, 1 GB)."""
 
+MAX_HIDDEN_LAYERS = 64
+"""Most hidden layers accepted (the papers' networks have 3; 20,000 took 850 MB and a minute
+before anything was said)."""
+
+MAX_HIDDEN_WEIGHTS = 100_000_000
+"""Most weights between consecutive hidden layers (400 MB in float32; Table 2's network has 0.2 M)."""
+
 
 @dataclass(frozen=True)
 class ModelConfig:
@@ -65,6 +72,11 @@ class ModelConfig:
     def __post_init__(self) -> None:
         require(len(self.hidden) >= 1 and all(1 <= h <= MAX_WIDTH for h in self.hidden),
                 f"model.hidden must list at least one layer width in [1, {MAX_WIDTH}], got {list(self.hidden)[:8]}")
+        require(len(self.hidden) <= MAX_HIDDEN_LAYERS,
+                f"model.hidden lists {len(self.hidden):,} layers; at most {MAX_HIDDEN_LAYERS} are accepted")
+        weights = sum(a * b for a, b in zip(self.hidden[:-1], self.hidden[1:]))
+        require(weights <= MAX_HIDDEN_WEIGHTS, f"model.hidden: {weights:,} weights between the hidden layers; at most "
+                                               f"{MAX_HIDDEN_WEIGHTS:,} are accepted (narrower or fewer layers)")
         require(1 <= self.filter_order <= 10_000, f"model.filter_order must be in [1, 10000], got {self.filter_order}")
         require(self.kind != "mdfnn" or len(self.hidden) >= 2,
                 "model.hidden: an MDFNN needs at least two hidden layers (a filter layer sits between two)")
