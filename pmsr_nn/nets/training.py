@@ -243,8 +243,10 @@ def _check_run_folder(out: Path, resume: bool, inputs=()) -> None:
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise ConfigError(f"--out {out} exists and is not a folder; give a new run folder")
     if out.exists() and any(out.iterdir()):
-        hint = "; pass --resume to continue it" if (out / "config.yaml").is_file() else ""
-        raise ConfigError(f"run folder {out} exists and is not empty{hint}, or choose another --out")
+        if output_kind(out) == "train" or (out / "config.yaml").is_file():
+            raise ConfigError(f"--out {out} holds a training run: pass --resume to continue it, or choose another --out")
+        raise ConfigError(f"--out {out} exists and holds files that are not a training run; pmsr never writes into "
+                          "them: choose a new or empty folder")
 
 
 def _check_accelerator(tc: "TrainerConfig") -> None:

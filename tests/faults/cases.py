@@ -698,7 +698,7 @@ case("info/plot-disk-full", "info ds --plot full.png", setup=symlink("full.png",
 # ---------------------------------------------------------------------------------------------
 TR = "train train.yaml"
 
-case("train/out-user", f"{TR} --out user", message="user", klass="data_loss")
+case("train/out-user", f"{TR} --out user", message="holds files that are not a training run", klass="data_loss")
 case("train/out-user-file", f"{TR} --out user/notes.txt", message="notes.txt", klass="traceback")
 case("train/out-inside-file", f"{TR} --out z.csv/run", message="z.csv", klass="traceback")
 case("train/out-cwd", f"{TR} --out .", message="out", klass="data_loss")
