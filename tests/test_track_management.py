@@ -296,3 +296,16 @@ def test_every_refusal_of_one_file_comes_in_one_message(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "method 'S': confirmation needs" in err[0] and "method 'P': a deleter needs" in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("true_assignment", "method 'T': kind true_assignment starts every track at scan 0; case 'c' has targets born later"),
+    ("true_assignment_smoother", "method 'T': kind true_assignment_smoother keeps every track from scan 0 to the end; "
+                                 "case 'c' has targets born later or dying earlier"),
+])
+def test_the_true_assignment_references_refuse_births_in_one_line(tmp_path, capsys, kind, message):
+    path = scenario(tmp_path, methods=[{"name": "T", "kind": kind}])
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip() == f"pmsr: error: {message}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
