@@ -241,7 +241,11 @@ def demo_summary(res: dict, out: Path) -> list[str]:
                      f"{r['seconds_per_run']:.2f} |")
     if case.get("pcrb"):
         lines.append(f"| PCRB (filtering) | | | {case['pcrb']['pos_m']:.1f} | | | | | |")
-    lines += ["", f"reports   {out / 'evaluation' / 'report.md'}  (figures beside it)",
+    below = [m for m, r in case["methods"].items() if r.get("below_bound")]
+    lines.append("")
+    if below:  # the report's flag, said here too (only beyond the Monte Carlo error)
+        lines.append(f"note      below the bound beyond Monte Carlo error: {', '.join(below)} (the report says why)")
+    lines += [f"reports   {out / 'evaluation' / 'report.md'}  (figures beside it)",
               f"          {out / 'shared_drones' / 'report.md'}",
               f"time      {res['demo']['total_seconds'] / 60:.1f} min in all",
               "next      pmsr evaluate evaluate/fitee2023_three_trajectories.yaml --out runs/eval  (the full study)"]

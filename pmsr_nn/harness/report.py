@@ -490,15 +490,21 @@ def _flags(res: dict) -> list[str]:
         floor = [(c, m) for c, m in flagged if res["cases"][c]["methods"][m]["below_q0_bound"]]
         anees = [res["cases"][c]["methods"][m]["anees"] for c, m in flagged]
         known = [a for a in anees if a is not None]
-        lines += ["**Below the bound (bold):** " + ", ".join(f"{m} on {c}" for c, m in flagged) + ". "
+        def ratio(c, m, key="mse_over_bound"):
+            r = res["cases"][c]["methods"][m]
+            return f" (MSE / bound^2 {r[key]:.3f} +- {r[key + '_se']:.3f})" if key in r else ""
+        lines += ["**Below the bound (bold; beyond the Monte Carlo error: the one-sided 97.5 % Student-t bound "
+                  "of the per-run mean squared error over the bound's mean square is under 1):** "
+                  + ", ".join(f"{m} on {c}{ratio(c, m)}" for c, m in flagged) + ". "
                   "The per-trajectory PCRB assumes, like the filters, the process noise q of the motion model; "
                   "the designed trajectories have no such process noise, so a filter's error on them "
                   "lacks the part the bound reserves for it"
                   + (f" (the flagged methods' ANEES of {_span(known)} says the same: their errors are "
                      "smaller than their own covariances)" if known else "") +
                   ". The floor for these flights is the bound with q = 0 (last row); "
-                  + ("**" + ", ".join(f"{m} on {c}" for c, m in floor) + " is below even that floor: a bug or a "
-                     "mismatch to investigate.**" if floor else "no method is below it."), ""]
+                  + ("**" + ", ".join(f"{m} on {c}{ratio(c, m, 'mse_over_q0_bound')}" for c, m in floor)
+                     + " is below even that floor, beyond its Monte Carlo error: a bug or a mismatch to investigate.**"
+                     if floor else "no method is below it beyond its Monte Carlo error."), ""]
     diverged = [f"{m} {r['diverged_runs']}/{r['runs']} on {c}" for c, v in res["cases"].items()
                 for m, r in v["methods"].items() if r.get("diverged_runs")]
     if diverged:
