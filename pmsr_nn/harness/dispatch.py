@@ -18,8 +18,8 @@ import os
 import shutil
 from pathlib import Path
 
-from ..errors import ConfigError
-from ..outputs import check_folder_target
+from ..errors import ConfigError, OutputError
+from ..outputs import PARTIAL_MARKER, check_folder_target, make_parents, remove_if_empty
 
 EXECUTORS = ("local", "slurm")
 
@@ -68,8 +68,14 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
         raise ConfigError(f"--timeout-min must be a positive number of minutes, got {timeout_min}")
     check_folder_target(out, overwrite=overwrite, inputs=_inputs(scenario, sc), allow=RESULT_COMMANDS)
     prepare(sc, device)  # a method that can not run is refused here, before any job is submitted
+    made = make_parents(out)
     work = out.parent / f".{out.name}.shards-{os.getpid()}"
-    work.mkdir(parents=True)
+    try:
+        work.mkdir()  # fails if the name is taken: then nothing below may remove it
+    except OSError as exc:
+        remove_if_empty(made)
+        raise OutputError(f"--out {out}: cannot create the staging folder {work} ({exc.strerror})") from None
+    (work / PARTIAL_MARKER).touch()  # proves the folder is ours when it is removed
     try:
         engine = submitit.AutoExecutor(folder=work / "logs", cluster=executor)
         params = {"timeout_min": timeout_min, "name": f"pmsr-{sc.name}"}
@@ -93,4 +99,6 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
                 raise ConfigError(f"shard {i}/{shards} (job {job.job_id}) failed: {last[:300]}") from None
         return merge([Path(f) for f in folders], out, device=device, overwrite=overwrite)
     finally:
-        shutil.rmtree(work, ignore_errors=True)  # only the staging folder this call created
+        if (work / PARTIAL_MARKER).is_file():  # only the staging folder this call created
+            shutil.rmtree(work, ignore_errors=True)
+        remove_if_empty(made)  # parents made for the output, when the merge left nothing in them
