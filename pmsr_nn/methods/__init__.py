@@ -62,6 +62,11 @@ class MethodCall:
     seed: tuple[int, ...] = ()
 
 
+MIN_CLUTTER_PER_SCAN = 1e-3
+"""A tracker's clutter rate per pair and scan where none is simulated: PMHT and the PHD need a
+positive clutter density (as the JPDA's density floor)."""
+
+
 @dataclass(frozen=True)
 class Option:
     """An option: ``default``, ``kind`` (int or float), inclusive range; ``nullable``: null means

@@ -29,10 +29,7 @@ from ..trackers.base import Estimates
 from ..trackers.gtda import GameSpec
 from ..trackers.labelling import LabelSpec, label_tracks
 from ..trackers.phd_cartesian import CartesianPHD, CartesianPHDSpec, check_model
-from . import MethodCall, MethodKind, Option, method_stream, register
-
-MIN_CLUTTER_PER_SCAN = 1e-3
-"""A PHD needs a positive clutter intensity even where none is simulated (as the PMHT's floor)."""
+from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, method_stream, register
 
 
 def clutter_intensity(sensing) -> float:

@@ -32,11 +32,8 @@ from ..filters.smoothing import rts_backward
 from ..trackers.base import Estimates
 from ..trackers.msjpda import true_assignment_ukf
 from ..trackers.pmht import AssociationLists, PMHTSettings, managed_pmht, pmht
-from . import MethodCall, MethodKind, Option, register
+from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, register
 from .msjpda import MANAGEMENT_OPTIONS, check_initiation, management
-
-MIN_CLUTTER_PER_SCAN = 1e-3
-"""A tracker needs a positive clutter rate even where none is simulated (as the JPDA's density floor)."""
 
 
 def settings(call: MethodCall) -> PMHTSettings:
