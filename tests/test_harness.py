@@ -158,7 +158,8 @@ def test_merge_refuses_incomplete_or_mixed_shards(tmp_path):
 @pytest.mark.parametrize("change, extra, message", [
     ({"methods": [{"name": "X", "kind": "kalman9000"}]}, [], "unknown method kind"),
     ({"methods": [{"name": "X", "kind": "ukff"}]}, [], "unknown method kind 'ukff' (did you mean ukf?)"),
-    ({"methods": [{"name": "X", "kind": "modified-ICMB"}]}, [], "'kind: tbd' at the top of the file"),
+    ({"methods": [{"name": "X", "kind": "modified-ICMB"}]}, [], "unknown method kind 'modified-ICMB' (did you mean "
+                                                                 "modified_icmb"),
     ({"methods": [{"name": "M", "kind": "learned", "checkpoint": "nowhere.pt"}]}, [], "nowhere.pt"),
     ({"cases": [{"name": "e", "start_range_m": 5000.0, "start_bearing_deg": 90.0, "speed_mps": 1.0,
                  "heading_deg": 0.0, "segments": []}]}, [], "trajectory is empty"),

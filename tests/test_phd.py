@@ -1,4 +1,5 @@
-"""SMC-PHD filter, GTDA and Hungarian labelling, aircraft flights and the ``kind: phd`` study.
+"""SMC-PHD filter, GTDA and Hungarian labelling, aircraft flights, and the kinds smc_phd_pair and
+known_association_kf_pair on the runner (scored in one pair's bistatic plane).
 
 References: a direct evaluation of the PHD update equation (loops over particles and
 detections), the Kalman filter (exact for the linear-Gaussian single-target case), brute-force
@@ -223,13 +224,27 @@ def test_an_aircraft_flies_its_legs_climbs_and_is_sampled_as_cv_states():
 
 
 TINY = """\
-kind: phd
+kind: multitarget
 name: phd_tiny
 mc_runs: 2
-block_runs: 2
-duration_s: 40
-phd: {particles_per_target: 200, particles_per_birth: 50}
-methods: [{name: g, labelling: gtda}, {name: h, labelling: hungarian}]
+block_runs: 1
+scans: 40
+dimensions: 3
+motion: {dt_s: 1.0}
+converged_from_scan: 0
+geometry:
+  transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 106.0e6}]
+  receivers: [{position_m: [0.0, 0.0]}]
+noise: {range_m: 30.0, range_rate_mps: 4.5}
+pd: 0.9
+clutter: {per_scan: 10, model: poisson, range_m: [6500.0, 48000.0], range_rate_mps: [-500.0, 500.0]}
+max_range_m: 48000.0
+set_metrics: {c_m: 1000.0, p: 2.0}
+methods:
+  - {name: phd, kind: smc_phd_pair, options: &phd {particles_per_target: 200, particles_per_birth: 50, labelling: none}}
+  - {name: kf, kind: known_association_kf_pair}
+  - {name: g, kind: smc_phd_pair, options: {<<: *phd, labelling: gtda}}
+  - {name: h, kind: smc_phd_pair, options: {<<: *phd, labelling: hungarian}}
 cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]
 aircraft:
   - {name: over, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0, legs: [{duration_s: 40}]}
@@ -238,85 +253,226 @@ aircraft:
 """
 
 
-def test_the_study_writes_results_report_and_figures(tmp_path):
+def tiny_setup(tmp_path, text: str = TINY):
+    from pmsr_nn.harness.evaluate import load_any
+    from pmsr_nn.harness.runner import prepare
+
+    (tmp_path / "s.yaml").write_text(text)
+    return prepare(load_any(tmp_path / "s.yaml"))
+
+
+def test_the_kinds_run_through_the_runner_and_the_report_has_the_studys_figures(tmp_path):
     from pmsr_nn.cli import main
 
     (tmp_path / "s.yaml").write_text(TINY)
     assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     res = json.loads((tmp_path / "out" / "results.json").read_text())
-    assert res["kind"] == "phd" and set(res["cases"]) == {"base", "noisy", "pd1"}
-    rows = res["cases"]["pd1"]["methods"]
-    assert set(rows) == {"smcphd", "known_association_kf", "g", "h"} and rows["g"]["kind"] == "SMC-PHD + GTDA"
-    known = rows["known_association_kf"]  # association and births known, Pd 1: a track on every aircraft, always
-    assert known["mean_abs_cardinality_error"] == 0.0 and known["rms_range_m"] < 30.0  # below one detection's error
-    true = np.asarray(res["cases"]["base"]["true_cardinality"])
+    assert set(res["cases"]) == {"base", "noisy", "pd1"}
+    case = res["cases"]["pd1"]
+    rows = case["methods"]
+    assert set(rows) == {"phd", "kf", "g", "h"} and rows["g"]["kind"] == "smc_phd_pair"
+    assert all(r["space_key"] == "pair 0" and r["position"] == "bistatic range (m)" for r in rows.values())
+    assert rows["kf"]["initiation"] == "association known" and rows["g"]["initiation"] == "detections"
+    known = rows["kf"]  # association and births known, Pd 1: a track on every aircraft, always
+    assert known["cardinality_mean_abs_error"] == 0.0 and known["rmse_pos_pooled_m"] < 30.0  # below one detection's error
+    true = np.asarray(case["curves"]["cardinality_truth"])
     assert true[0] == 1 and true[-1] == 2  # the second aircraft is born at 10 s
-    assert len(rows["g"]["label_switches_per_target"]) == 2
-    assert 0 < rows["smcphd"]["rms_range_m"] < 100  # 30 m detections, a well-seen pair of aircraft
+    assert case["targets"] == ["over", "turn"] and len(rows["g"]["label_switches_per_target"]) == 2
+    assert 0 < rows["phd"]["rmse_pos_pooled_m"] < 100  # 30 m detections, a well-seen pair of aircraft
+    assert 0 < rows["phd"]["rmse_vel_pooled_mps"] < 20  # 4.5 m/s detections
+    # the PHD's own estimates have no identity: no label-following figures
+    assert rows["phd"]["labelled"] is False and rows["phd"]["label_switches_per_run"] is None
+    assert rows["g"]["labels_per_run"] >= 2 and "labels_per_run" not in rows["kf"]
+    # one PHD run per block shared by the three PHD rows: the same integral, its seconds counted in each
+    expected = case["curves"]["set"]["phd"]["phd_expected"]
+    assert case["curves"]["set"]["g"]["phd_expected"] == expected == case["curves"]["set"]["h"]["phd_expected"]
+    assert rows["g"]["phd_seconds_per_run"] == rows["phd"]["phd_seconds_per_run"] > 0
+    assert rows["g"]["seconds_per_run"] >= rows["g"]["phd_seconds_per_run"]
     report = (tmp_path / "out" / "report.md").read_text()
-    for f in ("base_smcphd_rr.png", "base_g_time.png", "base_cardinality.png", "noisy_ospa.png", "sweep_clutter.png"):
+    assert "Rows scored in a bistatic plane" in report and "g [pair 0: range, range-rate]" in report
+    for f in ("base_phd_rr.png", "base_g_time.png", "base_cardinality.png", "noisy_ospa.png", "sweep_clutter.png",
+              "sweep_pd.png"):
         assert (tmp_path / "out" / f).is_file() and f in report
 
 
-def test_the_study_refuses_a_shard_and_unknown_options(tmp_path):
-    from pmsr_nn.harness.evaluate import evaluate
+def test_the_truth_in_the_bistatic_plane_is_the_measurement_models_h_and_the_bistatic_geometry(tmp_path):
+    from pmsr_nn.harness.runner import draw_block, method_space, truth_in
 
-    (tmp_path / "s.yaml").write_text(TINY)
-    with pytest.raises(ConfigError, match="unsharded"):
-        evaluate(tmp_path / "s.yaml", tmp_path / "out", shard=(1, 2), progress=False)
-    (tmp_path / "t.yaml").write_text(TINY.replace("labelling: gtda}", "labelling: gtda, options: {colour: 1}}"))
-    with pytest.raises(ConfigError, match="unknown option"):
-        evaluate(tmp_path / "t.yaml", tmp_path / "out", progress=False)
+    setup = tiny_setup(tmp_path)
+    case = setup.cases[0]
+    truth, _ = draw_block(setup, 0, 0)
+    spec = next(m for m in setup.methods if m.name == "g")
+    z = truth_in(method_space(setup, spec, case), truth, {}).x  # (B, K, N, 2)
+    alive = case.alive
+    x = truth.x[:, alive]  # (B, L, 6): the living (scan, target) entries
+    h = case.sensing.detection_model.h(x)  # the detections' model: [r, rdot] of the one pair
+    assert torch.equal(z[:, alive], h)
+    assert bool(z[:, ~alive].isnan().all())
+    # and from the geometry: r = |p - tx| + |p - rx|, rdot = v . (unit from tx + unit from rx)
+    p, v = x[..., [0, 2, 4]], x[..., [1, 3, 5]]
+    tx = torch.tensor([6500.0, 0.0, 0.0], dtype=torch.float64)
+    u_tx, u_rx = p - tx, p
+    r = u_tx.norm(dim=-1) + u_rx.norm(dim=-1)
+    rdot = (v * (u_tx / u_tx.norm(dim=-1, keepdim=True) + u_rx / u_rx.norm(dim=-1, keepdim=True))).sum(-1)
+    assert torch.allclose(z[:, alive][..., 0], r, rtol=1e-12, atol=1e-9)  # 10 km ranges: a few ulps of 1e4
+    assert torch.allclose(z[:, alive][..., 1], rdot, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("d", [0.0, 37.5, 400.0, 1.0e5])
+def test_an_estimate_offset_by_d_in_range_scores_d_below_the_cut_off_and_c_above(tmp_path, d):
+    """Estimates at the projected truth, every range moved by ``d``: OSPA = min(d, c) at every scan
+    with a target (each of the n targets costs min(d, c)^p, over n), 0 where none lives; GOSPA^p =
+    n min(d, c)^p; the range RMSE over matched pairs is d and the range-rate one 0 while d < c.
+    Below c/2 a shift keeps every estimate its own target's (in one dimension the order-preserving
+    matching is optimal for |x|^p, and no pair reaches the cut-off); 100 km is beyond every range
+    difference of the scene, so no estimate is within c of any target."""
+    from pmsr_nn.harness.runner import draw_block, method_space, score, truth_in
+    from pmsr_nn.trackers.base import Estimates
+
+    setup = tiny_setup(tmp_path)
+    case = setup.cases[0]
+    truth, _ = draw_block(setup, 0, 0)
+    spec = next(m for m in setup.methods if m.name == "g")
+    space = method_space(setup, spec, case)
+    t = truth_in(space, truth, {})
+    x = t.x.clone()
+    x[..., 0] += d
+    exists = case.alive.expand(x.shape[:3]).clone()
+    est = Estimates(torch.where(exists[..., None], x, float("nan")), exists, paired=False)
+    s = score(setup, case, est, t, space)
+    B = x.shape[0]
+    c, p = setup.set_metric
+    some = case.alive.any(1).numpy()
+    want = np.where(some, min(d, c), 0.0)
+    np.testing.assert_allclose(s["ospa"] / B, want, rtol=1e-12, atol=1e-9)
+    n = case.alive.sum(1).numpy()
+    gospa = (s["gospa_loc"] + s["gospa_missed"] + s["gospa_false"]) / B
+    # GOSPA^p: n pairs at d^p below the cut-off; beyond it n missed + n false at c^p / 2 each
+    np.testing.assert_allclose(gospa, n * min(d, c) ** p, rtol=1e-12, atol=1e-6)
+    if d < c:
+        matched = s["count"].sum()
+        assert matched == B * int(case.alive.sum())
+        assert abs(np.sqrt(s["pos"].sum() / matched) - d) <= 1e-9 * max(d, 1.0)
+        assert s["vel"].sum() == 0.0
+    else:
+        assert s["count"].sum() == 0
+
+
+def test_shards_of_a_phd_scenario_merge_to_the_unsharded_results(tmp_path):
+    from pmsr_nn.harness.evaluate import evaluate, merge
+
+    text = TINY.replace("cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
+                        "cases: [{name: base}]").replace("scans: 40", "scans: 25")
+    (tmp_path / "s.yaml").write_text(text)
+    full = evaluate(tmp_path / "s.yaml", tmp_path / "full", progress=False)
+    evaluate(tmp_path / "s.yaml", tmp_path / "a", shard=(1, 2), progress=False)
+    evaluate(tmp_path / "s.yaml", tmp_path / "b", shard=(2, 2), progress=False)
+    merged = merge([tmp_path / "b", tmp_path / "a"], tmp_path / "m")
+
+    def figures(res):  # timings differ between runs; every other figure must not (NaN where no target lives)
+        rows = res["cases"]["base"]["methods"]
+        drop = ("seconds_per_run", "phd_seconds_per_run")
+        return json.dumps([{m: {k: v for k, v in r.items() if k not in drop} for m, r in rows.items()},
+                           res["cases"]["base"]["curves"]], sort_keys=True)
+
+    assert figures(merged) == figures(full)
+    assert full["cases"]["base"]["methods"]["g"]["labels_per_run"] > 0  # the comparison ran on real tracks
+
+
+def test_the_phd_runs_once_per_block_and_the_cache_changes_no_number(tmp_path):
+    from pmsr_nn.harness.runner import call_method, draw_block
+    from pmsr_nn.methods import phd_pair
+
+    setup = tiny_setup(tmp_path)
+    case = setup.cases[0]
+    _, products = draw_block(setup, 0, 0)
+    g, h = (next(m for m in setup.methods if m.name == n) for n in ("g", "h"))
+    phd_pair._CACHE.clear()
+    first = call_method(setup, g, case, products, (7, 0, 0))
+    again = call_method(setup, h, case, products, (7, 0, 0))  # reads the PHD run of the call above
+    assert first.extras["shared_seconds"] == 0.0 and again.extras["shared_seconds"] == first.extras["phd_seconds"] > 0
+    assert again.extras["phd_expected"] is first.extras["phd_expected"]
+    phd_pair._CACHE.clear()
+    fresh = call_method(setup, h, case, products, (7, 0, 0))  # the PHD run anew
+    assert fresh.extras["shared_seconds"] == 0.0
+    assert torch.equal(fresh.extras["phd_expected"], again.extras["phd_expected"])
+    assert torch.equal(fresh.exists, again.exists) and torch.equal(torch.nan_to_num(fresh.x), torch.nan_to_num(again.x))
+    other = call_method(setup, h, case, products, (7, 0, 1))  # another block's seed words: another run
+    assert other.extras["shared_seconds"] == 0.0
+
+
+REFUSALS = [
+    ("pair out of range", lambda t: t.replace("{name: kf, kind: known_association_kf_pair}",
+                                              "{name: kf, kind: known_association_kf_pair, options: {pair: 3}}"),
+     "method 'kf' (kind known_association_kf_pair): pair 3 is out of range: the detections have 1 transmitter-receiver "
+     "pair(s), 0..0; set option pair to one of them"),
+    ("pooled detections", lambda t: t.replace("max_range_m: 48000.0", "max_range_m: 48000.0\nilluminator_known: false"),
+     "method 'phd' (kind smc_phd_pair) reads one pair's detection list; here the detections are pooled per receiver"),
+    ("unknown labelling", lambda t: t.replace("labelling: hungarian}", "labelling: jpda}"),
+     "method 'h': option labelling must be one of gtda, hungarian, none"),
+    ("a study file", lambda t: "kind: phd\n" + t.split("\n", 1)[1], "'kind: phd' study files are gone"),
+]
+
+
+@pytest.mark.parametrize("what, edit, message", REFUSALS, ids=[r[0] for r in REFUSALS])
+def test_refusals_name_the_method_and_the_fix_and_write_nothing(tmp_path, capsys, what, edit, message):
+    from pmsr_nn.cli import main
+
+    (tmp_path / "s.yaml").write_text(edit(TINY))
+    assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pmsr: error: ") and "\n" not in err and message in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.yaml"]
+
+
+DESIGNED = """\
+name: designed
+mc_runs: 1
+block_runs: 1
+warmup_steps: 2
+detections: {pd: 0.9, components: [range, azimuth], clutter: {per_scan: 1, model: poisson}}
+methods: [{name: p, kind: smc_phd_pair, options: {particles_per_target: 50, particles_per_birth: 20}}]
+cases:
+  - {name: a, start_range_m: 5000.0, start_bearing_deg: 90.0, speed_mps: 10.0, heading_deg: 0.0,
+     segments: [{duration_s: 20}]}
+"""
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t, "method 'p' (kind smc_phd_pair) tracks one pair's bistatic range and range-rate; the detections "
+                  "measure ['range', 'azimuth']: give detections of range and range_rate"),
+    (lambda t: "\n".join(line for line in t.splitlines() if not line.startswith("detections:")),
+     "method 'p' (kind smc_phd_pair) reads detections, which this scenario does not make: add a detections section"),
+], ids=["without range-rate", "without detections"])
+def test_a_designed_scenario_without_the_detections_the_kind_reads_is_refused(tmp_path, capsys, edit, message):
+    from pmsr_nn.cli import main
+
+    (tmp_path / "d.yaml").write_text(edit(DESIGNED))
+    assert main(["evaluate", str(tmp_path / "d.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pmsr: error: ") and "\n" not in err and message in err, err
     assert not (tmp_path / "out").exists()
 
 
-def test_detections_csv_is_read_and_bad_rows_are_refused_with_their_line(tmp_path):
-    from pmsr_nn.harness.phd_study import read_detections_csv
-
-    f = tmp_path / "d.csv"
-    f.write_text("scan,range_m,range_rate_mps\n0,20000,10\n0,30000,-5.5\n2,21000,11\n")
-    z, valid = read_detections_csv(f, 4)
-    assert z.shape == (4, 2, 2) and valid.sum(1).tolist() == [2, 0, 1, 0]
-    assert z[0, 1].tolist() == [30000.0, -5.5] and bool(z[2, 1].isnan().all())
-    for text, message in (("scan,range_m,range_rate_mps\n0,20000,nan\n", "line 2: range_rate_mps is not a finite"),
-                          ("scan,range_m,range_rate_mps\n0,1,2\n9,20000,1\n", "line 3: scan 9 is outside"),
-                          ("scan,range,rate\n", "header scan,range_m,range_rate_mps"),
-                          ("scan,range_m,range_rate_mps\n0,x,1\n", "line 2: .* is not an integer scan")):
-        f.write_text(text)
-        with pytest.raises(ConfigError, match=message):
-            read_detections_csv(f, 4)
-
-
-def test_a_case_can_read_its_detections_from_a_csv_file(tmp_path):
-    from pmsr_nn.cli import main
-
-    lines = ["scan,range_m,range_rate_mps"] + [f"{k},{20000 + 50 * k},50" for k in range(40)]
-    (tmp_path / "d.csv").write_text("\n".join(lines) + "\n")
-    (tmp_path / "s.yaml").write_text(TINY.replace("cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
-                                                  "cases: [{name: rec, detections_csv: d.csv}]"))
-    assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
-    res = json.loads((tmp_path / "out" / "results.json").read_text())
-    case = res["cases"]["rec"]
-    assert case["detections"].endswith("d.csv")
-    phd = case["methods"]["smcphd"]
-    # one detection per scan on a straight line: one estimate per scan once the birth has been seen
-    assert phd["cardinality"][5:] == [1.0] * 35
-
-
 def test_a_case_can_take_its_detections_from_the_fm_front_end(tmp_path):
+    """The signal chain's Doppler, turned into range-rate by the kind, feeds the PHD."""
     from pmsr_nn.cli import main
 
-    text = TINY.replace("duration_s: 40", "duration_s: 4").replace(
-        "cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
-        "cases: [{name: sig, signals: true, noise: {range_m: 200.0, range_rate_mps: 0.3}}]\n"
-        "front_end: {signal: {sample_rate_hz: 320000.0, cpi_s: 1.0}, max_range_m: 48000.0}")
+    text = TINY.replace("scans: 40", "scans: 4").replace("mc_runs: 2\nblock_runs: 1", "mc_runs: 2\nblock_runs: 2")
+    text = text.replace("cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
+                        "cases: [{name: sig, signals: true}]\n"
+                        "front_end: {signal: {sample_rate_hz: 320000.0, cpi_s: 1.0}, max_range_m: 48000.0}")
+    text = text.replace("noise: {range_m: 30.0, range_rate_mps: 4.5}", "noise: {range_m: 200.0, range_rate_mps: 0.3}")
+    text = text.replace("  - {name: kf, kind: known_association_kf_pair}\n", "")
     text = text[: text.index("  - {name: turn")]  # one aircraft, seen from the first scan
     (tmp_path / "s.yaml").write_text(text)
     assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     case = json.loads((tmp_path / "out" / "results.json").read_text())["cases"]["sig"]
-    assert case["detections"] == "signals" and case["front_end"]["cpis"] == 2 * 4  # two runs of four scans
+    assert case["detections_from"] == "signals" and case["front_end"]["cpis"] == 2 * 4  # two runs of four scans
     assert case["front_end"]["pd_measured"] > 0.5
-    assert "FM front end" in (tmp_path / "out" / "report.md").read_text()
+    # the PHD's estimates in m/s: within a few of the truth's range-rate (~ -150 m/s), not its Doppler in Hz
+    assert case["methods"]["phd"]["rmse_vel_pooled_mps"] < 10
+    assert "front end's signal chain" in (tmp_path / "out" / "report.md").read_text()
 
 
 @pytest.mark.parametrize("method", ["gtda", "hungarian"])

@@ -1,5 +1,6 @@
 """Track-before-detect on range-Doppler maps (issue 16): the map model, the likelihood ratio, the
-ML amplitude, the multi-Bernoulli filter's stages, and the filter's behaviour on small scenes."""
+ML amplitude, the multi-Bernoulli filter's stages, and the filter's behaviour on small scenes
+(the method kinds on the runner: tests/test_tbd_kinds.py)."""
 
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ def _grid(D=40, U=60, P=1):
 def test_range_doppler_matches_direct_geometry():
     """Excess bistatic range by the cancellation-free form against float64 norms of the full
     distances, and Doppler against a finite difference of the range in time."""
-    spec = MapSpec()
+    spec = MapSpec(wavelength_m=0.19)
     tx = torch.tensor([s.position_m for s in SATS], dtype=torch.float64)
     x = torch.tensor([[140e3, -30.0, 2e3, 100.0], [139e3, -45.0, -4e3, 85.0]], dtype=torch.float64)
     rng, dop = range_doppler(x, tx, spec)
@@ -228,46 +229,6 @@ def test_detection_probability_matches_simulated_peaks():
     assert abs(float(own.double().mean()) - pd) < 4 * math.sqrt(pd * (1 - pd) / n)
     peaks = detect(maps[:50], 1.0, 1e-3, spec.lobe_cells)
     assert peaks.d.shape[:2] == (50, 1) and bool(peaks.valid.any())
-
-
-def test_pmsr_evaluate_writes_a_tbd_study(tmp_path):
-    """`pmsr evaluate` on a tiny study: results per frame for every method, Table 2 beside the
-    paper's rows, and the figures the report names."""
-    import json
-    import shutil
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    import yaml
-
-    from faults.cases import TBD_YAML
-
-    data = yaml.safe_load(TBD_YAML)
-    data["methods"] = [{"name": "m5", "filter": {"estimate_snr": True}},
-                       {"name": "m1", "filter": {"estimate_snr": True, "subarea_half": 0}},
-                       {"name": "dtt", "detect": {"pfa": 1e-4}}]
-    data["reference"] = {"file": "paper_tables.json", "key": "remotesensing2020_icmb.table2_subarea"}
-    shutil.copy(Path(__file__).resolve().parents[1] / "evaluate" / "reference" / "paper_tables.json", tmp_path)
-    (tmp_path / "t.yaml").write_text(yaml.safe_dump(data))
-    out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, "-m", "pmsr_nn.cli", "evaluate", str(tmp_path / "t.yaml"), "--out", str(out),
-                           "--quiet"], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    res = json.loads((out / "results.json").read_text())
-    case = res["cases"]["c"]
-    assert case["present"] == [False, True, True, False]
-    assert set(case["methods"]) == {"m5", "m1", "dtt"}
-    m5 = case["methods"]["m5"]
-    assert len(m5["detected_frame_rate"]) == 4 and len(m5["snr_db"]) == 4 and len(m5["snr_db"][0]) == 2
-    assert m5["power_ratio"] == pytest.approx(power_ratio(2, MapSpec().lobe_cells))
-    assert case["methods"]["dtt"]["power_ratio"] is None and case["methods"]["dtt"]["update"] == "detect-then-track"
-    report = (out / "report.md").read_text()
-    assert len(m5["median_pos_err_m"]) == 4
-    assert "| m1 | 1x1 |" in report and "| 46.7 | 36.86 | 51.9 |" in report  # ours beside the paper's row
-    for fig in ("detected", "rms", "snr", "subarea", "existence", "ospa", "maps", "track"):
-        assert (out / f"c_{fig}.png").stat().st_size > 10_000, fig
-        assert f"c_{fig}.png" in report
 
 
 def test_detectors_false_alarm_rate_per_cell_is_the_stated_pfa():

@@ -49,9 +49,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
     """Run ``scenario`` as ``shards`` jobs on ``executor`` and merge them into ``out``; returns
     results.json's content. ``partition`` and ``timeout_min`` (per shard) are SLURM's."""
     from .evaluate import RESULT_COMMANDS, _inputs, load_any, merge
-    from .phd_study import PHDScenario
     from .runner import prepare
-    from .tbd_study import TBDScenario
 
     if executor not in EXECUTORS:
         raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
@@ -60,8 +58,6 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
     scenario = Path(scenario)
     check_folder_target(out, overwrite=overwrite, inputs=[scenario], allow=RESULT_COMMANDS)
     sc = load_any(scenario, mc_runs, checkpoints)
-    if isinstance(sc, (TBDScenario, PHDScenario)):
-        raise ConfigError(f"{scenario}: a track-before-detect or SMC-PHD study runs unsharded; run it without --executor")
     if not 1 <= shards <= sc.n_blocks:
         raise ConfigError(f"--shards must be in 1..{sc.n_blocks} (the scenario's blocks of runs), got {shards}")
     if not isinstance(timeout_min, int) or timeout_min < 1:

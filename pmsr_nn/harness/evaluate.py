@@ -25,8 +25,6 @@ from .multitarget import MultiTargetScenario, is_multitarget, multitarget_from_d
 from .report import reference_table, write_report
 from .runner import BlockSums, Setup, finalise, prepare, run_blocks, shard_blocks
 from .scenario import Scenario, scenario_from_dict
-from .phd_study import PHDScenario, is_phd, phd_from_dict, prepare_phd, run_phd, write_phd_outputs
-from .tbd_study import TBDScenario, is_tbd, prepare_tbd, run_tbd, tbd_from_dict, write_tbd_outputs
 
 SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
 
@@ -34,8 +32,8 @@ SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
 RESULT_COMMANDS = ("evaluate", "merge")
 """Output folders an ``evaluate`` or ``merge --overwrite`` may replace."""
 
-AnyScenario = Scenario | MultiTargetScenario | TBDScenario | PHDScenario
-STUDIES = (MultiTargetScenario, TBDScenario, PHDScenario)
+AnyScenario = Scenario | MultiTargetScenario
+STUDIES = (MultiTargetScenario,)
 """Scenario kinds with no learned methods."""
 
 
@@ -50,19 +48,19 @@ def _inputs(scenario, sc) -> list[Path]:
     for m in getattr(sc, "methods", ()):
         if getattr(m, "checkpoint", None):
             paths.append(sc.path(m.checkpoint))
-    for c in getattr(sc, "cases", ()):
-        if getattr(c, "detections_csv", None):
-            paths.append(sc.path(c.detections_csv))
     return paths
 
 
 def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> AnyScenario:
-    """A designed scenario, a multi-target study (``kind: multitarget``), a track-before-detect
-    study (``kind: tbd``) or an SMC-PHD study (``kind: phd``), from plain data."""
-    if is_phd(data):
-        return phd_from_dict(data, base_dir, where=where)
-    if is_tbd(data):
-        return tbd_from_dict(data, base_dir, where=where)
+    """A designed scenario or a multi-target study (``kind: multitarget``), from plain data."""
+    if isinstance(data, dict) and data.get("kind") == "tbd":
+        raise ConfigError(f"{where}: 'kind: tbd' study files are gone: the track-before-detect filters are method kinds "
+                          "(pmb, icmb, modified_icmb, detect_then_track) of a scenario with an rd_maps section (e.g. "
+                          "evaluate/remotesensing2020_icmb.yaml)")
+    if isinstance(data, dict) and data.get("kind") == "phd":
+        raise ConfigError(f"{where}: 'kind: phd' study files are gone: the SMC-PHD of one pair's bistatic plane is method "
+                          "kind smc_phd_pair (labelling gtda | hungarian | none) of a multi-target scenario with aircraft "
+                          "(e.g. evaluate/daniyan_smcphd.yaml)")
     if is_multitarget(data):
         return multitarget_from_dict(data, base_dir, where=where)
     return scenario_from_dict(data, base_dir, where=where)
@@ -76,8 +74,7 @@ def load_any(scenario: AnyScenario | str | Path, mc_runs: int | None = None,
     else:
         sc = scenario_from_data(load_yaml(Path(scenario)), Path(scenario).parent, where=str(scenario))
     if checkpoints and isinstance(sc, STUDIES):
-        kind = {TBDScenario: "track-before-detect", PHDScenario: "SMC-PHD"}.get(type(sc), "multi-target")
-        raise ConfigError(f"a {kind} study has no learned methods: --checkpoint does not apply")
+        raise ConfigError("a multi-target study has no learned methods: --checkpoint does not apply")
     sc = sc.with_mc_runs(mc_runs)
     return sc.with_checkpoints(checkpoints) if checkpoints else sc
 
@@ -97,6 +94,10 @@ def _references(sc: AnyScenario) -> tuple[dict | None, dict | None, dict]:
     if per_target:  # the paper's per-target tables, shown beside ours
         info["per_target"] = {**per_target, "methods": dict(ref.methods),
                               **{f"{k}_key": getattr(ref, k) for k in per_target}}
+    if getattr(ref, "setup", None):  # the paper's stated set-up, shown beside the scenario's
+        info["setup"] = {"key": ref.setup, "table": reference_table(path, ref.setup)}
+    if getattr(ref, "subarea_table", None):  # a track-before-detect sub-area study's (the Remote Sensing seed's Table 2)
+        info["subarea"] = {"key": ref.subarea_table, "table": reference_table(path, ref.subarea_table)}
     return table, timing, info
 
 
@@ -126,8 +127,6 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
     sc = load_any(scenario, mc_runs, checkpoints)
     inputs = _inputs(scenario, sc)
     check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
-    if isinstance(sc, (TBDScenario, PHDScenario)):
-        return _evaluate_study(sc, out, shard, device, progress, overwrite, inputs)
     blocks = shard_blocks(sc.n_blocks, shard)
     setup = prepare(sc, device)
     _references(sc)  # a bad reference entry fails now, not after the run
@@ -140,25 +139,6 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
         np.savez_compressed(tmp / "blocks.npz", **bs.to_arrays())
         (tmp / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
         return meta
-
-
-def _evaluate_study(sc: TBDScenario | PHDScenario, out: Path, shard, device: str, progress: bool, overwrite: bool,
-                    inputs) -> dict:
-    """A track-before-detect or SMC-PHD study: unsharded, on the CPU."""
-    kind = "track-before-detect" if isinstance(sc, TBDScenario) else "SMC-PHD"
-    if shard != (1, 1):
-        raise ConfigError(f"a {kind} study runs unsharded (--shard 1/1)")
-    if device != "cpu":
-        raise ConfigError(f"the {kind} filters run on the CPU in this version")
-    if isinstance(sc, TBDScenario):
-        setup = prepare_tbd(sc)
-        with atomic_dir(out, overwrite, inputs=inputs) as tmp:
-            sums, examples = run_tbd(setup, progress=progress)
-            return write_tbd_outputs(setup, sums, examples, tmp, device)
-    setup = prepare_phd(sc)
-    with atomic_dir(out, overwrite, inputs=inputs) as tmp:
-        sums, examples = run_phd(setup, progress=progress)
-        return write_phd_outputs(setup, sums, examples, tmp, device)
 
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:

@@ -27,9 +27,10 @@ import torch
 from ..config import from_dict, require, to_dict
 from ..errors import ConfigError
 from ..frontend.chain import FrontEndSpec
-from ..measurements import MeasurementModel
+from ..measurements import SPEED_OF_LIGHT, MeasurementModel
 from ..methods import Models, method_kind
 from ..motion import motion_model
+from ..simulation.aircraft import AircraftSpec, fly_all
 from ..simulation.detections import ClutterSpec
 from ..simulation.products import DesignedTruth, SampledTruth, SensorSetup
 from ..simulation.recipe import GeometrySpec, ReceiverSpec, TransmitterSpec
@@ -81,11 +82,19 @@ class TargetStateSpec:
 
 @dataclass(frozen=True)
 class MTNoiseSpec:
+    """Deviations of the detections: bistatic range (m) and Doppler (Hz); with ``range_rate_mps``
+    the detections measure bistatic range-rate (m/s) instead of Doppler (``doppler_hz`` unused),
+    except those from signals (``front_end``), which measure Doppler with the deviation
+    ``range_rate_mps`` converted through each pair's carrier."""
+
     range_m: float = 1000.0
     doppler_hz: float = 1.0
+    range_rate_mps: float | None = None
 
     def __post_init__(self) -> None:
         require(self.range_m > 0 and self.doppler_hz > 0, "noise deviations must be positive")
+        require(self.range_rate_mps is None or (self.range_rate_mps > 0 and math.isfinite(self.range_rate_mps)),
+                f"noise range_rate_mps must be positive, got {self.range_rate_mps}")
 
 
 @dataclass(frozen=True)
@@ -200,6 +209,7 @@ class MTReferenceSpec:
     velocity_rmse: str | None = None
     anees: str | None = None
     methods: dict = field(default_factory=dict)
+    setup: str | None = None  # the paper's stated set-up (dotted key), shown beside the scenario's
 
 
 DEFAULT_GEOMETRY = GeometrySpec(
@@ -224,6 +234,9 @@ class MultiTargetScenario(StudyFile):
     geometry: GeometrySpec = DEFAULT_GEOMETRY
     targets: FormationSpec = FormationSpec()
     initial_states: tuple[TargetStateSpec, ...] = ()
+    aircraft: tuple[AircraftSpec, ...] = ()
+    min_altitude_m: float = 100.0
+    max_range_m: float | None = None
     dimensions: int = 2
     noise: MTNoiseSpec = MTNoiseSpec()
     motion: MTMotionSpec = MTMotionSpec()
@@ -259,9 +272,17 @@ class MultiTargetScenario(StudyFile):
         for i, t in enumerate(self.initial_states):
             require(len(t.position_m) == self.dimensions, f"initial_states[{i}]: {len(t.position_m)}-D state in a "
                                                           f"{self.dimensions}-D scenario")
-        require(self.dimensions == 2 or self.initial_states, "a 3-D scenario lists its targets in initial_states")
-        require(self.sweep != "spacing_m" or not self.initial_states, "a spacing_m sweep needs the formation, not "
-                                                                      "initial_states")
+        require(self.dimensions == 2 or self.initial_states or self.aircraft,
+                "a 3-D scenario lists its targets in initial_states or aircraft")
+        require(not (self.aircraft and self.initial_states), "give the targets as aircraft or initial_states, not both")
+        require(not self.aircraft or self.dimensions == 3, "aircraft fly in 3-D: set dimensions: 3")
+        names = [a.name for a in self.aircraft]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        require(not dup, f"duplicate aircraft name(s): {dup}")
+        require(self.max_range_m is None or self.max_range_m > 0, f"max_range_m must be positive, got {self.max_range_m}")
+        require(math.isfinite(self.min_altitude_m), f"min_altitude_m must be finite, got {self.min_altitude_m}")
+        require(self.sweep != "spacing_m" or not (self.initial_states or self.aircraft),
+                "a spacing_m sweep needs the formation, not initial_states or aircraft")
         if self.front_end is not None:
             require(self.illuminator_known, "detections from signals (front_end) are per transmitter: set "
                                             "illuminator_known true")
@@ -270,7 +291,7 @@ class MultiTargetScenario(StudyFile):
 
     @property
     def target_count(self) -> int:
-        return len(self.initial_states) or self.targets.count
+        return len(self.aircraft) or len(self.initial_states) or self.targets.count
 
     def initial_states_for(self, spacing_m: float) -> torch.Tensor:
         """CV states ``(count, 2 * dimensions)`` at the first scan."""
@@ -290,6 +311,13 @@ class MultiTargetScenario(StudyFile):
         d = to_dict(self)
         if self.set_metrics == SetMetricSpec():
             del d["set_metrics"]
+        if not self.aircraft:  # the fields of designed aircraft, only where there are some
+            for key in ("aircraft", "min_altitude_m", "max_range_m"):
+                del d[key]
+        if self.noise.range_rate_mps is None:
+            del d["noise"]["range_rate_mps"]
+        if self.reference is not None and self.reference.setup is None:
+            del d["reference"]["setup"]
         return d
 
 
@@ -315,6 +343,29 @@ def _methods(sc: MultiTargetScenario) -> tuple[MethodSpec, ...]:
     return tuple(out)
 
 
+def detection_models(sc: MultiTargetScenario, geometry, motion) -> tuple[MeasurementModel, MeasurementModel]:
+    """The detections' model (pair layout): bistatic range and Doppler, or range and range-rate
+    where ``noise.range_rate_mps`` is given; and the model of detections from signals (range and
+    Doppler always: what the signal chain measures; a range-rate deviation converted through the
+    carrier, which must then be one for every transmitter)."""
+    n = sc.noise
+    doppler = MeasurementModel(geometry, ("range", "doppler"), (n.range_m, n.doppler_hz), motion.pos_idx, motion.vel_idx,
+                               layout="pair")
+    if n.range_rate_mps is None:
+        return doppler, doppler
+    model = MeasurementModel(geometry, ("range", "range_rate"), (n.range_m, n.range_rate_mps), motion.pos_idx,
+                             motion.vel_idx, layout="pair")
+    carriers = {t.carrier_hz for t in sc.geometry.transmitters}
+    if sc.front_end is None or not any(c.signals for c in sc.cases):
+        return model, model
+    if len(carriers) > 1:
+        raise ConfigError("noise.range_rate_mps with detections from signals needs one carrier for every transmitter "
+                          "(the chain measures Doppler); give noise.doppler_hz instead")
+    fc = carriers.pop()
+    return model, MeasurementModel(geometry, ("range", "doppler"), (n.range_m, n.range_rate_mps * fc / SPEED_OF_LIGHT),
+                                   motion.pos_idx, motion.vel_idx, layout="pair")
+
+
 def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
     """The study as a runner :class:`~.runner.Setup`: per case the targets flying CV (with process
     noise drawn per run, or on straight lines), seen through detections with the case's Pd and
@@ -328,8 +379,7 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
     geometry = sc.geometry.build(dims)
     motion = motion_model(sc.motion.model, dims)
     q = sc.motion.q_per_axis(dims)
-    model = MeasurementModel(geometry, ("range", "doppler"), (sc.noise.range_m, sc.noise.doppler_hz), motion.pos_idx,
-                             motion.vel_idx, layout="pair")
+    model, signal_model = detection_models(sc, geometry, motion)
     models = Models(motion, model, sc.motion.dt_s, q, model.R(), torch.tensor(model.noise_std, dtype=torch.float64))
     share = model.n_pairs // len(geometry.receivers)
     if not sc.illuminator_known and sc.clutter.model == "fixed":
@@ -341,22 +391,28 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
     methods = _methods(sc)
     kinds = {m.name: method_kind(m.kind) for m in methods}
     straight = sc.motion.truth == "straight"
+    if sc.aircraft:  # designed flights, seen above min_altitude_m and within max_range_m (checked clear of sensors)
+        flights = DesignedTruth(*fly_all(sc.aircraft, sc.scans, sc.motion.dt_s, model, sc.min_altitude_m,
+                                         math.inf if sc.max_range_m is None else sc.max_range_m))
     cases, refusals = [], []
     for c in sc.cases:  # every target's whole flight must stay clear of the sensors
         pd, clutter, spacing = sc.case_settings(c)
-        x0 = sc.initial_states_for(spacing)
-        t = torch.arange(sc.scans, dtype=torch.float64) * sc.motion.dt_s
-        nominal = torch.einsum("kij,tj->tki", motion.F(t), x0)  # (T, K, n), no noise
-        if bool(model.near_sensor(nominal, 1000.0).any()):
-            raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
+        x0 = flights.x[0] if sc.aircraft else sc.initial_states_for(spacing)
+        if not sc.aircraft:
+            t = torch.arange(sc.scans, dtype=torch.float64) * sc.motion.dt_s
+            nominal = torch.einsum("kij,tj->tki", motion.F(t), x0)  # (T, K, n), no noise
+            if bool(model.near_sensor(nominal, 1000.0).any()):
+                raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
         prior = c.prior or sc.prior
         P0 = prior.sd(dims)
         front_end = sc.front_end if c.signals else None
-        sensing = SensorSetup(model, P0, detection_model=model, pd=pd, clutter=clutter,
-                              illuminator_known=sc.illuminator_known, front_end=front_end)
-        alive = torch.ones(sc.scans, len(x0), dtype=torch.bool)
+        sensing = SensorSetup(model, P0, detection_model=model if front_end is None else signal_model, pd=pd,
+                              clutter=clutter, illuminator_known=sc.illuminator_known, front_end=front_end)
+        alive = flights.alive if sc.aircraft else torch.ones(sc.scans, len(x0), dtype=torch.bool)
         bounds = None
-        if straight:
+        if sc.aircraft:
+            truth = flights
+        elif straight:
             truth = DesignedTruth(nominal.transpose(0, 1).contiguous(), alive)
             bounds = case_bounds(truth.x, alive, models, torch.diag(P0**2))
         else:
@@ -364,11 +420,14 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
         scored = alive & (torch.arange(sc.scans) >= sc.converged_from_scan)[:, None]
         refusals += method_refusals(methods, kinds, {}, alive, c.name, sensing)
         info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
-                "reference_key": c.reference_key, "formation": not sc.initial_states,
+                "reference_key": c.reference_key, "formation": not (sc.initial_states or sc.aircraft),
                 "clutter_list": "sensor" if sc.illuminator_known else "receiver",
                 "detections_from": "signals" if front_end is not None else "model"}
-        cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored,
-                          [f"target {i + 1}" for i in range(len(x0))], info, bounds))
+        names = [a.name for a in sc.aircraft] or [f"target {i + 1}" for i in range(len(x0))]
+        # set figures average over every scan after convergence, also where no target lives (an
+        # estimate there is false); with every target alive throughout, the scans where one is scored
+        cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored, names, info, bounds,
+                          set_scans=torch.arange(sc.scans) >= sc.converged_from_scan))
     raise_refusals(refusals)
     left_out = MT_LEFT_OUT if not straight else tuple(k for k in MT_LEFT_OUT if k not in ("pcrb", "bound", "pcrb_q0"))
     definitions = {k: v for k, v in DEFINITIONS.items() if k not in left_out}
@@ -378,6 +437,10 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
         definitions["pcrb"] = ("per-trajectory posterior Cramer-Rao bound of each target's straight flight under the "
                                "trackers' motion model and q, the measurement deviations and the initiation prior P0, on "
                                "clean (association-known) measurements of every pair; averaged like rmse_pos_m")
+    if any(k.space is not None for k in kinds.values()):
+        definitions.update(SPACE_DEFINITIONS)
+    if any(k.name in ("smc_phd", "smc_phd_pair") for k in kinds.values()):
+        definitions.update(PHD_DEFINITIONS)
     causal = {m.name: bool(kinds[m.name].causal(None)) for m in methods}
     return Setup(sc, models, cases, methods, kinds, {m.name: None for m in methods}, causal,
                  "per_block", (sc.set_metrics.c_m, sc.set_metrics.p), describe_multitarget(sc, model, methods),
@@ -395,11 +458,45 @@ MT_DEFINITIONS = {
     "anees": "mean over runs, targets and scans >= converged_from_scan of the NEES / 4",
 }
 
+SPACE_DEFINITIONS = {
+    "space": "rows with a space are scored in it, not in the Cartesian state: their estimates are one pair's bistatic "
+             "range and range-rate [r, rdot], scored against the truth projected into that pair's measurement space "
+             "(the noise-free range and range-rate of each living target). Their OSPA, GOSPA, position RMSE and "
+             "per-target errors are on bistatic range alone (one axis, m), their velocity figures on range-rate "
+             "(m/s): compare them with each other, never with a Cartesian row's",
+    "rmse_vel_pooled_mps": "root mean square range-rate error pooled over the (run, scan, target) entries where the "
+                           "per-scan OSPA assignment matches a track to a target (inside the cut-off); "
+                           "rmse_pos_pooled_m is the same for the range",
+    "ospa_m / gospa_m / cardinality_mean_abs_error (averaging)": "averaged over every scan from converged_from_scan "
+                                                                  "on, also scans where no target lives (an estimate "
+                                                                  "there is false)",
+    "label_switches_per_target / fragmentations_per_target": "per target: label switches and fragmentations (as "
+                                                             "label_switches_per_run and fragmentations_per_run), "
+                                                             "mean over runs",
+}
+"""Definitions of the figures of rows scored in a measurement space (:class:`~pmsr_nn.methods.EstimateSpace`)."""
+
+PHD_DEFINITIONS = {
+    "phd_expected": "per scan: the PHD's integral (sum of the particle weights) after the update, mean over runs "
+                    "(curves.set.<method>.phd_expected)",
+    "labels_per_run": "labels (tracks) a labelling confirmed in a run; the ideal is the number of targets",
+    "conflicts_repaired_per_run": "GTDA: estimates two tracks still wanted after the game's last round, given to the "
+                                  "nearer, per run",
+    "game_rounds_mean": "GTDA: rounds of the game per scan, mean over scans and blocks",
+    "phd_seconds_per_run": "the PHD filter's own seconds per run; rows of one pair's PHD with the same settings read "
+                           "one PHD run per block, and each counts its seconds in full in seconds_per_run (PHD plus "
+                           "its own labelling)",
+    "known_association_kf_pair": "the floor of what association can reach with the same motion model: an exact Kalman "
+                                 "filter per target on exactly its own detections (their true origins), started at its "
+                                 "first detection",
+}
+"""Definitions of the SMC-PHD rows' own figures."""
+
 
 def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, methods) -> dict:
     g = model.geometry
     out = {"dt_s": sc.motion.dt_s, "q": sc.motion.q, "scans": sc.scans, "state_dim": 2 * sc.dimensions, "targets": to_dict(sc.targets),
-            "noise": to_dict(sc.noise), "clutter": to_dict(sc.clutter), "clutter_volume_m_hz": sc.clutter.volume,
+            "noise": sc.to_dict()["noise"], "pd": sc.pd, "clutter": to_dict(sc.clutter), "clutter_volume_m_hz": sc.clutter.volume,
             "prior": to_dict(sc.prior), "tracker": to_dict(sc.tracker), "loss": to_dict(sc.loss),
             "converged_from_scan": sc.converged_from_scan, "warmup_steps": sc.converged_from_scan, "sweep": sc.sweep,
             "block_runs": sc.block_runs, "set_metrics": to_dict(sc.set_metrics),
@@ -410,6 +507,9 @@ def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, metho
             or not sc.illuminator_known:
         out.update({"dimensions": sc.dimensions, "motion": to_dict(sc.motion), "illuminator_known": sc.illuminator_known,
                     "initial_states": [to_dict(t) for t in sc.initial_states]})
+    if sc.aircraft:
+        out.update({"aircraft": [a.name for a in sc.aircraft], "min_altitude_m": sc.min_altitude_m,
+                    "max_range_m": sc.max_range_m})
     if sc.front_end is not None:
         fe = sc.front_end
         out["front_end"] = {**to_dict(fe), "map_shape": list(fe.map_shape), "range_bin_m": fe.signal.range_bin_m,

@@ -82,16 +82,20 @@ def summary_table(res: dict, ref: dict | None, ref_label: str, single_case: bool
     names = list(res["cases"])
     head = "| method | " + " | ".join(f"{c} ours | {c} {ref_label}" if ref else f"{c}" for c in names) + " |"
     lines = [head, "|---|" + "---:|" * (len(names) * (2 if ref else 1))]
-    methods = list(next(iter(res["cases"].values()))["methods"])
+    methods = list(dict.fromkeys(m for c in res["cases"].values() for m in c["methods"]))  # a case may run some only
     for m in methods:
         cells = []
         for c in names:
-            r = res["cases"][c]["methods"][m]
+            r = res["cases"][c]["methods"].get(m)
+            if r is None:  # not run in this case
+                cells += ["-"] + (["-"] if ref else [])
+                continue
             v = _f(r["rmse_pos_m"])
             cells.append(f"**{v}**" if r.get("below_bound") else v)
             if ref:
                 cells.append(_f(paper_value(ref, c, m, single_case)))
-        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+        first = next(c["methods"][m] for c in res["cases"].values() if m in c["methods"])
+        lines.append(f"| {m}{space_mark(first)} | " + " | ".join(cells) + " |")
     if any(c.get("pcrb") is None for c in res["cases"].values()):
         return lines
     for key, label in (("pos_m", "PCRB (filtering, per trajectory)"), ("q0_pos_m", "PCRB with q = 0 (floor)")):
@@ -171,12 +175,15 @@ def learned_tables(res: dict) -> list[str]:
 
 def timing_table(res: dict, ref_timing: dict | None, ref_label: str) -> list[str]:
     cases = list(res["cases"].values())
-    methods = list(cases[0]["methods"])
+    methods = list(dict.fromkeys(m for c in cases for m in c["methods"]))  # a case may run some methods only
     mc = res["mc_runs"]
     lines = [f"| method | ms per run (median over cases) | ms for {mc} runs of one case | {ref_label}: ms |",
              "|---|---:|---:|---:|"]
     for m in methods:
-        s = float(np.median([c["methods"][m]["seconds_per_run"] for c in cases]))
+        ran = [c["methods"][m]["seconds_per_run"] for c in cases if m in c["methods"]]
+        if ran[0] is None:  # a bound's row: nothing was run
+            continue
+        s = float(np.median(ran))
         ref = ref_timing.get(m) if ref_timing else None
         ref = ref if isinstance(ref, (int, float)) else None  # a study's per-case times go in its own table
         lines.append(f"| {m} | {1e3 * s:.2f} | {1e3 * s * mc:.0f} | {_f(ref, 1)} |")
@@ -249,7 +256,7 @@ def multi_target_tables(res: dict, timing: dict | None, label: str) -> list[str]
     lines = []
     for name, case in res["cases"].items():
         rows = case["methods"]
-        if "ospa_m" not in next(iter(rows.values())):
+        if not any("ospa_m" in r for r in rows.values()):
             continue
         key = case.get("reference_key")
         paper = timing is not None and key is not None
@@ -259,12 +266,16 @@ def multi_target_tables(res: dict, timing: dict | None, label: str) -> list[str]
                   "swap prob. | loss prob. | s / run |" + (f" {label}: s / run |" if paper else ""),
                   "|---|---|" + "---:|" * 2 + "---|---|" + "---:|" * 7 + ("---:|" if paper else "")]
         for m, r in rows.items():
-            per = " / ".join(f"{v:.0f}" for v in r["rmse_pos_per_target_m"])
+            per = " / ".join(f"{v:.0f}" for v in r.get("rmse_pos_per_target_m", [r["rmse_pos_m"]]))  # one target: its RMSE
+            if "ospa_m" not in r:  # a bound's row: its RMSE, no tracks
+                lines.append(f"| {m} | {r['bound']} bound{_starts(r)} | {_f(r['rmse_pos_m'], 1)} | "
+                             f"{_f(r['rmse_pos_all_scans_m'], 1)} | {per} |" + " - |" * (8 + paper))
+                continue
             assigned = " / ".join("-" if v is None else f"{v:.0f}" for v in r["rmse_pos_assigned_per_target_m"])
             se = f" ± {r['gospa_se_m']:.1f}" if r.get("gospa_se_m") is not None else ""
             split = (f"{_f(r['gospa_m'], 1)}{se}: " + " / ".join(f"{100 * r[f'gospa_{p}_share']:.0f}"
                                                               for p in ("localisation", "missed", "false")))
-            line = (f"| {m} | {res['settings']['methods'][m].get('reads', '-')}{_starts(r)} | {_f(r['rmse_pos_m'], 1)} | "
+            line = (f"| {m} | {res['settings']['methods'][m].get('reads', '-')}{_starts(r)}{space_mark(r)} | {_f(r['rmse_pos_m'], 1)} | "
                     f"{_f(r['rmse_pos_all_scans_m'], 1)} | {per} | {assigned} | {_f(r['ospa_m'], 1)} | {split} | "
                     f"{_f(r['cardinality_mean_abs_error'], 3)} | {_f(r['label_switches_per_run'], 2)} | "
                     f"{_f(r.get('swap_probability'), 3)} | {_f(r.get('loss_probability'), 3)} | {_f(r['seconds_per_run'], 3)} |")
@@ -280,6 +291,23 @@ def multi_target_tables(res: dict, timing: dict | None, label: str) -> list[str]
         lines += track_table(rows, res["settings"].get("dt_s", 1.0))
         lines += ["", f"![OSPA, cardinality and RMSE vs time]({name}_set_metrics.png)", ""]
     return lines
+
+
+def space_mark(row: dict) -> str:
+    """`` [pair 0: range, range-rate]`` for a row scored in a measurement space (its ``space_key``),
+    so that its figures are never read as Cartesian ones; empty otherwise."""
+    return f" [{row['space_key']}: range, range-rate]" if row.get("space_key") else ""
+
+
+def space_note(res: dict) -> list[str]:
+    """A paragraph naming the rows scored in a measurement space (empty without them)."""
+    rows = sorted({m for c in res["cases"].values() for m, r in c["methods"].items() if r.get("space_key")})
+    if not rows:
+        return []
+    return [f"**Rows marked [pair ...: range, range-rate] ({', '.join(rows)}) are scored in that pair's bistatic plane: "
+            "their position RMSE, OSPA and GOSPA are on bistatic range alone (one axis, m), their velocity figures on "
+            "range-rate. Compare them with each other, not with Cartesian rows.** (`space` in results.json; the section "
+            "\"Rows scored in a bistatic plane\" below.)", ""]
 
 
 def _starts(row: dict) -> str:
@@ -313,12 +341,12 @@ def per_target_tables(res: dict, label: str) -> list[str]:
     names = per.get("methods", {})
     lines = []
     for name, case in res["cases"].items():
-        rows = case["methods"]
-        if "rmse_vel_per_target_mps" not in next(iter(rows.values())):
+        rows = {m: r for m, r in case["methods"].items() if r.get("rmse_vel_per_target_mps") is not None}
+        if not rows:
             continue
         targets = case["targets"]
         vel_ref = {m: per["velocity_rmse"][k] for m, k in names.items() if k in per.get("velocity_rmse", {})}
-        head = ["target", *(f"{m} (m/s)" for m in rows), *(f"{label}: {m} (m/s)" for m in vel_ref)]
+        head = ["target", *(f"{m}{space_mark(r)} (m/s)" for m, r in rows.items()), *(f"{label}: {m} (m/s)" for m in vel_ref)]
         lines += [f"### Velocity RMSE per target, `{name}`", "", "| " + " | ".join(head) + " |",
                   "|---|" + "---:|" * (len(head) - 1)]
         for t, tname in enumerate(targets):
@@ -329,7 +357,8 @@ def per_target_tables(res: dict, label: str) -> list[str]:
         means += [_f(float(np.mean(v))) for v in vel_ref.values()]
         lines += ["| mean | " + " | ".join(means) + " |", ""]
         n = res["settings"].get("state_dim")
-        with_p = [m for m, r in rows.items() if r.get("anees_per_target")]
+        # rows in a measurement space have their own state (anees in results.json, over its dimension)
+        with_p = [m for m, r in rows.items() if r.get("anees_per_target") and not r.get("space_key")]
         if not with_p or not n:
             continue
         anees_ref = per.get("anees")
@@ -400,15 +429,30 @@ def _setting_lines(res: dict) -> list[str]:
         peers = (f" Stone Soup rows ({', '.join(peers)}): Stone Soup 1.9.1's EKF with its JPDA (every joint event) or "
                  "GNN, given the same Pd, clutter density and priors and our motion and bistatic models, the pairs in "
                  "turn (pmsr_nn/methods/stonesoup.py); the UKF moments and m best events are ours." if peers else "")
+        rate, box = f"Doppler {st['noise']['doppler_hz']} Hz", f"Doppler {st['clutter']['doppler_hz']} Hz"
+        if "range_rate_mps" in st["noise"]:  # detections of range-rate
+            rate, box = f"range-rate {st['noise']['range_rate_mps']} m/s", f"range-rate {st['clutter']['range_rate_mps']} m/s"
+        trackers = (f"Trackers: UKF moments, m = {', '.join(map(str, m_best)) or '-'} best events (JPDA), gate probability "
+                    f"{st['tracker']['gate_probability']}, CV with q = {st['q']} {unit}{vertical} ({truth}). Loss rule: "
+                    f"{st['loss']['successive_scans']} scans dummy-most-probable, or predicted range deviation > "
+                    f"{st['loss']['gate_range_sd_m']:g} m.")
+        if st.get("aircraft"):  # designed flights: the trackers' settings are their rows' options
+            limit = "" if st.get("max_range_m") is None else f" and within {st['max_range_m'] / 1e3:g} km of bistatic range"
+            trackers = (f"Truth: {len(st['aircraft'])} designed aircraft flights ({', '.join(st['aircraft'])}), each seen "
+                        f"above {st['min_altitude_m']:g} m{limit}; the trackers' settings are their options (settings in "
+                        "results.json).")
         return [f"{st['scans']} scans of {st['dt_s']} s, {st.get('dimensions', 2)}-D. Transmitters {tx}; receiver at "
                 f"{st['receivers'][0]}. Noise: range "
-                f"{st['noise']['range_m']} m, Doppler {st['noise']['doppler_hz']} Hz. Clutter: {st['clutter']['model']}, "
-                f"uniform over range {st['clutter']['range_m']} m x Doppler {st['clutter']['doppler_hz']} Hz{pooled}. "
-                f"Trackers: UKF moments, m = {', '.join(map(str, m_best)) or '-'} best events (JPDA), gate probability "
-                f"{st['tracker']['gate_probability']}, CV with q = {st['q']} {unit}{vertical} ({truth}). Loss rule: "
-                f"{st['loss']['successive_scans']} scans dummy-most-probable, or predicted range deviation > "
-                f"{st['loss']['gate_range_sd_m']:g} m. OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
+                f"{st['noise']['range_m']} m, {rate}. Clutter: {st['clutter']['model']}, "
+                f"uniform over range {st['clutter']['range_m']} m x {box}{pooled}. "
+                f"{trackers} OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
                 f"{st['set_metrics']['p']:g}. Position RMSE = {res['definitions']['rmse_pos_m']}.{peers}", ""]
+    if "rd_maps" in st and all(m.get("reads") == "rd_maps" for m in st["methods"].values()):  # maps, no measurements
+        return [f"Every method reads the range-Doppler maps of the scenario's rd_maps section (each case's maps in the "
+                f"track-before-detect section below); recipe `{Path(st['recipe']).name}` (dt {st['dt_s']} s, the frames). "
+                f"Position RMSE = {res['definitions']['rmse_pos_m']} (warm-up {st['warmup_steps']} steps), over each "
+                f"method's tracks matched to the target; OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
+                f"{st['set_metrics']['p']:g}.", ""]
     outliers = (f" ({100 * st['noise']['range_outlier_prob']:g} % of range errors with {st['noise']['range_outlier_scale']:g}x "
                 "the deviation; the filters assume the nominal one)" if "range_outlier_prob" in st["noise"] else "")
     lines = [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg{outliers}; "
@@ -438,6 +482,10 @@ def write_report(res: dict, out: Path, examples: dict, geometry, ref: dict | Non
     figures = plot_rmse(res, out) + plot_set_metrics(res, out)
     figures.append(plot_trajectories(res, examples, geometry, out / "trajectories.png"))
     figures += write_front_end_outputs(res, examples, out)
+    from .plane_report import plane_report
+
+    plane_lines, plane_figures = plane_report(res, examples, out)
+    figures += plane_figures
     if sweep != "none":
         figures.append(plot_sweep(res, out / f"sweep_{sweep}.png"))
     env = res["environment"]
@@ -448,6 +496,7 @@ def write_report(res: dict, out: Path, examples: dict, geometry, ref: dict | Non
     lines += ["## Position RMSE (m)" + (", ours beside the paper's" if ref else ""), ""]
     lines += summary_table(res, ref, ref_label, single_case)
     lines.append("")
+    lines += space_note(res)
     if ref:
         info = res["reference"]
         lines += [f"Columns marked *{ref_label}* are the paper's numbers, read from `{Path(info['file']).name}` "
@@ -457,9 +506,15 @@ def write_report(res: dict, out: Path, examples: dict, geometry, ref: dict | Non
     if sweep != "none":
         lines += ["## Sweep", "", *sweep_table(res, ref_timing, ref_label)]
     lines += front_end_tables(res)
+    from .rd_maps_report import report_lines as rd_maps_lines
+
+    tbd = rd_maps_lines(res, out, examples)  # rows that read range-Doppler maps: their own section
+    figures += [f for f in sorted(out.glob("*.png")) if tbd and f not in figures]
+    lines += tbd
     mt = multi_target_tables(res, ref_timing, ref_label)
     if mt:
         lines += ["## Multi-target figures", "", *mt, *per_target_tables(res, ref_label)]
+    lines += plane_lines
     lines += learned_tables(res) if designed else []
     lines += tuning_tables(res)
     if designed:
@@ -583,7 +638,7 @@ def plot_rmse(res: dict, out: Path) -> list[Path]:
                    (names[i] if i < len(names) else f"target {i + 1}"))
             ax.grid(True, which="both", alpha=0.3)
         for row in axes:
-            row[0].set_ylabel("position RMSE (m)")
+            row[0].set_ylabel(_rmse_label(case))
         if T == 1:  # outside the data, right of the panel
             axes[0][0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         else:  # one legend for all panels, below them
@@ -593,6 +648,13 @@ def plot_rmse(res: dict, out: Path) -> list[Path]:
         rect = None if T == 1 else (0, (0.3 + 0.25 * -(-len(labels) // 4)) / fig.get_figheight(), 1, 0.97)
         paths.append(save_figure(fig, out / f"{name}_rmse.png", dpi=110 if T == 1 else 100, rect=rect))
     return paths
+
+
+def _rmse_label(case: dict) -> str:
+    """The y label of a case's RMSE figure: the position, or what every row's "position" is (a
+    measurement space's, e.g. bistatic range)."""
+    names = {r.get("position") for r in case["methods"].values()}
+    return f"{names.pop()} RMSE" if len(names) == 1 and None not in names else "position RMSE (m)"
 
 
 def plot_set_metrics(res: dict, out: Path) -> list[Path]:
@@ -609,13 +671,14 @@ def plot_set_metrics(res: dict, out: Path) -> list[Path]:
         fig, axes = plt.subplots(1, 3, figsize=(15, 4.0))
         colours = method_colours(cv["set"])
         for m, c in cv["set"].items():
-            axes[0].plot(t, c["ospa_m"], lw=1.1, label=m, color=colours[m])
-            axes[1].plot(t, c["cardinality"], lw=1.1, label=m, color=colours[m])
+            label = m + space_mark(case["methods"].get(m, {}))
+            axes[0].plot(t, c["ospa_m"], lw=1.1, label=label, color=colours[m])
+            axes[1].plot(t, c["cardinality"], lw=1.1, label=label, color=colours[m])
             per = np.asarray(_per_target(cv["rmse_pos_m"][m]), dtype=float)
             with np.errstate(invalid="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # scans without a matched track: NaN, not plotted
                 mean_sq = np.nanmean(per**2, axis=0) if np.isfinite(per).any() else per[0]
-            axes[2].semilogy(t, np.sqrt(mean_sq), lw=1.1, label=m, color=colours[m])
+            axes[2].semilogy(t, np.sqrt(mean_sq), lw=1.1, label=label, color=colours[m])
         axes[1].step(t, cv["cardinality_truth"], "k", where="post", lw=1.6, label="truth")
         for ax, ylabel in zip(axes, (f"OSPA (m, c = {res['settings']['set_metrics']['c_m']:g} m)",
                                      "mean number of tracks", "position RMSE over living targets (m)")):

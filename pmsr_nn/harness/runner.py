@@ -7,6 +7,13 @@ Per case and block of ``block_runs`` runs the runner draws the truth, makes each
 the methods read (:mod:`pmsr_nn.simulation.products`), calls every method on the whole block and
 keeps the block's sums (:mod:`.scoring`).
 
+Estimate spaces: a kind whose estimates are not the scenario's state declares the space they live
+in (``MethodKind.space``, an :class:`~pmsr_nn.methods.EstimateSpace`: one pair's bistatic range
+and range-rate, :mod:`pmsr_nn.methods.phd_pair`). :func:`score` then reads the block's truth
+projected into that space (:func:`truth_in`, once per block and space) and scores the space's
+"position" and "velocity" columns through the same set-metric path as every other row; the row
+records its ``space`` and the report marks it, so a range-only OSPA is never read as a Cartesian one.
+
 Random streams: with ``per_block`` (the default, and the only choice of the older studies) one
 generator seeded by ``(seed, case, block)`` gives the truth, then the product, then the initiation
 prior. With ``per_product`` each product has its own generator ``(seed, case, block, stream)``
@@ -80,6 +87,18 @@ class Case:
     info: dict = field(default_factory=dict)
     bounds: Bounds | None = None
     memory_bounds: dict = field(default_factory=dict)
+    set_scans: torch.Tensor | None = None  # (K,) the scans set metrics average over (None: some target scored)
+    methods: tuple[str, ...] = ()  # the methods the case runs (empty: every method of the scenario)
+
+    def runs(self, spec) -> bool:
+        """Whether the case runs method ``spec`` (a case may name the methods it runs)."""
+        return not self.methods or spec.name in self.methods
+
+    @property
+    def set_scan_mask(self) -> torch.Tensor:
+        """``(K,)`` the scans the set metrics (OSPA, GOSPA, cardinality) average over: ``set_scans``,
+        or else the scans where some target is scored."""
+        return self.scored.any(1) if self.set_scans is None else self.set_scans
 
     @property
     def steps(self) -> int:
@@ -127,6 +146,8 @@ class Setup:
     recipe: TrackRecipe | None = None
     prior_sd: torch.Tensor | None = None
     warmed: bool = False  # every method was called once (untimed) by run_blocks
+    warm: set = field(default_factory=set)  # the methods called once so far
+    spaces: dict = field(default_factory=dict)  # (case, method) -> EstimateSpace or None (method_space)
 
     @property
     def products(self) -> list[str]:
@@ -180,7 +201,10 @@ def _lives(case, dt: float) -> tuple[int, list[tuple[int, int]]]:
         first = int(math.ceil(t.birth_s / dt - 1e-9))
         steps = int(math.floor((t.end_s - first * dt) / dt + 1e-9))
         spans.append((first, first + steps))
-    return max(e for _, e in spans), spans
+    K = max(e for _, e in spans)
+    if getattr(case, "end_s", None) is not None:  # the case's scans go on after its last target ends
+        K = max(K, int(math.floor(case.end_s / dt + 1e-9)))
+    return K, spans
 
 
 def design_case(c, recipe: TrackRecipe, ramp_s: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -305,6 +329,41 @@ def method_refusals(methods, kinds: dict, resources: dict, alive: torch.Tensor, 
     return out
 
 
+def case_maps(sc: Scenario, c, recipe: TrackRecipe, models: Models, sensing: SensorSetup, x: torch.Tensor,
+              alive: torch.Tensor, targets: list[str]) -> tuple[SensorSetup, dict, list[str]]:
+    """A case's range-Doppler maps (the scenario's ``rd_maps`` section with the case's overrides,
+    :func:`~pmsr_nn.tbd.scene.build_scene`; frames are the case's scans): its sensing with them,
+    what ``results.json`` records of them (``info["rd_maps"]``) and the refusals of maps that can
+    not hold the case (one line each). A case without maps: its sensing as given, nothing else."""
+    import dataclasses
+
+    from ..tbd.scene import build_scene
+
+    spec = sc.case_rd_maps(c)
+    if spec is None:
+        return sensing, {}, []
+    m = models.motion
+    index = (m.pos_idx[0], m.vel_idx[0], m.pos_idx[1], m.vel_idx[1])
+    K = alive.shape[0]
+    try:
+        scene = build_scene(spec, recipe.geometry.build(2), K, models.dt, index)
+    except ConfigError as exc:
+        return sensing, {}, [f"case {c.name!r}: {exc}"]
+    out = dataclasses.replace(sensing, rd_maps=scene)
+    refusals = scene.check(x, alive, c.name, targets)
+    present = alive.any(1)
+    frame = spec.table_frame if spec.table_frame is not None else int(torch.nonzero(present)[-1]) + 1
+    if frame > K:
+        refusals.append(f"case {c.name!r}: rd_maps.table_frame {frame} is past the case's last frame ({K})")
+    if refusals:
+        return out, {}, refusals
+    grid = scene.grid
+    info = {"maps": list(scene.names), "snr_db": list(scene.snr_db), "map_cells": [grid.D, grid.U],
+            "doppler_cell_hz": scene.maps.doppler_cell_hz, "range_cell_m": scene.maps.range_cell_m,
+            "present": present.tolist(), "table_frame": frame}
+    return out, {"rd_maps": info}, []
+
+
 def raise_refusals(refusals: list[str]) -> None:
     """Every refusal of a scenario file in one message (each said once, in order)."""
     if refusals:
@@ -338,15 +397,21 @@ def prepare(sc, device: str = "cpu") -> Setup:
         scored = _scored(alive, sc.warmup_steps, c.name, targets)
         if detection_model is not None and bool(detection_model.near_sensor(x[alive], recipe.min_sensor_distance_m).any()):
             raise ConfigError(f"case {c.name!r}: a target passes within {recipe.min_sensor_distance_m} m of a sensor")
-        refusals += method_refusals(sc.methods, kinds, resources, alive, c.name, sensing)
+        case_sensing, maps_info, maps_refusals = case_maps(sc, c, recipe, models, sensing, x, alive, targets)
+        refusals += maps_refusals
+        refusals += method_refusals(sc.case_methods(c), kinds, resources, alive, c.name, case_sensing)
         if refusals:
             continue  # said once every case is checked; no bound is worth computing now
-        bounds = case_bounds(x, alive, models, torch.diag(prior_sd**2))
+        # the PCRB is the recipe's measurement model's: a case only maps are formed of has none
+        bounded = any(kinds[m.name].reads != "rd_maps" for m in sc.case_methods(c))
+        bounds = case_bounds(x, alive, models, torch.diag(prior_sd**2)) if bounded else None
         mb = memory_bounds(x, alive, sc.methods, resources, causal, models)
         info = {"lives": [{"name": t.name, "first_scan": int(k0), "end_scan": int(k1)}
-                            for t, (k0, k1) in zip(c.flights(), _lives(c, models.dt)[1])]}
-        cases.append(Case(c.name, c.title or c.name, DesignedTruth(x, alive), sensing, alive, scored, targets, info,
-                          bounds, mb))
+                            for t, (k0, k1) in zip(c.flights(), _lives(c, models.dt)[1])], **maps_info}
+        # with maps, the set figures count every frame: a false track while no target lives is the seed's false alarm
+        set_scans = torch.ones(alive.shape[0], dtype=torch.bool) if maps_info else None
+        cases.append(Case(c.name, c.title or c.name, DesignedTruth(x, alive), case_sensing, alive, scored, targets, info,
+                          bounds, mb, set_scans=set_scans, methods=tuple(c.methods)))
     raise_refusals(refusals)
     methods, tuning = sc.methods, {}
     if any(m.tuned() for m in sc.methods):  # last: the slowest check, after every quick one
@@ -354,8 +419,13 @@ def prepare(sc, device: str = "cpu") -> Setup:
 
         methods, tuning = tune(sc, recipe, models, prior_sd)
     settings = describe(sc, recipe, models, prior_sd, tuning, detection_model)
+    definitions = DEFINITIONS
+    if sc.rd_maps is not None:  # the track-before-detect rows' figures
+        from .rd_maps_report import DEFINITIONS as TBD_DEFINITIONS
+
+        definitions = {**DEFINITIONS, **TBD_DEFINITIONS}
     return Setup(sc, models, cases, methods, kinds, resources, causal, sc.random_streams,
-                 (sc.set_metrics.c_m, sc.set_metrics.p), settings, DEFINITIONS, recipe.geometry.build(2),
+                 (sc.set_metrics.c_m, sc.set_metrics.p), settings, definitions, recipe.geometry.build(2),
                  divergence_m=sc.divergence_m, tuning=tuning, recipe=recipe, prior_sd=prior_sd)
 
 
@@ -484,9 +554,13 @@ class BlockSums:
         return out
 
 
-def score(setup: Setup, case: Case, est, truth: Truth) -> dict[str, np.ndarray]:
-    """Every sum :mod:`.scoring` keeps for one method's estimates of one block."""
+def score(setup: Setup, case: Case, est, truth: Truth, space=None) -> dict[str, np.ndarray]:
+    """Every sum :mod:`.scoring` keeps for one method's estimates of one block; ``space``: the
+    :class:`~pmsr_nn.methods.EstimateSpace` the estimates live in (``truth`` then projected into it,
+    :func:`truth_in`), whose columns ``pos`` / ``vel`` are scored as position and velocity."""
     pos, vel = list(setup.models.motion.pos_idx), list(setup.models.motion.vel_idx)
+    if space is not None:
+        pos, vel = list(space.pos), list(space.vel)
     if not (case.multi_target or not est.paired):
         out = scoring.point_sums(est, truth, case.scored, pos, vel)
     else:
@@ -496,13 +570,41 @@ def score(setup: Setup, case: Case, est, truth: Truth) -> dict[str, np.ndarray]:
         if est.paired:
             out.update(scoring.swaps(est, truth, pos))
         out.update(scoring.set_sums(est, truth, pos, *setup.set_metric, sc=sets))
-        out.update(scoring.gospa_per_run(sets, case.scored.any(1)))
+        out.update(scoring.gospa_per_run(sets, case.set_scan_mask))
         out.update(scoring.track_sums(sets.assignment, est.exists, truth))
     if setup.loss is not None:
         out.update(scoring.loss_counts(est, setup.loss.successive_scans, setup.loss.gate_range_sd_m))
     if "max_duality_gap" in est.extras:
         out["gap"] = np.asarray(float(est.extras["max_duality_gap"]))
+    out.update(scoring.extra_sums(est.extras))
+    if est.extras.get("unlabelled"):
+        out["unlabelled"] = np.asarray(1.0)
+    if "tbd_detected" in est.extras:  # a track-before-detect method's per-frame figures
+        out.update(scoring.tbd_sums(est, truth, pos, vel))
     return out
+
+
+def method_space(setup: Setup, spec: MethodSpec, case: Case):
+    """The :class:`~pmsr_nn.methods.EstimateSpace` a method's estimates live in (its kind's
+    ``space``), or None: the scenario's state."""
+    key = (case.name, spec.name)
+    if key not in setup.spaces:
+        kind = setup.kinds[spec.name]
+        setup.spaces[key] = None if kind.space is None else kind.space(spec, case.sensing)
+    return setup.spaces[key]
+
+
+def truth_in(space, truth: Truth, projected: dict) -> Truth:
+    """The block's ``truth`` in a method's ``space`` (itself for None): each living target's state
+    through ``space.project`` (NaN where it does not live), once per block and space (``projected``
+    keeps them by ``space.key``)."""
+    if space is None:
+        return truth
+    if space.key not in projected:
+        x = space.project(torch.nan_to_num(truth.x))
+        nan = torch.full((), float("nan"), dtype=x.dtype)
+        projected[space.key] = Truth(torch.where(truth.alive[..., None], x, nan), truth.alive)
+    return projected[space.key]
 
 
 def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
@@ -511,7 +613,9 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
 
     sc = setup.scenario
     out = BlockSums(list(blocks))
-    bar = tqdm(total=len(setup.cases) * len(blocks) * len(setup.methods), disable=not progress, unit="method-block",
+    called = [m for m in setup.methods if not setup.kinds[m.name].bound]  # a bound's row is filled by finalise
+    bar = tqdm(total=len(blocks) * sum(case.runs(m) for case in setup.cases for m in called), disable=not progress,
+               unit="method-block",
                desc=f"{sc.name}", leave=False)
     with torch.no_grad():
         for ci, case in enumerate(setup.cases):
@@ -523,25 +627,40 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                         out.add(case.name, FRONT_END, record.sums, 0.0)
                         if block == 0:
                             out.example.setdefault(case.name, {}).update(record.example)
-                if not setup.warmed:  # untimed, once: one-off start-up costs stay out of the timing
+                    if block == 0 and hasattr(product, "examples"):  # e.g. run 0's range-Doppler maps ("@" keys)
+                        out.example.setdefault(case.name, {}).update(product.examples())
+                todo = [m for m in called if case.runs(m) and m.name not in setup.warm]
+                if todo:  # untimed, once per method (in its first case): start-up costs stay out of the timing
                     first = _first_runs(products)
-                    for spec in setup.methods:
+                    for spec in todo:
                         call_method(setup, spec, case, first, (sc.seed, 1 << 30))
-                    setup.warmed = True
+                        setup.warm.add(spec.name)
+                    setup.warmed = {m.name for m in called} <= setup.warm
                 pos = list(setup.models.motion.pos_idx)
-                for spec in setup.methods:
+                projected = {}  # the block's truth in each estimate space some method reads (truth_in)
+                for spec in called:
+                    if not case.runs(spec):
+                        continue
                     interrupts.check()
                     bar.set_postfix_str(f"{case.name} {spec.name}", refresh=False)
                     t0 = time.perf_counter()
                     est = call_method(setup, spec, case, products, (sc.seed, ci, block))
-                    seconds = time.perf_counter() - t0
-                    out.add(case.name, spec.name, score(setup, case, est, truth), seconds)
-                    if block == 0:
+                    # work reused from another method's call of this block (one PHD run for several
+                    # labellings) counts in full in every method that reads it
+                    seconds = time.perf_counter() - t0 + float(est.extras.get("shared_seconds", 0.0))
+                    space = method_space(setup, spec, case)
+                    out.add(case.name, spec.name, score(setup, case, est, truth_in(space, truth, projected), space), seconds)
+                    if block == 0 and space is None:
                         x = torch.where(est.exists[0, ..., None], est.x[0][..., pos], float("nan"))
                         out.example.setdefault(case.name, {})[spec.name] = x.numpy()
+                    elif block == 0:  # not a position: kept apart from the map's tracks ("@" keys)
+                        x = torch.where(est.exists[0, ..., None], est.x[0], float("nan"))
+                        out.example.setdefault(case.name, {})[f"@{spec.name}"] = x.numpy()
                     bar.update()
                 if block == 0:
                     out.example.setdefault(case.name, {})["truth"] = truth.x[0][..., pos].numpy()
+                    for key, t in projected.items():
+                        out.example[case.name][f"@truth {key}"] = t.x[0].numpy()
     bar.close()
     return out.stacked()
 
@@ -552,6 +671,8 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
 def _mean(curve: np.ndarray, mask: np.ndarray) -> float:
     """Mean of ``curve (K, N)`` over the entries of ``mask`` (target by target for one target: the
     plain mean of its contiguous scans, as the papers average a curve)."""
+    if not mask.any():  # e.g. a tracker that never matched a track: no scan to average
+        return float("nan")
     if curve.shape[1] == 1:
         return float(curve[mask[:, 0], 0].mean())
     return float(curve[mask].mean())
@@ -566,9 +687,10 @@ def _root_se(per_run: np.ndarray | None, mean: float, p: float) -> float | None:
     return se * mean ** (1.0 / p - 1.0) / p
 
 
-def _set_figures(s: dict, R: int, scored: np.ndarray, p: float) -> tuple[dict, dict]:
-    """Multi-target figures of one method: the row's fields and its per-scan curves."""
-    k = scored.any(1)
+def _set_figures(s: dict, R: int, scored: np.ndarray, p: float, scans: np.ndarray | None = None) -> tuple[dict, dict]:
+    """Multi-target figures of one method: the row's fields and its per-scan curves; ``scans (K,)``:
+    the scans the set figures average over (default: where some target is scored)."""
+    k = scored.any(1) if scans is None else scans
     ospa_c = s["ospa"] / R
     assigned = np.sqrt(s["assigned_pos"] / np.where(s["assigned_count"] > 0, s["assigned_count"], np.nan))
     per_target = []
@@ -585,7 +707,8 @@ def _set_figures(s: dict, R: int, scored: np.ndarray, p: float) -> tuple[dict, d
            "gospa_false_share": float((s["gospa_false"][k] / R).mean() / total) if total > 0 else 0.0,
            "cardinality_mean_abs_error": float((s["abs_card"][k] / R).mean()),
            "rmse_pos_assigned_per_target_m": per_target,
-           "label_switches_per_run": float(s["switches"].sum() / R)}
+           "label_switches_per_run": float(s["switches"].sum() / R),
+           "label_switches_per_target": (s["switches"] / R).tolist()}
     if "swap" in s:  # paired slots only
         row["swap_probability"] = float(s["swap"].sum() / max(s["swap_n"].sum(), 1))
     if "tracks_per_target" in s:
@@ -596,15 +719,55 @@ def _set_figures(s: dict, R: int, scored: np.ndarray, p: float) -> tuple[dict, d
                     "missed_target_fraction": float(s["missed_scans"].sum() / max(s["alive_scans"].sum(), 1)),
                     "scans_to_first_track": None if first is None else float(first),
                     "track_loss_probability": float(s["lost_tracks"].sum() / (R * N)),
-                    "fragmentations_per_run": float(s["fragmentations"].sum() / R)})
+                    "fragmentations_per_run": float(s["fragmentations"].sum() / R),
+                    "fragmentations_per_target": (s["fragmentations"] / R).tolist()})
     curves = {"ospa_m": ospa_c.tolist(), "gospa_m": (gp ** (1 / p)).tolist(), "cardinality": (s["n_est"] / R).tolist()}
     return row, curves
+
+
+def _extra_figures(s: dict, R: int, n_blocks: int) -> tuple[dict, dict]:
+    """Figures of the diagnostics some trackers report (:func:`.scoring.extra_sums`): the row's
+    fields and per-scan curves (empty for a tracker without them)."""
+    row, curves = {}, {}
+    if "labels" in s:
+        row["labels_per_run"] = float(s["labels"] / R)
+    if "repaired" in s:
+        row["conflicts_repaired_per_run"] = float(s["repaired"] / R)
+    if "game_rounds" in s:
+        row["game_rounds_mean"] = float(np.mean(s["game_rounds"] / n_blocks))
+    if "phd_expected" in s:
+        curves["phd_expected"] = (s["phd_expected"] / R).tolist()
+    if "phd_particles" in s:
+        row["phd_particles_mean"] = float(np.mean(s["phd_particles"] / R))
+    if "phd_seconds" in s:
+        row["phd_seconds_per_run"] = float(s["phd_seconds"] / R)
+    return row, curves
+
+
+def _unlabelled(N: int) -> dict:
+    """A row of estimates without identity (extras ``unlabelled``: one set per scan, e.g. a PHD's own
+    estimates): the figures that follow a track's label over scans do not apply (None); OSPA, GOSPA,
+    cardinality, matched errors and fragmentations (gaps in a target's coverage) do."""
+    return {"labelled": False, "label_switches_per_run": None, "label_switches_per_target": None,
+            "rmse_pos_assigned_per_target_m": [None] * N, "confirmed_tracks_per_target": None,
+            "false_tracks_per_run": None, "track_loss_probability": None}
+
+
+def _space_fields(space, s: dict, scored: np.ndarray) -> dict:
+    """What a row scored in an estimate space says of it: the space, what its "position" and
+    "velocity" figures are, and the velocity RMSE pooled over the matched (run, scan, target)
+    entries beside the pooled position one."""
+    n = s["count"][scored].sum()
+    return {"space": space.title, "space_key": space.key, "position": space.pos_label, "velocity": space.vel_label,
+            "rmse_vel_pooled_mps": float(np.sqrt(s["vel"][scored].sum() / n)) if n else None}
 
 
 def initiation(setup: Setup, spec: MethodSpec) -> str:
     """How a method's tracks start: ``association known`` (each target's own stream), ``oracle``
     (handed each target's birth: truth plus a prior draw) or ``detections`` (its own initiator)."""
     kind = setup.kinds[spec.name]
+    if kind.initiation:
+        return kind.initiation
     if kind.reads == "measurements":
         return "association known"
     if kind.starts_tracks:
@@ -630,6 +793,32 @@ def _under(mse: np.ndarray, curve: np.ndarray, scored: np.ndarray) -> tuple[floa
     return float(ratio.mean()), se, bool(ratio.mean() + float(student_t.ppf(0.975, R - 1)) * se < 1)
 
 
+def bound_row(spec: MethodSpec, case: Case, R: int) -> tuple[dict, list]:
+    """The row of a ``kind: pcrb`` method (:mod:`pmsr_nn.methods.bound`) and its curve: the case's
+    bound its options choose, averaged like ``rmse_pos_m``; no run time, no set figures (it
+    estimates nothing)."""
+    b = case.bounds
+    smoothing, zero = spec.option("bound") == "smoothing", spec.option("q") == "zero"
+    if zero:
+        pos, vel = (b.q0_smoothing_pos if smoothing else b.q0_pos), None  # no velocity bound kept at q = 0
+    else:
+        pos, vel = (b.smoothing_pos, b.smoothing_vel) if smoothing else (b.pos, b.vel)
+    scored, alive = case.scored.numpy(), case.alive.numpy()
+    value = _mean(pos, scored)
+    row = {"kind": spec.kind, "causal": not smoothing, "initiation": "association known",
+           "bound": "smoothing" if smoothing else "filtering", "q": "zero" if zero else "model",
+           "rmse_pos_m": value, "rmse_vel_mps": None if vel is None else _mean(vel, scored), "anees": None,
+           "seconds_per_run": None, "rmse_pos_pooled_m": float(np.sqrt(np.mean(pos[scored] ** 2))),
+           "rmse_pos_all_scans_m": _mean(pos, alive), "median_run_rmse_pos_m": None, "runs": R,
+           "bound_pos_m": value, "over_bound": None, "below_bound": False}
+    N = alive.shape[1]
+    if N > 1:
+        row["rmse_pos_per_target_m"] = [float(pos[scored[:, t], t].mean()) for t in range(N)]
+        row["rmse_vel_per_target_mps"] = None if vel is None else [float(vel[scored[:, t], t].mean()) for t in range(N)]
+        row["anees_per_target"] = None
+    return row, pos[:, 0].tolist() if N == 1 else pos.T.tolist()
+
+
 def finalise(setup: Setup, bs: BlockSums) -> dict:
     """The scenario's figures (the ``cases`` part of ``results.json``) from the sums of all blocks."""
     sc = setup.scenario
@@ -644,6 +833,11 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
         b = case.bounds
         methods, curves, set_curves, run_rmse = {}, {}, {}, {}
         for spec in setup.methods:
+            if not case.runs(spec):
+                continue
+            if setup.kinds[spec.name].bound:
+                methods[spec.name], curves[spec.name] = bound_row(spec, case, R)
+                continue
             s = {q: a.sum(0) if q not in scoring.PER_RUN else a for q, a in bs.sums[case.name][spec.name].items()}
             count = np.where(s["count"] > 0, s["count"], np.nan)
             rmse_p, rmse_v, nees = np.sqrt(s["pos"] / count), np.sqrt(s["vel"] / count), s["nees"] / count
@@ -676,8 +870,17 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
             if "gap" in s:
                 row["max_duality_gap"] = float(bs.sums[case.name][spec.name]["gap"].max())
             if "ospa" in s:
-                extra, set_curves[spec.name] = _set_figures(s, R, scored, setup.set_metric[1])
+                extra, set_curves[spec.name] = _set_figures(s, R, scored, setup.set_metric[1],
+                                                            case.set_scan_mask.numpy())
                 row.update(extra)
+                extra, more = _extra_figures(s, R, sc.n_blocks)
+                row.update(extra)
+                set_curves[spec.name].update(more)
+            if "unlabelled" in s:
+                row.update(_unlabelled(N))
+            space = method_space(setup, spec, case)
+            if space is not None:
+                row.update(_space_fields(space, s, m_scored))
             if b is not None:
                 which = "filtering" if setup.causal[spec.name] else "smoothing"
                 bound_p = _mean(b.pos if which == "filtering" else b.smoothing_pos, m_scored)
@@ -698,6 +901,10 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
                     row.update({"memory_scans": scans, "memory_bound_pos_m": mem, "over_memory_bound": rmse / mem,
                                 "mse_over_memory_bound": ratio, "mse_over_memory_bound_se": se,
                                 "below_memory_bound": below})
+            if "tbd_detected" in s:  # a track-before-detect method: the Remote Sensing 2020 figures per frame
+                from .rd_maps_report import tbd_row
+
+                row["tbd"] = tbd_row(s, R, case, spec)
             methods[spec.name] = row
             curves[spec.name] = rmse_p[:, 0].tolist() if N == 1 else rmse_p.T.tolist()
         out = {"title": case.title, "steps": case.steps, "targets": case.targets, **case.info, "methods": methods}
@@ -714,7 +921,7 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
         else:
             out["pcrb"] = None
             out["curves"] = {"rmse_pos_m": curves}
-        if case.multi_target:
+        if case.multi_target or set_curves:  # also one target seen by trackers that start their own tracks
             out["curves"].update({"set": set_curves, "cardinality_truth": alive.sum(1).tolist()})
         if FRONT_END in bs.sums.get(case.name, {}):
             from ..frontend.chain import summarise
@@ -812,5 +1019,10 @@ def describe(sc: Scenario, recipe: TrackRecipe, models: Models, prior_sd: torch.
                              "sensors": detection_model.n_pairs}
     if sc.random_streams != "per_block" or any(len(c.flights()) > 1 for c in sc.cases):
         out["random_streams"] = sc.random_streams
+        out["set_metrics"] = {"c_m": sc.set_metrics.c_m, "p": sc.set_metrics.p}
+    if sc.rd_maps is not None:  # the maps' section as given (each case's overrides are in its own results)
+        from ..config import to_dict
+
+        out["rd_maps"] = to_dict(sc.rd_maps)
         out["set_metrics"] = {"c_m": sc.set_metrics.c_m, "p": sc.set_metrics.p}
     return out

@@ -26,6 +26,7 @@ from ..errors import ConfigError
 from ..methods import method_kind
 from ..simulation.detections import ClutterSpec
 from ..simulation.recipe import check_outliers
+from ..tbd.scene import RDMapsSpec
 
 TUNABLE = ("q", "q_quiet", "q_manoeuvre", "stay")
 """Options that may be ``tuned`` (chosen from ``tuning.<option>_grid``), in grid order; each is
@@ -81,25 +82,42 @@ class SegmentSpec:
         require(self.duration_s > 0, f"segment duration_s must be positive, got {self.duration_s}")
 
 
+FLIGHT_FIELDS = ("start_range_m", "start_bearing_deg", "speed_mps", "heading_deg")
+
+
 @dataclass(frozen=True)
 class TargetSpec:
     """One target's designed flight: start (range and bearing from the first transmitter, clockwise
     from north), initial speed and heading, then its segments; it is born ``birth_s`` after the
-    case starts and flies until its segments end or until ``death_s`` (s from the case's start)."""
+    case starts and flies until its segments end or until ``death_s`` (s from the case's start).
+    Instead of range, bearing, speed and heading the start may be given as a position ``start_m``
+    ``[x, y]`` (m) and velocity ``velocity_mps`` ``[vx, vy]`` at its birth (a straight flight is
+    then sampled in closed form, ``start + t v``)."""
 
     name: str
-    start_range_m: float
-    start_bearing_deg: float
-    speed_mps: float
-    heading_deg: float
+    start_range_m: float | None = None
+    start_bearing_deg: float | None = None
+    speed_mps: float | None = None
+    heading_deg: float | None = None
     segments: tuple[SegmentSpec, ...] = ()
     birth_s: float = 0.0
     death_s: float | None = None
+    start_m: tuple[float, float] | None = None
+    velocity_mps: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         require(bool(self.name), "a target needs a name")
+        polar = [k for k in FLIGHT_FIELDS if getattr(self, k) is not None]
+        cartesian = [k for k in ("start_m", "velocity_mps") if getattr(self, k) is not None]
+        require(not (polar and cartesian), f"target {self.name!r}: give its start either as {', '.join(FLIGHT_FIELDS)} "
+                                           "or as start_m and velocity_mps, not both")
+        if cartesian:
+            require(len(cartesian) == 2, f"target {self.name!r}: start_m and velocity_mps go together")
+        else:
+            missing = [k for k in FLIGHT_FIELDS if getattr(self, k) is None]
+            require(not missing, f"target {self.name!r}: needs {', '.join(missing)} (or start_m and velocity_mps)")
         require(len(self.segments) > 0, f"target {self.name!r}: the trajectory is empty (no segments)")
-        require(self.speed_mps >= 0, f"target {self.name!r}: speed_mps must be >= 0")
+        require(cartesian or self.speed_mps >= 0, f"target {self.name!r}: speed_mps must be >= 0")
         require(math.isfinite(self.birth_s) and self.birth_s >= 0, f"target {self.name!r}: birth_s must be >= 0")
         if self.death_s is not None:
             require(self.death_s > self.birth_s, f"target {self.name!r}: death_s {self.death_s:g} s is not after its "
@@ -119,9 +137,6 @@ class TargetSpec:
         return self.birth_s + self.duration_s if self.death_s is None else self.death_s
 
 
-FLIGHT_FIELDS = ("start_range_m", "start_bearing_deg", "speed_mps", "heading_deg")
-
-
 @dataclass(frozen=True)
 class CaseSpec:
     """One case: a single designed flight given inline (start, speed, heading, segments: the
@@ -136,9 +151,14 @@ class CaseSpec:
     segments: tuple[SegmentSpec, ...] = ()
     title: str = ""
     targets: tuple[TargetSpec, ...] = ()
+    end_s: float | None = None
+    methods: tuple[str, ...] = ()
+    rd_maps: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         require(bool(self.name), "a case needs a name")
+        dup = sorted({n for n in self.methods if self.methods.count(n) > 1})
+        require(not dup, f"case {self.name!r}: methods lists {dup} more than once")
         inline = [k for k in FLIGHT_FIELDS if getattr(self, k) is not None]
         if self.targets:
             require(not inline and not self.segments, f"case {self.name!r}: give either targets or one inline flight "
@@ -151,6 +171,10 @@ class CaseSpec:
             require(not missing, f"case {self.name!r}: needs {', '.join(missing)} (or a list of targets)")
             require(len(self.segments) > 0, f"case {self.name!r}: the trajectory is empty (no segments)")
             require(self.speed_mps >= 0, f"case {self.name!r}: speed_mps must be >= 0")
+        if self.end_s is not None:
+            last = max(t.end_s for t in self.flights())
+            require(math.isfinite(self.end_s) and self.end_s >= last,
+                    f"case {self.name!r}: end_s {self.end_s:g} s is before its last target ends ({last:g} s)")
 
     def flights(self) -> tuple[TargetSpec, ...]:
         """The case's targets (an inline flight is one target named like the case, born at 0)."""
@@ -161,7 +185,9 @@ class CaseSpec:
 
     @property
     def duration_s(self) -> float:
-        return max(t.end_s for t in self.flights())
+        """How long the case lasts (s): ``end_s`` (the scans go on after the last target died), or
+        until its last target ends."""
+        return max(t.end_s for t in self.flights()) if self.end_s is None else self.end_s
 
 
 @dataclass(frozen=True)
@@ -290,10 +316,15 @@ class ReferenceSpec:
     whose value maps case name -> method -> number (or method -> number for one case);
     ``timing`` optionally one mapping method -> milliseconds for the run-time table."""
 
-    table: str
+    table: str | None = None
     file: str = "reference/paper_tables.json"
     timing: str | None = None
     label: str = "paper"
+    subarea_table: str | None = None
+
+    def __post_init__(self) -> None:
+        require(self.table is not None or self.subarea_table is not None,
+                "reference needs a table (or a subarea_table: a track-before-detect sub-area study's)")
 
 
 class StudyFile:
@@ -355,10 +386,12 @@ class Scenario(StudyFile):
     set_metrics: SetMetricSpec = SetMetricSpec()
     random_streams: Literal["per_block", "per_product"] = "per_block"
     description: str = ""
+    rd_maps: RDMapsSpec | None = None
     base_dir: str = field(default=".", init=False, compare=False)
 
     def __post_init__(self) -> None:
         require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
+        self._check_case_overrides()
         require(1 <= self.mc_runs <= MAX_MC_RUNS, f"mc_runs must be in [1, {MAX_MC_RUNS:,}], got {self.mc_runs:,}")
         require(self.block_runs >= 1, f"block_runs must be at least 1, got {self.block_runs}")
         require(self.warmup_steps >= 0, f"warmup_steps must be >= 0, got {self.warmup_steps}")
@@ -378,7 +411,7 @@ class Scenario(StudyFile):
             require(reads != "detections" or self.detections is not None,
                     f"method {m.name!r} (kind {m.kind}) reads detections, which this scenario does not make: add a "
                     "detections section (pd, clutter)")
-        products = sorted({method_kind(m.kind).reads for m in self.methods})
+        products = sorted({method_kind(m.kind).reads for m in self.methods if not method_kind(m.kind).bound})
         require(len(products) == 1 or self.random_streams == "per_product",
                 f"the methods read {len(products)} products ({', '.join(products)}); set random_streams: per_product "
                 "(each product its own random stream, one initiation prior shared by all)")
@@ -395,6 +428,38 @@ class Scenario(StudyFile):
                 points *= len(self.tuning.grid(key))
             require(points <= MAX_TUNING_POINTS, f"method {m.name!r}: {points} grid points to try, more than "
                                                  f"{MAX_TUNING_POINTS}; use smaller grids")
+
+    def _check_case_overrides(self) -> None:
+        """A case's ``methods`` (names of the scenario's methods, all if empty) and ``rd_maps``
+        (keys of the scenario's ``rd_maps`` section it overrides, checked like the section)."""
+        known = [m.name for m in self.methods]
+        for c in self.cases:
+            unknown = [n for n in c.methods if n not in known]
+            require(not unknown, f"case {c.name!r}: methods {unknown} are not methods of the scenario "
+                                 f"(methods: {', '.join(known)})")
+            if c.rd_maps:
+                require(self.rd_maps is not None, f"case {c.name!r} overrides rd_maps, but the scenario has no rd_maps "
+                                                  "section")
+                self.case_rd_maps(c)
+
+    def case_methods(self, case: CaseSpec) -> tuple[MethodSpec, ...]:
+        """The methods a case runs: those it names, or all."""
+        return tuple(m for m in self.methods if not case.methods or m.name in case.methods)
+
+    def case_rd_maps(self, case: CaseSpec) -> RDMapsSpec | None:
+        """The scenario's ``rd_maps`` section with the case's overrides (nested sections merged key
+        by key), checked like the section itself."""
+        if self.rd_maps is None or not case.rd_maps:
+            return self.rd_maps
+        from ..config import to_dict
+
+        def merged(base: dict, over: dict) -> dict:
+            out = dict(base)
+            for k, v in over.items():
+                out[k] = merged(base[k], v) if isinstance(v, dict) and isinstance(base.get(k), dict) else v
+            return out
+
+        return from_dict(RDMapsSpec, merged(to_dict(self.rd_maps), case.rd_maps), where=f"case {case.name!r}: rd_maps")
 
     def with_mc_runs(self, mc_runs: int | None) -> "Scenario":
         if mc_runs is None:
@@ -430,7 +495,7 @@ class Scenario(StudyFile):
 
         d = to_dict(self)
         for key, off in (("tuning", None), ("detections", None), ("set_metrics", to_dict(SetMetricSpec())),
-                         ("random_streams", "per_block")):
+                         ("random_streams", "per_block"), ("rd_maps", None)):
             if d[key] == off:
                 del d[key]
         for c in d["cases"]:  # an inline case is written as before; a multi-target one without the inline fields
@@ -438,6 +503,15 @@ class Scenario(StudyFile):
                 c.pop(k, None)
             if c.get("segments") == []:
                 del c["segments"]
+            for key, off in (("end_s", None), ("methods", []), ("rd_maps", {})):
+                if c[key] == off:
+                    del c[key]
+            for t in c.get("targets", []):  # the start as a position and velocity, only where given so
+                for key in ("start_m", "velocity_mps", *FLIGHT_FIELDS):
+                    if t.get(key, 0) is None:
+                        del t[key]
+        if d.get("reference") and d["reference"].get("subarea_table") is None:
+            del d["reference"]["subarea_table"]
         if not self.noise.has_outliers and self.noise.range_outlier_scale == 10.0:
             del d["noise"]["range_outlier_prob"], d["noise"]["range_outlier_scale"]
         return d

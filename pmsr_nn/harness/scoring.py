@@ -36,7 +36,7 @@ from ..metrics import (SetScores, label_switches, labelled_assignment, matched_t
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
-PER_RUN = ("run_mse", "gospa_run")
+PER_RUN = ("run_mse", "gospa_run", "tbd_run_pos_err")
 """Quantities kept per run (concatenated over blocks); every other one is summed per block."""
 
 
@@ -158,3 +158,49 @@ def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
     out["assigned_count"] = both.sum(0).to(torch.float64).numpy()
     out["switches"] = label_switches(sc.assignment, t_mask).sum(0).to(torch.float64).numpy()
     return out
+
+
+def extra_sums(extras: dict) -> dict[str, np.ndarray]:
+    """Sums over a block's runs of the diagnostics a tracker reports in ``extras`` (where it does):
+    a labelling's ``labels (B,)`` (labels confirmed per run) and GTDA's ``repaired (B,)`` (conflicts
+    resolved after the game) and ``game_rounds (K,)`` (rounds played per scan, one count for the
+    block); a PHD filter's ``phd_expected (B, K)`` (its integral after each update) and
+    ``phd_particles (B, K)`` per scan, and ``phd_seconds`` (the filter's seconds on the block)."""
+    out = {}
+    for key in ("labels", "repaired"):
+        if key in extras:
+            out[key] = np.asarray(float(extras[key].to(torch.float64).sum()))
+    if "game_rounds" in extras:
+        out["game_rounds"] = extras["game_rounds"].to(torch.float64).numpy()
+    for key in ("phd_expected", "phd_particles"):
+        if key in extras:
+            out[key] = extras[key].to(torch.float64).sum(0).numpy()
+    if "phd_seconds" in extras:
+        out["phd_seconds"] = np.asarray(float(extras["phd_seconds"]))
+    return out
+
+
+def tbd_sums(est: Estimates, truth: Truth, pos: list[int], vel: list[int]) -> dict[str, np.ndarray]:
+    """Per-frame sums over the runs of a track-before-detect method (its ``extras``,
+    :mod:`pmsr_nn.methods.tbd`), the Remote Sensing 2020 seed's figures: ``tbd_detected (K,)``
+    runs with some component above the threshold; ``tbd_pos``, ``tbd_vel (K,)`` squared position /
+    velocity error of the most probable component against the nearest living target, over
+    ``tbd_hits (K,)`` runs that detect while a target lives; ``tbd_existence (K,)`` the most
+    probable component's existence; ``tbd_snr_db (K, P)`` the SNRs the updates used;
+    ``tbd_particles (K,)``; per run ``tbd_run_pos_err (B, K)`` the position error (NaN where the
+    run does not detect or no target lives)."""
+    ex = est.extras
+    det, xb = ex["tbd_detected"], ex["tbd_best_x"]  # (B, K), (B, K, n)
+    t = truth.x  # (B, K, N, n)
+    e_p = ((xb[:, :, None][..., pos] - t[..., pos]) ** 2).sum(-1)  # (B, K, N)
+    e_v = ((xb[:, :, None][..., vel] - t[..., vel]) ** 2).sum(-1)
+    e_p = torch.where(truth.alive, e_p, torch.full_like(e_p, float("inf")))
+    e_p, nearest = e_p.min(-1)  # (B, K): the nearest living target
+    e_v = e_v.gather(-1, nearest[..., None])[..., 0]
+    hit = det & truth.alive.any(1)
+    zero = torch.zeros((), dtype=e_p.dtype)
+    return {"tbd_detected": det.sum(0).double().numpy(), "tbd_pos": torch.where(hit, e_p, zero).sum(0).numpy(),
+            "tbd_vel": torch.where(hit, e_v, zero).sum(0).numpy(), "tbd_hits": hit.sum(0).double().numpy(),
+            "tbd_existence": ex["tbd_best_r"].sum(0).numpy(), "tbd_snr_db": ex["tbd_snr_db"].sum(0).numpy(),
+            "tbd_particles": ex["tbd_particles"].sum(0).double().numpy(),
+            "tbd_run_pos_err": torch.where(hit, e_p.sqrt(), torch.full_like(e_p, float("nan"))).numpy()}

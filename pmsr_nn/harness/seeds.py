@@ -68,8 +68,8 @@ def paired_margin(learned_run_rmse: list[np.ndarray], classical_run_rmse: np.nda
 
 def comparisons(methods: dict, run_rmse: dict[str, np.ndarray]) -> list[dict]:
     """Every learned unit (:func:`learned_units`) against the case's best classical method (lowest
-    ``rmse_pos_m`` among the non-learned ones), paired over the runs (:func:`paired_margin`)."""
-    classical = {n: r for n, r in methods.items() if r["kind"] != "learned"}
+    ``rmse_pos_m`` among the non-learned estimators), paired over the runs (:func:`paired_margin`)."""
+    classical = {n: r for n, r in methods.items() if r["kind"] not in ("learned", "pcrb")}  # a bound estimates nothing
     if not classical:
         return []
     best = min(classical, key=lambda n: classical[n]["rmse_pos_m"])

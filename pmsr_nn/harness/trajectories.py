@@ -50,11 +50,17 @@ def design_trajectory(case: CaseSpec, recipe: TrackRecipe, ramp_s: float) -> tor
     K = int(math.floor(case.duration_s / dt + 1e-9))
     if K < 2:
         raise ConfigError(f"case {case.name!r}: the trajectory is empty ({case.duration_s} s at dt = {dt} s)")
-    ox, oy = recipe.geometry.transmitters[0].position_m[:2]
-    b = math.radians(case.start_bearing_deg)
-    x, y = ox + case.start_range_m * math.sin(b), oy + case.start_range_m * math.cos(b)
-    psi = math.radians(case.heading_deg)
-    v = case.speed_mps
+    if getattr(case, "start_m", None) is not None:
+        (x, y), (vx, vy) = case.start_m, case.velocity_mps
+        if all(seg.along_mps2 == 0 and seg.across_mps2 == 0 for seg in case.segments):
+            return straight_flight(x, y, vx, vy, K, dt)
+        v, psi = math.hypot(vx, vy), math.atan2(vx, vy)
+    else:
+        ox, oy = recipe.geometry.transmitters[0].position_m[:2]
+        b = math.radians(case.start_bearing_deg)
+        x, y = ox + case.start_range_m * math.sin(b), oy + case.start_range_m * math.cos(b)
+        psi = math.radians(case.heading_deg)
+        v = case.speed_mps
     h = dt / SUBSTEPS
     out = []
     t = 0.0
@@ -67,6 +73,14 @@ def design_trajectory(case: CaseSpec, recipe: TrackRecipe, ramp_s: float) -> tor
         along, across = commanded_acceleration(case, t, ramp_s)
         out.append(ca_sample(x, y, v, psi, along, across))
     return torch.tensor(out, dtype=torch.float64)
+
+
+def straight_flight(x: float, y: float, vx: float, vy: float, K: int, dt: float) -> torch.Tensor:
+    """CA states ``(K, 6)`` of a straight, unaccelerated flight from ``(x, y)`` at ``(vx, vy)``,
+    in closed form: position ``start + (k dt) v`` at sample ``k`` (no integration error)."""
+    t = torch.arange(K, dtype=torch.float64) * dt
+    zero = torch.zeros_like(t)
+    return torch.stack([x + t * vx, torch.full_like(t, vx), zero, y + t * vy, torch.full_like(t, vy), zero], -1)
 
 
 def check_inside(truth: torch.Tensor, recipe: TrackRecipe, name: str) -> None:

@@ -11,6 +11,10 @@ one module here (plus its tests): the runner and the report need no edit.
 * :mod:`.msjpda`: S-/P-MSJPDA and the true-assignment reference, on the detections;
 * :mod:`.pmht`: PMHT, 3-D association PMHT and the true-assignment smoother, on the detections;
 * :mod:`.phd`: the multi-sensor SMC-PHD with GTDA or Hungarian track labelling, on the detections;
+* :mod:`.tbd`: track-before-detect (PMB, ICMB, modified ICMB) and detect-then-track, on range-Doppler maps;
+* :mod:`.phd_pair`: the SMC-PHD in one pair's bistatic plane with GTDA or Hungarian labelling, and its
+  known-association Kalman filter reference, on the detections (scored in that plane);
+* :mod:`.bound`: the PCRB as a row (``kind: pcrb``), filled by the runner, never called;
 * :mod:`.stonesoup`: Stone Soup's JPDA or GNN on the detections (optional extra; checked when a
   scenario uses it).
 """
@@ -97,7 +101,13 @@ class MethodKind:
     ``check(spec, alive, resource, case)`` refuses a case the method can not run and
     ``check_sensing(spec, sensing)`` one whose sensing (a :class:`SensorSetup`) it can not read
     (one-line errors); ``starts_tracks``: the kind always starts its own tracks from the detections
-    (no ``initiation`` option to say so; the report scores its rows as tracks started from detections).
+    (no ``initiation`` option to say so; the report scores its rows as tracks started from detections);
+    ``bound``: the kind is an information bound, not an estimator (:mod:`.bound`): the runner calls
+    nothing and fills its row from the case's bound; ``space(spec, sensing) -> EstimateSpace``: the
+    kind's estimates are not the scenario's state but live in another space (one pair's bistatic
+    plane): the runner scores them against the truth projected into it (:class:`EstimateSpace`);
+    ``initiation``: how the kind's tracks start where the runner can not tell from ``reads`` and
+    ``starts_tracks`` (e.g. ``association known`` for a reference that reads the detections' origins).
     """
 
     name: str
@@ -111,6 +121,29 @@ class MethodKind:
     check_sensing: Callable | None = None
     description: str = ""
     starts_tracks: bool = False
+    bound: bool = False
+    space: Callable | None = None
+    initiation: str = ""
+
+
+@dataclass(frozen=True)
+class EstimateSpace:
+    """Where a kind's estimates live when they are not the scenario's state (``MethodKind.space``).
+
+    ``project(x (..., n)) -> (..., m)`` maps true states (finite) to the estimates' columns,
+    noise-free (a measurement model's ``h``); ``key`` names the space (rows with one key share one
+    projected truth per block); ``pos`` / ``vel`` are the columns the runner scores as "position"
+    (OSPA, GOSPA, position RMSE) and "velocity"; ``title``, ``pos_label`` and ``vel_label`` say in
+    the report what those figures are (e.g. bistatic range in metres, one axis: not comparable with
+    a Cartesian OSPA)."""
+
+    key: str
+    project: Callable
+    title: str
+    pos: tuple[int, ...] = (0,)
+    vel: tuple[int, ...] = (1,)
+    pos_label: str = "position (m)"
+    vel_label: str = "velocity (m/s)"
 
 
 REGISTRY: dict[str, MethodKind] = {}
@@ -137,20 +170,21 @@ def registry() -> dict[str, MethodKind]:
 
 
 PRODUCTS = {"measurements": "each target's own measurement stream (association known)",
-            "detections": "per-pair detections with misses and clutter (association unknown)"}
+            "detections": "per-pair detections with misses and clutter (association unknown)",
+            "truth": "the designed flights themselves, nothing drawn (a bound's row)",
+            "rd_maps": "per transmitter-receiver pair and frame, a range-Doppler map (track-before-detect)"}
 """What each product a kind reads is (:mod:`pmsr_nn.simulation.products`)."""
 
 ELSEWHERE = (
-    (("icmb", "modified_icmb", "micmb", "mb", "pmb", "mbm", "tbd", "track_before_detect", "detect_then_track"),
-     "the track-before-detect filters (modified ICMB, ICMB, PMB, detect-then-track) run in study files of their "
-     "own, 'kind: tbd' at the top of the file (e.g. evaluate/remotesensing2020_icmb.yaml; pmsr_nn/harness/tbd_study.py)"),
-    (("phd", "smcphd", "gtda", "hungarian"),
-     "SMC-PHD with GTDA or Hungarian labelling in one bistatic plane (one pair's range and range-rate) runs in "
-     "study files of its own, 'kind: phd' at the top of the file (e.g. evaluate/daniyan_smcphd.yaml; "
-     "pmsr_nn/harness/phd_study.py); in a scenario's methods, kind smc_phd (Cartesian, every pair; option "
-     "labelling: gtda | hungarian)"),
-    (("pcrb", "crb", "bound"),
-     "the PCRB is not a method: the report of a scenario of designed targets has its row in every case"),
+    (("micmb", "mb", "mbm", "mb_tbd", "tbd", "track_before_detect"),
+     "the track-before-detect filters are kinds pmb, icmb, modified_icmb and detect_then_track (they read the "
+     "range-Doppler maps of a scenario's rd_maps section; e.g. evaluate/remotesensing2020_icmb.yaml)"),
+    (("phd", "smcphd", "gtda", "hungarian", "known_association_kf"),
+     "SMC-PHD with GTDA or Hungarian labelling is kind smc_phd (Cartesian, every pair) or smc_phd_pair (one "
+     "pair's bistatic range and range-rate, e.g. evaluate/daniyan_smcphd.yaml), option labelling: gtda | hungarian "
+     "(| none for smc_phd_pair); its known-association reference is kind known_association_kf_pair"),
+    (("crb", "bound", "pcrlb", "cramer_rao"),
+     "the posterior Cramer-Rao bound is kind pcrb (a row of a scenario of designed targets; options bound, q)"),
 )
 """Names a user may try for trackers that are not method kinds, and where they live."""
 

@@ -106,7 +106,7 @@ class SensorSetup:
     clutter: ClutterSpec | None = None
     illuminator_known: bool = True
     front_end: object | None = None  # a frontend.chain.FrontEndSpec: detections from simulated signals
-    rd_maps: object | None = None  # a tbd.scene.TBDScene: range-Doppler maps for track-before-detect
+    rd_maps: object | None = None  # a tbd.scene.MapScene: range-Doppler maps for track-before-detect
 
     def pair_clutter(self) -> ClutterSpec:
         """Clutter drawn per pair and scan: the scenario's per list, split evenly over a

@@ -5,5 +5,8 @@
   maximum-likelihood amplitude behind the online SNR estimate;
 * :mod:`.multibernoulli`: the SMC multi-Bernoulli filter (PMB, ICMB, modified ICMB);
 * :mod:`.detect`: detect-then-track on the same maps, for comparison;
-* :mod:`.scene`: a study's scene (satellites, target, frames) and the ``rd_maps`` product.
+* :mod:`.scene`: what forms a case's maps (a scenario's ``rd_maps`` section: satellites seen by one
+  receiver, or the recipe's transmitter-receiver pairs), a stand-alone scene of satellites and one
+  target for the tests, and the ``rd_maps`` product;
+* :mod:`.run`: one filter on one block of maps (what :mod:`pmsr_nn.methods.tbd` calls).
 """

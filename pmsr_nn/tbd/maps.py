@@ -1,12 +1,13 @@
 """Range-Doppler maps of a GNSS-based multistatic passive radar: geometry, response, simulation.
 
-One receiver at the origin and moving satellites as transmitters (the Remote Sensing 2020 seed,
-``001``). Per transmitter and frame the receiver forms a map after 2-D coherent integration; the
-seed removes the direct path's range and the satellite's own Doppler, so a map's axes are
+Moving satellites as transmitters seen by one receiver (the Remote Sensing 2020 seed, ``001``),
+or fixed transmitters with receivers anywhere (a scenario's FM pairs): per transmitter-receiver
+pair and frame the receiver forms a map after 2-D coherent integration; the seed removes the
+direct path's range and the transmitter's own Doppler, so a map's axes are
 
-* the *excess* bistatic range ``R = |p_T - p| + |p| - |p_T|`` (m), and
+* the *excess* bistatic range ``R = |p - p_T| + |p - p_R| - |p_T - p_R|`` (m), and
 * the target's Doppler ``f = -(u_T + u_R) . v / lambda`` (Hz), ``u_T``, ``u_R`` the unit vectors
-  from transmitter and receiver to the target, ``v`` its velocity (the satellite's motion removed).
+  from transmitter and receiver to the target, ``v`` its velocity (the transmitter's motion removed).
 
 Response (our choice, the seed's Eq. 3 being the modified-RFT output): separable, with a *triangle*
 in range, the autocorrelation envelope of a C/A-like code (half-width one chip, ``c / chip_rate_hz``
@@ -15,7 +16,8 @@ Doppler resolution is the cell ``doppler_cell_hz``. A target of complex amplitud
 (phase uniform per frame and map, amplitude fixed: Swerling 0) adds
 ``A exp(j phi) tri((R_u - R) / chip) sinc((f_d - f) / doppler_cell)`` to cell ``(d, u)``, in circular
 complex Gaussian noise of power ``noise_power`` per cell; the map SNR is ``A^2 / noise_power``
-(the seed's Eq. 25). Range cells are ``c / sample_rate_hz`` (60 m at the seed's 5 MHz).
+(the seed's Eq. 25). Range cells are ``c / sample_rate_hz`` (60 m at the seed's 5 MHz). Several
+targets add their responses, each with its own phase per frame and map.
 
 Shapes: maps ``(B, P, D, U)`` complex64 (runs, transmitters, Doppler rows, range columns); a
 map's first cell is at ``range0_m[p]``, ``doppler0_hz[p]``.
@@ -30,7 +32,7 @@ import numpy as np
 import torch
 
 from ..config import require
-from ..measurements import bistatic_range_rate
+from ..measurements import MIN_SENSOR_DISTANCE_M
 
 C = 299_792_458.0
 """Speed of light (m/s)."""
@@ -54,24 +56,40 @@ class Satellite:
 class MapSpec:
     """How maps are formed. ``sample_rate_hz`` sets the range cell (``c / fs``), ``chip_rate_hz``
     the triangle's half-width, ``doppler_cell_hz`` the Doppler cell (the inverse of the coherent
-    frame), ``wavelength_m`` the carrier; ``noise_power`` per cell; ``altitude_m``: the target's
-    (known, constant) height above the receiver; ``margin_cells``: cells added on every side of the
-    region the birth box can reach."""
+    frame); the carrier is ``wavelength_m`` or ``carrier_hz`` (at most one; neither: each
+    transmitter's own carrier, which a scenario's FM transmitters have and satellites have not);
+    ``noise_power`` per cell; ``altitude_m``: the target's (known, constant) height above the
+    ground the sensors stand on; ``margin_cells``: cells added on every side of the region the
+    birth box can reach."""
 
-    wavelength_m: float = 0.19
+    wavelength_m: float | None = None
     sample_rate_hz: float = 5.0e6
     chip_rate_hz: float = 1.023e6
     doppler_cell_hz: float = 0.5
     noise_power: float = 1.0
     altitude_m: float = 5000.0
     margin_cells: int = 8
+    carrier_hz: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("wavelength_m", "sample_rate_hz", "chip_rate_hz", "doppler_cell_hz", "noise_power"):
+        for name in ("sample_rate_hz", "chip_rate_hz", "doppler_cell_hz", "noise_power"):
             v = getattr(self, name)
             require(math.isfinite(v) and v > 0, f"maps.{name} must be positive, got {v}")
+        for name in ("wavelength_m", "carrier_hz"):
+            v = getattr(self, name)
+            require(v is None or (math.isfinite(v) and v > 0), f"maps.{name} must be positive (or null), got {v}")
+        require(self.wavelength_m is None or self.carrier_hz is None,
+                "maps: give wavelength_m or carrier_hz, not both")
         require(math.isfinite(self.altitude_m) and self.altitude_m >= 0, "maps.altitude_m must be >= 0")
         require(self.margin_cells >= 0, "maps.margin_cells must be >= 0")
+
+    @property
+    def wavelength(self) -> float | None:
+        """The maps' carrier wavelength (m): ``wavelength_m``, or ``c / carrier_hz``; None where each
+        transmitter's own carrier sets it."""
+        if self.carrier_hz is not None:
+            return C / self.carrier_hz
+        return self.wavelength_m
 
     @property
     def range_cell_m(self) -> float:
@@ -90,20 +108,38 @@ def transmitter_positions(satellites: tuple[Satellite, ...], times_s: torch.Tens
     return p0 + times_s[:, None, None] * v
 
 
-def range_doppler(states: torch.Tensor, tx: torch.Tensor, spec: MapSpec) -> tuple[torch.Tensor, torch.Tensor]:
+def range_doppler(states: torch.Tensor, tx: torch.Tensor, spec: MapSpec, rx: torch.Tensor | None = None,
+                  wavelength: torch.Tensor | float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Excess bistatic range (m) and target Doppler (Hz) of planar CV states ``(..., 4)``
-    ``[x, vx, y, vy]`` at altitude ``spec.altitude_m``, for transmitters ``tx (P, 3)``: each
-    ``(..., P)``. The receiver is at the origin. The excess range is formed as
-    ``(|p|^2 - 2 p.t) / (|p - t| + |t|) + |p|`` (no cancellation between 20,000 km distances)."""
+    ``[x, vx, y, vy]`` at altitude ``spec.altitude_m``, for transmitters ``tx (P, 3)`` and
+    receivers ``rx (P, 3)`` (one per map; ``None``: every map's at the origin): each ``(..., P)``.
+    ``wavelength``: per map ``(P,)`` or one value (``None``: ``spec.wavelength``).
+
+    Everything is computed relative to each map's receiver (``q = p - r``, ``s = t - r``, exact
+    for a receiver at the origin), and the excess range as ``(|q|^2 - 2 q.s) / (|q - s| + |s|) + |q|``,
+    the identity ``|q - s| - |s| = (|q|^2 - 2 q.s) / (|q - s| + |s|)`` without the cancellation
+    between two 20,000 km distances that the direct form ``|q - s| + |q| - |s|`` suffers."""
     x, vx, y, vy = states.unbind(-1)
     pos = torch.stack([x, y, torch.full_like(x, spec.altitude_m)], -1)  # (..., 3)
     vel = torch.stack([vx, vy, torch.zeros_like(vx)], -1)
-    p = pos[..., None, :]  # (..., 1, 3)
-    d_t = (p - tx).norm(dim=-1)
-    d_r = p.norm(dim=-1)
-    rng = (d_r * d_r - 2 * (p * tx).sum(-1)) / (d_t + tx.norm(dim=-1)) + d_r
-    rate = bistatic_range_rate(pos, vel, tx, torch.zeros(1, 3, dtype=tx.dtype))  # the receiver at the origin
-    return rng, -rate / spec.wavelength_m
+    if rx is None:
+        rx = torch.zeros(1, 3, dtype=tx.dtype)
+    q = pos[..., None, :] - rx.to(pos.dtype)  # (..., P, 3): the target from each map's receiver
+    s = (tx.to(torch.float64) - rx.to(torch.float64)).to(tx.dtype)  # (P, 3): each transmitter from its receiver
+    d_t = (q - s).norm(dim=-1)
+    d_r = q.norm(dim=-1)
+    rng = (d_r * d_r - 2 * (q * s).sum(-1)) / (d_t + s.norm(dim=-1)) + d_r
+    # the bistatic range rate v . (u_T + u_R), unit vectors guarded as measurements.bistatic_range_rate's
+    diff_t = q - s
+    u_t = diff_t / torch.linalg.vector_norm(diff_t, dim=-1).clamp_min(MIN_SENSOR_DISTANCE_M).unsqueeze(-1)
+    u_r = q / torch.linalg.vector_norm(q, dim=-1).clamp_min(MIN_SENSOR_DISTANCE_M).unsqueeze(-1)
+    rate = ((u_t + u_r) * vel.unsqueeze(-2)).sum(-1)
+    lam = spec.wavelength if wavelength is None else wavelength
+    if lam is None:
+        raise ValueError("range_doppler: no wavelength (give maps.wavelength_m or carrier_hz, or per-map wavelengths)")
+    if isinstance(lam, torch.Tensor):
+        lam = lam.to(rate.dtype)
+    return rng, -rate / lam
 
 
 @dataclass(frozen=True)
@@ -129,21 +165,25 @@ class MapGrid:
 
 
 def grid_covering(box_lo: torch.Tensor, box_hi: torch.Tensor, tx: torch.Tensor, dt: float, spec: MapSpec,
-                  samples: int = 7) -> MapGrid:
+                  samples: int = 7, rx: torch.Tensor | None = None,
+                  wavelength: torch.Tensor | float | None = None) -> MapGrid:
     """The smallest grid holding every state a birth at any frame can reach at any later frame:
     the box ``[box_lo, box_hi]`` (``(4,)``, CV ``[x, vx, y, vy]``) moved straight for ``0 .. K-1``
-    frames of ``dt`` s, seen from the transmitters ``tx (K, P, 3)`` of the frame it reaches, plus
-    the margin (range and Doppler are smooth over the box, sampled on ``samples`` points per axis)."""
+    frames of ``dt`` s, seen from the transmitters ``tx (K, P, 3)`` of the frame it reaches (and
+    the receivers ``rx``, wavelengths ``wavelength``: :func:`range_doppler`'s), plus the margin
+    (range and Doppler are smooth over the box, sampled on ``samples`` points per axis)."""
     axes = [torch.linspace(float(a), float(b), samples, dtype=torch.float64) for a, b in zip(box_lo, box_hi)]
     pts = torch.cartesian_prod(*axes)  # (S, 4)
     K = tx.shape[0]
     r_lo = r_hi = f_lo = f_hi = None
-    for k in range(K):
+    # fixed transmitters: the last frame's lags 0 .. K-1 hold every earlier frame's (K frames, not K^2 / 2)
+    frames = [K - 1] if bool((tx == tx[:1]).all()) else range(K)
+    for k in frames:
         lag = torch.arange(k + 1, dtype=torch.float64)[:, None] * dt  # born k, k-1, .., 0 frames ago
         moved = pts[None].clone().repeat(k + 1, 1, 1)
         moved[..., 0] += lag * moved[..., 1]
         moved[..., 2] += lag * moved[..., 3]
-        rng, dop = range_doppler(moved.reshape(-1, 4), tx[k], spec)  # (S', P)
+        rng, dop = range_doppler(moved.reshape(-1, 4), tx[k], spec, rx, wavelength)  # (S', P)
         lows = (rng.amin(0), dop.amin(0))
         highs = (rng.amax(0), dop.amax(0))
         if r_lo is None:
@@ -173,25 +213,33 @@ def response(d_rows: torch.Tensor, u_cols: torch.Tensor, d: torch.Tensor, u: tor
 
 def simulate_frame(rng: torch.Tensor, dop: torch.Tensor, present: torch.Tensor, snr_db: torch.Tensor, grid: MapGrid,
                    spec: MapSpec, g: torch.Generator) -> torch.Tensor:
-    """One frame's maps ``(B, P, D, U)`` complex64: noise of power ``spec.noise_power`` plus, where
-    ``present (B,)``, the target at ``rng``, ``dop (B, P)`` with map SNR ``snr_db (P,)`` and a
-    uniform random phase per map. Noise is drawn first, then the phases, in that order always."""
-    B, P = rng.shape
+    """One frame's maps ``(B, P, D, U)`` complex64: noise of power ``spec.noise_power`` plus each
+    target present: target ``n`` at ``rng``, ``dop (B, P, N)`` where ``present (B, N)`` (or one
+    target: ``(B, P)`` and ``(B,)``) with map SNR ``snr_db (P,)`` and a uniform random phase per
+    run, map and target. Noise is drawn first, then the phases ``(B, P, N)``, in that order always;
+    the responses are summed in complex128 (target by target) and added to the noise in complex64."""
+    if rng.dim() == 2:
+        rng, dop, present = rng[..., None], dop[..., None], present[:, None]
+    B, P, N = rng.shape
     D, U = grid.D, grid.U
     s = math.sqrt(spec.noise_power / 2)
     noise = torch.randn((B, P, D, U, 2), generator=g, dtype=torch.float32) * s
     maps = torch.view_as_complex(noise)
-    phase = torch.rand((B, P), generator=g, dtype=torch.float64) * (2 * math.pi)
+    phase = torch.rand((B, P, N), generator=g, dtype=torch.float64) * (2 * math.pi)
     amp = torch.sqrt(spec.noise_power * 10.0 ** (snr_db.to(torch.float64) / 10))  # (P,)
-    d, u = grid.cell_coordinates(rng, dop)
+    d, u = grid.cell_coordinates(rng.transpose(1, 2), dop.transpose(1, 2))  # (B, N, P)
     rows = torch.arange(D, dtype=torch.float64)
     cols = torch.arange(U, dtype=torch.float64)
-    # separable: (B, P, D, 1) x (B, P, 1, U)
-    dr = torch.sinc(rows - d[..., None])
-    ur = triangle((cols - u[..., None]) / spec.lobe_cells)
-    c = (amp * torch.polar(torch.ones_like(phase), phase)) * present[:, None].to(torch.float64)
-    sig = (c[..., None, None] * dr[..., :, None] * ur[..., None, :]).to(torch.complex64)
-    return maps + sig
+    sig = None
+    zero = torch.zeros((), dtype=torch.complex128)
+    for n in range(N):
+        # separable: (B, P, D, 1) x (B, P, 1, U)
+        dr = torch.sinc(rows - d[:, n, :, None])
+        ur = triangle((cols - u[:, n, :, None]) / spec.lobe_cells)
+        c = amp * torch.polar(torch.ones_like(phase[..., n]), phase[..., n])  # (B, P)
+        term = torch.where(present[:, n, None, None, None], c[..., None, None] * dr[..., :, None] * ur[..., None, :], zero)
+        sig = term if sig is None else sig + term
+    return maps + sig.to(torch.complex64)
 
 
 def power_ratio(half: int | None, lobe_cells: float, points: int = 2001) -> float:

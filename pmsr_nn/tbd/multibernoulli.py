@@ -109,13 +109,16 @@ class MBSpec:
 class MBOutput:
     """Per run and frame: ``x (B, K, Q, 4)`` component means, ``r (B, K, Q)`` existence after the
     update (0 for free slots), ``snr_db (B, K, P)`` the SNRs the update used (estimated or given),
-    ``order (B, K, P)`` the maps' update order, ``particles (B, K)`` the particles after resampling."""
+    ``order (B, K, P)`` the maps' update order, ``particles (B, K)`` the particles after resampling,
+    ``born (B, K)`` the slot the frame's birth went into (a slot's component is a new one from then
+    on: slots are reused)."""
 
     x: torch.Tensor
     r: torch.Tensor
     snr_db: torch.Tensor
     order: torch.Tensor
     particles: torch.Tensor
+    born: torch.Tensor | None = None
 
     def best(self, threshold: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The most probable component per run and frame: its mean ``(B, K, 4)``, whether its ``r``
@@ -200,11 +203,12 @@ class MultiBernoulliTBD:
         Q = spec.max_components
         st = MBState(torch.zeros(B, 0, 4, dtype=torch.float64), torch.zeros(B, 0, dtype=torch.float64),
                      torch.zeros(B, 0, dtype=torch.int64), torch.zeros(B, Q, dtype=torch.float64))
-        xs, rs, snrs, orders, counts = [], [], [], [], []
+        xs, rs, snrs, orders, counts, born = [], [], [], [], [], []
         lo, hi = self.box.bounds()
         for k in range(K):
             st = self._predict(st, g) if k else st
-            st = self._birth(st, lo, hi, g)
+            st, slot = self._birth(st, lo, hi, g)
+            born.append(slot)
             loglr, snr = measure(st.x, st.comp < Q, k)
             P = loglr.shape[-1]
             order = torch.argsort(snr, dim=1, descending=spec.update == "descending", stable=True)
@@ -220,7 +224,7 @@ class MultiBernoulliTBD:
             st = self._resample(st, g)
             counts.append((st.comp < Q).sum(1))
         return MBOutput(torch.stack(xs, 1), torch.stack(rs, 1), torch.stack(snrs, 1), torch.stack(orders, 1),
-                        torch.stack(counts, 1))
+                        torch.stack(counts, 1), torch.stack(born, 1))
 
     # ------------------------------------------------------------------ stages
 
@@ -230,8 +234,9 @@ class MultiBernoulliTBD:
         x = st.x @ self.F.T + w @ self.L.T * self.spec.accel_sd_mps2
         return MBState(x, st.logw, st.comp, st.r * self.spec.survival)
 
-    def _birth(self, st: MBState, lo: torch.Tensor, hi: torch.Tensor, g: torch.Generator) -> MBState:
-        """One new component per run in its first free slot (the weakest is dropped when none is free)."""
+    def _birth(self, st: MBState, lo: torch.Tensor, hi: torch.Tensor, g: torch.Generator) -> tuple[MBState, torch.Tensor]:
+        """One new component per run in its first free slot (the weakest is dropped when none is
+        free); also returns that slot ``(B,)``."""
         B, Q = st.r.shape
         n = self.spec.birth_particles
         free = st.r <= 0
@@ -243,7 +248,7 @@ class MultiBernoulliTBD:
         xb = lo + (hi - lo) * torch.rand((B, n, 4), generator=g, dtype=torch.float64)
         r = st.r.scatter(1, slot[:, None], self.spec.birth_r)
         return MBState(torch.cat([st.x, xb], 1), torch.cat([logw, torch.full((B, n), -math.log(n), dtype=torch.float64)], 1),
-                       torch.cat([comp, slot[:, None].expand(B, n)], 1), r)
+                       torch.cat([comp, slot[:, None].expand(B, n)], 1), r), slot
 
     def _bernoulli_update(self, st: MBState, loglr: torch.Tensor) -> MBState:
         """Eqs. 7-8 (or 26-27 for one map): ``loglr (B, M)`` per particle."""

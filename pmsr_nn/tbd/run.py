@@ -1,8 +1,10 @@
-"""One filter on one block of a scene's maps: what the study, the benchmark and the tests call.
+"""One filter on one block of maps: what the method kinds (:mod:`pmsr_nn.methods.tbd`), the
+benchmark and the tests call.
 
 :func:`run_filter` runs a filter (the seed's map likelihood, or detect-then-track when given a
 :class:`~.detect.DetectSpec`) on a block's ``rd_maps`` product; :func:`simulate_and_run` also draws
-the block (truth from ``(seed, 0)``, the maps from ``(seed, 1)``, the filter from ``(seed, 2)``).
+the block of a stand-alone :class:`~.scene.TBDScene` (truth from ``(seed, 0)``, the maps from
+``(seed, 1)``, the filter from ``(seed, 2)``).
 """
 
 from __future__ import annotations
@@ -14,10 +16,10 @@ from ..rng import seeded_generator
 from ..simulation.products import SensorSetup, Truth
 from .detect import DetectionLikelihood, DetectSpec
 from .multibernoulli import MapLikelihood, MBOutput, MBSpec, MultiBernoulliTBD
-from .scene import RangeDopplerMaps, TBDScene, make_rd_maps
+from .scene import MapScene, RangeDopplerMaps, TBDScene, make_rd_maps
 
 
-def run_filter(scene: TBDScene, spec: MBSpec, product: RangeDopplerMaps, g: torch.Generator,
+def run_filter(scene: MapScene, spec: MBSpec, product: RangeDopplerMaps, g: torch.Generator,
                detect: DetectSpec | None = None) -> MBOutput:
     """The CV multi-Bernoulli filter of ``spec`` over every frame of ``product`` (its runs batched)."""
     cv = motion_model("cv", 2)
@@ -35,11 +37,12 @@ def run_filter(scene: TBDScene, spec: MBSpec, product: RangeDopplerMaps, g: torc
 def draw_maps(scene: TBDScene, runs: int, seed: int) -> tuple[Truth, RangeDopplerMaps]:
     """The truth of ``runs`` runs and their maps product (generators ``(seed, 0)`` and ``(seed, 1)``)."""
     truth = scene.truth().draw(runs, seeded_generator(seed, 0))
-    return truth, make_rd_maps(SensorSetup(model=None, prior_sd=None, rd_maps=scene), truth, seeded_generator(seed, 1), None)
+    return truth, make_rd_maps(SensorSetup(model=None, prior_sd=None, rd_maps=scene.scene), truth,
+                               seeded_generator(seed, 1), None)
 
 
 def simulate_and_run(scene: TBDScene, spec: MBSpec, runs: int, seed: int,
                      detect: DetectSpec | None = None) -> tuple[MBOutput, Truth]:
     """Draw ``runs`` runs of the scene and run the filter on them (its generator ``(seed, 2)``)."""
     truth, product = draw_maps(scene, runs, seed)
-    return run_filter(scene, spec, product, seeded_generator(seed, 2), detect), truth
+    return run_filter(scene.scene, spec, product, seeded_generator(seed, 2), detect), truth

@@ -1399,55 +1399,66 @@ def _check() -> None:
 
 _check()
 TBD_YAML = """\
-kind: tbd
 name: tbd_tiny
 mc_runs: 1
 block_runs: 1
-scene:
-  satellites:
+warmup_steps: 0
+rd_maps:
+  transmitters:
     - {name: SVN2, position_m: [-17745000.0, 1835500.0, 13077300.0], velocity_mps: [2229.2, -519.2, 2058.0]}
     - {name: SVN18, position_m: [6818700.0, -6090400.0, 18620300.0], velocity_mps: [1654.7, -2019.3, -926.3]}
+  receiver_m: [0.0, 0.0, 0.0]
   snr_db: [12.0, 12.0]
-  maps: {doppler_cell_hz: 10.0}
-  frames: 4
-  appears_frame: 2
-  disappears_frame: 3
-table2_frame: 3
-filter: {particles_min: 50, particles_max: 200, birth_particles: 200}
-methods: [{name: m, filter: {estimate_snr: true}}]
-cases: [{name: c}]
+  maps: {wavelength_m: 0.19, doppler_cell_hz: 10.0, altitude_m: 500.0}
+  birth_box: {x_m: [4500.0, 5500.0], y_m: [2500.0, 3500.0], vx_mps: [-25.0, -15.0], vy_mps: [5.0, 15.0]}
+methods:
+  - {name: m, kind: modified_icmb, options: {particles_min: 50, particles_max: 200, birth_particles: 200}}
+cases:
+  - name: c
+    targets: [{name: t, start_m: [5000.0, 3000.0], velocity_mps: [-20.0, 10.0], birth_s: 1.0,
+               segments: [{duration_s: 2.0}]}]
+    end_s: 4.0
 """
 case("evaluate/tbd-ok", "evaluate t.yaml --out out", expect="ok", setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: None),
      outputs=("out",))
 case("evaluate/tbd-subarea-larger-than-map", "evaluate t.yaml --out out",
-     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["filter"].update(subarea_half=400)),
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["options"].update(subarea_half=400)),
      message="larger than the maps", klass="refusal")
 case("evaluate/tbd-snr-nan", "evaluate t.yaml --out out",
-     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["scene"].update(snr_db=[float("nan"), 12.0])),
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["rd_maps"].update(snr_db=[float("nan"), 12.0])),
      message="finite number", klass="refusal")
 case("evaluate/tbd-particles-min-above-max", "evaluate t.yaml --out out",
-     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["filter"].update(particles_min=500)),
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["options"].update(particles_min=500)),
      message="particles_min (500)", klass="refusal")
 case("evaluate/tbd-birth-box-outside-map", "evaluate t.yaml --out out",
-     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["scene"].update(map_extent={"range_m": [0.0, 3000.0],
-                                                                                 "doppler_hz": [-100.0, 100.0]})),
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["rd_maps"].update(map_extent={"range_m": [0.0, 3000.0],
+                                                                                   "doppler_hz": [-100.0, 100.0]})),
      message="outside the map's coverage", klass="refusal")
 case("evaluate/tbd-unknown-update-order", "evaluate t.yaml --out out",
-     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["filter"].update(update="sideways")),
-     message="update", klass="refusal")
-case("evaluate/tbd-shard", "evaluate t.yaml --out out --shard 1/2", setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: None),
-     message="unsharded", klass="refusal")
-case("evaluate/tbd-snr-model-length", "evaluate t.yaml --out out",
-     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["filter"].update(snr_model_db=[8.0, 9.0, 10.0])),
-     message="snr_model_db needs one value", klass="refusal")
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["options"].update(order="sideways")),
+     message="order", klass="refusal")
+case("evaluate/tbd-target-leaves-the-maps", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["cases"][0]["targets"][0].update(start_m=[8000.0, 3000.0])),
+     message="leaves the maps", klass="refusal")
+case("evaluate/tbd-snr-list-length", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["rd_maps"].update(snr_db=[8.0, 9.0, 10.0])),
+     message="snr_db needs one value or one per map", klass="refusal")
+case("evaluate/tbd-without-maps", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d.pop("rd_maps")),
+     message="add an rd_maps section", klass="refusal")
 PHD_YAML = """\
-kind: phd
+kind: multitarget
 name: phd_tiny
 mc_runs: 1
 block_runs: 1
-duration_s: 6
-phd: {particles_per_target: 50, particles_per_birth: 20}
-methods: [{name: g, labelling: gtda}]
+scans: 6
+dimensions: 3
+converged_from_scan: 0
+geometry: {transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 106.0e6}], receivers: [{position_m: [0.0, 0.0]}]}
+noise: {range_m: 30.0, range_rate_mps: 4.5}
+clutter: {per_scan: 10, model: poisson, range_m: [6500.0, 48000.0], range_rate_mps: [-500.0, 500.0]}
+max_range_m: 48000.0
+methods: [{name: g, kind: smc_phd_pair, options: {particles_per_target: 50, particles_per_birth: 20}}]
 cases: [{name: c}]
 aircraft:
   - {name: a, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0, legs: [{duration_s: 6}]}
@@ -1455,23 +1466,23 @@ aircraft:
 case("evaluate/phd-ok", "evaluate p.yaml --out out", expect="ok", setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: None),
      outputs=("out",))
 case("evaluate/phd-particles-per-target-below-10", "evaluate p.yaml --out out",
-     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["phd"].update(particles_per_target=9)),
-     message="at least 10", klass="refusal")
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(particles_per_target=9)),
+     message="option particles_per_target must be an integer in [10", klass="refusal")
 case("evaluate/phd-birth-without-mass", "evaluate p.yaml --out out",
-     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["phd"].update(birth_rate=0.0)),
-     message="birth intensity has no mass", klass="refusal")
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(birth_rate=0.0)),
+     message="option birth_rate must be a number in", klass="refusal")
 case("evaluate/phd-forgetting-zero", "evaluate p.yaml --out out",
-     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0].update(options={"forgetting": 0.0})),
-     message="forgetting factor must be in (0, 1]", klass="refusal")
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(forgetting=0.0)),
+     message="option forgetting must be a number in", klass="refusal")
 case("evaluate/phd-forgetting-above-one", "evaluate p.yaml --out out",
-     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d.update(labelling={"game": {"forgetting": 1.5}})),
-     message="forgetting factor must be in (0, 1]", klass="refusal")
-case("evaluate/phd-nan-detections", "evaluate p.yaml --out out",
-     setup=steps(yaml_edit(PHD_YAML, "p.yaml", lambda d: d["cases"][0].update(detections_csv="d.csv")),
-                 write_bytes("d.csv", b"scan,range_m,range_rate_mps\n0,20000,5\n1,nan,5\n")),
-     message="line 3: range_m is not a finite number", klass="refusal")
-case("evaluate/phd-shard", "evaluate p.yaml --out out --shard 1/2", setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: None),
-     message="unsharded", klass="refusal")
-case("evaluate/phd-signals-without-front-end", "evaluate p.yaml --out out",
-     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["cases"][0].update(signals=True)),
-     message="needs the study's front_end block", klass="refusal")
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(forgetting=1.5)),
+     message="option forgetting must be a number in", klass="refusal")
+case("evaluate/phd-pair-out-of-range", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(pair=1)),
+     message="pair 1 is out of range", klass="refusal")
+case("evaluate/phd-study-file", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d.update(kind="phd")),
+     message="'kind: phd' study files are gone", klass="refusal")
+case("evaluate/phd-aircraft-never-seen", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["aircraft"][0].update(altitude_m=50.0)),
+     message="aircraft 'a' is never seen", klass="refusal")
