@@ -10,7 +10,7 @@ from pmsr_nn.harness import demo
 EXPECTED = {"EKF", "UKF", "SI+KF", "MDFNN", "KalmanNet"}
 
 
-def check_demo_folder(out, mc_runs):
+def check_demo_folder(out, mc_runs, one_sky_rows=demo.ONE_SKY_METHODS):
     res = json.loads((out / "evaluation" / "results.json").read_text())
     assert res["mc_runs"] == mc_runs
     assert set(res["cases"]) == {"trajectory_1", "trajectory_2", "trajectory_3"}
@@ -23,14 +23,20 @@ def check_demo_folder(out, mc_runs):
         assert (out / "evaluation" / f).is_file()
     for kind in ("mdfnn", "kalmannet"):
         assert (out / "train" / kind / "tracker.pt").is_file()
-    shared = json.loads((out / "shared_drones" / "results.json").read_text())
-    assert shared["mc_runs"] == min(mc_runs, demo.SHARED_DRONES_RUNS)
-    rows = shared["cases"]["three_drones"]["methods"]
-    assert set(rows) == {"EKF", "UKF", "MDFNN", "KalmanNet", "S-MSJPDA", "S-MSJPDA from detections"}
-    for r in rows.values():
-        assert 0 < r["ospa_m"] <= 500.0 and len(r["rmse_pos_per_target_m"]) == 3
-    for f in ("report.md", "three_drones_set_metrics.png", "three_drones_rmse.png"):
-        assert (out / "shared_drones" / f).is_file()
+    sky = json.loads((out / "one_sky" / "results.json").read_text())
+    assert sky["mc_runs"] == min(mc_runs, demo.ONE_SKY_RUNS)
+    assert sky["settings"]["detections"]["sensors"] == 6  # the flagship's 2 transmitters x 3 receivers
+    case = sky["cases"]["one_sky"]
+    rows = case["methods"]
+    assert list(rows) == list(one_sky_rows) and case["targets"] == list(demo.ONE_SKY_TARGETS)
+    for m, r in rows.items():
+        assert len(r["rmse_pos_per_target_m"]) == 4
+        if r["kind"] == "pcrb":
+            assert r["rmse_pos_m"] == case["pcrb"]["pos_m"] and "ospa_m" not in r
+        else:
+            assert 0 < r["ospa_m"] <= 500.0
+    for f in ("report.md", "one_sky_set_metrics.png", "one_sky_rmse.png"):
+        assert (out / "one_sky" / f).is_file()
 
 
 def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeypatch, capsys):
@@ -38,6 +44,10 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
     monkeypatch.setattr(demo, "DEMO_TRAINER", {**demo.DEMO_TRAINER, "max_epochs": 1, "train_batches_per_epoch": 2,
                                                "val_batches": 2})
     monkeypatch.setattr(demo, "DEMO_BUDGET", {})
+    # the one-sky stage with its cheapest rows, the drones gone at 240 s (every column still there)
+    cheap = ("EKF", "PCRB", "S-MSJPDA (oracle births)")
+    monkeypatch.setattr(demo, "ONE_SKY_METHODS", cheap)
+    monkeypatch.setattr(demo, "ONE_SKY_END_S", 240.0)
     monkeypatch.setattr(demo, "DEMO_MODELS", {
         "mdfnn": {**demo.DEMO_MODELS["mdfnn"], "hidden": [16, 12, 16], "filter_order": 5},
         "kalmannet": {**demo.DEMO_MODELS["kalmannet"], "rnn_hidden": 4}})
@@ -45,17 +55,18 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
     assert main(["demo", "--out", str(out), "--mc-runs", "2"]) == 0
     out_err = capsys.readouterr()
     printed = out_err.out
-    assert "| MDFNN |" in printed and "report" in printed and "| S-MSJPDA | detections | oracle |" in printed
-    assert "| S-MSJPDA from detections | detections | detections |" in printed
+    assert "| MDFNN |" in printed and "report" in printed
+    assert "| S-MSJPDA (oracle births) | detections | oracle |" in printed
+    assert "| PCRB | truth | association known |" in printed and "| - | - | - | - | - |" in printed
     # One screen: a header, two lines per stage, two tables; no third-party banners, tips or bars.
     lines = printed.splitlines()
     assert [line[:5] for line in lines if line.startswith("[")] == [f"[{i}/5]" for i in range(1, 6)]
     assert len(lines) <= 40 and max(len(line.replace(str(out), "runs/demo")) for line in lines) <= 120
     for chatter in ("GPU available", "LOCAL_RANK", "Tip", "Epoch 0", "Sanity", "it/s]"):
         assert chatter not in out_err.out + out_err.err
-    check_demo_folder(out, 2)
+    check_demo_folder(out, 2, cheap)
     assert main(["demo", "--out", str(out), "--mc-runs", "1"]) == 0  # a previous demo is replaced
-    check_demo_folder(out, 1)
+    check_demo_folder(out, 1, cheap)
     other = tmp_path / "mine"
     other.mkdir()
     (other / "thesis.tex").write_text("keep")

@@ -15,7 +15,6 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ekf
 from pmsr_nn.harness import evaluate, merge
-from pmsr_nn.harness.demo import demo_shared_scenario
 from pmsr_nn.harness.runner import call_method, draw_block, prepare, stream_block
 from pmsr_nn.harness.scenario import load_scenario, scenario_from_dict
 from pmsr_nn.methods import REGISTRY, MethodKind, register
@@ -40,19 +39,6 @@ def two_drones(tmp_path: Path, methods=None, **over) -> Path:
     path = tmp_path / "two.yaml"
     path.write_text(yaml.safe_dump(d))
     return path
-
-
-def test_shipped_shared_drones_is_the_demo_scenario():
-    shipped = load_scenario(ROOT / "evaluate" / "shared_drones.yaml")
-    built = demo_shared_scenario({}, 5)
-    assert shipped.cases == built.cases and shipped.detections == built.detections
-    for key in ("noise", "warmup_steps", "random_streams", "set_metrics", "seed", "block_runs"):
-        assert getattr(shipped, key) == getattr(built, key), key
-    kinds = [(m.kind, m.options.get("initiation")) for m in shipped.methods]
-    assert kinds == [("ekf", None), ("ukf", None), ("learned", None), ("learned", None), ("s_msjpda", None),
-                     ("s_msjpda", "detections"), ("p_msjpda", "detections"), ("pmht", "detections"),
-                     ("pmht_3d", "detections"), ("stonesoup", "detections")]
-    assert [(m.kind, m.options.get("initiation")) for m in built.methods] == kinds[:2] + kinds[4:6]
 
 
 def test_births_and_deaths_give_the_cardinality_and_lives(tmp_path):

@@ -112,7 +112,7 @@ def tiny_blocks_scenario() -> None:
 
 SHARDS = [tiny_blocks_scenario] + [["evaluate", "tiny/drones.yaml", "--out", f"runs/s{i}", "--mc-runs", "2", "--shard",
                                     f"{i}/2", "--quiet"] for i in (1, 2)]
-STUDIES = ("remotesensing2020_icmb", "jeit2021_pmht", "fm_front_end", "daniyan_smcphd", "daniyan_smcphd_signals",
+STUDIES = ("one_sky", "remotesensing2020_icmb", "jeit2021_pmht", "fm_front_end", "daniyan_smcphd", "daniyan_smcphd_signals",
            "access2019_msjpda", "access2019_msjpda_pd", "access2019_msjpda_mbest", "access2019_msjpda_clutter",
            "access2019_msjpda_initiation")
 

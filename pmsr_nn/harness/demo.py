@@ -5,12 +5,13 @@
    it with ``pmsr train``'s machinery (fixed step budgets);
 3. evaluate them against the EKF, UKF and SI+KF and the PCRB on the three built-in trajectories
    with fewer Monte Carlo runs than the full study, and print the comparison table;
-4. fly the same three trajectories as three drones with staggered births and deaths
-   (``evaluate/shared_drones.yaml``): the EKF, the UKF and the two networks on each drone's own
-   stream, S-MSJPDA on detections with missed targets and clutter, OSPA / GOSPA beside the RMSE.
+4. a small version of the flagship scenario ``evaluate/one_sky.yaml`` (its crossing pair and its
+   formation, 2 runs): the EKF and the released KalmanNet trained for its sensors on each drone's own
+   stream, the PCRB, S-MSJPDA handed the births and S-MSJPDA starting its own tracks on detections
+   with missed targets and clutter, OSPA / GOSPA beside the RMSE.
 
 Everything goes under one folder (default ``runs/demo``): ``train/mdfnn``, ``train/kalmannet`` (runs
-with TensorBoard logs and ``tracker.pt``), ``data/``, ``evaluation/`` and ``shared_drones/``
+with TensorBoard logs and ``tracker.pt``), ``data/``, ``evaluation/`` and ``one_sky/``
 (results.json, report.md, figures). The networks are far smaller and trained far shorter than the released
 ones (``models/released/``); the demo shows the pipeline and an honest comparison, not the
 best numbers the package reaches.
@@ -25,12 +26,10 @@ from pathlib import Path
 
 from ..config import from_dict
 from ..errors import ConfigError, Interrupted
-from ..simulation.detections import ClutterSpec
-from .scenario import (FITEE2023_TRAJECTORIES, CaseSpec, DetectionSpec, FixedNoiseSpec, MethodSpec, Scenario,
-                       SetMetricSpec, TargetSpec)
+from .scenario import FITEE2023_TRAJECTORIES, FixedNoiseSpec, MethodSpec, Scenario
 
 DEMO_MARKER = "demo.json"
-DEMO_CONTENTS = {DEMO_MARKER, ".pmsr_output.json", "data", "train", "evaluation", "shared_drones"}
+DEMO_CONTENTS = {DEMO_MARKER, ".pmsr_output.json", "data", "train", "evaluation", "one_sky"}
 """Everything a demo folder holds: a previous demo is replaced only if it holds nothing else."""
 
 DEMO_DATA = {"tracks": 120, "window": 100, "batch_size": 128, "eval_window_stride": 20}
@@ -84,37 +83,39 @@ def demo_scenario(checkpoints: dict[str, Path], mc_runs: int) -> Scenario:
                                 "SI+KF and the PCRB on the three built-in trajectories.")
 
 
-SHARED_DRONES_RUNS = 5
-"""Monte Carlo runs of the demo's shared-drones scenario (S-MSJPDA takes about a second per run)."""
+ONE_SKY = Path(__file__).resolve().parents[2] / "evaluate" / "one_sky.yaml"
+"""The flagship scenario, beside the package in a clone of the repository."""
+
+ONE_SKY_RUNS = 2
+ONE_SKY_TARGETS = ("cross_1", "cross_2", "lead", "wing")
+ONE_SKY_END_S = 360.0
+ONE_SKY_METHODS = ("EKF", "KalmanNet [seed 0]", "PCRB", "S-MSJPDA (oracle births)", "S-MSJPDA")
+"""What the demo keeps of ``evaluate/one_sky.yaml``: its crossing pair and its formation, each gone at
+:data:`ONE_SKY_END_S` (after the crossing), and the rows that take seconds (the full scenario's PMHT,
+PHD and Stone Soup rows take minutes per run)."""
 
 
-def shared_drones_case() -> CaseSpec:
-    """The case of ``evaluate/shared_drones.yaml`` (a test keeps them equal): the three built-in
-    trajectories as drones born 0, 60 and 120 s into the case, flying 400 s each."""
-    targets = tuple(TargetSpec(f"drone_{i + 1}", c.start_range_m, c.start_bearing_deg, c.speed_mps, c.heading_deg,
-                               c.segments, birth_s=60.0 * i, death_s=60.0 * i + 400.0)
-                    for i, c in enumerate(FITEE2023_TRAJECTORIES))
-    return CaseSpec("three_drones", title="three drones, births at 0 / 60 / 120 s, 400 s each", targets=targets)
+def demo_one_sky(mc_runs: int) -> Scenario:
+    """The small version of ``evaluate/one_sky.yaml`` the demo runs (:data:`ONE_SKY_TARGETS`,
+    :data:`ONE_SKY_METHODS`, ``mc_runs`` runs in one block)."""
+    import dataclasses
 
+    from .scenario import load_scenario
 
-SHARED_DETECTIONS = DetectionSpec(pd=0.9, clutter=ClutterSpec(per_scan=10, range_m=(0.0, 25000.0),
-                                                              range_rate_mps=(-40.0, 40.0)))
-"""Detections of ``evaluate/shared_drones.yaml``: Pd 0.9, 10 clutter points per pair and scan."""
-
-
-def demo_shared_scenario(checkpoints: dict[str, Path], mc_runs: int) -> Scenario:
-    """Three drones: EKF, UKF and the given learned trackers on each drone's own stream, S-MSJPDA
-    on detections handed the births (oracle) and starting its own tracks (the settings and the
-    first rows of ``evaluate/shared_drones.yaml``)."""
-    methods = [MethodSpec("EKF", "ekf"), MethodSpec("UKF", "ukf")]
-    methods += [MethodSpec(name, "learned", checkpoint=str(Path(p).resolve())) for name, p in checkpoints.items()]
-    methods.append(MethodSpec("S-MSJPDA", "s_msjpda"))
-    methods.append(MethodSpec("S-MSJPDA from detections", "s_msjpda", options={"initiation": "detections"}))
-    return Scenario(name="demo_shared_drones", cases=(shared_drones_case(),), methods=tuple(methods), seed=0,
-                    mc_runs=mc_runs, block_runs=10, noise=FixedNoiseSpec(), warmup_steps=100,
-                    random_streams="per_product", detections=SHARED_DETECTIONS, set_metrics=SetMetricSpec(500.0, 2.0),
-                    description="pmsr demo: three drones with staggered births and deaths; single-target methods on "
-                                "each drone's stream, S-MSJPDA on detections with Pd 0.9 and clutter.")
+    if not ONE_SKY.is_file():
+        raise ConfigError(f"the demo's last stage reads {ONE_SKY}, which this installation lacks; run the demo from a "
+                          "clone of the repository")
+    sc = load_scenario(ONE_SKY)
+    case = sc.cases[0]
+    targets = tuple(dataclasses.replace(t, death_s=min(t.end_s, ONE_SKY_END_S))
+                    for t in case.targets if t.name in ONE_SKY_TARGETS)
+    case = dataclasses.replace(case, targets=targets,
+                               title="a crossing pair and a formation of the flagship scenario")
+    return sc.replace(name="demo_one_sky", cases=(case,), methods=tuple(m for m in sc.methods if m.name in ONE_SKY_METHODS),
+                      mc_runs=mc_runs, block_runs=mc_runs,
+                      description="pmsr demo: four drones of evaluate/one_sky.yaml (2 transmitters x 3 receivers); the EKF "
+                                  "and the released KalmanNet on each drone's stream, the PCRB, S-MSJPDA on detections "
+                                  "with Pd 0.85 and clutter, handed the births and starting its own tracks.")
 
 
 def _fresh(out: Path) -> None:
@@ -138,15 +139,11 @@ def _fresh(out: Path) -> None:
 
 
 DEMO_STAGES = 5
-DEMO_EXPECTED = "about 2 min on 2 CPU cores"
-"""What the header promises: ``make demo`` took 1.5 min on this project's 2-core reference machine
-(2026-11-24); each stage's bar shows its own time left as it runs."""
-
-REFERENCE_SECONDS = {"batch": {"mdfnn": 0.11, "kalmannet": 0.23}, "run": {"evaluation": 1.0, "shared_drones": 2.0}}
+REFERENCE_SECONDS = {"batch": {"mdfnn": 0.11, "kalmannet": 0.23}, "run": {"evaluation": 1.0, "one_sky": 16.0}}
 """Seconds per training batch and per Monte Carlo run of each stage on the 2-core reference machine
 (the default demo, 2026-11-24: 33 s for 300 MDFNN batches, 28 s for 120 KalmanNet batches, 20 s
-for 20 runs of the three trajectories, 10 s for 5 runs of the drones): each stage line says what
-it took there."""
+for 20 runs of the three trajectories; 2026-11-26: 32 s for the 2 runs of the one-sky stage, its
+untimed warm-up run included): each stage line says what it took there."""
 
 
 def _about(seconds: float) -> str:
@@ -212,11 +209,11 @@ def _run(out: Path, mc_runs: int, progress: bool, log, verbose: bool) -> dict:
                  + _about(mc_runs * REFERENCE_SECONDS["run"]["evaluation"]))
     res = evaluate(scenario, out / "evaluation", progress=progress)
     stages.done()
-    runs = min(mc_runs, SHARED_DRONES_RUNS)
-    stages.start(f"three drones, every method on the same draws (evaluate/shared_drones.yaml), {runs} runs "
-                 + _about(runs * REFERENCE_SECONDS["run"]["shared_drones"]))
-    res["shared_drones"] = evaluate(demo_shared_scenario(checkpoints, runs), out / "shared_drones", progress=progress)
-    res["demo"] = {"train_seconds": train_seconds, "shared_drones_seconds": stages.done(),
+    runs = min(mc_runs, ONE_SKY_RUNS)
+    stages.start(f"one sky, small: 4 drones of evaluate/one_sky.yaml, every row on the same draws, {runs} runs "
+                 + _about(runs * REFERENCE_SECONDS["run"]["one_sky"]))
+    res["one_sky"] = evaluate(demo_one_sky(runs), out / "one_sky", progress=progress)
+    res["demo"] = {"train_seconds": train_seconds, "one_sky_seconds": stages.done(),
                    "total_seconds": time.perf_counter() - t_start}
     (out / DEMO_MARKER).write_text(json.dumps(res["demo"], indent=1) + "\n")
     return res
@@ -229,24 +226,24 @@ def demo_summary(res: dict, out: Path) -> list[str]:
 
     lines = ["", f"position RMSE (m) after the warm-up, {res['mc_runs']} runs per trajectory; bold: below its own bound", ""]
     lines += summary_table(res, None, "", False)
-    shared = res["shared_drones"]
-    case = next(iter(shared["cases"].values()))
-    reads = {m: s.get("reads", "-") for m, s in shared["settings"]["methods"].items()}
-    lines += ["", f"three drones (births 0 / 60 / 120 s), {shared['mc_runs']} runs; every column in the report", "",
+    sky = res["one_sky"]
+    case = next(iter(sky["cases"].values()))
+    reads = {m: s.get("reads", "-") for m, s in sky["settings"]["methods"].items()}
+    lines += ["", f"one sky, small: a crossing pair and a formation, 6 pairs, {sky['mc_runs']} runs; every column in "
+              "the report", "",
               "| method | reads | tracks start | pos RMSE (m) | OSPA (m) | GOSPA (m) | tracks / target | false / run | s / run |",
               "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+    cell = lambda r, key, digits: "-" if r.get(key) is None else f"{r[key]:.{digits}f}"  # a bound's row has no tracks
     for m, r in case["methods"].items():
-        lines.append(f"| {m} | {reads[m]} | {r.get('initiation', '-')} | {r['rmse_pos_m']:.1f} | {r['ospa_m']:.1f} | "
-                     f"{r['gospa_m']:.1f} | {r['confirmed_tracks_per_target']:.2f} | {r['false_tracks_per_run']:.2f} | "
-                     f"{r['seconds_per_run']:.2f} |")
-    if case.get("pcrb"):
-        lines.append(f"| PCRB (filtering) | | | {case['pcrb']['pos_m']:.1f} | | | | | |")
+        lines.append(f"| {m} | {reads[m]} | {r.get('initiation', '-')} | {cell(r, 'rmse_pos_m', 1)} | "
+                     f"{cell(r, 'ospa_m', 1)} | {cell(r, 'gospa_m', 1)} | {cell(r, 'confirmed_tracks_per_target', 2)} | "
+                     f"{cell(r, 'false_tracks_per_run', 2)} | {cell(r, 'seconds_per_run', 2)} |")
     below = [m for m, r in case["methods"].items() if r.get("below_bound")]
     lines.append("")
     if below:  # the report's flag, said here too (only beyond the Monte Carlo error)
         lines.append(f"note      below the bound beyond Monte Carlo error: {', '.join(below)} (the report says why)")
     lines += [f"reports   {out / 'evaluation' / 'report.md'}  (figures beside it)",
-              f"          {out / 'shared_drones' / 'report.md'}",
+              f"          {out / 'one_sky' / 'report.md'}",
               f"time      {res['demo']['total_seconds'] / 60:.1f} min in all",
               "next      pmsr evaluate evaluate/fitee2023_three_trajectories.yaml --out runs/eval  (the full study)"]
     return lines

@@ -1,0 +1,68 @@
+"""The flagship scenario ``evaluate/one_sky.yaml`` is what its header says: 2 transmitters x 3
+receivers, eight drones with staggered births and deaths, a pair that meets and a formation, every
+tracker family on one truth (its figures are recorded in evaluate/RESULTS.md by a slow run)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return prepare(load_scenario(ROOT / "evaluate" / "one_sky.yaml"))
+
+
+def _xy(setup, name):
+    case = setup.cases[0]
+    t = case.targets.index(name)
+    pos = list(setup.models.motion.pos_idx)
+    return case.truth.x[:, t][:, pos].numpy(), case.alive[:, t].numpy()
+
+
+def test_sensors_detections_and_lives(setup):
+    geometry = setup.geometry
+    assert len(geometry.transmitters) == 2 and len(geometry.receivers) == 3 and len(geometry.pairs) == 6
+    sc = setup.scenario
+    assert 0.8 <= sc.detections.pd <= 0.9 and sc.detections.clutter.per_scan > 0
+    case = setup.cases[0]
+    assert len(case.targets) == 8
+    births = case.alive.to(int).argmax(0)
+    ends = case.steps - case.alive.flip(0).to(int).argmax(0)
+    assert len(set(births.tolist())) >= 5 and len(set(ends.tolist())) >= 4  # staggered both ways
+    assert int(case.alive.sum(1).max()) >= 6
+
+
+def test_the_crossing_pair_meets_and_the_formation_keeps_its_spacing(setup):
+    a, alive_a = _xy(setup, "cross_1")
+    b, alive_b = _xy(setup, "cross_2")
+    both = alive_a & alive_b
+    gap = np.linalg.norm(a[both] - b[both], axis=1)
+    # straight flights at 15 m/s closing at 2 x 7.5 m/s across: they pass within one second's flight
+    assert gap.min() < 15.0 and gap[0] > 3000 and gap[-1] > 3000
+    lead, alive_l = _xy(setup, "lead")
+    wing, alive_w = _xy(setup, "wing")
+    both = alive_l & alive_w
+    spacing = np.linalg.norm(lead[both] - wing[both], axis=1)
+    assert np.all(np.abs(spacing - 300.0) < 1.0)  # start given to 0.1 m / 0.01 deg: ~1 mm of spacing error
+
+
+def test_every_family_is_a_row(setup):
+    kinds = {m.kind for m in setup.methods}
+    assert {"ekf", "ukf", "imm", "learned", "pcrb", "s_msjpda", "p_msjpda", "pmht", "pmht_3d", "smc_phd",
+            "stonesoup"} <= kinds
+    detection_rows = [m for m in setup.methods if setup.kinds[m.name].reads == "detections"]
+    from pmsr_nn.harness.runner import initiation
+
+    starts = {m.name: initiation(setup, m) for m in detection_rows}
+    assert [n for n, s in starts.items() if s == "oracle"] == ["S-MSJPDA (oracle births)"]
+    for m in setup.methods:  # the released networks were trained for these sensors
+        if m.kind == "learned":
+            assert setup.resources[m.name].meta["dim_z"] == 18
