@@ -793,6 +793,17 @@ def _under(mse: np.ndarray, curve: np.ndarray, scored: np.ndarray) -> tuple[floa
     return float(ratio.mean()), se, bool(ratio.mean() + float(student_t.ppf(0.975, R - 1)) * se < 1)
 
 
+def _pooled(s: dict, mask: np.ndarray, R: int, by_count: bool) -> float:
+    """Root of the mean squared position error over the (run, target, scan) entries of ``mask``:
+    weighted by the matched count of each scan (several targets, or tracks started from detections,
+    which a run may lack at a scan), or over the runs (one target, one estimate per run and scan:
+    the older studies' form, kept digit for digit); NaN where nothing was matched."""
+    if by_count:
+        n = s["count"][mask].sum()
+        return float(np.sqrt(s["pos"][mask].sum() / n)) if n > 0 else float("nan")
+    return float(np.sqrt((s["pos"][:, 0] / R)[mask[:, 0]].mean())) if mask.any() else float("nan")
+
+
 def bound_row(spec: MethodSpec, case: Case, R: int) -> tuple[dict, list]:
     """The row of a ``kind: pcrb`` method (:mod:`pmsr_nn.methods.bound`) and its curve: the case's
     bound its options choose, averaged like ``rmse_pos_m``; no run time, no set figures (it
@@ -854,8 +865,7 @@ def finalise(setup: Setup, bs: BlockSums) -> dict:
                    "rmse_pos_m": rmse, "rmse_vel_mps": _mean(rmse_v, m_scored),
                    "anees": None if np.isnan(s["nees"]).all() else _mean(nees, m_scored),
                    "seconds_per_run": float(bs.seconds[case.name][spec.name].sum() / R),
-                   "rmse_pos_pooled_m": float(np.sqrt(s["pos"][m_scored].sum() / s["count"][m_scored].sum())) if N > 1
-                   else float(np.sqrt((s["pos"][:, 0] / R)[m_scored[:, 0]].mean())),
+                   "rmse_pos_pooled_m": _pooled(s, m_scored, R, N > 1 or starts == "detections"),
                    "rmse_pos_all_scans_m": _mean(rmse_p, m_alive),
                    "median_run_rmse_pos_m": float(np.median(per_run)), "runs": R}
             if N > 1:
