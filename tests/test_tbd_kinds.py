@@ -209,7 +209,7 @@ def test_the_warm_up_calls_each_method_once_on_the_first_run_untimed(tmp_path, m
     assert [(n, b, s) for n, b, s, _ in calls] == [("m", 1, (3, 1 << 30)), ("p", 1, (3, 1 << 30)),
                                                   ("m", 2, (3, 0, 0)), ("p", 2, (3, 0, 0)), ("p", 2, (3, 1, 0))]
     assert torch.equal(calls[0][3], calls[2][3])  # the warm-up's run 0 maps are the block's run 0 maps
-    assert setup.warmed
+    assert setup.warm == {"m", "p"}  # each method warmed once, in its first case
 
 
 def test_shards_merge_to_exactly_the_unsharded_figures(tmp_path):

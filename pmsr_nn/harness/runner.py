@@ -145,8 +145,7 @@ class Setup:
     tuning: dict = field(default_factory=dict)
     recipe: TrackRecipe | None = None
     prior_sd: torch.Tensor | None = None
-    warmed: bool = False  # every method was called once (untimed) by run_blocks
-    warm: set = field(default_factory=set)  # the methods called once so far
+    warm: set = field(default_factory=set)  # the methods called once (untimed) by run_blocks so far
     spaces: dict = field(default_factory=dict)  # (case, method) -> EstimateSpace or None (method_space)
 
     @property
@@ -154,11 +153,6 @@ class Setup:
         """Product kinds the methods read, in registration order."""
         reads = {k.reads for k in self.kinds.values()}
         return [p for p in PRODUCTS if p in reads]
-
-    @property
-    def trackers(self) -> dict:
-        """Learned methods' trackers by method name."""
-        return {m.name: self.resources[m.name] for m in self.methods if self.kinds[m.name].needs_checkpoint}
 
 
 def parse_shard(text: str) -> tuple[int, int]:
@@ -635,7 +629,6 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                     for spec in todo:
                         call_method(setup, spec, case, first, (sc.seed, 1 << 30))
                         setup.warm.add(spec.name)
-                    setup.warmed = {m.name for m in called} <= setup.warm
                 pos = list(setup.models.motion.pos_idx)
                 projected = {}  # the block's truth in each estimate space some method reads (truth_in)
                 for spec in called:
