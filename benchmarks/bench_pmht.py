@@ -44,12 +44,14 @@ from pmsr_nn.config import load_yaml  # noqa: E402
 from pmsr_nn.errors import ConfigError  # noqa: E402
 from pmsr_nn.filters import Gaussian  # noqa: E402
 from pmsr_nn.harness.multitarget import multitarget_from_dict  # noqa: E402
-from pmsr_nn.harness.runner import draw_block, prepare  # noqa: E402
+from pmsr_nn.harness.blocks import draw_block  # noqa: E402
+from pmsr_nn.harness.runner import prepare  # noqa: E402
 from pmsr_nn.methods.pmht import settings as method_settings  # noqa: E402
 from pmsr_nn.methods import MethodCall  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402
 from pmsr_nn.simulation.detections import simulate_scans  # noqa: E402
-from pmsr_nn.trackers.pmht import AssociationLists, pmht  # noqa: E402
+from pmsr_nn.trackers.pmht import pmht  # noqa: E402
+from pmsr_nn.trackers.pmht_model import AssociationLists  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "evaluate" / "jeit2021_pmht.yaml"
 PAPER_TABLE3 = {"PMHT-3D": {4: 58, 5: 72, 6: 87, 7: 101, 8: 114}, "PMHT": {4: 56, 5: 73, 6: 85, 7: 100, 8: 113}}

@@ -24,7 +24,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
 
-from pmsr_nn.filters.spherical import range_rows, si_kf, spherical_interpolation  # noqa: E402
+from pmsr_nn.filters.si_kf import si_kf  # noqa: E402
+from pmsr_nn.filters.spherical import range_rows, spherical_interpolation  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402
 from pmsr_nn.simulation.recipe import TrackRecipe  # noqa: E402
 from pmsr_nn.simulation.tracks import build_models, generate_tracks  # noqa: E402

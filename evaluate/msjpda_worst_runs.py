@@ -23,7 +23,8 @@ import torch
 from pmsr_nn.config import load_yaml
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness.multitarget import multitarget_from_dict
-from pmsr_nn.harness.runner import call_method, draw_block, prepare
+from pmsr_nn.harness.blocks import call_method, draw_block
+from pmsr_nn.harness.runner import prepare
 from pmsr_nn.metrics import squared_error
 
 

@@ -11,7 +11,9 @@ from filterpy.kalman import KalmanFilter
 
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, kalman_filter
-from pmsr_nn.filters.spherical import fix_covariance, range_rows, si_kf, spherical_interpolation
+from pmsr_nn.filters.fix_covariance import fix_covariance
+from pmsr_nn.filters.si_kf import si_kf
+from pmsr_nn.filters.spherical import range_rows, spherical_interpolation
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
 from pmsr_nn.measurements import LinearMeasurementModel, MeasurementModel, bistatic_range
 from pmsr_nn.motion import ConstantVelocity

@@ -197,6 +197,7 @@ def test_front_end_command_finds_the_echo_in_a_recording(tmp_path, capsys):
         assert f["power_after"].shape == (2, *spec.map_shape)
 
 
+@pytest.mark.slow  # a statistical study over 10^6 cells
 def test_chain_false_alarm_rate_on_noise_only_maps_is_the_nominal_pfa():
     """Over >= 10^6 cells of the scenario's maps (401 x 52) made by the chain from noise-only
     channels, the OS-CFAR's detected fraction lies in the binomial 99% interval of its Pfa (1e-4).
@@ -231,6 +232,7 @@ def test_rms_bandwidth_of_a_tone_is_its_frequency():
     assert abs(float(rms_bandwidth(tone)[0]) - 0.0731) < 1e-9
 
 
+@pytest.mark.slow  # a statistical study over 40 CPIs
 def test_reported_range_deviation_is_the_delay_bound_and_the_centroid_is_within_2x_of_it():
     """Echoes at a fixed map SNR (~20 dB, no fluctuation) over 40 CPIs: the RMS range error of the
     centroids over the mean reported deviation (the Cramer-Rao bound of the FM waveform, which

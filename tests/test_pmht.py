@@ -33,15 +33,18 @@ from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ukf
 from pmsr_nn.filters.smoothing import unscented_rts_smoother
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
-from pmsr_nn.harness.runner import call_method, draw_block, prepare
+from pmsr_nn.harness.blocks import call_method, draw_block
+from pmsr_nn.harness.runner import prepare
 from pmsr_nn.harness.scenario import load_scenario
 from pmsr_nn.measurements import LinearMeasurementModel, MeasurementModel
 from pmsr_nn.metrics import set_scores, track_scores
 from pmsr_nn.motion import ConstantVelocity, ContinuousConstantVelocity
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import CLUTTER, ClutterSpec, Scans, pool_by_receiver, simulate_scans
-from pmsr_nn.trackers.pmht import (AssociationLists, PMHTSettings, association_weights, em_step,
-                                   expected_complete_log_likelihood, managed_pmht, pmht, problem)
+from pmsr_nn.trackers.pmht import pmht
+from pmsr_nn.trackers.pmht_em import association_weights, em_step, expected_complete_log_likelihood
+from pmsr_nn.trackers.pmht_managed import managed_pmht
+from pmsr_nn.trackers.pmht_model import AssociationLists, PMHTSettings, problem
 from test_track_management import scenario as births_scenario
 
 MOTION = ContinuousConstantVelocity(3)
@@ -356,6 +359,7 @@ def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(t
             assert float(err.max()) < 150.0, float(err.max())
 
 
+@pytest.mark.slow  # three PMHT runs of a block, each alone and together
 def test_a_runs_tracks_do_not_depend_on_the_other_runs_of_its_block(tmp_path, monkeypatch):
     """PMHT re-runs a window's EM when a run starts a track: only for that run. Each run of a
     block of 3 (Pd 0.8, 10 clutter points per pair: tracks start at different scans in different

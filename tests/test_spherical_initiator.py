@@ -30,12 +30,13 @@ from scipy.stats import chi2 as chi2_dist
 from pmsr_nn import SPEED_OF_LIGHT
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
-from pmsr_nn.harness.runner import call_method, draw_block, prepare
+from pmsr_nn.harness.blocks import call_method, draw_block
+from pmsr_nn.harness.runner import prepare
 from pmsr_nn.harness.evaluate import load_any
 from pmsr_nn.measurements import MeasurementModel
 from pmsr_nn.metrics import set_scores, track_scores
 from pmsr_nn.trackers.gating import gate_threshold
-from pmsr_nn.trackers.initiators import MAX_SPHERICAL_PAIRS, SphericalInitiator
+from pmsr_nn.trackers.spherical_initiator import MAX_SPHERICAL_PAIRS, SphericalInitiator
 
 ROOT = Path(__file__).resolve().parents[1]
 CV_POS, CV_VEL = (0, 2), (1, 3)  # the 2-D CV state (x, vx, y, vy)

@@ -142,6 +142,7 @@ def test_high_snr_target_is_locked_within_two_frames_with_a_one_cell_subarea():
     assert float(err.max()) < 300.0  # inside the range triangle's half-width (293 m of path)
 
 
+@pytest.mark.slow  # a statistical study over many noise-only frames
 def test_existence_without_a_target_stays_below_the_threshold():
     """No target at all, 8-10 dB maps, 24 runs x 20 frames: the measured false-alarm rate of the
     'detected' flag (most probable component above 0.5) must be at most 1% of the frames."""
@@ -202,6 +203,7 @@ def test_resampling_gives_each_component_its_count_from_its_own_particles():
     assert torch.allclose(frac, torch.tensor([0.5, 0.25, 0.25]), atol=0.02)
 
 
+@pytest.mark.slow  # a statistical study over frames and SNRs
 def test_snr_estimate_converges_to_the_truth(request):
     """The online estimate of each map's SNR, averaged over frames 11-16 and 8 runs, within 1 dB."""
     scene = TBDScene(SATS, (8.0, 9.0, 10.0), MapSpec(doppler_cell_hz=10.0))

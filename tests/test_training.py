@@ -1,6 +1,7 @@
 """Training runs, checkpoints, inference and the CLI commands train / track / select / export."""
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -16,7 +17,7 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import CheckpointError, ConfigError
 from pmsr_nn.nets.checkpoint import read_checkpoint, save_tracker
 from pmsr_nn.nets.inference import Tracker
-from pmsr_nn.nets.training import apply_overrides, load_train_config
+from pmsr_nn.nets.train_config import apply_overrides, load_train_config
 
 TINY = {
     "name": "tiny",
@@ -56,7 +57,7 @@ def test_a_run_folder_holds_everything_it_promises(run):
         assert (out / name).is_file(), name
     assert any((out / "tb").glob("events.out.tfevents.*"))
     m = json.loads((out / "metrics.json").read_text())
-    assert m["epochs"] == 2 and m["global_step"] > 0 and m["val"]["pos_rmse_m"] > 0
+    assert m["epochs"] == 2 and m["global_step"] >= 2 and m["global_step"] % 2 == 0 and math.isfinite(m["val"]["pos_rmse_m"])  # same batches per epoch
     assert m["history"] and m["context_samples"] == {"behind": 8, "ahead": 0}
     stored = yaml.safe_load((out / "config.yaml").read_text())
     assert stored["trainer"]["max_epochs"] == 2 and stored["optim"]["schedule"] == "cosine"  # defaults spelled out
@@ -280,6 +281,7 @@ def _run_cli(args, **kw):
                             stderr=subprocess.STDOUT, text=True, **kw)
 
 
+@pytest.mark.slow  # a kill test: a real training process killed and resumed
 def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     cfg = write_config(tmp_path / "c.yaml", tmp_path / "data", trainer={"max_epochs": 12, "early_stopping_patience": None,
                                                                            "checkpoint_every_n_steps": 5})
@@ -311,6 +313,7 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     assert m["global_step"] > step_at_kill
 
 
+@pytest.mark.slow  # two training processes side by side
 def test_ddp_with_two_cpu_processes(tmp_path):
     cfg = write_config(tmp_path / "c.yaml", tmp_path / "data")
     env = {**os.environ, "PMSR_TRAIN_RUN": ""}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import lightning as L
 import numpy as np
@@ -108,9 +109,11 @@ class TrackWindowDataModule(L.LightningDataModule):
     def __init__(self, path: str | Path, window: int | None = None, batch_size: int = 256,
                  num_workers: int = 0, seed: int = 0, normalise: bool = True,
                  fold: int | None = None, folds: int | None = None, eval_window_stride: int = 1,
-                 model=None):
-        """``model`` (:class:`~pmsr_nn.nets.config.ModelConfig`) picks what the windows hold
-        (its ``inputs`` and ``output``); none: the paper's normalised rows."""
+                 representation: Callable[["TrackWindowDataModule"], object] | None = None):
+        """``representation``: called with this module once its normalisation is fitted, it gives
+        what the windows hold (an object with ``encode(z, x)``, ``extra_context`` and
+        ``to_dict()``, e.g. :func:`pmsr_nn.nets.representation.fit_on_training_tracks` bound to a
+        model config); none: the paper's normalised rows."""
         super().__init__()
         self.path = Path(path)
         self.data = open_dataset(self.path)
@@ -130,21 +133,8 @@ class TrackWindowDataModule(L.LightningDataModule):
         self.state_scaler: MinMaxScaler = self.data.scaler("states")
         if folds is not None and folds > 1:
             self._use_fold(int(fold or 0), int(folds))
-        self.representation = self._fit_representation(model) if model is not None else None
+        self.representation = representation(self) if representation is not None else None
         self._sets: dict[str, WindowDataset] = {}
-
-    def _fit_representation(self, model):
-        """The network's inputs and outputs, their statistics fitted on the training tracks."""
-        from ..nets.representation import Representation, measurement_model
-
-        man = self.data.manifest
-        dim_x = man["shapes"]["states"][2]
-        meas = measurement_model(man["geometry"], man["columns"]["measurements"], dim_x)
-        z = x = None
-        if model.inputs != "measurements" or model.output != "state":
-            f, train = self.data.file, np.sort(self.tracks["train"])
-            z, x = torch.from_numpy(f["measurements"][train]), torch.from_numpy(f["states"][train])
-        return Representation.fit(model, meas, dim_x, self.measurement_scaler, self.state_scaler, z, x)
 
     def _use_fold(self, fold: int, folds: int) -> None:
         pool = np.concatenate([self.tracks["train"], self.tracks["val"]])

@@ -37,14 +37,14 @@ from tqdm.auto import tqdm
 
 from .. import __version__, interrupts
 from ..errors import DatasetError, PmsrError
+from ..outputs import DATASET_FORMAT, DATASET_MANIFEST, atomic_folder, check_folder_target, is_our_dataset
 from ..rng import seeded_generator
 from ..simulation.recipe import TrackRecipe
 from ..simulation.tracks import ENVELOPE_CRITERIA, DrawStats, build_models, generate_tracks
 from .normalise import MinMaxScaler, RunningMinMax
 
-FORMAT = "pmsr_nn.track_dataset"
+FORMAT, MANIFEST = DATASET_FORMAT, DATASET_MANIFEST
 FORMAT_VERSION = 1
-MANIFEST = "manifest.json"
 ARRAYS = "tracks.h5"
 SPLITS = ("train", "val", "test")
 _SPLIT_STREAM, _CHUNK_STREAM = 1, 2
@@ -55,19 +55,10 @@ def state_columns(dim: int) -> list[str]:
     return [f"{q}{a}" for a in axes for q in ("", "v", "a")]
 
 
-def is_our_dataset(path: Path) -> bool:
-    """True when ``path`` is a directory holding a manifest of this format."""
-    try:
-        return json.loads((Path(path) / MANIFEST).read_text()).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
 def check_output_path(out: Path, overwrite: bool, inputs=(), what: str = "--out") -> None:
     """Refuse to write over anything that is not one of our datasets (and over ours unless asked),
-    and refuse a dataset that would not fit on the disk."""
-    from ..outputs import check_folder_target
-
+    and every output :func:`pmsr_nn.outputs.check_folder_target` refuses (a virtual file system
+    included); :func:`check_disk_space` is the check of the room on the disk."""
     out = Path(out)
     if out.exists() and not out.is_symlink() and (not out.is_dir() or any(out.iterdir())) and not is_our_dataset(out):
         raise DatasetError(f"output path {out} exists and is not a pmsr_nn dataset; choose another path")
@@ -81,19 +72,18 @@ def dataset_bytes(recipe: TrackRecipe) -> int:
     return recipe.tracks * (recipe.motion.steps * (motion.dim_x + meas.dim_z) * item + 3 * 8 + 1 + 3)
 
 
-def check_disk_space(recipe: TrackRecipe, out: Path) -> None:
+def check_disk_space(recipe: TrackRecipe, out: Path, what: str = "--out") -> None:
     """Refuse a dataset larger than the free space of the disk that would hold it."""
     need = dataset_bytes(recipe)
     anc = Path(os.path.abspath(out)).parent
     while not anc.exists():
         anc = anc.parent
     usage = shutil.disk_usage(anc)
-    if usage.total == 0:  # /proc, /sys: no disk behind them, nothing can be stored there
-        raise DatasetError(f"--out {out}: {anc} is a virtual file system with no disk behind it (like /proc or /sys); "
-                           "give a folder on a disk")
+    if usage.total == 0:  # no size to compare with (ramfs); /proc and /sys were refused by check_output_path
+        return
     if need > usage.free:
-        raise DatasetError(f"{recipe.tracks:,} tracks x {recipe.motion.steps} steps need {_size(need)}; "
-                           f"{anc} has {_size(usage.free)} free (ask for fewer --tracks)")
+        raise DatasetError(f"{what} {out}: {recipe.tracks:,} tracks x {recipe.motion.steps} steps need {_size(need)} and "
+                           f"{anc} has {_size(usage.free)} free: ask for fewer tracks, or give a folder on a roomier disk")
 
 
 def _size(n: int) -> str:
@@ -121,11 +111,9 @@ def write_dataset(recipe: TrackRecipe, out: str | Path, *, overwrite: bool = Fal
     Memory stays bounded by ``storage.chunk_tracks`` however many tracks are asked for. Returns
     the manifest. ``inputs``: files the command read (never written over).
     """
-    from ..outputs import atomic_folder
-
     out = Path(out)
     check_output_path(out, overwrite, inputs, what)
-    check_disk_space(recipe, out)
+    check_disk_space(recipe, out, what)
     with atomic_folder(out, command="simulate", overwrite=overwrite, inputs=inputs, allow=("simulate",), what=what) as tmp:
         return _write_into(recipe, tmp, progress)
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from ..data.normalise import MinMaxScaler
@@ -189,3 +190,17 @@ class Representation:
                 raise CheckpointError(f"{where}: the normalisation's representation.{key} is missing or unusable")
             setattr(rep, key, t)
         return rep
+
+
+def fit_on_training_tracks(model: ModelConfig, dm) -> Representation:
+    """The inputs and outputs of ``model``, their statistics fitted on the training tracks of the
+    data module ``dm`` (:class:`~pmsr_nn.data.datamodule.TrackWindowDataModule`, its
+    normalisation already fitted): what it passes as ``representation``."""
+    man = dm.data.manifest
+    dim_x = man["shapes"]["states"][2]
+    meas = measurement_model(man["geometry"], man["columns"]["measurements"], dim_x)
+    z = x = None
+    if model.inputs != "measurements" or model.output != "state":
+        f, train = dm.data.file, np.sort(dm.tracks["train"])
+        z, x = torch.from_numpy(f["measurements"][train]), torch.from_numpy(f["states"][train])
+    return Representation.fit(model, meas, dim_x, dm.measurement_scaler, dm.state_scaler, z, x)

@@ -21,7 +21,8 @@ from ..errors import ConfigError
 from ..outputs import atomic_folder, check_folder_target
 from ..metrics import pooled_rmse, position_columns, velocity_columns
 from .inference import Tracker
-from .training import TrainConfig, prepare_dataset, train
+from .train_config import TrainConfig
+from .training import prepare_dataset, train
 
 FRESH_SEED_OFFSET = 1_000_003
 """Fresh tracks use ``recipe seed + FRESH_SEED_OFFSET``: a random stream no training set draws from."""
@@ -30,7 +31,7 @@ FRESH_SEED_OFFSET = 1_000_003
 def fresh_recipe(cfg: TrainConfig, tracks: int):
     """The training recipe with ``tracks`` tracks and a seed no training set draws from."""
     from ..simulation.recipe import SplitSpec
-    from .training import resolve_recipe
+    from .train_config import resolve_recipe
 
     if cfg.data.path is not None:
         from ..data.store import open_dataset

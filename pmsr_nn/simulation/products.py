@@ -1,8 +1,8 @@
 """Sensor products of one truth: what each kind of tracker reads, made only when one asks.
 
 A scenario's truth (:class:`Truth`: any number of targets, each alive over its own scans) is
-seen through *products*, each a registered kind (:data:`PRODUCTS`) built by one function from
-the truth and random generators:
+seen through *products*, each a kind (:data:`pmsr_nn.product_kinds.PRODUCTS`) built by one
+function from the truth and random generators:
 
 * ``measurements`` (:class:`Streams`): every target's own clean measurement stream, association
   known, what the single-target filters, the learned trackers and the PCRB read;
@@ -11,8 +11,12 @@ the truth and random generators:
   false (a single-frequency network) also the same detections pooled per receiver, the
   transmitter of each unknown to the trackers that read the pooled lists.
 
-* ``rd_maps`` (:class:`~pmsr_nn.tbd.scene.RangeDopplerMaps`, registered by :mod:`pmsr_nn.tbd.scene`):
+* ``rd_maps`` (:class:`~pmsr_nn.tbd.scene.RangeDopplerMaps`, made by :mod:`pmsr_nn.tbd.scene`):
   per transmitter and frame a range-Doppler map, what track-before-detect filters read.
+
+The streams and the simulated detections are made here; detections from simulated signals
+(:mod:`pmsr_nn.frontend.chain`) and the maps are made by the modules above, and
+:mod:`pmsr_nn.product_kinds` lists every kind.
 Every product carries the initiation prior of its readers: per target, the true state at its
 birth scan plus a draw from ``N(0, P0)``. The prior is drawn from its own generator, so two
 products built with equal initiation generators give their readers the same initial tracks.
@@ -21,11 +25,9 @@ products built with equal initiation generators give their readers the same init
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 
-from ..errors import ConfigError
 from ..filters import Gaussian
 from ..measurements import MeasurementModel, wrap_angle
 from ..motion import KinematicModel
@@ -173,53 +175,11 @@ def make_streams(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior
     return Streams(z, prior)
 
 
-def make_detections(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior: torch.Generator) -> Detections:
-    """Detections (from ``g``: :func:`~.detections.simulate_scans`, or the signal chain
-    :func:`~pmsr_nn.frontend.chain.front_end_scans` when the sensing has a front end; pooled per
-    receiver, from ``g`` again, when the illuminator is unknown), then the prior (``g_prior``)."""
-    if sensing.front_end is not None:
-        from ..frontend.chain import front_end_scans
-
-        scans, record = front_end_scans(truth.x, truth.alive, sensing.detection_model, sensing.front_end, g)
-        return Detections(scans, initiation_prior(truth, sensing.prior_sd, g_prior), None, record)
+def make_simulated_detections(sensing: SensorSetup, truth: Truth, g: torch.Generator,
+                              g_prior: torch.Generator) -> Detections:
+    """Detections drawn from the detection model (from ``g``: :func:`~.detections.simulate_scans`;
+    pooled per receiver, from ``g`` again, when the illuminator is unknown), then the prior
+    (``g_prior``). Detections from simulated signals are :mod:`pmsr_nn.product_kinds`' job."""
     scans = simulate_scans(truth.x, sensing.detection_model, sensing.pd, sensing.pair_clutter(), g, truth.alive)
     pooled = None if sensing.illuminator_known else pool_by_receiver(scans, sensing.detection_model, g)
     return Detections(scans, initiation_prior(truth, sensing.prior_sd, g_prior), pooled)
-
-
-@dataclass(frozen=True)
-class ProductKind:
-    """A registered product: ``make(sensing, truth, g, g_prior)``; ``stream`` numbers its own
-    generator; ``available(sensing)`` says whether a scenario's sensing can make it."""
-
-    name: str
-    stream: int
-    make: Callable
-    available: Callable[[SensorSetup], bool]
-    description: str
-
-
-PRODUCTS: dict[str, ProductKind] = {}
-"""Product kinds by name."""
-
-
-def register_product(kind: ProductKind) -> ProductKind:
-    if kind.name in PRODUCTS:
-        raise ValueError(f"product kind {kind.name!r} is registered twice")
-    if any(p.stream == kind.stream for p in PRODUCTS.values()):
-        raise ValueError(f"product stream {kind.stream} is taken")
-    PRODUCTS[kind.name] = kind
-    return kind
-
-
-def product_kind(name: str) -> ProductKind:
-    """The registered kind ``name``, or a one-line error listing the known ones."""
-    if name not in PRODUCTS:
-        raise ConfigError(f"unknown product kind {name!r} (known: {', '.join(PRODUCTS)})")
-    return PRODUCTS[name]
-
-
-register_product(ProductKind("measurements", 1, make_streams, lambda s: True,
-                             "each target's own measurement stream, association known"))
-register_product(ProductKind("detections", 2, make_detections, lambda s: s.detection_model is not None,
-                             "per sensor and scan: detections with missed targets and clutter"))

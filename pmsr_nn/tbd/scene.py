@@ -1,4 +1,5 @@
-"""What forms a case's range-Doppler maps, and the ``rd_maps`` sensor product.
+"""What forms a case's range-Doppler maps, and the ``rd_maps`` sensor product (its maker
+:func:`make_rd_maps`, listed in :mod:`pmsr_nn.product_kinds`).
 
 * :class:`MapScene`: ``P`` maps, one per transmitter-receiver pair (a transmitter moving on a
   straight line, a satellite, or fixed, an FM mast; a receiver anywhere on or above the ground),
@@ -29,7 +30,7 @@ import torch
 from ..config import require
 from ..errors import ConfigError
 from ..rng import seeded_generator
-from ..simulation.products import DesignedTruth, ProductKind, SensorSetup, Truth, register_product
+from ..simulation.products import DesignedTruth, SensorSetup, Truth
 from .maps import MapGrid, MapSpec, Satellite, grid_covering, range_doppler, simulate_frame
 from .multibernoulli import BirthBox
 
@@ -412,8 +413,3 @@ def make_rd_maps(sensing: SensorSetup, truth: Truth, g: torch.Generator, g_prior
     seed = int(torch.randint(0, 2**62, (1,), generator=g))
     scene = sensing.rd_maps
     return RangeDopplerMaps(scene, scene.cv_states(truth.x), truth.alive, seed)
-
-
-register_product(ProductKind("rd_maps", 3, make_rd_maps, lambda s: getattr(s, "rd_maps", None) is not None,
-                             "per transmitter-receiver pair and frame: a range-Doppler map after coherent integration "
-                             "(track-before-detect)"))

@@ -1,13 +1,15 @@
 """Multi-target trackers and the parts they share.
 
-* :mod:`.assignment`: ranked 2-D assignment (Murty) and (N+1)-D assignment by Lagrangian relaxation;
+* :mod:`.assignment_2d`: ranked 2-D assignment (Murty);
+* :mod:`.assignment`: (S+1)-D assignment by Lagrangian relaxation, and its ranked events;
 * :mod:`.gating`: chi-square gates and Gaussian association likelihoods;
 * :mod:`.clustering`: tracks that compete for detections;
 * :mod:`.jpda`: association probabilities from ranked events;
 * :mod:`.msjpda`: S-MSJPDA, P-MSJPDA and the true-assignment reference tracker.
 """
 
-from .assignment import SDSolution, m_best_sd, murty, sd_assign
+from .assignment import SDSolution, m_best_sd, sd_assign
+from .assignment_2d import murty
 from .msjpda import JPDASettings, MultiTargetResult, msjpda, true_assignment_ukf
 
 __all__ = ["SDSolution", "m_best_sd", "murty", "sd_assign", "JPDASettings", "MultiTargetResult", "msjpda",

@@ -1,14 +1,14 @@
-"""Ranked 2-D assignment (Murty) and (N+1)-D assignment by Lagrangian relaxation.
+"""(S+1)-D assignment of a multi-sensor JPDA by Lagrangian relaxation.
 
-* :func:`murty` ranks the ``m`` cheapest assignments of a 2-D cost matrix (Murty 1968, with the
-  Miller-Stone-Cox 1997 improvements that apply on top of scipy's ``linear_sum_assignment``).
-* :func:`sd_assign` solves the (N+1)-D assignment of a multi-sensor JPDA (targets x one
-  measurement or a miss per sensor) by Lagrangian relaxation (Deb et al. 1997), and
-  :func:`m_best_sd` ranks its ``m`` cheapest events by Murty partitioning over events (Popp,
+* :func:`sd_assign` solves the (S+1)-D assignment (targets x one measurement or a miss per
+  sensor) by Lagrangian relaxation (Deb et al. 1997);
+* :func:`m_best_sd` ranks its ``m`` cheapest events by Murty partitioning over events (Popp,
   Pattipati & Bar-Shalom 2001).
 
-(N+1)-D problem format: ``K`` targets, ``N`` sensors, sensor ``s`` has ``n_s`` measurements. A
-candidate ``l`` is a row of ``tuples (L, 1 + N)`` int: column 0 the target, column ``1 + s`` the
+The ranked 2-D assignment (Murty) is :mod:`.assignment_2d`.
+
+Problem format: ``N`` targets, ``S`` sensors, sensor ``s`` has ``n_s`` measurements. A
+candidate ``l`` is a row of ``tuples (L, 1 + S)`` int: column 0 the target, column ``1 + s`` the
 measurement of sensor ``s`` or -1 (missed), with cost ``costs[l]``. An event picks one candidate
 per target, no measurement used twice (unused ones are clutter); its cost is the sum of its
 candidates' costs. Every target must have an all-(-1) candidate, so an event always exists.
@@ -26,18 +26,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..errors import ConfigError
+from .assignment_2d import check_integer
 
-__all__ = [
-    "Assignment",
-    "SDSolution",
-    "brute_force_assignments",
-    "brute_force_events",
-    "m_best_sd",
-    "murty",
-    "sd_assign",
-]
+__all__ = ["SDSolution", "brute_force_events", "m_best_sd", "sd_assign"]
 
-BRUTE_FORCE_MAX_ROWS = 7
 BRUTE_FORCE_MAX_EVENTS = 200_000
 STEP_FACTOR = 2.0
 """Initial factor of the Polyak step of the subgradient method."""
@@ -45,133 +37,10 @@ STALL_PATIENCE = 2
 """Iterations without a better dual value before the step factor is halved."""
 
 
-# ---------------------------------------------------------------------------------------------
-# 2-D ranked assignment
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Assignment:
-    """One assignment of a 2-D problem: ``cols (R,)`` the column of each row, ``cost`` the total."""
-
-    cols: np.ndarray
-    cost: float
-
-
-def _check_int(value: object, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ConfigError(f"{name} must be an integer, got {value!r}")
-    if value < minimum:
-        raise ConfigError(f"{name} must be >= {minimum}, got {value}")
-    return int(value)
-
-
-def _check_matrix(cost: np.ndarray) -> np.ndarray:
-    c = np.asarray(cost, dtype=np.float64)
-    if c.ndim != 2:
-        raise ConfigError(f"cost must be a 2-D matrix, got shape {c.shape}")
-    if c.shape[0] > c.shape[1]:
-        raise ConfigError(f"cost must have no more rows than columns, got shape {c.shape}")
-    if np.isnan(c).any() or (c == -np.inf).any():
-        raise ConfigError("cost must not contain NaN or -inf (use +inf for forbidden pairs)")
-    return c
-
-
-def _lsa(cost: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """Cheapest assignment of every row of ``cost (r, c)``, ``r <= c``: ``(cols (r,), cost)``, or
-    None when no assignment avoids the ``inf`` entries."""
-    if cost.shape[0] == 0:
-        return np.zeros(0, dtype=np.intp), 0.0
-    if not np.isfinite(cost).any(axis=1).all():
-        return None
-    try:
-        rows, cols = linear_sum_assignment(cost)
-    except ValueError:  # scipy: "cost matrix is infeasible"
-        return None
-    return cols, float(cost[rows, cols].sum())
-
-
-def _total(cost: np.ndarray, cols: np.ndarray) -> float:
-    # One summation rule for every reported cost, so equal assignments report equal costs.
-    return float(cost[np.arange(len(cols)), cols].sum())
-
-
-def murty(cost: np.ndarray, m: int) -> list[Assignment]:
-    """The ``m`` cheapest assignments of ``cost (R, C)``, ``R <= C``, in non-decreasing cost order.
-
-    Every row gets a distinct column; ``inf`` entries are forbidden pairs. Returns fewer than
-    ``m`` when fewer feasible assignments exist (an empty list when none does).
-
-    Murty's partitioning with the Miller-Stone-Cox (1997) improvements that need no dual
-    variables: (a) a subproblem inherits its parent's solution, so only the reduced matrix of its
-    free rows and columns is solved; (b) the children of a node are made in one pass, each
-    solved exactly once and queued with its cost; (c) the queue never keeps more nodes than
-    answers still wanted (the costliest are dropped: they and their descendants cannot rank).
-    Their dual-variable inheritance (warm-starting each child's Hungarian solve, and sorting
-    children by dual lower bounds) is not used: scipy does not expose the duals.
-    """
-    c = _check_matrix(cost)
-    m = _check_int(m, "m", 1)
-    R, C = c.shape
-    first = _lsa(c)
-    if first is None:
-        return []
-    sub_cols, _ = first
-    counter = itertools.count()
-    # Node: (cost, tie-break, full cols, reduced matrix, its rows, its columns, its solution).
-    heap = [(_total(c, sub_cols), next(counter), sub_cols, c, np.arange(R), np.arange(C), sub_cols)]
-    out: list[Assignment] = []
-    while heap and len(out) < m:
-        total, _, cols, sub, rows, colidx, sol = heapq.heappop(heap)
-        out.append(Assignment(cols=cols, cost=total))
-        if len(out) == m:
-            break
-        # Child j forbids the node's pair of free row j and fixes its pairs of rows 0..j-1;
-        # fixing a pair removes its row and column from the reduced matrix.
-        M, r, cx, s = sub, rows, colidx, sol
-        for _ in range(len(rows)):
-            child = M.copy()
-            child[0, s[0]] = np.inf
-            res = _lsa(child)
-            if res is not None:
-                child_cols = cols.copy()
-                child_cols[r] = cx[res[0]]
-                heapq.heappush(heap, (_total(c, child_cols), next(counter), child_cols, child, r, cx, res[0]))
-            keep = np.arange(M.shape[1]) != s[0]
-            M, r, cx = M[1:, keep], r[1:], cx[keep]
-            s = s[1:] - (s[1:] > s[0])
-        wanted = m - len(out)
-        if len(heap) > wanted:
-            heap = heapq.nsmallest(wanted, heap)  # sorted, hence a valid heap
-    return out
-
-
-def brute_force_assignments(cost: np.ndarray) -> list[Assignment]:
-    """All feasible assignments of ``cost (R, C)``, ``R <= C``, sorted by cost (stable).
-
-    Enumerates ``itertools.permutations``: for tests and small problems only (``R <= 7``).
-    """
-    c = _check_matrix(cost)
-    R, C = c.shape
-    if R > BRUTE_FORCE_MAX_ROWS:
-        raise ConfigError(f"brute force is limited to {BRUTE_FORCE_MAX_ROWS} rows, got {R}")
-    out = []
-    for perm in itertools.permutations(range(C), R):
-        cols = np.array(perm, dtype=np.intp)
-        if np.isfinite(c[np.arange(R), cols]).all():
-            out.append(Assignment(cols=cols, cost=_total(c, cols)))
-    out.sort(key=lambda a: a.cost)
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
-# (N+1)-D assignment
-# ---------------------------------------------------------------------------------------------
-
 
 @dataclass(frozen=True)
 class SDSolution:
-    """A feasible event: ``picks (K,)`` the candidate (index into ``tuples``/``costs``) of each
+    """A feasible event: ``picks (N,)`` the candidate (index into ``tuples``/``costs``) of each
     target, ``cost`` its cost, ``lower_bound`` a Lagrangian lower bound on the optimum of the
     problem it solves (``lower_bound <= optimum <= cost``)."""
 
@@ -190,15 +59,15 @@ class SDSolution:
 
 @dataclass
 class _Result:
-    picks: np.ndarray  # (K,) indices into the candidates given to _solve
+    picks: np.ndarray  # (N,) indices into the candidates given to _solve
     cost: float
     lower_bound: float
-    u: np.ndarray  # multipliers of sensors 2..N, all their measurements (warm start)
+    u: np.ndarray  # multipliers of sensors 2..S, all their measurements (warm start)
 
 
 def _check_problem(tuples, costs, n_meas, n_targets):
-    """Validated ``(target (L,), meas (L, N), costs (L,), n_meas (N,), K)``."""
-    K = _check_int(n_targets, "n_targets", 0)
+    """Validated ``(target (L,), meas (L, S), costs (L,), n_meas (S,), N)``."""
+    N = check_integer(n_targets, "n_targets", 0)
     try:
         nm = np.asarray(n_meas)
     except (TypeError, ValueError) as e:  # ragged input
@@ -207,12 +76,12 @@ def _check_problem(tuples, costs, n_meas, n_targets):
         raise ConfigError(f"n_meas must be a non-empty sequence of integers, got {n_meas!r}")
     if (nm < 0).any():
         raise ConfigError(f"n_meas must be >= 0, got {nm.tolist()}")
-    N = len(nm)
+    S = len(nm)
     t = np.asarray(tuples)
     if t.size == 0:
-        t = t.reshape(0, 1 + N).astype(np.intp)
-    if t.ndim != 2 or t.shape[1] != 1 + N:
-        raise ConfigError(f"tuples must have shape (L, {1 + N}) for {N} sensors, got {t.shape}")
+        t = t.reshape(0, 1 + S).astype(np.intp)
+    if t.ndim != 2 or t.shape[1] != 1 + S:
+        raise ConfigError(f"tuples must have shape (L, {1 + S}) for {S} sensors, got {t.shape}")
     if not np.issubdtype(t.dtype, np.integer):
         raise ConfigError(f"tuples must be integers, got dtype {t.dtype}")
     c = np.asarray(costs, dtype=np.float64)
@@ -221,19 +90,19 @@ def _check_problem(tuples, costs, n_meas, n_targets):
     if not np.isfinite(c).all():
         raise ConfigError("costs must be finite (no NaN or inf)")
     tg, meas = t[:, 0].astype(np.intp), t[:, 1:].astype(np.intp)
-    if len(t) and (tg.min() < 0 or tg.max() >= K):
-        raise ConfigError(f"target indices must be in [0, {K}), got [{tg.min()}, {tg.max()}]")
+    if len(t) and (tg.min() < 0 or tg.max() >= N):
+        raise ConfigError(f"target indices must be in [0, {N}), got [{tg.min()}, {tg.max()}]")
     if ((meas < -1) | (meas >= nm)).any():
         raise ConfigError(f"measurement indices must be in [-1, n_s) with n_meas={nm.tolist()}")
-    has_miss = np.zeros(K, dtype=bool)
+    has_miss = np.zeros(N, dtype=bool)
     has_miss[tg[(meas == -1).all(axis=1)]] = True
     if not has_miss.all():
         raise ConfigError(f"target {int(np.argmin(has_miss))} has no all-(-1) (missed) candidate")
-    return tg, meas, c, nm.astype(np.intp), K
+    return tg, meas, c, nm.astype(np.intp), N
 
 
 def _slots(meas: np.ndarray, n_meas: np.ndarray) -> tuple[np.ndarray, int]:
-    """Global measurement slots ``(L, N)`` (sensor offset + index; misses -> ``total``), total."""
+    """Global measurement slots ``(L, S)`` (sensor offset + index; misses -> ``total``), total."""
     cum = np.cumsum(n_meas)
     total = int(cum[-1]) if len(cum) else 0
     return np.where(meas >= 0, cum - n_meas + meas, total), total
@@ -251,19 +120,19 @@ class _Cells:
     measurement ``i``; cell ``(k, n1 + k)`` the minimum over its candidates that miss sensor 1.
     """
 
-    def __init__(self, tg: np.ndarray, i1: np.ndarray, n1: int, K: int):
-        self.width = n1 + K
-        self.shape = (K, self.width)
+    def __init__(self, tg: np.ndarray, i1: np.ndarray, n1: int, N: int):
+        self.width = n1 + N
+        self.shape = (N, self.width)
         self.cell = tg * self.width + np.where(i1 >= 0, i1, n1 + tg)
         cs = np.sort(self.cell)
         self.starts = _run_starts(cs)
         self.uniq = cs[self.starts]
-        self.group = np.full(K * self.width, -1, dtype=np.intp)
+        self.group = np.full(N * self.width, -1, dtype=np.intp)
         self.group[self.uniq] = np.arange(len(self.uniq))
 
     def solve(self, values: np.ndarray) -> tuple[np.ndarray, float] | None:
         """Cheapest choice (one candidate per target, sensor-1 measurements distinct) under
-        ``values (L,)``: ``(picks (K,), value)`` or None when infeasible."""
+        ``values (L,)``: ``(picks (N,), value)`` or None when infeasible."""
         # Sorted by (cell, value), a cell's cheapest candidate is the first of its run.
         best = np.lexsort((values, self.cell))[self.starts]
         mat = np.full(self.shape, np.inf)
@@ -276,14 +145,14 @@ class _Cells:
         return picks, float(values[picks].sum())
 
 
-def _greedy(tg, slot, costs, K, total) -> np.ndarray | None:
+def _greedy(tg, slot, costs, N, total) -> np.ndarray | None:
     """A feasible event, targets without a miss candidate first, each taking its cheapest
     candidate free of measurements already used; None if that fails."""
     missed = (slot == total).all(axis=1)
-    has_miss = np.zeros(K, dtype=bool)
+    has_miss = np.zeros(N, dtype=bool)
     has_miss[tg[missed]] = True
     used = np.zeros(total + 1, dtype=bool)
-    picks = np.full(K, -1, dtype=np.intp)
+    picks = np.full(N, -1, dtype=np.intp)
     for k in np.argsort(has_miss, kind="stable"):
         ok = np.flatnonzero((tg == k) & ~used[slot].any(axis=1))
         if len(ok) == 0:
@@ -313,20 +182,20 @@ def _improve(picks, tg, slot, costs, total):
     return picks
 
 
-def _solve(tg, meas, costs, n_meas, K, iterations, tol, u0=None, cutoff=math.inf) -> _Result | None:
+def _solve(tg, meas, costs, n_meas, N, iterations, tol, u0=None, cutoff=math.inf) -> _Result | None:
     """Best feasible event found for a validated problem (no all-(-1) guarantee needed).
 
     None when the problem is infeasible, or when its optimum is proven to be >= ``cutoff`` (the
     caller has something as good). ``u0`` warm-starts the multipliers (layout: all measurements
-    of sensors 2..N, as the returned ``u``).
+    of sensors 2..S, as the returned ``u``).
     """
-    N = len(n_meas)
+    S = len(n_meas)
     n_relaxed = int(n_meas[1:].sum())
     # Per-target cheapest candidates: optimal (and certified) when they share no measurement.
     order = np.lexsort((costs, tg))
     ts = tg[order]
     starts = _run_starts(ts)
-    if len(starts) < K:
+    if len(starts) < N:
         return None  # a target without candidates
     picks = order[starts]
     slot_p, total = _slots(meas[picks], n_meas)
@@ -336,26 +205,26 @@ def _solve(tg, meas, costs, n_meas, K, iterations, tol, u0=None, cutoff=math.inf
     if float(costs[picks].sum()) >= cutoff:
         return None
 
-    cells = _Cells(tg, meas[:, 0], int(n_meas[0]), K)
-    if N == 1:
+    cells = _Cells(tg, meas[:, 0], int(n_meas[0]), N)
+    if S == 1:
         res = cells.solve(costs)
         if res is None or res[1] >= cutoff:
             return None
         c = float(costs[res[0]].sum())
         return _Result(res[0], c, c, np.zeros(0))
 
-    # Relax "used at most once" of sensors 2..N, only for measurements that candidates of two or
+    # Relax "used at most once" of sensors 2..S, only for measurements that candidates of two or
     # more targets share: the others can never be used twice, their optimal multiplier is 0.
     g, _ = _slots(meas[:, 1:], n_meas[1:])
     pairs = np.unique(tg[:, None] * (n_relaxed + 1) + g)
     shared = np.flatnonzero(np.bincount(pairs % (n_relaxed + 1), minlength=n_relaxed + 1)[:n_relaxed] >= 2)
-    S = len(shared)
-    compact = np.full(n_relaxed + 1, S, dtype=np.intp)
-    compact[shared] = np.arange(S)
-    gc = compact[g]  # (L, N-1), S = no penalty
-    u = np.zeros(S) if u0 is None else np.maximum(np.asarray(u0, dtype=np.float64)[shared], 0.0)
-    u_pad = np.zeros(S + 1)
-    off2 = int(n_meas[1])  # sensors 3..N start here in the layout of sensors 2..N
+    n_shared = len(shared)
+    compact = np.full(n_relaxed + 1, n_shared, dtype=np.intp)
+    compact[shared] = np.arange(n_shared)
+    gc = compact[g]  # (L, S-1), n_shared = no penalty
+    u = np.zeros(n_shared) if u0 is None else np.maximum(np.asarray(u0, dtype=np.float64)[shared], 0.0)
+    u_pad = np.zeros(n_shared + 1)
+    off2 = int(n_meas[1])  # sensors 3..S start here in the layout of sensors 2..S
     i1 = meas[:, 0]
 
     def full(v: np.ndarray) -> np.ndarray:
@@ -368,7 +237,7 @@ def _solve(tg, meas, costs, n_meas, K, iterations, tol, u0=None, cutoff=math.inf
     cache: dict[bytes, tuple[np.ndarray, float] | None] = {}
     factor, stall = STEP_FACTOR, 0
     for _ in range(iterations):
-        u_pad[:S] = u
+        u_pad[:n_shared] = u
         relaxed = cells.solve(costs + u_pad[gc].sum(axis=1))
         if relaxed is None:
             return None  # the relaxation is infeasible, so is the problem
@@ -382,21 +251,21 @@ def _solve(tg, meas, costs, n_meas, K, iterations, tol, u0=None, cutoff=math.inf
                 factor, stall = factor / 2, 0
         if best_lb >= min(cutoff, best_ub):
             break
-        uses = np.bincount(gc[rp].ravel(), minlength=S + 1)[:S]
+        uses = np.bincount(gc[rp].ravel(), minlength=n_shared + 1)[:n_shared]
         if uses.max(initial=0) <= 1:  # the relaxed solution is itself feasible
             c = float(costs[rp].sum())
             if c < best_ub:
                 best_ub, best_picks = c, rp
         # Recovery, Deb's successive relaxation widened: each target keeps its sensor-1
         # measurement of the relaxed solution or misses sensor 1 (a superset of Deb's choice;
-        # the misses keep the all-(-1) guarantee alive down the recursion), and sensors 2..N
+        # the misses keep the all-(-1) guarantee alive down the recursion), and sensors 2..S
         # are solved recursively with the true costs.
-        fixed = np.empty(K, dtype=np.intp)
+        fixed = np.empty(N, dtype=np.intp)
         fixed[tg[rp]] = i1[rp]
         key = fixed.tobytes()
         if key not in cache:
             idx = np.flatnonzero((i1 == -1) | (i1 == fixed[tg]))
-            sub = _solve(tg[idx], meas[idx, 1:], costs[idx], n_meas[1:], K, iterations, tol,
+            sub = _solve(tg[idx], meas[idx, 1:], costs[idx], n_meas[1:], N, iterations, tol,
                          full(u)[off2:], min(cutoff, best_ub))
             cache[key] = None if sub is None else (idx[sub.picks], sub.cost)
         rec = cache[key]
@@ -417,7 +286,7 @@ def _solve(tg, meas, costs, n_meas, K, iterations, tol, u0=None, cutoff=math.inf
     if best_picks is None:
         if best_lb >= cutoff:
             return None
-        best_picks = _greedy(tg, _slots(meas, n_meas)[0], costs, K, total)
+        best_picks = _greedy(tg, _slots(meas, n_meas)[0], costs, N, total)
         if best_picks is None:
             return None
     if best_ub - best_lb > tol * max(abs(best_ub), 1e-12):
@@ -429,7 +298,7 @@ def _solve(tg, meas, costs, n_meas, K, iterations, tol, u0=None, cutoff=math.inf
 
 
 def _check_iterations(iterations: int, tol: float = 0.0) -> int:
-    it = _check_int(iterations, "iterations", 1)
+    it = check_integer(iterations, "iterations", 1)
     if not (isinstance(tol, (int, float, np.floating)) and tol >= 0):
         raise ConfigError(f"tol must be a number >= 0, got {tol!r}")
     return it
@@ -437,35 +306,35 @@ def _check_iterations(iterations: int, tol: float = 0.0) -> int:
 
 def sd_assign(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int], n_targets: int,
               iterations: int = 20, tol: float = 1e-6) -> SDSolution:
-    """Cheapest event of the (N+1)-D assignment (format in the module docstring).
+    """Cheapest event of the (S+1)-D assignment (format in the module docstring).
 
-    ``tuples (L, 1 + N)`` int, ``costs (L,)`` finite, ``n_meas (N,)``, ``n_targets`` = K.
+    ``tuples (L, 1 + S)`` int, ``costs (L,)`` finite, ``n_meas (S,)``, ``n_targets`` = N.
     Returns the best feasible event found with a lower bound on the optimum.
 
-    With ``N == 1`` the problem is an exact 2-D assignment (gap 0). With ``N >= 2`` (Deb et al.
-    1997) the at-most-once constraints of sensors 2..N are relaxed with multipliers ``u >= 0``:
+    With ``S == 1`` the problem is an exact 2-D assignment (gap 0). With ``S >= 2`` (Deb et al.
+    1997) the at-most-once constraints of sensors 2..S are relaxed with multipliers ``u >= 0``:
     the relaxed problem is a 2-D assignment of targets to sensor-1 measurements (cell = cheapest
     penalised candidate), whose value minus ``sum(u)`` bounds the optimum from below. ``u``
     follows projected subgradients with Polyak steps towards the best feasible cost, the step
     factor halved when the dual stalls. Every iteration recovers a feasible event by successive
     relaxation: each target keeps its relaxed sensor-1 measurement *or misses sensor 1* (a
-    superset of Deb's choice that keeps an event feasible at every level), and sensors 2..N are
+    superset of Deb's choice that keeps an event feasible at every level), and sensors 2..S are
     solved recursively down to an exact 2-D problem; the best event is polished by coordinate
     descent (one target at a time). Stops after ``iterations`` or when the relative gap is
     <= ``tol``. Only multipliers of measurements that two targets' candidates share are used
     (the others are 0 at the optimum), and when every target's cheapest candidate is compatible
     with the others' the answer is immediate and exact.
     """
-    tg, meas, c, nm, K = _check_problem(tuples, costs, n_meas, n_targets)
+    tg, meas, c, nm, N = _check_problem(tuples, costs, n_meas, n_targets)
     it = _check_iterations(iterations, tol)
-    res = _solve(tg, meas, c, nm, K, it, float(tol))
+    res = _solve(tg, meas, c, nm, N, it, float(tol))
     assert res is not None, "an all-(-1) event always exists"
     return SDSolution(picks=res.picks, cost=res.cost, lower_bound=res.lower_bound)
 
 
 def m_best_sd(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int], n_targets: int, m: int,
               iterations: int = 20) -> list[SDSolution]:
-    """Up to ``m`` distinct events of the (N+1)-D assignment, in non-decreasing cost order.
+    """Up to ``m`` distinct events of the (S+1)-D assignment, in non-decreasing cost order.
 
     Murty partitioning over events (Popp, Pattipati & Bar-Shalom 2001): from a node's event
     ``p_1..p_K``, child ``j`` forces the picks of the node's free targets ``1..j-1`` (they leave
@@ -476,12 +345,12 @@ def m_best_sd(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int], n_ta
     its all-(-1) candidate was forbidden) is skipped. The queue keeps at most as many nodes as
     answers still wanted. Each event carries the lower bound of its subproblem.
 
-    Ranks are exact for ``N == 1`` (every subproblem is solved exactly); for ``N >= 2`` the
+    Ranks are exact for ``S == 1`` (every subproblem is solved exactly); for ``S >= 2`` the
     events are the best the relaxation found in each subproblem, so a cheaper event can be
     missed when a relaxation ends with a duality gap (see :attr:`SDSolution.gap`).
     """
-    tg, meas, c, nm, K = _check_problem(tuples, costs, n_meas, n_targets)
-    m = _check_int(m, "m", 1)
+    tg, meas, c, nm, N = _check_problem(tuples, costs, n_meas, n_targets)
+    m = check_integer(m, "m", 1)
     it = _check_iterations(iterations)
     tol = 1e-6
     slot, total = _slots(meas, nm)
@@ -489,14 +358,14 @@ def m_best_sd(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int], n_ta
     use[np.arange(len(c))[:, None], slot] = 1.0
     conflict = (use[:, :total] @ use[:, :total].T) > 0  # (L, L): candidates sharing a measurement
 
-    root = _solve(tg, meas, c, nm, K, it, tol)
+    root = _solve(tg, meas, c, nm, N, it, tol)
     assert root is not None, "an all-(-1) event always exists"
     counter = itertools.count()
-    # Node: (cost, tie-break, picks (K,), lower bound, forced targets (K,), live candidates (L,), u).
+    # Node: (cost, tie-break, picks (N,), lower bound, forced targets (N,), live candidates (L,), u).
     heap = [(float(c[root.picks].sum()), next(counter), root.picks, root.lower_bound,
-             np.zeros(K, dtype=bool), np.ones(len(c), dtype=bool), root.u)]
+             np.zeros(N, dtype=bool), np.ones(len(c), dtype=bool), root.u)]
     out: list[SDSolution] = []
-    remap = np.empty(K, dtype=np.intp)
+    remap = np.empty(N, dtype=np.intp)
     while heap and len(out) < m:
         cost, _, picks, lb, forced, live, u = heapq.heappop(heap)
         out.append(SDSolution(picks=picks, cost=cost, lower_bound=lb))
@@ -525,23 +394,23 @@ def m_best_sd(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int], n_ta
                     heap = heapq.nsmallest(wanted, heap)  # sorted, hence a valid heap
             forced[f] = True
             live &= ~conflict[p] & (tg != f)
-    # With N >= 2 a child's relaxation may beat its parent's: report in cost order anyway.
+    # With S >= 2 a child's relaxation may beat its parent's: report in cost order anyway.
     out.sort(key=lambda s: s.cost)
     return out
 
 
 def brute_force_events(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int],
                        n_targets: int) -> list[tuple[np.ndarray, float]]:
-    """All feasible events ``(picks (K,), cost)`` sorted by cost (stable), by enumeration of
+    """All feasible events ``(picks (N,), cost)`` sorted by cost (stable), by enumeration of
     every combination of one candidate per target: for tests (at most 200,000 combinations)."""
-    tg, meas, c, nm, K = _check_problem(tuples, costs, n_meas, n_targets)
-    if K == 0:
+    tg, meas, c, nm, N = _check_problem(tuples, costs, n_meas, n_targets)
+    if N == 0:
         return [(np.zeros(0, dtype=np.intp), 0.0)]
-    per_target = [np.flatnonzero(tg == k) for k in range(K)]
+    per_target = [np.flatnonzero(tg == k) for k in range(N)]
     n_comb = math.prod(len(p) for p in per_target)
     if n_comb > BRUTE_FORCE_MAX_EVENTS:
         raise ConfigError(f"brute force is limited to {BRUTE_FORCE_MAX_EVENTS} combinations, got {n_comb}")
-    combos = np.stack(np.meshgrid(*per_target, indexing="ij"), axis=-1).reshape(-1, K)
+    combos = np.stack(np.meshgrid(*per_target, indexing="ij"), axis=-1).reshape(-1, N)
     slot, total = _slots(meas, nm)
     s = np.sort(slot[combos].reshape(len(combos), -1), axis=1)
     clash = ((s[:, 1:] == s[:, :-1]) & (s[:, 1:] < total)).any(axis=1)

@@ -18,7 +18,8 @@ import math
 
 import numpy as np
 
-from .assignment import m_best_sd, murty
+from .assignment import m_best_sd
+from .assignment_2d import murty
 
 MIN_MISS_PROBABILITY = 1e-300
 """``1 - Pd`` is floored here, so a miss stays a finite (if absurdly costly) option at Pd = 1 and an
@@ -52,7 +53,7 @@ def single_sensor_marginals(cost: np.ndarray, m: int | None) -> np.ndarray:
     problems only). Returns ``alpha (T, M + 1)``: column ``i < M`` the probability of detection
     ``i``, the last column the probability of a miss.
     """
-    from .assignment import brute_force_assignments
+    from .assignment_2d import brute_force_assignments
 
     T, MT = cost.shape
     M = MT - T

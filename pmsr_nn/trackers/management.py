@@ -9,8 +9,8 @@ A tracker that manages its own tracks keeps them in a :class:`TrackTable` (a pad
    :class:`Deleter` (consecutive misses of a confirmed track, covariance growth):
    :meth:`TrackTable.manage`;
 3. starts tentative tracks from the detections no track gated, with an initiator of
-   :mod:`.initiators` (:class:`~.initiators.FixInitiator` where each pair measures azimuth, a
-   multi-pair position fix; :class:`~.initiators.SphericalInitiator` from range and range-rate or
+   :mod:`.initiators` (:class:`~.fix_initiator.FixInitiator` where each pair measures azimuth, a
+   multi-pair position fix; :class:`~.spherical_initiator.SphericalInitiator` from range and range-rate or
    Doppler only, combinations of one detection per pair whose joint fit passes a chi-square gate):
    :meth:`TrackTable.add`;
 4. reports its confirmed tracks: :meth:`TrackTable.report`, into a :class:`TrackReport` whose
@@ -34,7 +34,8 @@ import torch
 from ..config import require
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
-from .initiators import FixInitiator, SphericalInitiator
+from .fix_initiator import FixInitiator
+from .spherical_initiator import SphericalInitiator
 
 __all__ = ["FREE", "TENTATIVE", "CONFIRMED", "Confirmer", "Deleter", "FixInitiator", "SphericalInitiator", "Management",
            "TrackTable", "TrackReport", "parked_state"]

@@ -9,7 +9,7 @@ sum to the expected number of targets. One scan:
 1. **predict**: every particle moves with the motion model, ``x <- F x + L eps`` (``L L^T = Q(dt,
    q)``); weights x ``p_S``;
 2. **birth** (measurement-driven, as :mod:`.phd`): each detection of the *previous* scan whose
-   (bistatic range, azimuth) fixes a position (:meth:`~.initiators.FixInitiator.fixes`: the
+   (bistatic range, azimuth) fixes a position (:meth:`~.fix_initiator.FixInitiator.fixes`: the
    position and its covariance ``H^-1 R H^-T``) seeds ``particles_per_birth`` particles: position
    from ``N(fix, cov)``, velocity from the prior ``N(0, birth_velocity_sd^2 I)`` conditioned on the
    detection's own rate (range-rate or Doppler: one row linear in velocity at a known position),
@@ -67,7 +67,8 @@ from ..measurements import MeasurementModel, wrap_angle
 from ..motion import KinematicModel
 from ..rng import standard_normal
 from .gating import gate_threshold
-from .initiators import FixInitiator, rate_component
+from .fix_initiator import FixInitiator
+from .initiators import rate_component
 from .phd import PHDEstimates, PHDState, check_phd_settings, cluster, correct
 
 

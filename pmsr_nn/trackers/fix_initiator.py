@@ -1,0 +1,175 @@
+"""Tentative tracks from position fixes of (bistatic range, azimuth) detections
+(:class:`FixInitiator`, one of the initiators of :mod:`.initiators`).
+
+Shapes: ``B`` runs, ``S`` pairs, ``M`` detections per list, ``d`` components per pair, ``n``
+state dimension, ``G`` tracks started.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..config import require
+from ..errors import ConfigError
+from ..filters.gaussian import Gaussian
+from ..measurements import MeasurementModel
+from .gating import gate_threshold
+from .initiators import velocity_fit
+
+
+@dataclass(frozen=True)
+class FixInitiator:
+    """Tentative tracks from the detections no track gated, one per group of detections of
+    ``>= min_pairs`` different pairs whose position fixes agree.
+
+    Each pair's (bistatic range, azimuth) fixes a position in the plane: the receiver's ray at
+    that azimuth meets the ellipse with the pair's foci. Its covariance is the linearised
+    ``H^-1 R H^-T`` (``H`` the model's Jacobian of range and azimuth by position). Two fixes of
+    different pairs agree when their squared Mahalanobis distance under the sum of their
+    covariances is within the chi-square gate ``gate_probability`` (2 degrees of freedom). A
+    group's position is the information-weighted mean of its fixes; its velocity the linear
+    least-squares fit of the group's range-rates (or Dopplers, linear in velocity at a known
+    position) under a prior ``N(0, velocity_sd_mps^2)`` per axis; other state entries (e.g.
+    acceleration) start at 0 with deviations ``other_sd`` (the scenario's initiation prior).
+    """
+
+    velocity_sd_mps: float = 20.0
+    min_pairs: int = 2
+    gate_probability: float = 0.999
+
+    def __post_init__(self) -> None:
+        require(self.velocity_sd_mps > 0 and math.isfinite(self.velocity_sd_mps),
+                f"the initiator's velocity deviation must be positive, got {self.velocity_sd_mps}")
+        require(self.min_pairs >= 1, f"min_pairs must be at least 1, got {self.min_pairs}")
+        require(0.5 <= self.gate_probability < 1.0, f"gate probability must be in [0.5, 1), got {self.gate_probability}")
+
+    def check(self, model: MeasurementModel, what: str = "initiation from detections") -> None:
+        """One-line refusal of a model this initiator can not fix positions from."""
+        if "azimuth" not in model.components or "range" not in model.components or model.geometry.dim != 2:
+            raise ConfigError(f"{what} fixes positions from (bistatic range, azimuth) in 2-D; the detections measure "
+                              f"{list(model.components)} in {model.geometry.dim}-D (use initiation: oracle)")
+        require(self.min_pairs <= model.n_pairs, f"min_pairs ({self.min_pairs}) is more than the {model.n_pairs} pairs: "
+                                                 "no track could ever start")
+
+    def fixes(self, z: torch.Tensor, model: MeasurementModel, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Position fixes of detections ``z (B, S, M, d)`` (pair ``s`` measured by ``model``'s pair
+        ``s``; states of dimension ``n``): positions ``(B, S, M, 2)``, covariances
+        ``(B, S, M, 2, 2)`` and ``ok (B, S, M)`` (a fix exists: range beyond the baseline,
+        finite, ``H`` invertible)."""
+        comps = model.components
+        r, az = z[..., comps.index("range")], z[..., comps.index("azimuth")]
+        tx = model.geometry.pair_tx_positions(z.dtype)[:, None, :]  # (S, 1, 2)
+        rx = model.geometry.pair_rx_positions(z.dtype)[:, None, :]
+        base = rx - tx
+        u = torch.stack([torch.sin(az), torch.cos(az)], -1)  # azimuth clockwise from north
+        L2 = (base * base).sum(-1)
+        denom = 2 * (r + (base * u).sum(-1))
+        rho = (r * r - L2) / denom
+        pos = rx + rho.unsqueeze(-1) * u
+        ok = torch.isfinite(rho) & (rho > 0) & (r * r > L2)
+        pos = torch.where(ok.unsqueeze(-1), pos, torch.zeros((), dtype=z.dtype))
+        # H = d(range, azimuth)/d(position) of each pair from the model's own Jacobian
+        pi = list(model.pos_idx)
+        H = []
+        for s in range(model.n_pairs):
+            sub = model.for_pairs([s])
+            state = pos.new_zeros(*pos.shape[:1], pos.shape[2], n)
+            state[..., pi] = pos[:, s]
+            J = sub.jacobian(state)  # (B, M, d, n)
+            H.append(J[..., [comps.index("range"), comps.index("azimuth")], :][..., pi])
+        H = torch.stack(H, 1)  # (B, S, M, 2, 2)
+        sd = torch.tensor([model.noise_std[comps.index("range")], model.noise_std[comps.index("azimuth")]], dtype=z.dtype)
+        det = H[..., 0, 0] * H[..., 1, 1] - H[..., 0, 1] * H[..., 1, 0]
+        # the two gradients nearly parallel (the sine of their angle below 1e-6): no fix along it
+        ok = ok & (det.abs() > 1e-6 * H[..., 0, :].norm(dim=-1) * H[..., 1, :].norm(dim=-1))
+        H = torch.where(ok[..., None, None], H, torch.eye(2, dtype=z.dtype))
+        Hinv = torch.linalg.inv(H)
+        return pos, Hinv @ torch.diag(sd**2) @ Hinv.transpose(-1, -2), ok
+
+    def groups(self, pos: torch.Tensor, cov: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
+        """Groups of agreeing fixes ``(B, G, S)`` int64: the detection of each pair in the group
+        (-1: none), ``G`` groups of ``>= min_pairs`` pairs, padded with all -1 rows.
+
+        Anchored greedily, batched over runs: for each pair ``a`` in turn, every unused fix of
+        ``a`` takes, from each later pair, the nearest unused fix it agrees with; where two anchors
+        want the same fix the nearer keeps it (the other goes without). A fix is used once.
+        """
+        B, S, M = ok.shape
+        gamma = gate_threshold(self.gate_probability, 2)
+        free = ok.clone()
+        rows = []
+        ar = torch.arange(M)
+        for a in range(S):
+            members = torch.full((B, M, S), -1, dtype=torch.int64)
+            members[..., a] = torch.where(free[:, a], ar, torch.full_like(ar, -1))
+            for b in range(a + 1, S):
+                diff = pos[:, a, :, None] - pos[:, b, None, :]  # (B, M, M, 2)
+                both = cov[:, a, :, None] + cov[:, b, None, :]
+                d2 = (diff.unsqueeze(-2) @ torch.linalg.solve(both, diff.unsqueeze(-1))).squeeze(-1).squeeze(-1)
+                agree = (d2 <= gamma) & free[:, a, :, None] & free[:, b, None, :]
+                d2 = torch.where(agree, d2, torch.full_like(d2, math.inf))
+                best_d, best = d2.min(-1)  # (B, M): each anchor's nearest agreeing fix of pair b
+                has = torch.isfinite(best_d)
+                # one anchor per fix of pair b: the nearest of those that chose it
+                claim = torch.full((B, M), math.inf, dtype=d2.dtype).scatter_reduce(
+                    1, best, torch.where(has, best_d, torch.full_like(best_d, math.inf)), "amin")
+                keep = has & (best_d <= claim.gather(1, best))
+                # exact ties: the lowest anchor index keeps the fix
+                first = torch.full((B, M), M, dtype=torch.int64).scatter_reduce(
+                    1, best, torch.where(keep, ar.expand(B, M), torch.full_like(best, M)), "amin")
+                keep = keep & (first.gather(1, best) == ar)
+                members[..., b] = torch.where(keep, best, torch.full_like(best, -1))
+            size = (members >= 0).sum(-1)
+            good = size >= self.min_pairs
+            members = torch.where(good[..., None], members, torch.full_like(members, -1))
+            for b in range(a, S):  # mark what the accepted groups used
+                idx = members[..., b]
+                used = torch.zeros(B, M + 1, dtype=torch.bool).scatter(1, torch.where(idx >= 0, idx, M), True)[:, :M]
+                free[:, b] &= ~used
+            rows.append(members)
+        out = torch.cat(rows, 1)  # (B, S*M, S)
+        real = (out >= 0).any(-1)
+        G = int(real.sum(-1).max()) if real.numel() else 0
+        order = torch.argsort((~real).to(torch.int8), dim=1, stable=True)[:, :G]
+        return out.gather(1, order[..., None].expand(B, G, S))
+
+    def states(self, z: torch.Tensor, groups: torch.Tensor, pos: torch.Tensor, cov: torch.Tensor, model: MeasurementModel,
+               n: int, other_sd: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
+        """Initial Gaussians ``(B, G, n)`` of ``groups (B, G, S)`` (see the class docstring) and
+        which groups are real ``(B, G)``."""
+        B, G, S = groups.shape
+        real = (groups >= 0).any(-1)
+        has = groups >= 0  # (B, G, S)
+        idx = groups.clamp(min=0)
+        take = lambda t: t.gather(2, idx.transpose(1, 2)[(...,) + (None,) * (t.dim() - 3)].expand(
+            B, S, G, *t.shape[3:])).transpose(1, 2)  # (B, S, M, ...) -> (B, G, S, ...)
+        p_i, P_i, z_i = take(pos), take(cov), take(z)
+        eye2 = torch.eye(2, dtype=z.dtype)
+        info = torch.where(has[..., None, None], torch.linalg.inv(torch.where(has[..., None, None], P_i, eye2)),
+                           torch.zeros((), dtype=z.dtype))
+        Pp = torch.linalg.inv(info.sum(2) + torch.where(real, 0.0, 1.0)[..., None, None] * eye2)
+        p = (Pp @ (info @ p_i.unsqueeze(-1)).sum(2)).squeeze(-1)  # (B, G, 2)
+        x = z.new_zeros(B, G, n)
+        pi, vi = list(model.pos_idx), list(model.vel_idx)
+        x[..., pi] = p
+        prec = torch.eye(2, dtype=z.dtype) / self.velocity_sd_mps**2
+        x[..., vi], Pv = velocity_fit(model, x, z_i, has, prec)
+        P = torch.diag_embed(other_sd.to(z.dtype) ** 2).expand(B, G, n, n).clone()
+        P[..., pi, :] = 0.0
+        P[..., :, pi] = 0.0
+        P[..., vi, :] = 0.0
+        P[..., :, vi] = 0.0
+        P[..., torch.tensor(pi)[:, None], torch.tensor(pi)] = Pp
+        P[..., torch.tensor(vi)[:, None], torch.tensor(vi)] = Pv
+        return Gaussian(x, P), real
+
+    def initiate(self, z: torch.Tensor, unused: torch.Tensor, model: MeasurementModel, n: int,
+                 other_sd: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
+        """Tentative tracks ``(B, G, n)`` and which are real ``(B, G)`` from the detections
+        ``z (B, S, M, d)`` marked ``unused (B, S, M)``."""
+        pos, cov, ok = self.fixes(z, model, n)
+        groups = self.groups(pos, cov, ok & unused)
+        return self.states(z, groups, pos, cov, model, n, other_sd)
