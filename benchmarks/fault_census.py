@@ -231,8 +231,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     pmsr_root = args.pmsr_root.resolve()
-    if not (pmsr_root / "pmsr_nn" / "cli.py").is_file():
-        ap.error(f"--pmsr-root {pmsr_root} has no pmsr_nn/cli.py")
+    if not (pmsr_root / "pmsr_nn" / "cli" / "__init__.py").is_file():
+        ap.error(f"--pmsr-root {pmsr_root} has no pmsr_nn/cli/ (not a pmsr_nn checkout)")
     selected = [c for c in CASES if not args.only or any(s in c.id for s in args.only)]
     if args.list:
         for c in selected:

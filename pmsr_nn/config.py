@@ -51,22 +51,42 @@ class _StrictLoader(yaml.SafeLoader):
         self.where = where
         self.depth = 0
         self.nodes = 0
+        self.open: list[dict] = []  # the nodes being read, outermost first: key or [index], start, children so far
 
     def compose_node(self, parent, index):
         self.depth += 1
         self.nodes += 1
+        if self.open:
+            self.open[-1]["children"] += 1
+        start = self.peek_event().start_mark
+        self.open.append({"key": str(index.value) if isinstance(index, yaml.ScalarNode) else
+                          f"[{index}]" if isinstance(index, int) else None,
+                          "line": start.line + 1, "at": start.index, "children": 0})
         try:
             if self.depth > MAX_YAML_DEPTH:
                 raise ConfigError(f"{self.where}: nested more than {MAX_YAML_DEPTH} levels deep "
-                                  f"(line {self.peek_event().start_mark.line + 1})")
+                                  f"(line {start.line + 1})")
             # counted as the file is read, so a huge list is refused at once, not after building it
             if self.nodes > MAX_YAML_NODES:
-                raise ConfigError(f"{self.where}: holds more than {MAX_YAML_NODES:,} values (at line "
-                                  f"{self.peek_event().start_mark.line + 1}); a config holds a few hundred: is a long "
-                                  "list pasted where a few numbers belong?")
+                raise ConfigError(self._too_many_values())
             return super().compose_node(parent, index)
         finally:
             self.depth -= 1
+            self.open.pop()
+
+    def _too_many_values(self) -> str:
+        """The error of a document past :data:`MAX_YAML_NODES` values, naming its longest list or mapping."""
+        containers = self.open[:-1]
+        longest = max(range(len(containers)), key=lambda i: containers[i]["children"])
+        key = ""
+        for frame in containers[1 : longest + 1]:  # a.b[3].c
+            if frame["key"] is not None:
+                key += frame["key"] if frame["key"].startswith("[") or not key else f".{frame['key']}"
+        count = _flow_list_length(self.buffer, containers[longest]["at"])
+        what = f"is a list of {count:,} values" if count is not None else f"holds more than {MAX_YAML_NODES:,} values"
+        return (f"{self.where}: {key or 'the document'} (line {containers[longest]['line']}) {what}; a config holds a "
+                f"few hundred values in all (at most {MAX_YAML_NODES:,}): is a long list pasted where a few numbers "
+                "belong?")
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -90,6 +110,19 @@ _StrictLoader.add_implicit_resolver(
     list("-+0123456789."))
 _StrictLoader.add_implicit_resolver(
     "tag:yaml.org,2002:int", re.compile(r"^[-+]?0o[0-7_]+$"), list("-+0"))
+
+
+def _flow_list_length(text: str, start: int) -> int | None:
+    """Items of the flow list ``[a, b, ...]`` that opens at ``text[start]`` when it holds plain scalars
+    only (no nested lists or mappings, quotes or comments), else None: counted in the text, at once."""
+    if text[start : start + 1] != "[":
+        return None
+    end = text.find("]", start)
+    body = text[start + 1 : end] if end > 0 else ""
+    if end < 0 or any(c in body for c in "[{\"'#"):
+        return None
+    items = body.split(",")
+    return len(items) - (not items[-1].strip())  # a trailing comma ends no item
 
 
 def _expanded_size(root, where: str) -> int:
@@ -186,7 +219,7 @@ def load_yaml(path: str | Path) -> dict:
 def _short(value: Any, limit: int = 60) -> str:
     """``repr(value)`` cut to ``limit`` characters, for error messages about arbitrary user data."""
     if isinstance(value, (dict, list, tuple)) and len(value) > 8:
-        return f"a {type(value).__name__} of {len(value)} items"
+        return f"a {type(value).__name__} of {len(value):,} items"
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
@@ -234,7 +267,8 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(args[0], v, f"{where}[{i}]") for i, v in enumerate(value))
         if len(value) != len(args):
-            raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
+            things = "numbers" if all(a in (int, float) for a in args) else "values"
+            raise ConfigError(f"{where}: expected {len(args)} {things}, got {len(value):,}")
         return tuple(_convert(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
     if tp is dict or origin is dict:
         if not isinstance(value, dict):

@@ -47,7 +47,13 @@ def environment(device: str = "cpu") -> dict:
     return {"pmsr_nn": __version__, "torch": torch.__version__, "numpy": np.__version__,
             "python": platform.python_version(), "device": dev, "threads": torch.get_num_threads(),
             "machine": f"{cpu_model()}, {os.cpu_count()} cores", "date": datetime.date.today().isoformat(),
-            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": git_commit()}
+            "command": " ".join([_program(), *sys.argv[1:]]), "commit": git_commit()}
+
+
+def _program() -> str:
+    """The command's name as a user would type it: ``python -m pmsr_nn.cli`` runs ``cli/__main__.py``."""
+    path = Path(sys.argv[0])
+    return "python -m pmsr_nn.cli" if path.name == "__main__.py" and path.parent.name == "cli" else path.name
 
 
 def resolve_device(text: str) -> torch.device:

@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -178,8 +179,6 @@ def test_console_script_help_and_error_without_traceback(tmp_path):
     assert "Traceback" not in failed.stderr and failed.stderr.strip().count("\n") == 0
 
 
-
-
 def test_track_force_past_the_checks_warns_how_many_estimates_are_not_finite(tmp_path, capsys, make_tracks):
     import csv
 
@@ -205,3 +204,81 @@ def test_track_force_past_the_checks_warns_how_many_estimates_are_not_finite(tmp
     assert len(rows) == 120 and bad, "the forced values should break the estimates"
     assert err == (f"warning   {len(bad)} of 120 estimates are not finite (NaN or inf), first at track "
                    f"{rows[bad[0]]['track']!r} row {bad[0] + 1}: the input is outside what the network can track")
+
+
+COMMANDS = ["simulate", "info", "train", "select", "track", "export", "export-onnx", "evaluate", "front-end", "methods",
+            "merge", "demo"]
+
+
+def test_every_command_is_listed_in_order_and_has_its_help(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    assert re.findall(r"^    (\S+)", capsys.readouterr().out, re.M) == COMMANDS
+    for name in COMMANDS:
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0 and capsys.readouterr().out.startswith(f"usage: pmsr {name} [-h] [--debug]")
+
+
+TINY_SCENARIO = """\
+name: tiny
+seed: 3
+mc_runs: 2
+block_runs: 1
+warmup_steps: 20
+noise: {range_m: 30.0, range_rate_mps: 2.0, azimuth_deg: 3.0}
+cases:
+  - {name: steady, start_range_m: 4000.0, start_bearing_deg: 130.0, speed_mps: 10.0, heading_deg: 20.0,
+     segments: [{duration_s: 60.0}]}
+  - {name: ukf_only, methods: [UKF], start_range_m: 6000.0, start_bearing_deg: 40.0, speed_mps: 8.0, heading_deg: 200.0,
+     segments: [{duration_s: 60.0}]}
+methods:
+  - {name: EKF, kind: ekf}
+  - {name: UKF, kind: ukf}
+"""
+
+
+def rows(out: Path) -> dict:
+    """``{case: {method: position RMSE}}`` of a results.json."""
+    res = json.loads((out / "results.json").read_text())
+    return {c: {m: r["rmse_pos_m"] for m, r in per["methods"].items()} for c, per in res["cases"].items()}
+
+
+def test_evaluate_methods_runs_only_the_named_rows_on_the_same_draws(tmp_path, capsys):
+    scenario = tmp_path / "tiny.yaml"
+    scenario.write_text(TINY_SCENARIO)
+    assert main(["evaluate", str(scenario), "--out", str(tmp_path / "all"), "--quiet"]) == 0
+    assert main(["evaluate", str(scenario), "--out", str(tmp_path / "ukf"), "--quiet", "--methods", " UKF ,UKF"]) == 0
+    everything = rows(tmp_path / "all")
+    assert {c: sorted(m) for c, m in everything.items()} == {"steady": ["EKF", "UKF"], "ukf_only": ["UKF"]}
+    assert rows(tmp_path / "ukf") == {c: {"UKF": m["UKF"]} for c, m in everything.items()}  # bit for bit
+    assert "pcrb" in json.loads((tmp_path / "ukf" / "results.json").read_text())["cases"]["steady"]  # not a row
+    assert capsys.readouterr().err == ""
+
+
+def test_methods_filter_keeps_the_cases_that_run_a_named_row(tmp_path):
+    from pmsr_nn.cli.evaluate import keep_methods
+    from pmsr_nn.harness.evaluate import load_any
+
+    (tmp_path / "tiny.yaml").write_text(TINY_SCENARIO)
+    sc = load_any(tmp_path / "tiny.yaml")
+    ekf = keep_methods(sc, ["EKF"])  # the case that names only UKF has nothing left to run
+    assert [m.name for m in ekf.methods] == ["EKF"] and [c.name for c in ekf.cases] == ["steady"]
+    assert ekf.base_dir == sc.base_dir == str(tmp_path)
+    ukf = keep_methods(sc, ["UKF"])
+    assert [m.name for m in ukf.methods] == ["UKF"] and [(c.name, c.methods) for c in ukf.cases] == [
+        ("steady", ()), ("ukf_only", ("UKF",))]
+
+
+@pytest.mark.parametrize("names,message", [
+    ("EKF,PF", "pmsr: error: --methods 'PF': not a row of scenario 'tiny', whose rows are: EKF, UKF\n"),
+    ("pf,Ukf", "pmsr: error: --methods 'pf', 'Ukf': not rows of scenario 'tiny', whose rows are: EKF, UKF\n"),
+    (",", "pmsr: error: --methods nothing: not rows of scenario 'tiny', whose rows are: EKF, UKF\n"),
+])
+def test_evaluate_methods_refuses_a_name_that_is_not_a_row(tmp_path, capsys, names, message):
+    scenario = tmp_path / "tiny.yaml"
+    scenario.write_text(TINY_SCENARIO)
+    rc = main(["evaluate", str(scenario), "--out", str(tmp_path / "sub" / "out"), "--methods", names])
+    assert rc == 2 and capsys.readouterr().err == message
+    assert [p.name for p in tmp_path.iterdir()] == ["tiny.yaml"]  # not even the parent folder

@@ -5,6 +5,7 @@ import math
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -12,8 +13,8 @@ import torch
 from pmsr_nn.config import MAX_YAML_DEPTH, MAX_YAML_NODES, load_yaml, parse_yaml_value
 from pmsr_nn.errors import ConfigError, GeometryError, MeasurementError, OutputError
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
-from pmsr_nn.outputs import (MARKER, atomic_file, atomic_folder, check_folder_target, clean_stale, is_ours,
-                             output_kind)
+from pmsr_nn.outputs import (MARKER, atomic_file, atomic_folder, check_folder_target, check_target, clean_stale,
+                             is_ours, output_kind, virtual_file_system)
 from pmsr_nn.plausibility import check_measurements
 
 
@@ -192,9 +193,32 @@ def test_a_huge_plain_list_is_refused_as_it_is_read_and_not_called_an_alias_bomb
     text = "noise: {range_m: 30.0}\nrange_m: [" + ",".join(["1"] * (5 * MAX_YAML_NODES)) + "]\n"
     with pytest.raises(ConfigError) as err:
         parse_yaml_value(text, "long.yaml")
-    assert str(err.value) == (f"long.yaml: holds more than {MAX_YAML_NODES:,} values (at line 2); a config holds a few "
-                              "hundred: is a long list pasted where a few numbers belong?")
+    assert str(err.value) == (f"long.yaml: range_m (line 2) is a list of {5 * MAX_YAML_NODES:,} values; a config holds a "
+                              f"few hundred values in all (at most {MAX_YAML_NODES:,}): is a long list pasted where a few "
+                              "numbers belong?")
     parse_yaml_value("[" + ",".join(["1"] * (MAX_YAML_NODES - 1)) + "]", "fits.yaml")  # the list node + its values
+
+
+@pytest.mark.parametrize("text, where", [
+    ("a:\n  b:\n" + "  - 1\n" * MAX_YAML_NODES, f"a.b (line 3) holds more than {MAX_YAML_NODES:,} values"),  # block list
+    ("a: [" + "[1, 2], " * MAX_YAML_NODES + "]", f"a (line 1) holds more than {MAX_YAML_NODES:,} values"),  # short lists
+    ("z: 1\na: [{b: [" + "1, " * MAX_YAML_NODES + "]}]", f"a[0].b (line 2) is a list of {MAX_YAML_NODES:,} values"),
+    ("a: ['" + "x', '" * MAX_YAML_NODES + "']", f"a (line 1) holds more than {MAX_YAML_NODES:,} values"),  # quoted
+    ("".join(f"k{i}: {i}\n" for i in range(MAX_YAML_NODES)), "the document (line 1) holds more than"),
+])
+def test_the_refusal_of_a_long_document_names_its_longest_list(text, where):
+    with pytest.raises(ConfigError) as err:
+        parse_yaml_value(text, "c.yaml")
+    assert str(err.value).startswith(f"c.yaml: {where}") and "alias" not in str(err.value)
+
+
+def test_a_list_of_the_wrong_length_says_how_many_numbers_are_expected():
+    from pmsr_nn.config import from_dict
+    from pmsr_nn.simulation.recipe import NoiseSpec
+
+    with pytest.raises(ConfigError) as err:
+        from_dict(NoiseSpec, {"range_m": [16.0] * 19_000}, "recipe.noise")
+    assert str(err.value) == "recipe.noise.range_m: expected 2 numbers, got 19,000"
 
 
 def test_aliases_within_the_budget_still_work():
@@ -282,3 +306,27 @@ def test_implausible_measurements_name_row_and_column(pair_geometry, row, messag
     with pytest.raises(MeasurementError, match=message) as e:
         check_measurements(z, COLS, pair_geometry, span, where=lambda b, k: f"z.csv: row {k + 1}")
     assert str(e.value).startswith("z.csv: row 2:") and "--force" in str(e.value)
+
+
+needs_proc = pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="no /proc on this system")
+
+
+@needs_proc
+@pytest.mark.parametrize("target", ["/proc/pmsr-x", "/proc/pmsr-x/y/z.csv"])
+def test_nothing_is_written_to_a_virtual_file_system(cwd, target):
+    with pytest.raises(OutputError) as err:
+        check_target(target)
+    assert str(err.value) == (f"--out {target}: /proc is a virtual file system with no disk behind it (like /proc or "
+                              "/sys); give a folder on a disk")
+    assert virtual_file_system(target) == virtual_file_system("/proc") == Path("/proc")
+    assert virtual_file_system(cwd / "new" / "x") is None
+
+
+@needs_proc
+def test_an_os_error_on_a_virtual_file_system_says_so():
+    from pmsr_nn.cli import describe_error
+
+    assert describe_error(FileNotFoundError(2, "No such file or directory", "/proc/run/x")) == (
+        2, "/proc/run/x: /proc is a virtual file system with no disk behind it (like /proc or /sys); give a folder on a disk")
+    assert describe_error(FileNotFoundError(2, "No such file or directory", "nope/x")) == (
+        2, "No such file or directory: nope/x")

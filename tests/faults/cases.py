@@ -14,6 +14,8 @@ Conventions:
   must refuse, everything that existed before must be unchanged, outputs included, and nothing
   new may remain (a signal case may keep what it declares in ``outputs``, e.g. the checkpoint of
   an interrupted training run).
+* ``message``: a substring of the one error line of a refusal; of stderr (a warning) for an
+  ``ok`` case.
 * ``signal``: ``("SIGTERM", 1.0)`` sends the signal 1 s after the first path matching one of
   ``signal_after`` (globs relative to the working folder; hidden names included) appears, or
   after ``signal_fallback`` s if none does. A signalled case must end with a non-zero exit code,
@@ -52,7 +54,7 @@ class Case:
     expect: str                               # "refuse" or "ok"
     setup: Callable[[Path], None] | None = None
     outputs: tuple[str, ...] = ()
-    message: str | None = None                # a substring the (post-fix) error line should contain
+    message: str | None = None                # a substring of the (post-fix) error line (of the warning: "ok" cases)
     signal: tuple[str, float] | None = None   # (signal name, seconds after the trigger)
     timeout: float = DEFAULT_TIMEOUT
     klass: str = ""
@@ -405,8 +407,8 @@ def v_files(*rels: str) -> Callable[[Path], str | None]:
     return v
 
 
-def v_csv(rel: str, rows: int) -> Callable[[Path], str | None]:
-    """A CSV of estimates with ``rows`` data rows of finite numbers."""
+def v_csv(rel: str, rows: int, finite: bool = True) -> Callable[[Path], str | None]:
+    """A CSV of estimates with ``rows`` data rows of numbers, finite ones unless ``finite`` is false."""
     def v(root: Path) -> str | None:
         p = root / rel
         if not p.is_file():
@@ -414,7 +416,7 @@ def v_csv(rel: str, rows: int) -> Callable[[Path], str | None]:
         header, body = _read_csv(p)
         if len(body) != rows:
             return f"{rel}: {len(body)} rows, expected {rows}"
-        for r in body:
+        for r in body if finite else ():
             for c in r[2:]:
                 if not math.isfinite(float(c)):
                     return f"{rel}: non-finite value {c!r}"
@@ -465,12 +467,17 @@ def v_run(rel: str, dotted: str | None = None, value=None) -> Callable[[Path], s
     return v
 
 
-def v_results(rel: str) -> Callable[[Path], str | None]:
+def v_results(rel: str, rows: tuple[str, ...] | None = None) -> Callable[[Path], str | None]:
+    """A results.json with a finite position RMSE in every row (and, given ``rows``, exactly these rows per case)."""
     def v(root: Path) -> str | None:
         p = root / rel / "results.json"
         if not p.is_file():
             return f"{rel}/results.json missing"
         res = json.loads(p.read_text())
+        if rows is not None:
+            got = {c: sorted(per.get("methods", {})) for c, per in res.get("cases", {}).items()}
+            if not got or any(names != sorted(rows) for names in got.values()):
+                return f"rows {got}, expected {sorted(rows)} in every case"
         bad = [f"{c}/{m}" for c, per in res.get("cases", {}).items() for m, r in per.get("methods", {}).items()
                if not isinstance(r.get("rmse_pos_m"), (int, float)) or not math.isfinite(r["rmse_pos_m"])]
         return f"non-finite RMSE for {bad}" if bad else None
@@ -548,6 +555,11 @@ case("simulate/out-unwritable-sysfs", f"{SIM} --out locked/pmsr-census-new", set
 case("simulate/out-in-proc", f"{SIM} --out proc/pmsr-census-new", setup=symlink("proc", "/proc"),
      message="virtual file system with no disk behind it",
      klass="silent_wrong", note="was: '0.0 GB needed, 0.0 GB free (ask for fewer --tracks)'")
+case("simulate/out-in-proc-subfolder", f"{SIM} --out proc/a/b", setup=symlink("proc", "/proc"),
+     message="virtual file system with no disk behind it", klass="silent_wrong",
+     note="the missing parents a/b are not created in /proc first")
+case("simulate/out-in-sysfs", f"{SIM} --out sys/pmsr-census-new", setup=symlink("sys", "/sys"),
+     message="virtual file system with no disk behind it", klass="traceback")
 case("simulate/out-readonly-dir", f"{SIM} --out ro/new", setup=RO, outputs=("ro/new",), message="ro",
      root_expect="ok", klass="traceback")
 case("simulate/recipe-missing", "simulate nope.yaml --out new", message="nope.yaml", klass="refusal")
@@ -565,6 +577,13 @@ case("simulate/recipe-non-utf8", "simulate r.yaml --out new",
      message="utf-8", klass="traceback")
 case("simulate/recipe-alias-bomb", "simulate r.yaml --out new",
      setup=text_sub(RECIPE_YAML, "r.yaml", "tracks: 12", f"tracks: {BOMB}"), message="alias", klass="hang")
+case("simulate/recipe-million-numbers-for-an-interval", "simulate r.yaml --out new",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "range_m: [16.0, 30.0]", "range_m: [" + "16," * 999_999 + "30]"),
+     message="noise.range_m (line 12) is a list of 1,000,000 values", klass="hang",
+     note="counted in the text as it is refused; no alias in it, so no word of an alias bomb")
+case("simulate/recipe-19000-numbers-for-an-interval", "simulate r.yaml --out new",
+     setup=text_sub(RECIPE_YAML, "r.yaml", "range_m: [16.0, 30.0]", "range_m: [" + "16.0, " * 18_999 + "30.0]"),
+     message="recipe.noise.range_m: expected 2 numbers, got 19,000", klass="refusal")
 case("simulate/recipe-deep-nesting", "simulate r.yaml --out new",
      setup=text_sub(RECIPE_YAML, "r.yaml", "tracks: 12", f"tracks: {DEEP}"), message="r.yaml", klass="traceback")
 case("simulate/recipe-50mb", "simulate r.yaml --out new", setup=big_yaml("r.yaml", RECIPE_YAML, 50, key="junk"),
@@ -705,6 +724,9 @@ case("train/out-cwd", f"{TR} --out .", message="out", klass="data_loss")
 case("train/out-symlink-to-user", f"{TR} --out link", setup=LINK_USER, message="link", klass="data_loss")
 case("train/out-existing-run", f"{TR} --out run", message="--resume", klass="refusal")
 case("train/out-unwritable-sysfs", f"{TR} --out locked/pmsr-run", setup=LOCK, message="locked", klass="traceback")
+case("train/out-in-proc", f"{TR} --out proc/run", setup=symlink("proc", "/proc"),
+     message="virtual file system with no disk behind it", klass="traceback",
+     note="was: 'No such file or directory: proc/run' from deep inside the run")
 case("train/out-readonly-dir", f"{TR} --out ro/run", setup=RO, outputs=("ro/run",), root_expect="ok", message="ro",
      klass="traceback")
 case("train/ok", f"{TR} --out run2", "ok", outputs=("run2",), verify=v_run("run2"), klass="refusal")
@@ -793,6 +815,13 @@ case("train/model-kind-unknown", f"{TR} --out run2 model.kind=transformer", mess
 case("train/model-hidden-empty", f"{TR} --out run2 model.hidden=[]", message="hidden", klass="refusal")
 case("train/model-hidden-huge", f"{TR} --out run2 model.hidden=[200000,200000]", message="hidden", klass="hang",
      note="a 40-billion-weight layer")
+case("train/model-hidden-too-many-layers", f"{TR} --out run2 model.hidden=[{','.join(['8'] * 65)}]",
+     message="model.hidden lists 65 layers; at most 64", klass="hang")
+case("train/model-hidden-too-many-weights", f"{TR} --out run2 model.hidden=[16384,16384]",
+     message="268,435,456 weights between the hidden layers", klass="hang",
+     note="each width is allowed; the 1 GB layer between them is not")
+case("train/model-rnn-layers-too-many", f"{TR} --out run2 model.kind=rnn model.rnn_layers=65",
+     message="model.rnn_layers in [1, 64]", klass="hang")
 case("train/model-filter-longer-than-window", f"{TR} --out run2 model.filter_order=50", outputs=("run2",),
      message="filter_order", klass="silent_wrong", note="two filter layers of order 50 need 98 samples; the window is 20")
 case("train/model-dropout-out-of-range", f"{TR} --out run2 model.dropout=1.5", message="dropout", klass="refusal")
@@ -916,6 +945,10 @@ case("track/csv-infinite", f"{TRK} --input c.csv --out est.csv", setup=csv_edit(
      message="infinite", klass="refusal")
 case("track/csv-values-1e300", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", map_columns("range", lambda v: 1e300)),
      outputs=("est.csv",), message="range", klass="silent_wrong")
+case("track/csv-values-1e300-force-ok", f"{TRK} --input c.csv --out est.csv --force", "ok",
+     setup=csv_edit("c.csv", map_columns("range", lambda v: 1e300)), outputs=("est.csv",),
+     verify=v_csv("est.csv", N_ROWS, finite=False), message=f"{N_ROWS} of {N_ROWS} estimates are not finite",
+     klass="silent_wrong", note="forced past the checks: written, with a warning that counts the non-finite estimates")
 case("track/csv-values-1e30", f"{TRK} --input c.csv --out est.csv", setup=csv_edit("c.csv", map_columns("range", lambda v: v * 1e26)),
      outputs=("est.csv",), message="range", klass="silent_wrong")
 case("track/csv-azimuth-in-degrees", f"{TRK} --input c.csv --out est.csv",
@@ -1068,6 +1101,15 @@ case("evaluate/ok-learned", "evaluate sc_learned.yaml --quiet --out out", "ok", 
      verify=v_results("out"), klass="refusal")
 case("evaluate/ok-lightning-checkpoint", "evaluate sc_learned.yaml --quiet --out out --checkpoint MDFNN=run/checkpoints/last.ckpt",
      "ok", outputs=("out",), verify=v_results("out"), klass="refusal")
+case("evaluate/methods-ok", f"{EV} --out out --methods UKF", "ok", outputs=("out",),
+     verify=v_results("out", rows=("UKF",)), klass="refusal")
+case("evaluate/methods-unknown-row", f"{EV} --out out --methods EKF,PF",
+     message="--methods 'PF': not a row of scenario 'tiny', whose rows are: EKF, UKF", klass="refusal")
+case("evaluate/methods-empty", f"{EV} --out out --methods ,", message="whose rows are: EKF, UKF", klass="refusal")
+case("evaluate/methods-with-executor", f"{EV} --out out --methods EKF --executor local",
+     message="--methods does not reach the jobs of --executor", klass="refusal")
+case("evaluate/out-in-proc", f"{EV} --out proc/ev", setup=symlink("proc", "/proc"),
+     message="virtual file system with no disk behind it", klass="traceback")
 case("evaluate/shard-garbage", f"{EV} --out out --shard abc", message="shard", klass="refusal")
 case("evaluate/shard-zero", f"{EV} --out out --shard 0/2", message="shard", klass="refusal")
 case("evaluate/shard-more-than-blocks", f"{EV} --out out --shard 1/3", message="shard", klass="refusal")
@@ -1093,7 +1135,7 @@ case("evaluate/scenario-alias-bomb", "evaluate s.yaml --out out",
      setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", f"seed: {BOMB}"), message="alias", klass="hang")
 case("evaluate/scenario-million-element-list", "evaluate s.yaml --out out",
      setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", "seed: [" + ",".join(["3"] * 1_000_000) + "]"),
-     message="holds more than 20,000 values", klass="hang",
+     message="seed (line 3) is a list of 1,000,000 values", klass="hang",
      note="no alias in it: refused as it is read (0.6 s here), not called an alias bomb after 30 s")
 case("evaluate/scenario-deep-nesting", "evaluate s.yaml --out out",
      setup=text_sub(SCENARIO_YAML, "s.yaml", "seed: 3", f"seed: {DEEP}"), message="s.yaml", klass="traceback")
@@ -1421,6 +1463,13 @@ cases:
 """
 case("evaluate/tbd-ok", "evaluate t.yaml --out out", expect="ok", setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: None),
      outputs=("out",))
+case("evaluate/tbd-receiver-million-numbers", "evaluate t.yaml --out out",
+     setup=text_sub(TBD_YAML, "t.yaml", "receiver_m: [0.0, 0.0, 0.0]", "receiver_m: [" + "0," * 999_999 + "0]"),
+     message="rd_maps.receiver_m (line 9) is a list of 1,000,000 values", klass="hang",
+     note="three numbers expected; refused as it is read, not after building the list")
+case("evaluate/tbd-receiver-four-numbers", "evaluate t.yaml --out out",
+     setup=text_sub(TBD_YAML, "t.yaml", "receiver_m: [0.0, 0.0, 0.0]", "receiver_m: [0.0, 0.0, 0.0, 0.0]"),
+     message="receiver_m", klass="refusal")
 case("evaluate/tbd-subarea-larger-than-map", "evaluate t.yaml --out out",
      setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["options"].update(subarea_half=400)),
      message="larger than the maps", klass="refusal")

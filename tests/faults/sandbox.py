@@ -231,8 +231,13 @@ def write_user_files(root: Path) -> None:
         (root / rel).mkdir(parents=True, exist_ok=True)
 
 
-def build_fixtures(cache_dir: str | Path, pmsr_root: str | Path, python: str | None = None, log=print) -> Path:
+def build_fixtures(cache_dir: str | Path, pmsr_root: str | Path, python: str | None = None, log=print,
+                   run=None) -> Path:
     """Build (once) the fixture working folder for ``pmsr_root`` under ``cache_dir``; return it.
+
+    ``run(argv, work) -> (exit code, output)``: how a step runs when given (the tests: in-process,
+    one step after another, sparing a Python start-up per step); default: ``pmsr_root``'s
+    command as subprocesses, the steps of a group side by side.
 
     The folder is keyed by a digest of the checkout's sources; a complete build is marked by a
     ``.complete`` stamp next to it, so a later call returns at once.
@@ -253,6 +258,13 @@ def build_fixtures(cache_dir: str | Path, pmsr_root: str | Path, python: str | N
     env = pmsr_env(pmsr_root, cache_dir)
     t0 = time.perf_counter()
     for group in BUILD_STEPS:
+        if run is not None:
+            for argv in group:
+                rc, output = run(list(argv), work)
+                if rc != 0:
+                    raise RuntimeError(f"fixture step 'pmsr {' '.join(argv)}' failed with exit code {rc}:\n{output[-3000:]}")
+            log(f"fixtures: {' ; '.join('pmsr ' + ' '.join(a) for a in group)}  ({time.perf_counter() - t0:.0f} s)")
+            continue
         procs = []
         for argv in group:
             logf = open(home / f"build-{argv[0]}-{len(list(home.glob('build-*')))}.log", "w")
