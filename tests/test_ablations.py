@@ -17,6 +17,7 @@ def script(name):
     return mod
 
 
+@pytest.mark.slow  # trains and evaluates two networks
 def test_filter_order_ablation_trains_evaluates_and_tabulates(tmp_path):
     out = tmp_path / "abl"
     assert script("ablation_filter_order").main(["--values", "5", "10", "--out", str(out), *TINY]) == 0

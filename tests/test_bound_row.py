@@ -35,6 +35,7 @@ def test_the_bound_rows_are_the_cases_bounds_and_order_as_the_maths_says(tmp_pat
     res = evaluate(path, tmp_path / "out", progress=False)
     case = res["cases"]["c"]
     rows, p = case["methods"], case["pcrb"]
+    assert res["kind"] == "designed"  # a designed flight: its case has a PCRB, and the results say so
     assert list(rows) == ["EKF", "PCRB", "PCRB smoothing", "PCRB q=0"]  # where the scenario lists them
     assert rows["PCRB"]["rmse_pos_m"] == p["pos_m"] and rows["PCRB"]["rmse_vel_mps"] == p["vel_mps"]
     assert rows["PCRB smoothing"]["rmse_pos_m"] == p["smoothing_pos_m"]

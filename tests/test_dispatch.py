@@ -20,6 +20,7 @@ def _ekf_ukf(tmp_path, **over):
     return tiny(tmp_path, methods=[{"name": "EKF", "kind": "ekf"}, {"name": "UKF", "kind": "ukf"}], **over)
 
 
+@pytest.mark.slow  # submitit starts a Python process per shard; the merge it relies on is tested in-process in the default tier
 def test_local_executor_shards_merge_to_the_unsharded_figures(tmp_path, capsys):
     path = _ekf_ukf(tmp_path)
     whole = evaluate(path, tmp_path / "whole", progress=False)

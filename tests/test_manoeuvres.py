@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.scenario import CaseSpec, SegmentSpec
+from pmsr_nn.harness.case_spec import CaseSpec, SegmentSpec
 from pmsr_nn.harness.trajectories import design_trajectory
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.flight import Schedule, integrate_manoeuvres

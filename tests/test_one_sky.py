@@ -59,7 +59,7 @@ def test_every_family_is_a_row(setup):
     assert {"ekf", "ukf", "imm", "learned", "pcrb", "s_msjpda", "p_msjpda", "pmht", "pmht_3d", "smc_phd",
             "stonesoup"} <= kinds
     detection_rows = [m for m in setup.methods if setup.kinds[m.name].reads == "detections"]
-    from pmsr_nn.harness.runner import initiation
+    from pmsr_nn.harness.finalise import initiation
 
     starts = {m.name: initiation(setup, m) for m in detection_rows}
     assert [n for n, s in starts.items() if s == "oracle"] == ["S-MSJPDA (oracle births)"]

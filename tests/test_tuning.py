@@ -15,10 +15,12 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ekf
 from pmsr_nn.harness import evaluate, load_scenario
-from pmsr_nn.harness import runner, tuning
+from pmsr_nn.harness import blocks, prepare_designed, tuning
 from pmsr_nn.methods.single_target import run_single as run_method
-from pmsr_nn.harness.runner import prepare, stream_block as draw_block
-from pmsr_nn.harness.scenario import MethodSpec, scenario_from_dict
+from pmsr_nn.harness.blocks import stream_block as draw_block
+from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.method_spec import MethodSpec
+from pmsr_nn.harness.scenario import scenario_from_dict
 from pmsr_nn.harness.trajectories import check_inside, design_trajectory
 from pmsr_nn.metrics import squared_error
 from pmsr_nn.rng import seeded_generator
@@ -69,7 +71,7 @@ def test_draws_without_outliers_are_those_of_before(monkeypatch):
     # azimuth) and noised: rounds = 1e5 in assert_as_recorded (8.8e-10 of each component; BLAS
     # and vectorised maths of other CPUs moved them by 3e-16 of it). The prior mean is the first
     # true state (a few operations) plus scaled normals: rounds = 10.
-    monkeypatch.setattr(runner, "case_bounds", lambda *a, **k: None)  # the bounds take long and draw nothing
+    monkeypatch.setattr(prepare_designed, "case_bounds", lambda *a, **k: None)  # the bounds take long and draw nothing
     sc = load_scenario(ROOT / "evaluate" / "fitee2023_three_trajectories.yaml")
     setup = prepare(sc.replace(methods=sc.methods[:1]))
     made = []
@@ -78,7 +80,7 @@ def test_draws_without_outliers_are_those_of_before(monkeypatch):
         made.append(seeded_generator(*stream, **kw))
         return made[-1]
 
-    monkeypatch.setattr(runner, "seeded_generator", recorded)
+    monkeypatch.setattr(blocks, "seeded_generator", recorded)
     scans = REFERENCE["block_scans"]
     assert scans.tolist() == [0, 125, 250, 375, 500, 625, 750, 875, 999]
     angles = setup.models.model.angle_mask.numpy()
@@ -95,7 +97,7 @@ def test_draws_without_outliers_are_those_of_before(monkeypatch):
 
 
 def test_outliers_scale_some_range_errors_and_nothing_else(tmp_path, monkeypatch):
-    monkeypatch.setattr(runner, "case_bounds", lambda *a, **k: None)  # not needed for the draws
+    monkeypatch.setattr(prepare_designed, "case_bounds", lambda *a, **k: None)  # not needed for the draws
     p, scale = 0.2, 10.0
     base = scenario_from_dict({**scenario(ROOT / "datasets/fitee2023_ca.yaml", mc_runs=50, block_runs=50),
                                "methods": [{"name": "EKF", "kind": "ekf"}]}, tmp_path)

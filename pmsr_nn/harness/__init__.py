@@ -2,6 +2,8 @@
 report.md and figures (:func:`evaluate`, :func:`merge`)."""
 
 from .evaluate import evaluate, merge
-from .scenario import CaseSpec, MethodSpec, Scenario, SegmentSpec, load_scenario
+from .case_spec import CaseSpec, SegmentSpec
+from .method_spec import MethodSpec
+from .scenario import Scenario, load_scenario
 
 __all__ = ["evaluate", "merge", "CaseSpec", "MethodSpec", "Scenario", "SegmentSpec", "load_scenario"]

@@ -19,8 +19,12 @@ import numpy as np
 
 from ..config import from_dict
 from ..errors import ConfigError
-from .report import _f, _plt, reference_table
-from .scenario import FITEE2023_TRAJECTORIES, FixedNoiseSpec, MethodSpec, Scenario
+from .figures import pyplot as _plt
+from .references import reference_table
+from .report_cells import fmt as _f
+from .case_spec import FITEE2023_TRAJECTORIES
+from .method_spec import MethodSpec
+from .scenario import FixedNoiseSpec, Scenario
 
 ABLATION_MODEL = {"kind": "mdfnn", "hidden": [128, 96, 128], "filter_order": 20}
 
@@ -42,7 +46,7 @@ class Budget:
 
 
 def train_config(name: str, model: dict, window: int, budget: Budget, cache_dir: Path):
-    from ..nets.training import TrainConfig
+    from ..nets.train_config import TrainConfig
 
     raw = {"name": name, "seed": budget.seed,
            "data": {"tracks": budget.tracks, "window": window, "cache_dir": str(cache_dir),

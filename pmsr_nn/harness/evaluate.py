@@ -22,8 +22,13 @@ from ..config import load_yaml
 from ..errors import ConfigError
 from ..outputs import atomic_folder, check_folder_target
 from .multitarget import MultiTargetScenario, is_multitarget, multitarget_from_dict
-from .report import reference_table, write_report
-from .runner import BlockSums, Setup, finalise, prepare, run_blocks, shard_blocks
+from .references import reference_table
+from .report import write_report
+from .block_sums import BlockSums, shard_blocks
+from .blocks import run_blocks
+from .finalise import finalise, result_kind
+from .prepared import Setup
+from .runner import prepare
 from .scenario import Scenario, scenario_from_dict
 
 SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
@@ -102,10 +107,12 @@ def _references(sc: AnyScenario) -> tuple[dict | None, dict | None, dict]:
 
 
 def build_results(setup: Setup, bs: BlockSums, device: str) -> dict:
+    """``results.json``'s content: the scenario, its result kind (:func:`~.finalise.result_kind`),
+    settings, definitions, the paper's reference and every case's figures."""
     sc = setup.scenario
     _, _, ref_info = _references(sc)
-    kind = {"kind": "multitarget"} if isinstance(sc, MultiTargetScenario) else {}
-    return {"scenario": sc.name, **kind, "seed": sc.seed, "mc_runs": sc.mc_runs, "environment": environment(device),
+    return {"scenario": sc.name, "kind": result_kind(setup), "seed": sc.seed, "mc_runs": sc.mc_runs,
+            "environment": environment(device),
             "description": sc.description, "settings": setup.settings, "definitions": setup.definitions,
             "reference": ref_info, "cases": finalise(setup, bs)}
 

@@ -1,17 +1,15 @@
-"""Multi-target studies (``kind: multitarget``): a formation of targets seen through missed
-detections and clutter, every multi-target tracker on the same Monte Carlo draws.
+"""Multi-target studies (``kind: multitarget``, schema): a formation of targets (or listed
+states, or designed aircraft) seen through missed detections and clutter, every multi-target
+tracker on the same Monte Carlo draws.
 
-This module holds only the study's YAML schema and :func:`prepare_multitarget`, which turns it
-into the runner's :class:`~.runner.Setup` (a sampled truth, detections, the methods through
-their registered kinds); :mod:`.runner` runs it and :mod:`.report` writes it like any scenario.
-
-This is the simulation study of Section IV of the S-MSJPDA paper: a few targets flying in parallel,
-range + Doppler from every transmitter-receiver pair, trackers started at the truth plus noise.
-Every draw of a block of runs (truth process noise, detections, clutter, the initiation offsets)
-comes from a generator seeded by ``(seed, case, block)``; every method runs on whole blocks.
+Takes plain YAML data (through :func:`~pmsr_nn.config.from_dict`); gives a frozen, checked
+:class:`MultiTargetScenario` (a bad field is refused in one line). :mod:`.prepare_multitarget`
+turns it into the runner's :class:`~.prepared.Setup`; the runner runs it and :mod:`.report`
+writes it like any scenario.
 
 Cases vary the detection probability, the clutter count and the spacing of the formation
-(:class:`MTCaseSpec`), which gives the paper's sweeps (Figs. 4-7, Tables 1-2) as one scenario each.
+(:class:`MTCaseSpec`), which gives the S-MSJPDA paper's sweeps (Figs. 4-7, Tables 1-2) as one
+scenario each. Distances in m, speeds in m/s, Doppler in Hz, ``dt_s`` in s.
 """
 
 from __future__ import annotations
@@ -25,17 +23,13 @@ from typing import Literal
 import torch
 
 from ..config import from_dict, require, to_dict
-from ..errors import ConfigError
 from ..frontend.chain import FrontEndSpec
-from ..measurements import SPEED_OF_LIGHT, MeasurementModel
-from ..methods import Models, method_kind
-from ..motion import motion_model
-from ..simulation.aircraft import AircraftSpec, fly_all
+from ..methods import method_kind
+from ..simulation.aircraft import AircraftSpec
 from ..simulation.detections import ClutterSpec
-from ..simulation.products import DesignedTruth, SampledTruth, SensorSetup
 from ..simulation.recipe import GeometrySpec, ReceiverSpec, TransmitterSpec
-from .runner import DEFINITIONS, Case, LossRule, Setup
-from .scenario import MethodSpec, SetMetricSpec, StudyFile
+from .scenario import SetMetricSpec, StudyFile
+
 
 @dataclass(frozen=True)
 class FormationSpec:
@@ -289,10 +283,6 @@ class MultiTargetScenario(StudyFile):
             require(all(k < self.scans for k in self.front_end.example_scans),
                     f"front_end example_scans {list(self.front_end.example_scans)} must be below scans ({self.scans})")
 
-    @property
-    def target_count(self) -> int:
-        return len(self.aircraft) or len(self.initial_states) or self.targets.count
-
     def initial_states_for(self, spacing_m: float) -> torch.Tensor:
         """CV states ``(count, 2 * dimensions)`` at the first scan."""
         if self.initial_states:
@@ -329,189 +319,3 @@ def multitarget_from_dict(data: dict, base_dir: str | Path = ".", where: str = "
     sc = from_dict(MultiTargetScenario, data, where=where)
     object.__setattr__(sc, "base_dir", str(Path(base_dir).resolve()))
     return sc
-
-
-def _methods(sc: MultiTargetScenario) -> tuple[MethodSpec, ...]:
-    """The study's trackers as :class:`~.scenario.MethodSpec` with the tracker section's options."""
-    out = []
-    for m in sc.methods:
-        options = {k: v for k, v in (("m_best", m.m_best or sc.tracker.m_best),
-                                     ("gate_probability", sc.tracker.gate_probability),
-                                     ("relaxation_iterations", sc.tracker.relaxation_iterations))
-                   if k in method_kind(m.kind).options}
-        out.append(MethodSpec(m.name, m.kind, options={**options, **m.options}))
-    return tuple(out)
-
-
-def detection_models(sc: MultiTargetScenario, geometry, motion) -> tuple[MeasurementModel, MeasurementModel]:
-    """The detections' model (pair layout): bistatic range and Doppler, or range and range-rate
-    where ``noise.range_rate_mps`` is given; and the model of detections from signals (range and
-    Doppler always: what the signal chain measures; a range-rate deviation converted through the
-    carrier, which must then be one for every transmitter)."""
-    n = sc.noise
-    doppler = MeasurementModel(geometry, ("range", "doppler"), (n.range_m, n.doppler_hz), motion.pos_idx, motion.vel_idx,
-                               layout="pair")
-    if n.range_rate_mps is None:
-        return doppler, doppler
-    model = MeasurementModel(geometry, ("range", "range_rate"), (n.range_m, n.range_rate_mps), motion.pos_idx,
-                             motion.vel_idx, layout="pair")
-    carriers = {t.carrier_hz for t in sc.geometry.transmitters}
-    if sc.front_end is None or not any(c.signals for c in sc.cases):
-        return model, model
-    if len(carriers) > 1:
-        raise ConfigError("noise.range_rate_mps with detections from signals needs one carrier for every transmitter "
-                          "(the chain measures Doppler); give noise.doppler_hz instead")
-    fc = carriers.pop()
-    return model, MeasurementModel(geometry, ("range", "doppler"), (n.range_m, n.range_rate_mps * fc / SPEED_OF_LIGHT),
-                                   motion.pos_idx, motion.vel_idx, layout="pair")
-
-
-def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
-    """The study as a runner :class:`~.runner.Setup`: per case the targets flying CV (with process
-    noise drawn per run, or on straight lines), seen through detections with the case's Pd and
-    clutter (pooled per receiver when the illuminator is unknown). Straight flights also get the
-    PCRB of each target (every run flies them)."""
-    from .runner import case_bounds, method_refusals, raise_refusals
-
-    if device != "cpu":
-        raise ConfigError("the multi-target trackers run on the CPU (their assignment step is NumPy/SciPy)")
-    dims = sc.dimensions
-    geometry = sc.geometry.build(dims)
-    motion = motion_model(sc.motion.model, dims)
-    q = sc.motion.q_per_axis(dims)
-    model, signal_model = detection_models(sc, geometry, motion)
-    models = Models(motion, model, sc.motion.dt_s, q, model.R(), torch.tensor(model.noise_std, dtype=torch.float64))
-    share = model.n_pairs // len(geometry.receivers)
-    if not sc.illuminator_known and sc.clutter.model == "fixed":
-        for c in sc.cases:
-            per = sc.case_settings(c)[1].per_scan
-            if per % share:
-                raise ConfigError(f"case {c.name!r}: {per:g} fixed clutter points per receiver do not split evenly over "
-                                  f"its {share} pairs; use a multiple of {share} or clutter model poisson")
-    methods = _methods(sc)
-    kinds = {m.name: method_kind(m.kind) for m in methods}
-    straight = sc.motion.truth == "straight"
-    if sc.aircraft:  # designed flights, seen above min_altitude_m and within max_range_m (checked clear of sensors)
-        flights = DesignedTruth(*fly_all(sc.aircraft, sc.scans, sc.motion.dt_s, model, sc.min_altitude_m,
-                                         math.inf if sc.max_range_m is None else sc.max_range_m))
-    cases, refusals = [], []
-    for c in sc.cases:  # every target's whole flight must stay clear of the sensors
-        pd, clutter, spacing = sc.case_settings(c)
-        x0 = flights.x[0] if sc.aircraft else sc.initial_states_for(spacing)
-        if not sc.aircraft:
-            t = torch.arange(sc.scans, dtype=torch.float64) * sc.motion.dt_s
-            nominal = torch.einsum("kij,tj->tki", motion.F(t), x0)  # (T, K, n), no noise
-            if bool(model.near_sensor(nominal, 1000.0).any()):
-                raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
-        prior = c.prior or sc.prior
-        P0 = prior.sd(dims)
-        front_end = sc.front_end if c.signals else None
-        sensing = SensorSetup(model, P0, detection_model=model if front_end is None else signal_model, pd=pd,
-                              clutter=clutter, illuminator_known=sc.illuminator_known, front_end=front_end)
-        alive = flights.alive if sc.aircraft else torch.ones(sc.scans, len(x0), dtype=torch.bool)
-        bounds = None
-        if sc.aircraft:
-            truth = flights
-        elif straight:
-            truth = DesignedTruth(nominal.transpose(0, 1).contiguous(), alive)
-            bounds = case_bounds(truth.x, alive, models, torch.diag(P0**2))
-        else:
-            truth = SampledTruth(x0, motion, sc.scans, sc.motion.dt_s, q)
-        scored = alive & (torch.arange(sc.scans) >= sc.converged_from_scan)[:, None]
-        refusals += method_refusals(methods, kinds, {}, alive, c.name, sensing)
-        info = {"pd": pd, "clutter_per_scan": clutter.per_scan, "spacing_m": spacing, "prior": to_dict(prior),
-                "reference_key": c.reference_key, "formation": not (sc.initial_states or sc.aircraft),
-                "clutter_list": "sensor" if sc.illuminator_known else "receiver",
-                "detections_from": "signals" if front_end is not None else "model"}
-        names = [a.name for a in sc.aircraft] or [f"target {i + 1}" for i in range(len(x0))]
-        # set figures average over every scan after convergence, also where no target lives (an
-        # estimate there is false); with every target alive throughout, the scans where one is scored
-        cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored, names, info, bounds,
-                          set_scans=torch.arange(sc.scans) >= sc.converged_from_scan))
-    raise_refusals(refusals)
-    left_out = MT_LEFT_OUT if not straight else tuple(k for k in MT_LEFT_OUT if k not in ("pcrb", "bound", "pcrb_q0"))
-    definitions = {k: v for k, v in DEFINITIONS.items() if k not in left_out}
-    definitions.update(MT_DEFINITIONS)
-    definitions["anees"] = definitions["anees"].replace("/ 4", f"/ {motion.dim_x}")
-    if straight:
-        definitions["pcrb"] = ("per-trajectory posterior Cramer-Rao bound of each target's straight flight under the "
-                               "trackers' motion model and q, the measurement deviations and the initiation prior P0, on "
-                               "clean (association-known) measurements of every pair; averaged like rmse_pos_m")
-    if any(k.space is not None for k in kinds.values()):
-        definitions.update(SPACE_DEFINITIONS)
-    if any(k.name in ("smc_phd", "smc_phd_pair") for k in kinds.values()):
-        definitions.update(PHD_DEFINITIONS)
-    causal = {m.name: bool(kinds[m.name].causal(None)) for m in methods}
-    return Setup(sc, models, cases, methods, kinds, {m.name: None for m in methods}, causal,
-                 "per_block", (sc.set_metrics.c_m, sc.set_metrics.p), describe_multitarget(sc, model, methods),
-                 definitions, geometry, loss=LossRule(sc.loss.successive_scans, sc.loss.gate_range_sd_m))
-
-
-MT_LEFT_OUT = ("rmse_pos_pooled_m", "pcrb", "bound", "memory_bound_pos_m", "pcrb_q0", "seed_groups", "comparisons",
-               "diverged_runs")
-"""Definitions of figures a multi-target study has not (no designed flights, no learned methods)."""
-
-MT_DEFINITIONS = {
-    "rmse_pos_m": "Eq. 22 of the S-MSJPDA paper per target and scan (root of the mean over runs of the squared "
-                  "position error), averaged over targets and over scans converged_from_scan..K-1",
-    "rmse_pos_all_scans_m": "the paper's position accuracy: the same, averaged over all scans",
-    "anees": "mean over runs, targets and scans >= converged_from_scan of the NEES / 4",
-}
-
-SPACE_DEFINITIONS = {
-    "space": "rows with a space are scored in it, not in the Cartesian state: their estimates are one pair's bistatic "
-             "range and range-rate [r, rdot], scored against the truth projected into that pair's measurement space "
-             "(the noise-free range and range-rate of each living target). Their OSPA, GOSPA, position RMSE and "
-             "per-target errors are on bistatic range alone (one axis, m), their velocity figures on range-rate "
-             "(m/s): compare them with each other, never with a Cartesian row's",
-    "rmse_vel_pooled_mps": "root mean square range-rate error pooled over the (run, scan, target) entries where the "
-                           "per-scan OSPA assignment matches a track to a target (inside the cut-off); "
-                           "rmse_pos_pooled_m is the same for the range",
-    "ospa_m / gospa_m / cardinality_mean_abs_error (averaging)": "averaged over every scan from converged_from_scan "
-                                                                  "on, also scans where no target lives (an estimate "
-                                                                  "there is false)",
-    "label_switches_per_target / fragmentations_per_target": "per target: label switches and fragmentations (as "
-                                                             "label_switches_per_run and fragmentations_per_run), "
-                                                             "mean over runs",
-}
-"""Definitions of the figures of rows scored in a measurement space (:class:`~pmsr_nn.methods.EstimateSpace`)."""
-
-PHD_DEFINITIONS = {
-    "phd_expected": "per scan: the PHD's integral (sum of the particle weights) after the update, mean over runs "
-                    "(curves.set.<method>.phd_expected)",
-    "labels_per_run": "labels (tracks) a labelling confirmed in a run; the ideal is the number of targets",
-    "conflicts_repaired_per_run": "GTDA: estimates two tracks still wanted after the game's last round, given to the "
-                                  "nearer, per run",
-    "game_rounds_mean": "GTDA: rounds of the game per scan, mean over scans and blocks",
-    "phd_seconds_per_run": "the PHD filter's own seconds per run; rows of one pair's PHD with the same settings read "
-                           "one PHD run per block, and each counts its seconds in full in seconds_per_run (PHD plus "
-                           "its own labelling)",
-    "known_association_kf_pair": "the floor of what association can reach with the same motion model: an exact Kalman "
-                                 "filter per target on exactly its own detections (their true origins), started at its "
-                                 "first detection",
-}
-"""Definitions of the SMC-PHD rows' own figures."""
-
-
-def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, methods) -> dict:
-    g = model.geometry
-    out = {"dt_s": sc.motion.dt_s, "q": sc.motion.q, "scans": sc.scans, "state_dim": 2 * sc.dimensions, "targets": to_dict(sc.targets),
-            "noise": sc.to_dict()["noise"], "pd": sc.pd, "clutter": to_dict(sc.clutter), "clutter_volume_m_hz": sc.clutter.volume,
-            "prior": to_dict(sc.prior), "tracker": to_dict(sc.tracker), "loss": to_dict(sc.loss),
-            "converged_from_scan": sc.converged_from_scan, "warmup_steps": sc.converged_from_scan, "sweep": sc.sweep,
-            "block_runs": sc.block_runs, "set_metrics": to_dict(sc.set_metrics),
-            "transmitters": [{"position_m": list(t.position_m), "carrier_hz": t.carrier_hz} for t in g.transmitters],
-            "receivers": [list(r.position_m) for r in g.receivers],
-            "methods": {m.name: {"kind": m.kind, "reads": method_kind(m.kind).reads, **m.options} for m in methods}}
-    if sc.dimensions == 3 or sc.initial_states or sc.motion != MTMotionSpec(sc.motion.dt_s, sc.motion.q) \
-            or not sc.illuminator_known:
-        out.update({"dimensions": sc.dimensions, "motion": to_dict(sc.motion), "illuminator_known": sc.illuminator_known,
-                    "initial_states": [to_dict(t) for t in sc.initial_states]})
-    if sc.aircraft:
-        out.update({"aircraft": [a.name for a in sc.aircraft], "min_altitude_m": sc.min_altitude_m,
-                    "max_range_m": sc.max_range_m})
-    if sc.front_end is not None:
-        fe = sc.front_end
-        out["front_end"] = {**to_dict(fe), "map_shape": list(fe.map_shape), "range_bin_m": fe.signal.range_bin_m,
-                            "doppler_bin_hz": fe.doppler_bin_hz, "samples_per_cpi": fe.signal.samples}
-    return out

@@ -1,193 +1,42 @@
 """Evaluation scenarios: what is simulated, how often, and which methods run on it (YAML).
 
-A scenario names a dataset recipe (or takes the built-in one) (sensor geometry, motion model and its q, sampling interval,
-Table 1 envelope), overrides its measurement noise with fixed deviations, and lists
+A scenario names a dataset recipe (or takes the built-in one) (sensor geometry, motion model and
+its q, sampling interval, Table 1 envelope), overrides its measurement noise with fixed
+deviations, and lists
 
-* ``cases``: fixed true trajectories (:class:`CaseSpec`, drawn by :mod:`.trajectories`), each
-  seen by every method through the same ``mc_runs`` measurement-noise draws;
-* ``methods``: classical filters and learned trackers with their settings (:class:`MethodSpec`);
-  an option of a classical filter set to ``tuned`` is chosen by a grid search on training tracks
-  (``tuning``, :class:`TuningSpec`, run by :mod:`.tuning`) before anything is written.
+* ``cases``: fixed true trajectories (:class:`~.case_spec.CaseSpec`, flown by :mod:`.trajectories`),
+  each seen by every method through the same ``mc_runs`` measurement-noise draws;
+* ``methods``: classical filters, learned trackers and multi-target trackers with their settings
+  (:class:`~.method_spec.MethodSpec`); an option of a classical filter set to ``tuned`` is chosen
+  by a grid search on training tracks (``tuning``, :class:`~.method_spec.TuningSpec`, run by
+  :mod:`.tuning`) before anything is written.
 
-Paths (recipe, checkpoints, reference file) are relative to the scenario file.
+This module holds the scenario itself and its sensing sections (fixed noise, detections, set
+metrics, the paper's reference tables) and :class:`StudyFile`, what every scenario kind shares
+(a multi-target study, :mod:`.multitarget`, too). Takes plain YAML data; gives a frozen, checked
+:class:`Scenario` (a bad field is refused in one line). Paths (recipe, checkpoints, reference
+file) are relative to the scenario file.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from ..config import from_dict, load_yaml, require
+from ..config import from_dict, load_yaml, require, to_dict
 from ..errors import ConfigError
 from ..methods import method_kind
 from ..simulation.detections import ClutterSpec
 from ..simulation.recipe import check_outliers
 from ..tbd.scene import RDMapsSpec
-
-TUNABLE = ("q", "q_quiet", "q_manoeuvre", "stay")
-"""Options that may be ``tuned`` (chosen from ``tuning.<option>_grid``), in grid order; each is
-marked ``tunable`` in its method kind (:mod:`pmsr_nn.methods`)."""
-
-TUNABLE_RANGES: dict[str, tuple[float, float]] = {"q": (0.0, 1.0e6), "q_quiet": (0.0, 1.0e6),
-                                                  "q_manoeuvre": (0.0, 1.0e6), "stay": (0.0, 1.0)}
-"""Inclusive range of every grid of :class:`TuningSpec`."""
-
-MAX_TUNING_TRACKS = 500
-"""Most tuning tracks (one filter call holds all of them: 500 IMM runs of 1000 steps take ~0.2 GB)."""
-
-MAX_TUNING_POINTS = 1000
-"""Most grid points one method's search may have (the product of its tuned options' grids)."""
-
-
-def _check_option(method: str, key: str, value, opt) -> None:
-    if value is None and opt.nullable:
-        return
-    if value == "tuned" and opt.tunable:
-        return
-    if opt.choices:
-        if value not in opt.choices:
-            raise ConfigError(f"method {method!r}: option {key} must be one of {', '.join(opt.choices)}, "
-                              f"got {value!r:.40}")
-        return
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if not number or (opt.kind is int and not isinstance(value, int)) or not (opt.lo <= value <= opt.hi):
-        extra = " or 'tuned'" if opt.tunable else ""
-        raise ConfigError(f"method {method!r}: option {key} must be {'an integer' if opt.kind is int else 'a number'} "
-                          f"in [{opt.lo}, {opt.hi}]{extra}, got {value!r:.40}")
-
+from .case_spec import FLIGHT_FIELDS, MAX_CASE_DURATION_S, CaseSpec
+from .method_spec import MAX_TUNING_POINTS, MethodSpec, TuningSpec
 
 MAX_MC_RUNS = 10_000_000
 """Most Monte Carlo runs of a scenario (the papers use 100; per-run results are kept in memory)."""
-
-MAX_CASE_DURATION_S = 100_000.0
-"""Longest trajectory of a case (about 28 h): every run holds every step of it in memory."""
-
-
-@dataclass(frozen=True)
-class SegmentSpec:
-    """A stretch of flight with constant along-track and cross-track acceleration (m/s^2).
-
-    ``across_mps2 > 0`` turns right (clockwise seen from above), ``along_mps2 > 0`` speeds up.
-    """
-
-    duration_s: float
-    along_mps2: float = 0.0
-    across_mps2: float = 0.0
-
-    def __post_init__(self) -> None:
-        require(self.duration_s > 0, f"segment duration_s must be positive, got {self.duration_s}")
-
-
-FLIGHT_FIELDS = ("start_range_m", "start_bearing_deg", "speed_mps", "heading_deg")
-
-
-@dataclass(frozen=True)
-class TargetSpec:
-    """One target's designed flight: start (range and bearing from the first transmitter, clockwise
-    from north), initial speed and heading, then its segments; it is born ``birth_s`` after the
-    case starts and flies until its segments end or until ``death_s`` (s from the case's start).
-    Instead of range, bearing, speed and heading the start may be given as a position ``start_m``
-    ``[x, y]`` (m) and velocity ``velocity_mps`` ``[vx, vy]`` at its birth (a straight flight is
-    then sampled in closed form, ``start + t v``)."""
-
-    name: str
-    start_range_m: float | None = None
-    start_bearing_deg: float | None = None
-    speed_mps: float | None = None
-    heading_deg: float | None = None
-    segments: tuple[SegmentSpec, ...] = ()
-    birth_s: float = 0.0
-    death_s: float | None = None
-    start_m: tuple[float, float] | None = None
-    velocity_mps: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        require(bool(self.name), "a target needs a name")
-        polar = [k for k in FLIGHT_FIELDS if getattr(self, k) is not None]
-        cartesian = [k for k in ("start_m", "velocity_mps") if getattr(self, k) is not None]
-        require(not (polar and cartesian), f"target {self.name!r}: give its start either as {', '.join(FLIGHT_FIELDS)} "
-                                           "or as start_m and velocity_mps, not both")
-        if cartesian:
-            require(len(cartesian) == 2, f"target {self.name!r}: start_m and velocity_mps go together")
-        else:
-            missing = [k for k in FLIGHT_FIELDS if getattr(self, k) is None]
-            require(not missing, f"target {self.name!r}: needs {', '.join(missing)} (or start_m and velocity_mps)")
-        require(len(self.segments) > 0, f"target {self.name!r}: the trajectory is empty (no segments)")
-        require(cartesian or self.speed_mps >= 0, f"target {self.name!r}: speed_mps must be >= 0")
-        require(math.isfinite(self.birth_s) and self.birth_s >= 0, f"target {self.name!r}: birth_s must be >= 0")
-        if self.death_s is not None:
-            require(self.death_s > self.birth_s, f"target {self.name!r}: death_s {self.death_s:g} s is not after its "
-                                                 f"birth_s {self.birth_s:g} s (death before birth)")
-            require(self.death_s <= self.birth_s + self.duration_s,
-                    f"target {self.name!r}: death_s {self.death_s:g} s is after its segments end "
-                    f"({self.birth_s + self.duration_s:g} s)")
-
-    @property
-    def duration_s(self) -> float:
-        """Length of the segments (s)."""
-        return sum(s.duration_s for s in self.segments)
-
-    @property
-    def end_s(self) -> float:
-        """When the target stops being seen (s from the case's start)."""
-        return self.birth_s + self.duration_s if self.death_s is None else self.death_s
-
-
-@dataclass(frozen=True)
-class CaseSpec:
-    """One case: a single designed flight given inline (start, speed, heading, segments: the
-    papers' cases), or ``targets``, several :class:`TargetSpec` with their own births and deaths;
-    ``title`` names it in the report."""
-
-    name: str
-    start_range_m: float | None = None
-    start_bearing_deg: float | None = None
-    speed_mps: float | None = None
-    heading_deg: float | None = None
-    segments: tuple[SegmentSpec, ...] = ()
-    title: str = ""
-    targets: tuple[TargetSpec, ...] = ()
-    end_s: float | None = None
-    methods: tuple[str, ...] = ()
-    rd_maps: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        require(bool(self.name), "a case needs a name")
-        dup = sorted({n for n in self.methods if self.methods.count(n) > 1})
-        require(not dup, f"case {self.name!r}: methods lists {dup} more than once")
-        inline = [k for k in FLIGHT_FIELDS if getattr(self, k) is not None]
-        if self.targets:
-            require(not inline and not self.segments, f"case {self.name!r}: give either targets or one inline flight "
-                                                      f"({', '.join(FLIGHT_FIELDS)}, segments), not both")
-            names = [t.name for t in self.targets]
-            dup = sorted({n for n in names if names.count(n) > 1})
-            require(not dup, f"case {self.name!r}: duplicate target name(s) {dup}")
-        else:
-            missing = [k for k in FLIGHT_FIELDS if getattr(self, k) is None]
-            require(not missing, f"case {self.name!r}: needs {', '.join(missing)} (or a list of targets)")
-            require(len(self.segments) > 0, f"case {self.name!r}: the trajectory is empty (no segments)")
-            require(self.speed_mps >= 0, f"case {self.name!r}: speed_mps must be >= 0")
-        if self.end_s is not None:
-            last = max(t.end_s for t in self.flights())
-            require(math.isfinite(self.end_s) and self.end_s >= last,
-                    f"case {self.name!r}: end_s {self.end_s:g} s is before its last target ends ({last:g} s)")
-
-    def flights(self) -> tuple[TargetSpec, ...]:
-        """The case's targets (an inline flight is one target named like the case, born at 0)."""
-        if self.targets:
-            return self.targets
-        return (TargetSpec(self.name, self.start_range_m, self.start_bearing_deg, self.speed_mps, self.heading_deg,
-                           self.segments),)
-
-    @property
-    def duration_s(self) -> float:
-        """How long the case lasts (s): ``end_s`` (the scans go on after the last target died), or
-        until its last target ends."""
-        return max(t.end_s for t in self.flights()) if self.end_s is None else self.end_s
 
 
 @dataclass(frozen=True)
@@ -247,70 +96,6 @@ class FixedNoiseSpec:
 
 
 @dataclass(frozen=True)
-class MethodSpec:
-    """A method to run: ``kind`` names a registered method kind (:mod:`pmsr_nn.methods`: its product,
-    options and defaults), ``options`` its settings, ``checkpoint`` the trained tracker of a kind
-    that needs one (``learned``)."""
-
-    name: str
-    kind: str
-    checkpoint: str | None = None
-    options: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        require(bool(self.name) and "/" not in self.name, f"method name {self.name!r} must be non-empty, without '/'")
-        kind = method_kind(self.kind)
-        if kind.needs_checkpoint:
-            require(self.checkpoint is not None, f"method {self.name!r}: a {self.kind} method needs a checkpoint")
-        else:
-            require(self.checkpoint is None, f"method {self.name!r}: kind {self.kind} takes no checkpoint")
-        unknown = sorted(set(self.options) - set(kind.options))
-        require(not unknown, f"method {self.name!r}: unknown option(s) {unknown} for kind {self.kind!r} "
-                             f"(valid: {sorted(kind.options) or 'none'})")
-        for key, value in self.options.items():
-            _check_option(self.name, key, value, kind.options[key])
-
-    def option(self, key: str):
-        return self.options.get(key, method_kind(self.kind).options[key].default)
-
-    def tuned(self) -> list[str]:
-        """Options set to ``tuned``, in :data:`TUNABLE` order."""
-        return [k for k in TUNABLE if self.options.get(k) == "tuned"]
-
-
-@dataclass(frozen=True)
-class TuningSpec:
-    """The grid search behind options set to ``tuned``: ``tracks`` truth tracks drawn from
-    ``recipe`` (the training recipe, relative to the scenario file; null = the scenario's) with
-    generator stream ``seed``, measured with the scenario's fixed noise (outliers included); each
-    method runs once per point of the product of its tuned options' grids (``<option>_grid``),
-    and the point with the lowest position RMSE after the warm-up is used."""
-
-    tracks: int = 50
-    seed: int = 12345
-    recipe: str | None = None
-    q_grid: tuple[float, ...] = ()
-    q_quiet_grid: tuple[float, ...] = ()
-    q_manoeuvre_grid: tuple[float, ...] = ()
-    stay_grid: tuple[float, ...] = ()
-
-    def __post_init__(self) -> None:
-        require(1 <= self.tracks <= MAX_TUNING_TRACKS, f"tuning.tracks must be in [1, {MAX_TUNING_TRACKS}], "
-                                                       f"got {self.tracks}")
-        require(self.seed >= 0, f"tuning.seed must be non-negative, got {self.seed}")
-        for key in TUNABLE:
-            grid = self.grid(key)
-            lo, hi = TUNABLE_RANGES[key]
-            for v in grid:
-                require(lo <= v <= hi, f"tuning.{key}_grid: values must be in [{lo}, {hi}], got {v}")
-            dup = sorted({v for v in grid if grid.count(v) > 1})
-            require(not dup, f"tuning.{key}_grid holds {dup} more than once")
-
-    def grid(self, key: str) -> tuple[float, ...]:
-        return getattr(self, f"{key}_grid")
-
-
-@dataclass(frozen=True)
 class ReferenceSpec:
     """Where the paper's numbers for this scenario are: ``table`` is a dotted key into ``file``
     whose value maps case name -> method -> number (or method -> number for one case);
@@ -342,21 +127,6 @@ class StudyFile:
 
     def block_runs_range(self, block: int) -> range:
         return range(block * self.block_runs, min(self.mc_runs, (block + 1) * self.block_runs))
-
-    def keyed_reference(self) -> dict | None:
-        """The entry ``reference.key`` (dotted) of the JSON ``reference.file`` with its ``label``, or a
-        one-line :class:`ConfigError` naming the key and file; ``None`` without a reference."""
-        ref = self.reference
-        if ref is None:
-            return None
-        path = self.path(ref.file)
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-            for part in ref.key.split("."):
-                data = data[part]
-        except (OSError, ValueError, KeyError, TypeError):
-            raise ConfigError(f"reference {ref.key!r} not found in {path}") from None
-        return {"file": str(path), "key": ref.key, "label": ref.label, "table": data}
 
     def with_mc_runs(self, mc_runs: int | None):
         """The same study with ``mc_runs`` runs (``None``: unchanged)."""
@@ -451,7 +221,6 @@ class Scenario(StudyFile):
         by key), checked like the section itself."""
         if self.rd_maps is None or not case.rd_maps:
             return self.rd_maps
-        from ..config import to_dict
 
         def merged(base: dict, over: dict) -> dict:
             out = dict(base)
@@ -491,8 +260,6 @@ class Scenario(StudyFile):
     def to_dict(self) -> dict:
         """Plain data; options added later (tuning, range outliers) are left out while off, so an
         older scenario's shard files stay as they were."""
-        from ..config import to_dict
-
         d = to_dict(self)
         for key, off in (("tuning", None), ("detections", None), ("set_metrics", to_dict(SetMetricSpec())),
                          ("random_streams", "per_block"), ("rd_maps", None)):
@@ -515,17 +282,6 @@ class Scenario(StudyFile):
         if not self.noise.has_outliers and self.noise.range_outlier_scale == 10.0:
             del d["noise"]["range_outlier_prob"], d["noise"]["range_outlier_scale"]
         return d
-
-
-FITEE2023_TRAJECTORIES = (
-    CaseSpec("trajectory_1", 4000.0, 130.0, 10.0, 20.0, (SegmentSpec(1000.0),), "1: steady flight, 10 m/s"),
-    CaseSpec("trajectory_2", 9000.0, 35.0, 5.0, 180.0, (SegmentSpec(1000.0, along_mps2=0.015),),
-             "2: sustained acceleration, 5 to 20 m/s"),
-    CaseSpec("trajectory_3", 7800.0, 140.0, 12.0, 0.0, (SegmentSpec(300.0), SegmentSpec(700.0, across_mps2=0.02)),
-             "3: straight, then a 64-deg right turn"),
-)
-"""The three trajectories of ``evaluate/fitee2023_three_trajectories.yaml`` (a test keeps them
-equal), built in so that ``pmsr demo`` needs no file."""
 
 
 def scenario_from_dict(data: dict, base_dir: str | Path = ".", where: str = "scenario") -> Scenario:

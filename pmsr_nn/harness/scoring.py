@@ -36,7 +36,7 @@ from ..metrics import (SetScores, label_switches, labelled_assignment, matched_t
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
-PER_RUN = ("run_mse", "gospa_run", "tbd_run_pos_err")
+PER_RUN = ("run_mse", "gospa_run", "ospa_run", "tbd_run_pos_err")
 """Quantities kept per run (concatenated over blocks); every other one is summed per block."""
 
 
@@ -121,11 +121,12 @@ def track_sums(assignment: torch.Tensor, exists: torch.Tensor, truth: Truth) -> 
 
 
 def gospa_per_run(sc: SetScores, scored_scans: torch.Tensor) -> dict[str, np.ndarray]:
-    """``gospa_run (B,)``: each run's mean over the scored scans ``(K,)`` of GOSPA^p (m^p), what
-    the Monte Carlo error of the GOSPA row is computed from."""
+    """``gospa_run (B,)``: each run's mean over the scored scans ``(K,)`` of GOSPA^p (m^p);
+    ``ospa_run (B,)``: of OSPA (m); what the Monte Carlo errors of the GOSPA and OSPA cells are
+    computed from."""
     g = sc.gospa
     per_scan = g.localisation + g.missed + g.false  # (B, K)
-    return {"gospa_run": per_scan[:, scored_scans].mean(1).numpy()}
+    return {"gospa_run": per_scan[:, scored_scans].mean(1).numpy(), "ospa_run": sc.ospa[:, scored_scans].mean(1).numpy()}
 
 
 def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
@@ -186,7 +187,7 @@ def tbd_sums(est: Estimates, truth: Truth, pos: list[int], vel: list[int]) -> di
     runs with some component above the threshold; ``tbd_pos``, ``tbd_vel (K,)`` squared position /
     velocity error of the most probable component against the nearest living target, over
     ``tbd_hits (K,)`` runs that detect while a target lives; ``tbd_existence (K,)`` the most
-    probable component's existence; ``tbd_snr_db (K, P)`` the SNRs the updates used;
+    probable component's existence; ``tbd_snr_db (K, S)`` the SNRs the updates used (one map per pair);
     ``tbd_particles (K,)``; per run ``tbd_run_pos_err (B, K)`` the position error (NaN where the
     run does not detect or no target lives)."""
     ex = est.extras

@@ -58,8 +58,8 @@ def summarise_seeds(methods: dict) -> dict:
 
 
 def paired_margin(learned_run_rmse: list[np.ndarray], classical_run_rmse: np.ndarray) -> dict:
-    """How far a learned tracker (per-run RMSE ``(R,)`` of each seed) is below a classical one
-    (``(R,)``) on the same runs: mean over runs of ``classical - mean over seeds of learned``
+    """How far a learned tracker (per-run RMSE ``(B,)`` of each seed) is below a classical one
+    (``(B,)``) on the same runs: mean over runs of ``classical - mean over seeds of learned``
     (positive: the learned tracker is better) and its standard error over runs."""
     d = np.asarray(classical_run_rmse, float) - np.mean(np.stack(learned_run_rmse), 0)
     se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("inf")

@@ -1,4 +1,4 @@
-"""Fixed true trajectories from a :class:`~.scenario.CaseSpec`: start, speed, heading, and
+"""Fixed true trajectories from a :class:`~.case_spec.CaseSpec`: start, speed, heading, and
 segments of along-track / cross-track acceleration (the kinematics of
 :mod:`pmsr_nn.simulation.flight`, shared with the simulator's manoeuvring tracks).
 
@@ -20,7 +20,7 @@ from ..motion import ConstantAcceleration
 from ..simulation.flight import ca_sample, flight_substep
 from ..simulation.recipe import TrackRecipe
 from ..simulation.tracks import build_models, envelope_violations
-from .scenario import CaseSpec
+from .case_spec import CaseSpec
 
 SUBSTEPS = 100
 """Integration sub-steps per sampling interval (semi-implicit; error far below a millimetre)."""

@@ -32,7 +32,8 @@ from ..simulation.tracks import generate_tracks
 from ..methods import Models
 from ..methods.single_target import PER_RUN_OPTIONS, run_single
 from ..simulation.products import SensorSetup, Truth, make_streams
-from .scenario import MethodSpec, Scenario
+from .method_spec import MethodSpec
+from .scenario import Scenario
 
 TUNING_STREAM = 0x74756E65
 """Second seed word of the tuning tracks' generator ('tune'): never a case index."""

@@ -26,7 +26,8 @@ import torch
 
 from ..errors import ConfigError
 from ..trackers.base import Estimates
-from ..trackers.initiators import FixInitiator, SphericalInitiator
+from ..trackers.fix_initiator import FixInitiator
+from ..trackers.spherical_initiator import SphericalInitiator
 from ..trackers.management import Confirmer, Deleter, Management
 from ..trackers.msjpda import JPDASettings, managed_msjpda, msjpda, true_assignment_ukf
 from . import MethodCall, MethodKind, Option, register

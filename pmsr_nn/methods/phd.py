@@ -60,7 +60,7 @@ def label_spec(spec) -> LabelSpec:
 
 
 def run_smc_phd(call: MethodCall) -> Estimates:
-    """The filter on the call's per-pair detections, its estimates labelled: unpaired tracks ``x (B, K, T, n)``
+    """The filter on the call's per-pair detections, its estimates labelled: unpaired tracks ``x (B, K, tracks, n)``
     in the motion model's state; extras of the labelling and the PHD's ``phd_expected (B, K)`` (its
     integral after each scan's update) and ``phd_particles (B, K)``."""
     spec, m, s = call.spec, call.models, call.sensing

@@ -155,7 +155,7 @@ def label_settings(spec) -> LabelSpec:
 
 
 def run_smc_phd_pair(call: MethodCall) -> Estimates:
-    """Unpaired tracks ``x (B, K, T, 2)`` in ``[r, rdot]`` (labelled, or the PHD's estimates with
+    """Unpaired tracks ``x (B, K, tracks, 2)`` in ``[r, rdot]`` (labelled, or the PHD's estimates with
     ``labelling: none``), without covariances; extras: the labelling's, ``phd_expected (B, K)`` (the PHD's integral after
     each update), ``phd_particles (B, K)``, ``phd_seconds`` and ``shared_seconds`` (the PHD's
     seconds where this call read it from the cache, else 0)."""

@@ -16,7 +16,7 @@ Option ``initiation`` of ``pmht`` and ``pmht_3d`` says how tracks start (as for 
 * ``oracle`` (the default): at scan 0 from the initiation prior (truth at scan 0 plus a draw from
   ``N(0, P0)``), lasting the whole scenario; a case with births or deaths is refused;
 * ``detections``: the tracker starts, confirms and deletes its own tracks
-  (:func:`~pmsr_nn.trackers.pmht.managed_pmht`) and returns unpaired tracks, scored as tracks.
+  (:func:`~pmsr_nn.trackers.pmht_managed.managed_pmht`) and returns unpaired tracks, scored as tracks.
   It needs each detection's illuminator (the initiators read per-pair lists), so
   ``pmht_3d`` refuses it on detections pooled per receiver.
 
@@ -31,7 +31,9 @@ from ..errors import ConfigError
 from ..filters.smoothing import rts_backward
 from ..trackers.base import Estimates
 from ..trackers.msjpda import true_assignment_ukf
-from ..trackers.pmht import AssociationLists, PMHTSettings, managed_pmht, pmht
+from ..trackers.pmht import pmht
+from ..trackers.pmht_managed import managed_pmht
+from ..trackers.pmht_model import AssociationLists, PMHTSettings
 from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, register
 from .msjpda import MANAGEMENT_OPTIONS, check_initiation, management
 

@@ -17,6 +17,7 @@ import torch
 
 from ..errors import ConfigError
 from ..filters import Gaussian, ekf, particle_filter, si_kf, ukf
+from ..filters.imm import IMMMode, imm, markov_transition
 from ..rng import seeded_generator
 from ..trackers.base import Estimates
 from . import MethodCall, MethodKind, Models, Option, method_stream, register
@@ -62,8 +63,6 @@ def run_single(spec, z: torch.Tensor, prior: Gaussian, m: Models, resource, seed
         r = ukf(prior, z, m.motion, m.dt, _q(spec, "q", m, per_run), m.model, m.R)
         return MethodOutput(r.x, r.P)
     if spec.kind == "imm":
-        from ..filters.imm import IMMMode, imm, markov_transition
-
         modes = [IMMMode(m.motion, _q(spec, "q_quiet", m, per_run)), IMMMode(m.motion, _q(spec, "q_manoeuvre", m, per_run))]
         r = imm(prior, z, modes, markov_transition(2, _number(spec, "stay")), m.dt, m.model, m.R)
         return MethodOutput(r.x, r.P)
@@ -143,14 +142,6 @@ def _check_learned(spec, alive: torch.Tensor, tracker, case: str) -> None:
         raise ConfigError(f"{what}, fewer than {spec.name}'s window of {tracker.window}")
 
 
-def _check_imm(spec, alive, resource, case) -> None:
-    try:
-        import pmsr_nn.filters.imm  # noqa: F401
-    except ImportError:
-        raise ConfigError(f"method {spec.name!r}: kind imm needs pmsr_nn.filters.imm, which this "
-                          "installation lacks") from None
-
-
 Q = Option(None, float, 0.0, 1.0e6, nullable=True, tunable=True, null="the recipe's q")  # jerk PSD (m^2/s^5); null: the recipe's q
 for _kind, _options, _extra in (
     ("ekf", {"q": Q}, {"description": "extended Kalman filter, CA motion (the FITEE 2023 baseline)"}),
@@ -159,7 +150,7 @@ for _kind, _options, _extra in (
     # staying in a mode per step (diagonal of the 2x2 Markov matrix)
     ("imm", {"q_quiet": Q, "q_manoeuvre": Option(1.0, float, 0.0, 1.0e6, tunable=True),
              "stay": Option(0.95, float, 0.0, 1.0, tunable=True)},
-     {"check": _check_imm, "description": "interacting multiple model: two CA modes, quiet and manoeuvring"}),
+     {"description": "interacting multiple model: two CA modes, quiet and manoeuvring"}),
     # refine_steps 0 is the paper's plain spherical interpolation
     ("si_kf", {"refine_steps": Option(0, int, 0, 100)},
      {"description": "spherical-interpolation position fixes fed to a linear Kalman filter (SI+KF)"}),

@@ -96,30 +96,30 @@ def run_stonesoup(call: MethodCall) -> Estimates:
     m, sensing, det = call.models, call.sensing, call.product
     tracker = call.spec.option("tracker")
     scans, prior = det.scans, det.prior
-    B, K, N, _ = scans.shape
-    T, n = prior.x.shape[1:]
+    B, K, S, _ = scans.shape
+    N, n = prior.x.shape[1:]
     model = sensing.detection_model
-    pair_models = [ss.measurement_model(model.for_pairs([p]), n) for p in range(N)]
+    pair_models = [ss.measurement_model(model.for_pairs([p]), n) for p in range(S)]
     associators, updaters, _ = _components(tracker, pair_models, ss.transition_model(m.motion, m.q), sensing.pd,
                                            clutter_density(sensing), float(call.spec.option("gate_probability")))
     times = ss.scan_times(K, m.dt)
     alive = call.alive.numpy()
     births = alive.argmax(0)
-    dummy = np.zeros((B, K, T), dtype=bool)
-    gate_sd = np.full((B, K, T), np.nan)
+    dummy = np.zeros((B, K, N), dtype=bool)
+    gate_sd = np.full((B, K, N), np.nan)
     runs = []
     for b in range(B):
         lists = ss.scan_detections(scans.z[b], scans.valid[b], pair_models, m.dt)
-        tracks = [Track() for _ in range(T)]
+        tracks = [Track() for _ in range(N)]
         for k in range(K):
             for t in np.flatnonzero(births == k):
                 tracks[t].append(ss.gaussian_state(prior.x[b, t], prior.P[b, t], times[k]))
-            live = [t for t in range(T) if alive[k, t]]
+            live = [t for t in range(N) if alive[k, t]]
             if not live:
                 continue
             missed = np.ones(len(live), dtype=bool)
             sd = np.zeros(len(live))
-            for p in range(N):
+            for p in range(S):
                 hyps = associators[p].associate([tracks[t] for t in live], lists[k][p], times[k])
                 for i, t in enumerate(live):
                     h = hyps[tracks[t]]
@@ -132,12 +132,12 @@ def run_stonesoup(call: MethodCall) -> Estimates:
                         tracks[t].append(updaters[p].update(h) if h else h.prediction)
                         missed[i] &= not h
                         prediction = h.prediction
-                    S = updaters[p].predict_measurement(prediction).covar  # cached: the update made it
-                    sd[i] = max(sd[i], float(np.sqrt(S[0, 0])))
+                    innovation = updaters[p].predict_measurement(prediction).covar  # cached: the update made it
+                    sd[i] = max(sd[i], float(np.sqrt(innovation[0, 0])))
             dummy[b, k, live], gate_sd[b, k, live] = missed, sd
         runs.append(tracks)
     est = ss.tracks_to_estimates(runs, K, m.dt, n)
-    live = call.alive.expand(B, K, T)
+    live = call.alive.expand(B, K, N)
     if not bool((est.exists == live).all()):  # a track holds a state exactly while its target lives
         raise RuntimeError("Stone Soup tracks do not cover the targets' lives")
     est.extras = {"dummy_most_probable": torch.from_numpy(dummy) & live, "gate_range_sd_m": torch.from_numpy(gate_sd)}
