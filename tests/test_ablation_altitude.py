@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from figure_check import assert_drawn_png
 
 from pmsr_nn.bounds import pcrb
 from pmsr_nn.filters import FilterError
@@ -193,7 +194,7 @@ def test_cli_writes_outputs_atomically(tmp_path, capsys):
     assert set(res["cases"]) == {"h=0 m", "h=300 m"}
     table = (out / "table.md").read_text()
     assert "paper RMSE (m, reference)" in table and "| 300 |" in table
-    assert (out / "rmse_vs_time.png").stat().st_size > 0
+    assert_drawn_png(out / "rmse_vs_time.png")
     assert "paper RMSE (ref.)" in capsys.readouterr().out
     # An existing folder is refused (nothing changed), replaced only with --overwrite.
     before = (out / "results.json").read_text()

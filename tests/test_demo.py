@@ -5,6 +5,8 @@ import json
 import pytest
 
 from pmsr_nn.cli import main
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.outputs import MARKER, output_kind
 from pmsr_nn.harness import demo
 
 EXPECTED = {"EKF", "UKF", "SI+KF", "MDFNN", "KalmanNet"}
@@ -16,7 +18,7 @@ def check_demo_folder(out, mc_runs, one_sky_rows=demo.ONE_SKY_METHODS):
     assert set(res["cases"]) == {"trajectory_1", "trajectory_2", "trajectory_3"}
     for case in res["cases"].values():
         assert set(case["methods"]) == EXPECTED
-        assert case["pcrb"]["pos_m"] > 0
+        assert case["pcrb"]["q0_pos_m"] < case["pcrb"]["pos_m"]  # process noise only adds to the bound
         for r in case["methods"].values():
             assert r["rmse_pos_m"] > case["pcrb"]["q0_pos_m"]  # nothing beats the floor
     for f in ("report.md", "trajectories.png", "trajectory_1_rmse.png"):
@@ -65,8 +67,15 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
     for chatter in ("GPU available", "LOCAL_RANK", "Tip", "Epoch 0", "Sanity", "it/s]"):
         assert chatter not in out_err.out + out_err.err
     check_demo_folder(out, 2, cheap)
-    assert main(["demo", "--out", str(out), "--mc-runs", "1"]) == 0  # a previous demo is replaced
-    check_demo_folder(out, 1, cheap)
+    # A previous demo is cleared before a new one starts (what a second `pmsr demo` does first),
+    # unless a file it did not write was added to it.
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(ConfigError, match="holds files a demo does not write"):
+        demo._fresh(out)
+    assert (out / "notes.txt").read_text() == "mine" and (out / "evaluation" / "results.json").is_file()
+    (out / "notes.txt").unlink()
+    demo._fresh(out)
+    assert [p.name for p in out.iterdir()] == [MARKER] and output_kind(out) == "demo"
     other = tmp_path / "mine"
     other.mkdir()
     (other / "thesis.tex").write_text("keep")
@@ -87,3 +96,26 @@ def test_the_real_demo(tmp_path):
         for name in ("MDFNN", "KalmanNet"):
             assert case["methods"][name]["rmse_pos_m"] < 3 * ekf, (name, case["methods"][name]["rmse_pos_m"], ekf)
     assert json.loads((out / "demo.json").read_text())["total_seconds"] < 300
+
+
+def test_the_demo_console_prints_the_reports_flags_one_line_each(tmp_path):
+    from test_results import designed, sampled
+
+    res = designed()  # the EKF 4 standard errors under its bound
+    res["one_sky"] = sampled()
+    res["one_sky"]["settings"]["divergence_m"] = 1000.0
+    res["one_sky"]["cases"]["c"]["methods"]["S-MSJPDA"]["diverged_runs"] = 1
+    res["demo"] = {"total_seconds": 150.0}
+    lines = demo.demo_summary(res, tmp_path)
+    warnings = [line for line in lines if line.startswith("warning")]
+    assert warnings == ["warning   EKF on c below its filtering bound: MSE / bound^2 0.80 ± 0.05, 4.0 s.e. below 1",
+                        "warning   S-MSJPDA on c: 1 of 4 runs diverged (position RMSE above 1000 m or not finite; "
+                        "kept in the averages)"]
+    first = lines.index(warnings[0])
+    assert lines[first - 2].startswith("| PCRB | truth | association known |")  # under the last table
+    assert lines[first + 2].startswith("reports")
+    assert any(line.startswith("| S-MSJPDA | detections | detections | 52.0 | 120.0 | 150.0 ± 12.2 |")
+               for line in lines)  # GOSPA with its standard error
+    res["cases"]["c"]["methods"]["EKF"]["below_bound"] = False
+    del res["one_sky"]["cases"]["c"]["methods"]["S-MSJPDA"]["diverged_runs"]
+    assert not any(line.startswith("warning") for line in demo.demo_summary(res, tmp_path))

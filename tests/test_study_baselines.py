@@ -5,6 +5,8 @@ import importlib.util
 import json
 from pathlib import Path
 
+from figure_check import assert_drawn_png
+
 SCRIPT = Path(__file__).resolve().parents[1] / "evaluate" / "baselines_vs_bounds.py"
 
 
@@ -23,5 +25,5 @@ def test_study_runs_end_to_end_and_writes_results(tmp_path, capsys):
     # Smoothing bounds sit below filtering bounds; the per-trajectory form above the averaged one.
     assert by["PCRB per-trajectory (smoothing)"]["position_rmse_m"] < by["PCRB per-trajectory (filtering)"]["position_rmse_m"]
     assert by["PCRB information-averaged (filtering)"]["position_rmse_m"] <= by["PCRB per-trajectory (filtering)"]["position_rmse_m"]
-    assert (tmp_path / "rmse.png").stat().st_size > 0
+    assert_drawn_png(tmp_path / "rmse.png")
     assert "MSE/own bound" in capsys.readouterr().out

@@ -26,7 +26,9 @@ from pathlib import Path
 
 from ..config import from_dict
 from ..errors import ConfigError, Interrupted
-from .scenario import FITEE2023_TRAJECTORIES, FixedNoiseSpec, MethodSpec, Scenario
+from .case_spec import FITEE2023_TRAJECTORIES
+from .method_spec import MethodSpec
+from .scenario import FixedNoiseSpec, Scenario
 
 DEMO_MARKER = "demo.json"
 DEMO_CONTENTS = {DEMO_MARKER, ".pmsr_output.json", "data", "train", "evaluation", "one_sky"}
@@ -65,7 +67,7 @@ DEMO_LR = {"mdfnn": 3.0e-3, "kalmannet": 1.0e-3}
 
 
 def demo_train_config(kind: str, cache_dir: Path, seed: int = 0):
-    from ..nets.training import TrainConfig
+    from ..nets.train_config import TrainConfig
 
     raw = {"name": f"demo_{kind}", "seed": seed, "data": {**DEMO_DATA, "cache_dir": str(cache_dir)},
            "model": DEMO_MODELS[kind], "optim": {"lr": DEMO_LR.get(kind, 1.0e-3), "schedule": "cosine", "acceleration_weight": 0.1},
@@ -180,7 +182,8 @@ class _Stages:
 
 
 def _run(out: Path, mc_runs: int, progress: bool, log, verbose: bool) -> dict:
-    from ..nets.training import prepare_dataset, resolve_recipe, train
+    from ..nets.train_config import resolve_recipe
+    from ..nets.training import prepare_dataset, train
     from .evaluate import evaluate
 
     t_start = time.perf_counter()
@@ -220,28 +223,33 @@ def _run(out: Path, mc_runs: int, progress: bool, log, verbose: bool) -> dict:
 
 
 def demo_summary(res: dict, out: Path) -> list[str]:
-    """The demo's closing console lines: the three-trajectory RMSE table and a compact multi-target
-    table (every column of both is in the reports)."""
-    from .report import summary_table
+    """The demo's closing console lines: the three-trajectory RMSE table, a compact multi-target
+    table (every column of both is in the reports) and, one line each, whatever either report
+    flags (rows below their bound beyond the Monte Carlo error, diverged runs)."""
+    from .flags import warning_lines
+    from .method_tables import summary_table
+    from .report_cells import fmt, fmt_se
+    from .results import Results
 
-    lines = ["", f"position RMSE (m) after the warm-up, {res['mc_runs']} runs per trajectory; bold: below its own bound", ""]
-    lines += summary_table(res, None, "", False)
-    sky = res["one_sky"]
-    case = next(iter(sky["cases"].values()))
-    reads = {m: s.get("reads", "-") for m, s in sky["settings"]["methods"].items()}
-    lines += ["", f"one sky, small: a crossing pair and a formation, 6 pairs, {sky['mc_runs']} runs; every column in "
+    evaluation, sky = Results.from_dict(res), Results.from_dict(res["one_sky"])
+    lines = ["", f"position RMSE (m) after the warm-up, {evaluation.mc_runs} runs per trajectory; bold: below its own "
+             "bound", ""]
+    lines += summary_table(evaluation, None, "", False)
+    case = next(iter(sky.cases.values()))
+    lines += ["", f"one sky, small: a crossing pair and a formation, 6 pairs, {sky.mc_runs} runs; every column in "
               "the report", "",
               "| method | reads | tracks start | pos RMSE (m) | OSPA (m) | GOSPA (m) | tracks / target | false / run | s / run |",
               "|---|---|---|---:|---:|---:|---:|---:|---:|"]
-    cell = lambda r, key, digits: "-" if r.get(key) is None else f"{r[key]:.{digits}f}"  # a bound's row has no tracks
-    for m, r in case["methods"].items():
-        lines.append(f"| {m} | {reads[m]} | {r.get('initiation', '-')} | {cell(r, 'rmse_pos_m', 1)} | "
-                     f"{cell(r, 'ospa_m', 1)} | {cell(r, 'gospa_m', 1)} | {cell(r, 'confirmed_tracks_per_target', 2)} | "
-                     f"{cell(r, 'false_tracks_per_run', 2)} | {cell(r, 'seconds_per_run', 2)} |")
-    below = [m for m, r in case["methods"].items() if r.get("below_bound")]
+    for m, r in case.methods.items():  # a bound's row has no tracks: "-"
+        s, t = r.sets, r.tracks
+        reads = sky.settings.methods[m].reads
+        lines.append(f"| {m} | {'-' if reads is None else reads} | {r.initiation or '-'} | "
+                     f"{fmt_se(r.rmse_pos_m, r.rmse_pos_se_m, 1)} | {fmt_se(s and s.ospa_m, s and s.ospa_se_m, 1)} | "
+                     f"{fmt_se(s and s.gospa_m, s and s.gospa_se_m, 1)} | "
+                     f"{fmt(t and t.confirmed_tracks_per_target, 2)} | "
+                     f"{fmt(t and t.false_tracks_per_run, 2)} | {fmt(r.seconds_per_run, 2)} |")
     lines.append("")
-    if below:  # the report's flag, said here too (only beyond the Monte Carlo error)
-        lines.append(f"note      below the bound beyond Monte Carlo error: {', '.join(below)} (the report says why)")
+    lines += warning_lines(evaluation) + warning_lines(sky)  # the reports' flags, one line each
     lines += [f"reports   {out / 'evaluation' / 'report.md'}  (figures beside it)",
               f"          {out / 'one_sky' / 'report.md'}",
               f"time      {res['demo']['total_seconds'] / 60:.1f} min in all",

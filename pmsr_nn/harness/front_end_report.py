@@ -15,18 +15,21 @@ from pathlib import Path
 import numpy as np
 
 from .. import SPEED_OF_LIGHT
+from .figures import pyplot, save_figure
+from .results import Results
 
 
 def _f(v, digits: int = 3) -> str:
     return "-" if v is None else f"{v:.{digits}g}"
 
 
-def front_end_tables(res: dict) -> list[str]:
+def front_end_tables(res: Results | dict) -> list[str]:
     """The chain's figures per case (empty when no case has a front end)."""
-    rows = [(name, c["front_end"]) for name, c in res["cases"].items() if c.get("front_end")]
+    results = Results.of(res)
+    rows = [(name, c.front_end) for name, c in results.cases.items() if c.front_end]
     if not rows:
         return []
-    st = res["settings"].get("front_end", {})
+    st = results.settings.sections.get("front_end", {})
     shape = st.get("map_shape", ["?", "?"])
     lines = ["## Front end: signals to detections", "",
              f"Every scan, each transmitter-receiver pair's CPI of {st.get('samples_per_cpi', '?')} complex samples is "
@@ -55,35 +58,28 @@ def front_end_tables(res: dict) -> list[str]:
     return lines
 
 
-def write_front_end_outputs(res: dict, examples: dict, out: Path) -> list[Path]:
+def write_front_end_outputs(res: Results | dict, examples: dict, out: Path) -> list[Path]:
     """Figures and ``maps.h5`` for the cases with a front end; returns the files written."""
-    names = [n for n, c in res["cases"].items() if c.get("front_end") and "@detections" in examples.get(n, {})]
+    results = Results.of(res)
+    names = [n for n, c in results.cases.items() if c.front_end and "@detections" in examples.get(n, {})]
     if not names:
         return []
-    st = res["settings"]["front_end"]
+    st = results.settings.sections["front_end"]
     files = []
     for name in names:
         ex = examples[name]
+        title = results.cases[name].title
         if "@maps" in ex:
-            files.append(plot_maps(ex, st, out / f"{name}_rd_map.png", res["cases"][name]["title"]))
-        files.append(plot_detections(ex, st, res["settings"].get("dt_s", 1.0), out / f"{name}_detections.png",
-                                     res["cases"][name]["title"]))
+            files.append(plot_maps(ex, st, out / f"{name}_rd_map.png", title))
+        files.append(plot_detections(ex, st, results.settings.dt_s, out / f"{name}_detections.png", title))
     files.append(write_maps_h5(examples, names, st, out / "maps.h5"))
     return files
-
-
-def _plt():
-    from .report import _plt as plt
-
-    return plt()
 
 
 def plot_maps(ex: dict, st: dict, path: Path, title: str) -> Path:
     """Run 0's first example scan, every pair: power (dB over the map's median) before and after
     cancellation, the CFAR detections circled on the second."""
-    from .report import save_figure
-
-    plt = _plt()
+    plt = pyplot()
     maps = np.asarray(ex["@maps"])[0]  # (S, 4, D, U): before, after, threshold, detections
     f = np.asarray(ex["@map_doppler_hz"])
     S = maps.shape[0]
@@ -111,9 +107,7 @@ def plot_maps(ex: dict, st: dict, path: Path, title: str) -> Path:
 def plot_detections(ex: dict, st: dict, dt: float, path: Path, title: str) -> Path:
     """Run 0's detections over time per pair, bistatic range and Doppler, labelled against the
     truth (Fig. 4 of the seed: the C-shapes of targets passing the baseline)."""
-    from .report import save_figure
-
-    plt = _plt()
+    plt = pyplot()
     det = np.asarray(ex["@detections"])  # (K, S, M, 3): range m, Doppler Hz, origin
     truth = np.asarray(ex["@truth_rd"])  # (K, T, S, 2)
     K, S = det.shape[:2]

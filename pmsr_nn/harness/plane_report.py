@@ -25,19 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _f(v, digits: int = 1) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
-def _plt():
-    from .report import _plt
-
-    return _plt()
+from .figures import pyplot as _plt
+from .report_cells import fmt, fmt_se
+from .result_rows import MethodRow
+from .results import Case, Results
 
 
-def _plane_rows(case: dict) -> dict:
-    return {m: r for m, r in case["methods"].items() if r.get("space")}
+def _plane_rows(case: Case) -> dict[str, MethodRow]:
+    return {m: r for m, r in case.methods.items() if r.space is not None}
 
 
 def _legend_outside(ax) -> None:
@@ -78,16 +73,16 @@ def _points(x: np.ndarray, dt: float, labelled: bool):
         yield m, ts[on], xs[on][..., 0] / 1e3, xs[on][..., 1]
 
 
-def _example_figures(out: Path, cname: str, case: dict, ex: dict, dt: float) -> list[str]:
+def _example_figures(out: Path, cname: str, case: Case, ex: dict, dt: float) -> list[str]:
     plt = _plt()
     names = []
     cmap = plt.get_cmap("tab20")
     for name, r in _plane_rows(case).items():
-        if f"@{name}" not in ex or f"@truth {r['space_key']}" not in ex:
+        if f"@{name}" not in ex or f"@truth {r.space.key}" not in ex:
             continue
-        x, z = np.asarray(ex[f"@{name}"], dtype=float), np.asarray(ex[f"@truth {r['space_key']}"], dtype=float)
-        labelled = r.get("labelled", True)
-        title = f"{name} ({r['kind']})"
+        x, z = np.asarray(ex[f"@{name}"], dtype=float), np.asarray(ex[f"@truth {r.space.key}"], dtype=float)
+        labelled = r.labelled
+        title = f"{name} ({r.kind})"
         fig, ax = plt.subplots(figsize=(7.5, 5.2))
         _truth(ax, None, z, dt)
         for m, t, rr, v in _points(x, dt, labelled):
@@ -95,7 +90,7 @@ def _example_figures(out: Path, cname: str, case: dict, ex: dict, dt: float) -> 
                     label=None if labelled else "estimates")
         ax.set_xlabel("bistatic range (km)")
         ax.set_ylabel("bistatic range-rate (m/s)")
-        ax.set_title(f"{case['title']}: {title}, run 0" + (" (colour: label)" if labelled else ""), fontsize=10)
+        ax.set_title(f"{case.title}: {title}, run 0" + (" (colour: label)" if labelled else ""), fontsize=10)
         if not labelled:
             _legend_outside(ax)
         fig.tight_layout()
@@ -111,7 +106,7 @@ def _example_figures(out: Path, cname: str, case: dict, ex: dict, dt: float) -> 
         axes[1].set_ylabel("bistatic range-rate (m/s)")
         axes[1].set_xlabel("time (s)")
         axes[0].set_xlim(0, z.shape[0] * dt)
-        axes[0].set_title(f"{case['title']}: {title} vs time, run 0" + (" (colour: label)" if labelled else ""),
+        axes[0].set_title(f"{case.title}: {title} vs time, run 0" + (" (colour: label)" if labelled else ""),
                           fontsize=10)
         fig.tight_layout()
         fig.savefig(out / f"{cname}_{name}_time.png", dpi=110)
@@ -134,33 +129,33 @@ def _time_figure(path: Path, t: np.ndarray, series: dict, ylabel: str, title: st
     plt.close(fig)
 
 
-def _label(name: str, row: dict) -> str:
-    return f"{name} estimates" if row.get("labelled") is False else f"{name} tracks"
+def _label(name: str, row: MethodRow) -> str:
+    return f"{name} tracks" if row.labelled else f"{name} estimates"
 
 
-def _time_figures(out: Path, cname: str, case: dict, dt: float) -> list[str]:
+def _time_figures(out: Path, cname: str, case: Case, dt: float) -> list[str]:
     rows = _plane_rows(case)
-    sets = case["curves"]["set"]
-    t = np.arange(case["steps"]) * dt
-    series = {"true": case["curves"]["cardinality_truth"]}
+    sets = case.curves.set
+    t = np.arange(case.steps) * dt
+    series = {"true": case.curves.cardinality_truth}
     integrals = {}  # one curve per distinct PHD run (rows that share one have the same integral)
     for n in rows:
-        if "phd_expected" in sets[n] and not any(sets[n]["phd_expected"] == v for v in integrals.values()):
-            integrals[n] = sets[n]["phd_expected"]
+        if sets[n].phd_expected is not None and not any(sets[n].phd_expected == v for v in integrals.values()):
+            integrals[n] = sets[n].phd_expected
     for n, v in integrals.items():
         series["PHD integral (sum of weights)" if len(integrals) == 1 else f"{n}: PHD integral"] = v
-    series.update({_label(n, r): sets[n]["cardinality"] for n, r in rows.items()})
+    series.update({_label(n, r): sets[n].cardinality for n, r in rows.items()})
     _time_figure(out / f"{cname}_cardinality.png", t, series, "number of targets (mean over runs)",
-                 f"{case['title']}: cardinality", thick="true")
-    _time_figure(out / f"{cname}_ospa.png", t, {_label(n, r): sets[n]["ospa_m"] for n, r in rows.items()},
-                 "OSPA on bistatic range (m)", f"{case['title']}: OSPA, mean over runs")
+                 f"{case.title}: cardinality", thick="true")
+    _time_figure(out / f"{cname}_ospa.png", t, {_label(n, r): sets[n].ospa_m for n, r in rows.items()},
+                 "OSPA on bistatic range (m)", f"{case.title}: OSPA, mean over runs")
     return [f"{cname}_cardinality.png", f"{cname}_ospa.png"]
 
 
-def _sweeps(res: dict, out: Path) -> list[str]:
+def _sweeps(results: Results, out: Path) -> list[str]:
     """OSPA, switches and fragmentations vs clutter (at the scenario's Pd) and vs Pd (at its clutter)."""
     plt = _plt()
-    st = res["settings"]
+    st = results.settings.sections
     if "pd" not in st:
         return []
     base_pd, base_clutter = st["pd"], st["clutter"]["per_scan"]
@@ -168,22 +163,23 @@ def _sweeps(res: dict, out: Path) -> list[str]:
     for key, fixed_key, fixed, xlabel, fname in (("clutter_per_scan", "pd", base_pd, "clutter points per scan",
                                                   "sweep_clutter"),
                                                  ("pd", "clutter_per_scan", base_clutter, "Pd", "sweep_pd")):
-        cases = sorted((c for c in res["cases"].values() if c.get(fixed_key) == fixed and key in c), key=lambda c: c[key])
-        if len({c[key] for c in cases}) < 2:
+        cases = sorted((c for c in results.cases.values() if c.study and getattr(c.study, fixed_key) == fixed),
+                       key=lambda c: getattr(c.study, key))
+        if len({getattr(c.study, key) for c in cases}) < 2:
             continue
-        xs = [c[key] for c in cases]
+        xs = [getattr(c.study, key) for c in cases]
         every = [n for n in _plane_rows(cases[0]) if all(n in _plane_rows(c) for c in cases)]
-        labelled = [n for n in every if cases[0]["methods"][n].get("label_switches_per_run") is not None]
+        labelled = [n for n in every if cases[0].methods[n].sets.label_switches_per_run is not None]
         colour = {n: plt.get_cmap("tab10")(i % 10) for i, n in enumerate(every)}  # one colour per row, every panel
         style = {n: "--" if n in labelled[1:] else "-" for n in every}  # labellings that coincide stay visible
         fig, axes = plt.subplots(1, 3, figsize=(14, 4.0))
         for n in every:
-            axes[0].plot(xs, [c["methods"][n]["ospa_m"] for c in cases], marker="o", color=colour[n], ls=style[n],
+            axes[0].plot(xs, [c.methods[n].sets.ospa_m for c in cases], marker="o", color=colour[n], ls=style[n],
                          label=n)
         for n in labelled:
-            axes[1].plot(xs, [c["methods"][n]["label_switches_per_run"] for c in cases], marker="o", color=colour[n],
+            axes[1].plot(xs, [c.methods[n].sets.label_switches_per_run for c in cases], marker="o", color=colour[n],
                          ls=style[n])
-            axes[2].plot(xs, [c["methods"][n]["fragmentations_per_run"] for c in cases], marker="o", color=colour[n],
+            axes[2].plot(xs, [c.methods[n].tracks.fragmentations_per_run for c in cases], marker="o", color=colour[n],
                          ls=style[n])
         for ax, ylabel in zip(axes, ("OSPA on bistatic range (m), mean over scans", "label switches per run",
                                      "fragmentations per run")):
@@ -198,15 +194,15 @@ def _sweeps(res: dict, out: Path) -> list[str]:
     return lines
 
 
-def _setup_lines(res: dict) -> list[str]:
+def _setup_lines(results: Results) -> list[str]:
     """The paper's stated set-up beside the scenario's (``reference.setup``)."""
-    ref = (res.get("reference") or {}).get("setup")
+    ref = results.reference.get("setup")
     if not ref:
         return []
     from ..methods import method_kind
 
-    t, s, label = ref["table"], res["settings"], res["reference"].get("label", "paper")
-    phd = next((m for m in s["methods"].values() if m["kind"] == "smc_phd_pair"), None)
+    t, s, label = ref["table"], results.settings.sections, results.reference.get("label", "paper")
+    phd = next((m.options for m in results.settings.methods.values() if m.kind == "smc_phd_pair"), None)
     opt = (lambda k: phd.get(k, method_kind("smc_phd_pair").options[k].default)) if phd else (lambda k: None)
     noise = s["noise"]
     rows = [("carrier (MHz)", t.get("carrier_mhz"), s["transmitters"][0]["carrier_hz"] / 1e6),
@@ -224,56 +220,60 @@ def _setup_lines(res: dict) -> list[str]:
     return lines + [f"| {q} | {a} | {b} |" for q, a, b in rows] + [""]
 
 
-def plane_report(res: dict, examples: dict, out: Path) -> tuple[list[str], list[Path]]:
+def plane_report(res: Results | dict, examples: dict, out: Path) -> tuple[list[str], list[Path]]:
     """The report's lines and figures for rows scored in a bistatic plane (empty when there are none)."""
-    if not any(_plane_rows(c) for c in res["cases"].values()):
+    results = Results.of(res)
+    if not any(_plane_rows(c) for c in results.cases.values()):
         return [], []
-    dt = res["settings"]["dt_s"]
+    st = results.settings
+    dt = st.dt_s
     lines = ["## Rows scored in a bistatic plane", "",
              "These rows' estimates are one transmitter-receiver pair's bistatic range and range-rate [r, rdot], scored "
              "against the truth projected into that pair's measurement space (each living target's noise-free range "
              "and range-rate). OSPA / GOSPA (cut-off "
-             f"{res['settings']['set_metrics']['c_m']:g} m, order {res['settings']['set_metrics']['p']:g}) are on the "
+             f"{st.set_metrics.c_m:g} m, order {st.set_metrics.p:g}) are on the "
              "bistatic range alone (one axis, in metres); range and range-rate errors are over the estimate-target "
              "pairs the OSPA assignment matches. **Not comparable with a Cartesian row's OSPA or position RMSE.** "
              "A known-association reference's label switches are the one-axis OSPA assignment trading two targets "
              "whose ranges cross (its tracks never change target): they measure the range-only scoring, not the "
              "filter. Seconds per run count the PHD filter's in full in every row that reads it (it runs once per "
              "block and settings; its own share in brackets), plus the row's labelling.", ""]
-    lines += _setup_lines(res)
+    lines += _setup_lines(results)
     figures = []
-    for cname, case in res["cases"].items():
+    for cname, case in results.cases.items():
         rows = _plane_rows(case)
         if not rows:
             continue
-        source = "detections from the FM front end's signal chain" if case.get("detections_from") == "signals" \
+        source = "detections from the FM front end's signal chain" if case.study.detections_from == "signals" \
             else "simulated detections"
-        space = next(iter(rows.values()))["space"]
-        lines += [f"### {case['title']} (`{cname}`, {space})", "",
-                  f"Pd {case['pd']:g}, {case['clutter_per_scan']:g} clutter points per scan; {source}.", "",
+        space = next(iter(rows.values())).space.title
+        lines += [f"### {case.title} (`{cname}`, {space})", "",
+                  f"Pd {case.study.pd:g}, {case.study.clutter_per_scan:g} clutter points per scan; {source}.", "",
                   "| method | kind | tracks start | OSPA m | GOSPA m | abs. card. error | RMS range m | RMS range-rate m/s | "
                   "label switches / run | fragmentations / run | labels / run | s / run (PHD) |",
                   "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for n, r in rows.items():
-            kind = r["kind"] + ("" if r.get("labelled", True) else ", unlabelled")
-            phd = f" ({r['phd_seconds_per_run']:.2f})" if r.get("phd_seconds_per_run") is not None else ""
-            lines.append(f"| {n} | {kind} | {r['initiation']} | {_f(r['ospa_m'])} | {_f(r['gospa_m'])} | "
-                         f"{_f(r['cardinality_mean_abs_error'], 3)} | {_f(r['rmse_pos_pooled_m'])} | "
-                         f"{_f(r['rmse_vel_pooled_mps'], 2)} | {_f(r.get('label_switches_per_run'), 2)} | "
-                         f"{_f(r.get('fragmentations_per_run'), 2)} | {_f(r.get('labels_per_run'), 1)} | "
-                         f"{r['seconds_per_run']:.2f}{phd} |")
-        labelled = [n for n, r in rows.items() if r.get("label_switches_per_target") is not None]
+            kind = r.kind + ("" if r.labelled else ", unlabelled")
+            phd = f" ({r.phd_seconds_per_run:.2f})" if r.phd_seconds_per_run is not None else ""
+            s, tracks = r.sets, r.tracks
+            lines.append(f"| {n} | {kind} | {r.initiation} | {fmt_se(s.ospa_m, s.ospa_se_m, 1)} | "
+                         f"{fmt_se(s.gospa_m, s.gospa_se_m, 1)} | "
+                         f"{fmt(s.cardinality_mean_abs_error, 3)} | {fmt(r.rmse_pos_pooled_m, 1)} | "
+                         f"{fmt(r.space.rmse_vel_pooled_mps, 2)} | {fmt(s.label_switches_per_run, 2)} | "
+                         f"{fmt(tracks.fragmentations_per_run if tracks else None, 2)} | {fmt(r.labels_per_run, 1)} | "
+                         f"{r.seconds_per_run:.2f}{phd} |")
+        labelled = [n for n, r in rows.items() if r.sets.label_switches_per_target is not None]
         if labelled:
             lines += ["", "Per target, mean over runs: label switches / fragmentations", "",
                       "| target | " + " | ".join(labelled) + " |", "|---|" + "---|" * len(labelled)]
-            for i, a in enumerate(case["targets"]):
-                lines.append(f"| {a} | " + " | ".join(f"{rows[n]['label_switches_per_target'][i]:.2f} / "
-                                                      f"{rows[n]['fragmentations_per_target'][i]:.2f}"
+            for i, a in enumerate(case.targets):
+                lines.append(f"| {a} | " + " | ".join(f"{rows[n].sets.label_switches_per_target[i]:.2f} / "
+                                                      f"{rows[n].tracks.fragmentations_per_target[i]:.2f}"
                                                       for n in labelled) + " |")
         lines.append("")
         figs = _example_figures(out, cname, case, examples.get(cname, {}), dt) + _time_figures(out, cname, case, dt)
         figures += [out / f for f in figs]
         lines += [f"![{f[:-4]}]({f})" for f in figs] + [""]
-    sweeps = _sweeps(res, out)
+    sweeps = _sweeps(results, out)
     figures += [out / (s.split("(")[1][:-1]) for s in sweeps]
     return lines + sweeps + ([""] if sweeps else []), figures

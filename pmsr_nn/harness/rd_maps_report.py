@@ -23,6 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .figures import pyplot as _plt
+from .result_rows import MethodRow
+from .results import Case, Results
+
 DEFINITIONS = {
     "tbd.detected_frame_rate": "per frame: fraction of runs with some Bernoulli component's existence above the "
                                "method's threshold (the most probable one's), the seed's N_d,k / N_mc; while no "
@@ -68,15 +72,6 @@ def tbd_row(s: dict, R: int, case, spec) -> dict:
             "existence": (s["tbd_existence"] / R).tolist(), "ospa_frame_m": ospa.tolist(),
             "ospa_mean_m": float(ospa.mean()), "snr_db": (s["tbd_snr_db"] / R).tolist(),
             "particles": (s["tbd_particles"] / R).tolist(), "estimates_per_frame": (s["n_est"] / R).tolist()}
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _fmt(v, digits=1) -> str:
@@ -136,11 +131,11 @@ def _maps_figure(path: Path, ex: dict, maps: dict) -> bool:
     return True
 
 
-def table2(rows: dict, ref: dict | None, frame: int, label: str) -> list[str]:
+def table2(rows: dict[str, MethodRow], ref: dict | None, frame: int, label: str) -> list[str]:
     """The sub-area study (the seed's Table 2): the methods with an estimated SNR and map
     likelihoods, by sub-area, beside the reference's rows (``ref``: its ``size``,
     ``power_ratio_pct``, ``computation_time_s`` and ``detected_frame_rate_pct`` lists)."""
-    sub = [(n, r) for n, r in rows.items() if r["tbd"]["power_ratio"] is not None and r["tbd"]["snr"] == "estimated"]
+    sub = [(n, r) for n, r in rows.items() if r.tbd.power_ratio is not None and r.tbd.snr == "estimated"]
     if len(sub) < 2:
         return []
     lines = [f"Sub-area study (the seed's Table 2; detected-frame rate at frame {frame}; times per run on this machine"
@@ -152,15 +147,15 @@ def table2(rows: dict, ref: dict | None, frame: int, label: str) -> list[str]:
     sizes = table.get("size", [])
 
     def size(nr):  # 1x1 .. 11x11, then the whole map
-        s = nr[1]["tbd"]["subarea"]
+        s = nr[1].tbd.subarea
         return math.inf if s == "full" else int(s.split("x")[0])
 
     for name, r in sorted(sub, key=size):
-        t = r["tbd"]
-        line = (f"| {name} | {t['subarea']} | {100 * t['power_ratio']:.1f} | {r['seconds_per_run']:.2f} | "
-                f"{100 * t['detected_rate_table_frame']:.1f} |")
+        t = r.tbd
+        line = (f"| {name} | {t.subarea} | {100 * t.power_ratio:.1f} | {r.seconds_per_run:.2f} | "
+                f"{100 * t.detected_rate_table_frame:.1f} |")
         if ref:
-            i = sizes.index(t["subarea"]) if t["subarea"] in sizes else None
+            i = sizes.index(t.subarea) if t.subarea in sizes else None
             paper = [table[k][i] if i is not None else None for k in ("power_ratio_pct", "computation_time_s",
                                                                          "detected_frame_rate_pct")]
             line += f" {_fmt(paper[0])} | {_fmt(paper[1], 2)} | {_fmt(paper[2])} |"
@@ -168,84 +163,90 @@ def table2(rows: dict, ref: dict | None, frame: int, label: str) -> list[str]:
     return lines + [""]
 
 
-def _case_table(rows: dict, frame: int) -> list[str]:
+def _case_table(rows: dict[str, MethodRow], frame: int) -> list[str]:
     lines = ["| method | kind | update | SNR | sub-area | detected % (present) | false alarm % (absent) | "
              f"detected % frame {frame} | RMS pos m (last) | median pos m (last) | RMS vel m/s (last) | OSPA m "
              "(every frame) | s / run |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for n, r in rows.items():
-        t = r["tbd"]
-        fa = t["false_alarm_rate_absent"]
-        lines.append(f"| {n} | {r['kind']} | {t['update']} | {t['snr']} | {t['subarea'] or '-'} | "
-                     f"{100 * t['detected_rate_present']:.1f} | {_fmt(None if fa is None else 100 * fa)} | "
-                     f"{100 * t['detected_rate_table_frame']:.1f} | {_fmt(t['rms_pos_last_present_m'])} | "
-                     f"{_fmt(t['median_pos_err_last_present_m'])} | {_fmt(t['rms_vel_last_present_mps'], 2)} | "
-                     f"{t['ospa_mean_m']:.0f} | {r['seconds_per_run']:.2f} |")
+        t = r.tbd
+        fa = t.false_alarm_rate_absent
+        lines.append(f"| {n} | {r.kind} | {t.update} | {t.snr} | {t.subarea or '-'} | "
+                     f"{100 * t.detected_rate_present:.1f} | {_fmt(None if fa is None else 100 * fa)} | "
+                     f"{100 * t.detected_rate_table_frame:.1f} | {_fmt(t.rms_pos_last_present_m)} | "
+                     f"{_fmt(t.median_pos_err_last_present_m)} | {_fmt(t.rms_vel_last_present_mps, 2)} | "
+                     f"{t.ospa_mean_m:.0f} | {r.seconds_per_run:.2f} |")
     return lines + [""]
 
 
-def report_lines(res: dict, out: Path, examples: dict) -> list[str]:
+def _map_rows(case: Case) -> dict[str, MethodRow]:
+    """The case's rows that read range-Doppler maps."""
+    return {n: r for n, r in case.methods.items() if r.tbd is not None}
+
+
+def report_lines(res: Results | dict, out: Path, examples: dict) -> list[str]:
     """The report's track-before-detect section (and its figures in ``out``): per case with maps,
     the table of its map-reading methods, the sub-area study and the figures; then the update
     order across cases. Empty where no row reads maps."""
-    cases = {n: c for n, c in res["cases"].items() if any("tbd" in r for r in c["methods"].values())}
+    results = Results.of(res)
+    cases = {n: c for n, c in results.cases.items() if _map_rows(c)}
     if not cases:
         return []
-    sub_ref = ((res.get("reference") or {}).get("subarea") or {})
-    label = (res.get("reference") or {}).get("label", "paper")
+    sub_ref = results.reference.get("subarea") or {}
+    label = results.reference.get("label", "paper")
     lines = ["## Track-before-detect on range-Doppler maps", "",
              "Every method below reads the case's range-Doppler maps. Per frame: the detected-frame rate (some "
              "component above the threshold), the error of the most probable component over the runs that detect, "
              "OSPA over every frame (a track while no target lives is a false alarm). Definitions (`tbd.*`) in "
              "results.json.", ""]
     for cname, case in cases.items():
-        maps = case["rd_maps"]
-        rows = {n: r for n, r in case["methods"].items() if "tbd" in r}
+        maps = case.rd_maps
+        rows = _map_rows(case)
         frames = np.arange(1, len(maps["present"]) + 1)
         present = np.asarray(maps["present"], dtype=bool)
         frame = maps["table_frame"]
-        lines += [f"### {case['title']} (`{cname}`)", "",
+        lines += [f"### {case.title} (`{cname}`)", "",
                   f"Maps {', '.join(maps['maps'])}: SNR {maps['snr_db']} dB, {maps['map_cells'][0]} Doppler x "
                   f"{maps['map_cells'][1]} range cells of {maps['doppler_cell_hz']:g} Hz x {maps['range_cell_m']:.0f} m.",
                   ""]
         lines += _case_table(rows, frame)
         lines += table2(rows, sub_ref.get("table"), frame, label)
         # the sub-area variants get their own figure; the others show the one sub-area most of them use
-        sub = {n: r for n, r in rows.items() if r["tbd"]["snr"] == "estimated" and r["tbd"]["power_ratio"] is not None}
-        areas = [r["tbd"]["subarea"] for n, r in rows.items() if r["tbd"]["subarea"]]
+        sub = {n: r for n, r in rows.items() if r.tbd.snr == "estimated" and r.tbd.power_ratio is not None}
+        areas = [r.tbd.subarea for n, r in rows.items() if r.tbd.subarea]
         default = max(set(areas), key=areas.count) if areas else None
-        main = {n: r for n, r in rows.items() if n not in sub or r["tbd"]["subarea"] == default}
-        figs = {"detected": ("detected-frame rate", {n: r["tbd"]["detected_frame_rate"] for n, r in main.items()}),
-                "existence": ("existence of the most probable component", {n: r["tbd"]["existence"] for n, r in main.items()}),
-                "ospa": ("OSPA (m)", {n: r["tbd"]["ospa_frame_m"] for n, r in main.items()})}
+        main = {n: r for n, r in rows.items() if n not in sub or r.tbd.subarea == default}
+        figs = {"detected": ("detected-frame rate", {n: r.tbd.detected_frame_rate for n, r in main.items()}),
+                "existence": ("existence of the most probable component", {n: r.tbd.existence for n, r in main.items()}),
+                "ospa": ("OSPA (m)", {n: r.tbd.ospa_frame_m for n, r in main.items()})}
         if len(sub) > 1:
-            figs["subarea"] = ("detected-frame rate", {f"{r['tbd']['subarea']} ({100 * r['tbd']['power_ratio']:.0f}% of "
-                                                       "the energy)": r["tbd"]["detected_frame_rate"] for r in sub.values()})
+            figs["subarea"] = ("detected-frame rate", {f"{r.tbd.subarea} ({100 * r.tbd.power_ratio:.0f}% of "
+                                                       "the energy)": r.tbd.detected_frame_rate for r in sub.values()})
         for key, (ylabel, series) in figs.items():
-            _curves(out / f"{cname}_{key}.png", frames, series, ylabel, f"{case['title']}: {ylabel}", present)
+            _curves(out / f"{cname}_{key}.png", frames, series, ylabel, f"{case.title}: {ylabel}", present)
         plt = _plt()
         fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
         for ax, key, ylabel in ((axes[0], "rms_pos_m", "position error (m): RMS, median dotted"),
                                 (axes[1], "rms_vel_mps", "RMS velocity error (m/s)")):
             for n, r in main.items():
-                line, = ax.plot(frames, np.asarray(r["tbd"][key], dtype=float), marker="o", ms=3, label=n)
+                line, = ax.plot(frames, np.asarray(getattr(r.tbd, key), dtype=float), marker="o", ms=3, label=n)
                 if key == "rms_pos_m":
-                    ax.plot(frames, np.asarray(r["tbd"]["median_pos_err_m"], dtype=float), ls=":", color=line.get_color())
+                    ax.plot(frames, np.asarray(r.tbd.median_pos_err_m, dtype=float), ls=":", color=line.get_color())
             ax.set_yscale("log")
             ax.set_xlabel("frame")
             ax.set_ylabel(ylabel)
         axes[1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-        fig.suptitle(f"{case['title']}: errors of the most probable component over the runs that detect")
+        fig.suptitle(f"{case.title}: errors of the most probable component over the runs that detect")
         fig.tight_layout()
         fig.savefig(out / f"{cname}_tbd_rms.png", dpi=110)
         plt.close(fig)
-        est = {n: r for n, r in rows.items() if r["tbd"]["snr"] == "estimated"}
+        est = {n: r for n, r in rows.items() if r.tbd.snr == "estimated"}
         if est:
             name, r = next(iter(est.items()))
-            snr = np.asarray(r["tbd"]["snr_db"])
+            snr = np.asarray(r.tbd.snr_db)
             _curves(out / f"{cname}_snr.png", frames,
                     {f"{maps['maps'][p]} estimated ({name})": snr[:, p] for p in range(snr.shape[1])},
-                    "SNR (dB)", f"{case['title']}: online SNR estimate (true dashed)", present,
+                    "SNR (dB)", f"{case.title}: online SNR estimate (true dashed)", present,
                     dashed={f"map {p + 1}": np.full(len(frames), maps["snr_db"][p]) for p in range(snr.shape[1])})
         _maps_figure(out / f"{cname}_maps.png", examples.get(cname, {}), maps)
         lines += [f"![{k}]({cname}_{k}.png)" for k in ("detected", "tbd_rms", "snr", "subarea", "existence", "ospa", "maps")
@@ -253,19 +254,19 @@ def report_lines(res: dict, out: Path, examples: dict) -> list[str]:
     return lines + order_study(cases, out)
 
 
-def order_study(cases: dict, out: Path) -> list[str]:
+def order_study(cases: dict[str, Case], out: Path) -> list[str]:
     """The seed's Figs. 11-12 across cases: every known-SNR ICMB (ascending or descending order) of
     every case on one figure, detected-frame rate and RMS position error."""
-    rows = [(f"{case['title']}: {n}", case, r) for case in cases.values() for n, r in case["methods"].items()
-            if "tbd" in r and r["tbd"]["snr"] == "true" and r["tbd"]["update"] in ("ascending", "descending")]
+    rows = [(f"{case.title}: {n}", case, r) for case in cases.values() for n, r in _map_rows(case).items()
+            if r.tbd.snr == "true" and r.tbd.update in ("ascending", "descending")]
     if len({id(case) for _, case, _ in rows}) < 2:
         return []
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.4))
     for label, case, r in rows:
-        frames = np.arange(1, len(case["rd_maps"]["present"]) + 1)
-        axes[0].plot(frames, r["tbd"]["detected_frame_rate"], marker="o", ms=3, label=label)
-        axes[1].plot(frames, np.asarray(r["tbd"]["rms_pos_m"], dtype=float), marker="o", ms=3, label=label)
+        frames = np.arange(1, len(case.rd_maps["present"]) + 1)
+        axes[0].plot(frames, r.tbd.detected_frame_rate, marker="o", ms=3, label=label)
+        axes[1].plot(frames, np.asarray(r.tbd.rms_pos_m, dtype=float), marker="o", ms=3, label=label)
     axes[0].set_ylabel("detected-frame rate")
     axes[1].set_ylabel("RMS position error (m)")
     axes[1].set_yscale("log")
@@ -279,22 +280,22 @@ def order_study(cases: dict, out: Path) -> list[str]:
     return ["### Update order across cases", "", "![order study](order_study.png)", ""]
 
 
-def summary_lines(res: dict) -> list[str]:
+def summary_lines(res: Results | dict) -> list[str]:
     """The terminal's table per case with maps (position errors at the last frame a target lives)."""
     lines = []
-    for case in res["cases"].values():
-        rows = {n: r for n, r in case["methods"].items() if "tbd" in r}
+    for case in Results.of(res).cases.values():
+        rows = _map_rows(case)
         if not rows:
             continue
-        lines += [f"\n{case['title']} (map SNRs {case['rd_maps']['snr_db']} dB; position errors at the last frame "
+        lines += [f"\n{case.title} (map SNRs {case.rd_maps['snr_db']} dB; position errors at the last frame "
                   "with a target)",
                   f"  {'method':<34} {'detected %':>10} {'false al. %':>11} {'RMS pos m':>10} {'median m':>9} "
                   f"{'OSPA m':>7} {'s/run':>6}"]
         for n, r in rows.items():
-            t = r["tbd"]
-            fa = t["false_alarm_rate_absent"]
-            pos, med = t["rms_pos_last_present_m"], t["median_pos_err_last_present_m"]
-            lines.append(f"  {n:<34} {100 * t['detected_rate_present']:>10.1f} "
+            t = r.tbd
+            fa = t.false_alarm_rate_absent
+            pos, med = t.rms_pos_last_present_m, t.median_pos_err_last_present_m
+            lines.append(f"  {n:<34} {100 * t.detected_rate_present:>10.1f} "
                          f"{'-' if fa is None else f'{100 * fa:.1f}':>11} {'-' if pos != pos else f'{pos:.0f}':>10} "
-                         f"{'-' if med != med else f'{med:.0f}':>9} {t['ospa_mean_m']:>7.0f} {r['seconds_per_run']:>6.2f}")
+                         f"{'-' if med != med else f'{med:.0f}':>9} {t.ospa_mean_m:>7.0f} {r.seconds_per_run:>6.2f}")
     return lines

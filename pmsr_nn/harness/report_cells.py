@@ -1,0 +1,51 @@
+"""How the report writes a number, a number with its Monte Carlo error, and a row's marks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .result_rows import MethodRow
+
+
+def fmt(v, digits: int = 2) -> str:
+    """``v`` with ``digits`` decimals; ``-`` for None, ``nan`` / ``inf`` as they are."""
+    if v is None:
+        return "-"
+    if isinstance(v, float) and not np.isfinite(v):
+        return str(v)
+    return f"{v:.{digits}f}"
+
+
+def fmt_se(v, se, digits: int = 2, sign: str = "±") -> str:
+    """``v`` and, where the results hold one, its standard error over runs (``v ± se``)."""
+    cell = fmt(v, digits)
+    if v is None or se is None or not np.isfinite(se):
+        return cell
+    return f"{cell} {sign} {se:.{digits}f}"
+
+
+def span(values) -> str:
+    """``lo-hi`` of ``values`` with two decimals (one number where they agree)."""
+    lo, hi = min(values), max(values)
+    return f"{lo:.2f}" if f"{lo:.2f}" == f"{hi:.2f}" else f"{lo:.2f}-{hi:.2f}"
+
+
+def general(v) -> str:
+    """A grid value as short as it goes (``%g``), or its text."""
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)
+
+
+def space_mark(row: MethodRow | None) -> str:
+    """`` [pair 0: range, range-rate]`` for a row scored in a measurement space, so that its
+    figures are never read as Cartesian ones; empty otherwise."""
+    return f" [{row.space.key}: range, range-rate]" if row is not None and row.space else ""
+
+
+def starts(row: MethodRow) -> str:
+    """How a row's tracks start, where it is not its own initiator: said in every row it applies to."""
+    return {"oracle": " (oracle births)", "association known": " (association known)"}.get(row.initiation, "")
+
+
+SWEEP_LABELS = {"pd": "detection probability Pd", "clutter_per_scan": "clutter points per sensor per scan",
+                "spacing_m": "spacing of the formation (m)"}
+"""Axis and column labels of a multi-target study's swept quantity."""
