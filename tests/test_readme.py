@@ -1,10 +1,13 @@
-"""Every command in the README works: each is found in the README's text and run on a tiny
-configuration (fewer tracks, epochs and Monte Carlo runs; nothing else changed) in a sandbox
-folder that links the repository's `datasets/`, `train/`, `models/` and `evaluate/`.
+"""Every command of the documents works, and every link of them stays inside the repository.
+
+The documents are ``README.md``, ``docs/*.md`` and ``evaluate/README.md``. Each ``pmsr`` / ``python``
+command found in them is run on a tiny configuration (fewer tracks, epochs and Monte Carlo runs;
+nothing else changed) in a sandbox folder that links the repository's `datasets/`, `train/`,
+`models/` and `evaluate/`.
 
 A command with placeholders (``RECIPE.yaml``, ``DIR``, ``[--mc-runs N]``) is parsed by the
-``pmsr`` parser and its options checked. A command found in the README that no rule below covers
-fails :func:`test_every_readme_command_has_a_tiny_configuration`: a new command in the README needs
+``pmsr`` parser and its options checked. A command found in a document that no rule below covers
+fails :func:`test_every_readme_command_has_a_tiny_configuration`: a new command in a document needs
 its tiny configuration here. Long studies run with one Monte Carlo run in the slow tier.
 """
 
@@ -20,9 +23,11 @@ from pathlib import Path
 
 import pytest
 
-from pmsr_nn.cli import build_parser, main
+from pmsr_nn.cli import DEMO_EXPECTED, build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
+DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "evaluate" / "README.md"]
+"""The documents whose commands are run (the recorded results and model cards hold records, not recipes)."""
 README = (ROOT / "README.md").read_text()
 LINKED = ("datasets", "train", "models", "evaluate")
 
@@ -31,15 +36,18 @@ TINY_TRAIN = ["data.tracks=24", "data.steps=120", "data.window=60", "data.batch_
 """A training run in seconds: 24 tracks of 120 scans, windows of 60 (room for a filter order of 30)."""
 
 
-def readme_commands(text: str = README) -> list[str]:
-    """Every ``pmsr`` / ``python`` command of the README: lines of ```bash blocks (comments cut)
-    and inline code spans that start with ``pmsr `` or ``python ``, in order, without repeats."""
+def readme_commands(text: str | None = None) -> list[str]:
+    """Every ``pmsr`` / ``python`` command of ``text`` (default: every document, in order): lines of
+    ```bash blocks (comments cut, lines ending in a backslash joined to the next) and inline code
+    spans that start with ``pmsr `` or ``python ``, in order, without repeats."""
+    texts = [text] if text is not None else [d.read_text() for d in DOCUMENTS]
     found = []
-    for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S):
-        for line in block.splitlines():
-            line = re.split(r"\s+#", line, maxsplit=1)[0].strip()
-            found += [part.strip() for part in line.split(", ")] if line.startswith("pmsr --help") else [line]
-    found += re.findall(r"`((?:pmsr|python) [^`]+)`", text)
+    for body in texts:
+        for block in re.findall(r"```bash\n(.*?)```", body, flags=re.S):
+            for line in re.sub(r"\\\n\s*", " ", block).splitlines():
+                line = re.split(r"\s+#", line, maxsplit=1)[0].strip()
+                found += [part.strip() for part in line.split(", ")] if line.startswith("pmsr --help") else [line]
+        found += re.findall(r"`((?:pmsr|python) [^`]+)`", body)
     # "pmsr train" alone names a command in prose; "pmsr demo" runs in tests/test_demo.py
     return list(dict.fromkeys(c for c in found if c.startswith(("pmsr ", "python ")) and len(c.split()) > 2
                               or c == "pmsr --help"))
@@ -112,14 +120,14 @@ def tiny_blocks_scenario() -> None:
 
 SHARDS = [tiny_blocks_scenario] + [["evaluate", "tiny/drones.yaml", "--out", f"runs/s{i}", "--mc-runs", "2", "--shard",
                                     f"{i}/2", "--quiet"] for i in (1, 2)]
-STUDIES = ("one_sky", "remotesensing2020_icmb", "jeit2021_pmht", "fm_front_end", "daniyan_smcphd", "daniyan_smcphd_signals",
-           "access2019_msjpda", "access2019_msjpda_pd", "access2019_msjpda_mbest", "access2019_msjpda_clutter",
-           "access2019_msjpda_initiation")
+STUDIES = ("fitee2023_mismatch", "one_sky", "remotesensing2020_icmb", "jeit2021_pmht", "fm_front_end", "daniyan_smcphd",
+           "daniyan_smcphd_signals", "access2019_msjpda", "access2019_msjpda_pd", "access2019_msjpda_mbest",
+           "access2019_msjpda_clutter", "access2019_msjpda_initiation")
 
 RULES = [
     Rule(r"pmsr simulate datasets/fitee2023_ca\.yaml --out data/fitee --tracks 2000 --seed 7",
          lambda a: _set(a, "--tracks", "30")),
-    Rule(r"pmsr simulate datasets/fitee2023_ca\.yaml (--variant literal --out data/literal|--out data/more --tracks 200)",
+    Rule(r"pmsr simulate datasets/fitee2023_ca\.yaml (--variant literal --out data/literal|--out runs/more --tracks 200)",
          lambda a: _set(a, "--tracks", "30")),
     Rule(r"pmsr info data/fitee --verify --plot fitee\.png", setup=[FITEE]),
     Rule(r"pmsr train train/mdfnn\.yaml --out runs/mdfnn( trainer\.max_epochs=60 model\.filter_order=30)?", _train_tiny),
@@ -129,14 +137,22 @@ RULES = [
     Rule(r"pmsr track --checkpoint runs/mdfnn/tracker\.pt --input data/fitee --split test --out est\.h5",
          setup=[FITEE, MDFNN]),
     Rule(r"pmsr export-onnx --checkpoint runs/mdfnn/tracker\.pt --out mdfnn\.onnx", setup=[MDFNN]),
-    Rule(r"pmsr evaluate evaluate/stonesoup_jpda\.yaml --out runs/\w+", _mc1),
+    # Stone Soup rows through the harness run in-process in tests/test_stonesoup_interop.py
+    Rule(r"pmsr evaluate evaluate/stonesoup_jpda\.yaml --out runs/\w+", _mc1, slow=True),
     # every tracker of the package on one run (PMHT from detections alone takes ~15 s): the slow tier
     Rule(r"pmsr evaluate evaluate/shared_drones\.yaml --out runs/\w+", _mc1, slow=True),
-    # The first hour runs this scenario (with --checkpoint); as written, with the released networks:
+    # The first hour runs this scenario (--methods, --checkpoint); as written, with the released networks:
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval", _mc1, slow=True),
+    # ... with your own network: that row alone, on one run
+    Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval --mc-runs 20 "
+         r"--checkpoint MDFNN=runs/mdfnn/tracker\.pt", lambda a: _set(_mc1(a), "--methods", "MDFNN"), setup=[MDFNN]),
+    # ... sharded: the EKF row on two blocks of 10 runs, one per shard
+    # (shards and their merge are checked in-process in tests/test_harness.py: these three run in the slow tier)
+    Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/s([12]) --shard \1/2",
+         lambda a: _set(_set(a, "--mc-runs", "20"), "--methods", "EKF"), slow=True),
     Rule(r"pmsr evaluate evaluate/(" + "|".join(STUDIES) + r")\.yaml( --mc-runs \d+)? --out runs/\w+", _mc1, slow=True),
-    Rule(r"pmsr merge runs/s1 runs/s2 --out runs/eval", setup=SHARDS),
-    Rule(r"pmsr merge s1 s2 --out s1", refused=True,
+    Rule(r"pmsr merge runs/s1 runs/s2 --out runs/eval", setup=SHARDS, slow=True),
+    Rule(r"pmsr merge s1 s2 --out s1", refused=True, slow=True,
          setup=[a if callable(a) else [*a[:3], a[3].replace("runs/", ""), *a[4:]] for a in SHARDS]),
     Rule(r"pmsr track --checkpoint runs/smoke/tracker\.pt --input z\.csv --out z\.csv", refused=True,
          setup=[SMOKE, ["simulate", "datasets/fitee2023_ca.yaml", "--out", "data/z", "--tracks", "3", "--quiet"],
@@ -152,7 +168,7 @@ RULES = [
     Rule(r"pmsr --help|pmsr simulate --help"),
     Rule(r"pmsr methods( \w+)*"),
     # Scripts: their own tests cover them; here their options must exist (`--help` lists them).
-    Rule(r"python (evaluate|benchmarks)/\w+\.py( --\S+( \S+)?)*"),
+    Rule(r"python (evaluate|benchmarks)/\w+\.py( evaluate/\w+\.yaml)?( --\S+( \S+)?)*"),
 ]
 
 
@@ -164,7 +180,7 @@ def rule_for(command: str) -> Rule | None:
 
 def test_every_readme_command_has_a_tiny_configuration():
     commands = readme_commands()
-    assert len(commands) > 30  # the extraction works (the README has about 45)
+    assert len(commands) > 60  # the extraction works (the documents have about 70)
     missing = [c for c in commands if not has_placeholder(c) and rule_for(c) is None
                and c not in first_hour_block() and not c.startswith("pmsr demo")]
     assert not missing, f"README commands without a tiny configuration in tests/test_readme.py: {missing}"
@@ -218,6 +234,7 @@ def run(argv: list[str], own_process: bool = False) -> None:
     assert main(argv) == 0, f"pmsr {' '.join(argv)} failed"
 
 
+@pytest.mark.slow  # the block's commands each run in the default tier (test_readme_command_runs_on_a_tiny_configuration); this runs them in sequence
 def test_the_first_hour_runs_as_written(sandbox):
     """The README's 'Your first hour' block in order, with 1 Monte Carlo run and 1-2 epochs."""
     for command in first_hour_block():
@@ -229,9 +246,120 @@ def test_the_first_hour_runs_as_written(sandbox):
         run(argv)
         out = argv[argv.index("--out" if "--out" in argv else "--plot") + 1]
         assert (sandbox / out).exists(), f"{command!r} wrote no {out}"
-    report = (sandbox / "runs/first_eval/report.md").read_text()
-    assert "| MDFNN |" in report and "runs/smoke/tracker.pt" in (sandbox / "runs/first_eval/results.json").read_text()
-    assert "| Stone Soup JPDA |" in (sandbox / "runs/stonesoup/report.md").read_text()
+    report = (sandbox / "runs/first/eval/report.md").read_text()
+    assert "| MDFNN |" in report and "runs/smoke/tracker.pt" in (sandbox / "runs/first/eval/results.json").read_text()
+    assert "| EKF |" in report and "| DFNN |" not in report  # --methods ran the rows it names, no others
+    assert "| Stone Soup JPDA |" in (sandbox / "runs/first/stonesoup/report.md").read_text()
+    # outputs under runs/, and the training data pmsr train simulates in its cache (data/): nothing else
+    assert sorted(p.name for p in sandbox.iterdir()) == sorted([*LINKED, "data", "runs"])
+
+
+def test_the_first_hour_writes_only_under_runs():
+    """Every output of the block is a path under ``runs/`` (ignored by git), so a newcomer's clone stays clean."""
+    outputs = []
+    for command in first_hour_block():
+        argv = shlex.split(command)
+        outputs += [argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--out", "--plot")]
+    assert len(outputs) == len(first_hour_block())  # one output each (info: its --plot)
+    assert all(o.startswith("runs/") for o in outputs), outputs
+    ignored = (ROOT / ".gitignore").read_text().splitlines()
+    assert "/runs/" in ignored and "/data/" in ignored  # data/: pmsr train's cache of the data it simulates
+
+
+def test_the_readme_states_the_demo_time_the_demo_promises():
+    """One figure for `make demo`: the text `pmsr demo` prints (DEMO_EXPECTED), once, and no other time
+    beside it; `make test` has one figure of its own."""
+    assert README.count(DEMO_EXPECTED) == 1
+    start = README.index("`make demo` runs `pmsr demo`")
+    paragraph = README[start:README.index("\n\n", start)]
+    assert DEMO_EXPECTED in paragraph
+    assert not re.search(r"\d\s*(min|minutes|s)\b", paragraph.replace(DEMO_EXPECTED, "")
+                         .replace("2026-11-26", "")), paragraph
+    make_test = next(line for line in README.splitlines() if line.startswith("make test "))
+    assert len(re.findall(r"\d+(?:\.\d+)? minutes", make_test)) == 1, make_test
+
+
+def test_the_readme_is_short():
+    assert len(README.splitlines()) <= 300
+
+
+def markdown_files() -> list[Path]:
+    """Every Markdown file of the repository: tracked, or new and not ignored (git), else every ``*.md``
+    outside hidden folders and the virtual environment."""
+    try:
+        out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "*.md"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout
+        files = [ROOT / f for f in out.splitlines()]
+    except (OSError, subprocess.CalledProcessError):
+        files = [f for f in ROOT.rglob("*.md") if not any(part.startswith(".") for part in f.relative_to(ROOT).parts)]
+    return sorted(f for f in files if f.is_file())
+
+
+_LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
+
+
+def broken_links(path: Path, text: str) -> list[str]:
+    """Relative links of Markdown ``text`` (in file ``path``) that leave the repository or name no file;
+    web links (``scheme:``) and anchors within the page are not checked."""
+    bad = []
+    for target in _LINK.findall(re.sub(r"```.*?```", "", text, flags=re.S)):
+        if re.match(r"[a-zA-Z][a-zA-Z0-9+.-]*:", target) or target.startswith("#"):
+            continue
+        resolved = (path.parent / target.split("#", 1)[0]).resolve()
+        if ROOT not in resolved.parents or not resolved.exists():
+            bad.append(target)
+    return bad
+
+
+def test_the_link_check_catches_links_that_leave_the_repository():
+    page = ROOT / "docs" / "page.md"
+    text = "[design](design.md) [up](../shared/DESIGN.md) [gone](nothing.md) [web](https://example.org) [a](#top)"
+    assert broken_links(page, text) == ["../shared/DESIGN.md", "nothing.md"]
+
+
+def test_every_relative_link_of_every_document_resolves_inside_the_repository():
+    files = markdown_files()
+    assert ROOT / "README.md" in files and ROOT / "docs" / "design.md" in files
+    bad = {str(f.relative_to(ROOT)): b for f in files if (b := broken_links(f, f.read_text()))}
+    assert not bad, f"links that leave the repository or name no file: {bad}"
+
+
+
+def python_examples() -> list[tuple[str, str]]:
+    """``(name, code)`` of every ```python block of the documents."""
+    return [(f"{doc.relative_to(ROOT)}, example {i + 1}", code) for doc in DOCUMENTS
+            for i, code in enumerate(re.findall(r"```python\n(.*?)```", doc.read_text(), flags=re.S))]
+
+
+def test_the_python_examples_import_what_exists():
+    """The import lines of every Python example run (a moved or renamed function fails here, in the default tier)."""
+    examples = python_examples()
+    assert len(examples) >= 3  # the dataset, the filters and the tracker examples
+    for name, code in examples:
+        imports = "\n".join(line for line in code.splitlines() if re.match(r"(from \S+ )?import ", line))
+        exec(compile(imports, name, "exec"), {})
+
+
+@pytest.mark.slow
+def test_the_python_examples_run(sandbox):
+    """Each example as written, after the commands that make what it reads (data/fitee, runs/smoke)."""
+    run(FITEE)
+    run(SMOKE)
+    for name, code in python_examples():
+        exec(compile(code, name, "exec"), {"__name__": "docs_example"})
+
+_REPO_PATH = re.compile(r"`((?:pmsr_nn|evaluate|datasets|train|models|benchmarks|tests|docs)/[\w./*-]*)(?:::\w+)?`")
+
+
+def test_the_repository_paths_the_documents_name_exist():
+    """A path in inline code (``pmsr_nn/trackers/pmht.py``, ``models/released/one_sky_*.pt``) names a file or
+    folder of the repository; commands (inline code with spaces) are checked by the tests above."""
+    missing = {}
+    for doc in DOCUMENTS:
+        gone = [p for p in _REPO_PATH.findall(doc.read_text()) if not list(ROOT.glob(p.rstrip("/")))]
+        if gone:
+            missing[str(doc.relative_to(ROOT))] = gone
+    assert not missing, f"paths named in the documents that do not exist: {missing}"
 
 
 def _other_commands(slow: bool):
@@ -268,6 +396,7 @@ def test_readme_study_runs_with_one_monte_carlo_run(sandbox, command):
     _run_with_rule(command)
 
 
+@pytest.mark.slow  # one Python process per script; the scripts' own tests run them in the default tier
 def test_readme_scripts_take_the_options_they_are_given():
     """Every ``python SCRIPT ...`` of the README exists and its ``--help`` lists the options used
     (the scripts' own tests run them; their ``--help`` processes run side by side)."""
