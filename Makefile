@@ -19,11 +19,12 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/pmsr demo
 
+# Two pytest-xdist workers, one thread each: the 2 cores of the development machine, no oversubscription.
 test: setup
-	$(BIN)/python -m pytest -q
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist worksteal
 
 test-all: setup
-	$(BIN)/python -m pytest -q -m ""
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist worksteal -m ""
 
 bench: setup
 	$(BIN)/python benchmarks/simulate_throughput.py
