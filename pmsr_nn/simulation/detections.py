@@ -82,10 +82,10 @@ class ClutterSpec:
 
 @dataclass
 class Scans:
-    """Detections of ``B`` runs over ``K`` scans from ``N`` sensors, padded to ``M`` per list.
+    """Detections of ``B`` runs over ``K`` scans from ``S`` sensors (pairs), padded to ``M`` per list.
 
-    ``z (B, K, N, M, d)`` measurements in the sensor's units (NaN where padded), ``valid (B, K, N, M)``,
-    ``origin (B, K, N, M)`` int64: index of the target that caused it, :data:`CLUTTER` or
+    ``z (B, K, S, M, m)`` measurements in the sensor's units (NaN where padded), ``valid (B, K, S, M)``,
+    ``origin (B, K, S, M)`` int64: index of the target that caused it, :data:`CLUTTER` or
     :data:`PADDING`. Valid detections come first in each list.
     """
 
@@ -95,15 +95,15 @@ class Scans:
 
     @property
     def shape(self) -> tuple[int, int, int, int]:
-        B, K, N, M = self.valid.shape
-        return B, K, N, M
+        B, K, S, M = self.valid.shape
+        return B, K, S, M
 
     def target_measurements(self, n_targets: int) -> torch.Tensor:
-        """The detection each target caused, ``(B, K, T, N, d)`` (NaN where missed): what a tracker
+        """The detection each target caused, ``(B, K, N, S, m)`` (NaN where missed): what a tracker
         that knew the true assignment would use."""
-        B, K, N, M = self.shape
-        d = self.z.shape[-1]
-        out = self.z.new_full((B, K, n_targets, N, d), float("nan"))
+        B, K, S, M = self.shape
+        m = self.z.shape[-1]
+        out = self.z.new_full((B, K, n_targets, S, m), float("nan"))
         b, k, s, i = torch.nonzero(self.origin >= 0, as_tuple=True)
         out[b, k, self.origin[b, k, s, i], s] = self.z[b, k, s, i]
         return out
@@ -118,8 +118,8 @@ def check_model_for_detections(model: MeasurementModel) -> None:
 
 def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clutter: ClutterSpec,
                    generator: torch.Generator | None = None, alive: torch.Tensor | None = None) -> Scans:
-    """Detections of targets ``truth (B, K, T, n)`` (SI states) by every sensor of ``model``;
-    ``alive (K, T)`` or ``(B, K, T)`` (default: all) says which targets exist at each scan (a
+    """Detections of targets ``truth (B, K, N, n)`` (SI states) by every sensor of ``model``;
+    ``alive (K, N)`` or ``(B, K, N)`` (default: all) says which targets exist at each scan (a
     target that does not is never detected; its states may be NaN).
 
     All draws for all runs at once, from ``generator``: detection (``pd``), measurement noise
@@ -132,34 +132,34 @@ def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clut
     require(0.0 <= pd <= 1.0, f"pd must be in [0, 1], got {pd}")
     if truth.dim() != 4:
         raise ConfigError(f"truth must be (runs, scans, targets, state), got shape {tuple(truth.shape)}")
-    B, K, T, _ = truth.shape
-    N, d = model.n_pairs, len(model.components)
+    B, K, N, _ = truth.shape
+    S, m = model.n_pairs, len(model.components)
     dtype, device = truth.dtype, truth.device
-    clean = model.h(truth).reshape(B, K, T, N, d)
+    clean = model.h(truth).reshape(B, K, N, S, m)
     noisy = clean + standard_normal(clean.shape, generator, dtype, device) * torch.tensor(model.noise_std, dtype=dtype, device=device)
     if "azimuth" in model.components:
         angles = torch.tensor([c == "azimuth" for c in model.components], device=device)
         noisy = torch.where(angles, wrap_angle(noisy), noisy)
-    detected = torch.rand((B, K, T, N), generator=generator, dtype=dtype, device=device) < pd
+    detected = torch.rand((B, K, N, S), generator=generator, dtype=dtype, device=device) < pd
     if alive is not None:
-        detected = detected & alive.to(device).expand(B, K, T).unsqueeze(-1)
-    target_z = noisy.permute(0, 1, 3, 2, 4)  # (B, K, N, T, d)
+        detected = detected & alive.to(device).expand(B, K, N).unsqueeze(-1)
+    target_z = noisy.permute(0, 1, 3, 2, 4)  # (B, K, S, N, m)
     target_ok = detected.permute(0, 1, 3, 2)
 
     if clutter.model == "fixed":
-        counts = torch.full((B, K, N), int(clutter.per_scan), dtype=torch.int64, device=device)
+        counts = torch.full((B, K, S), int(clutter.per_scan), dtype=torch.int64, device=device)
     else:
-        rate = torch.full((B, K, N), float(clutter.per_scan), dtype=dtype, device=device)
+        rate = torch.full((B, K, S), float(clutter.per_scan), dtype=dtype, device=device)
         counts = torch.poisson(rate, generator=generator).to(torch.int64)
     C = int(counts.max()) if counts.numel() else 0
     lo, span = (torch.tensor(v, dtype=dtype, device=device) for v in clutter.box(model.components))
-    clutter_z = lo + span * torch.rand((B, K, N, C, d), generator=generator, dtype=dtype, device=device)
+    clutter_z = lo + span * torch.rand((B, K, S, C, m), generator=generator, dtype=dtype, device=device)
     clutter_ok = torch.arange(C, device=device) < counts.unsqueeze(-1)
 
     z = torch.cat([target_z, clutter_z], dim=3)
     valid = torch.cat([target_ok, clutter_ok], dim=3)
-    target_ids = torch.arange(T, device=device).expand(B, K, N, T)
-    origin = torch.cat([target_ids, torch.full((B, K, N, C), CLUTTER, dtype=torch.int64, device=device)], dim=3)
+    target_ids = torch.arange(N, device=device).expand(B, K, S, N)
+    origin = torch.cat([target_ids, torch.full((B, K, S, C), CLUTTER, dtype=torch.int64, device=device)], dim=3)
     z, valid, (origin,) = _shuffled(z, valid, (origin,), generator)
     return Scans(z, valid, origin.masked_fill(~valid, PADDING))
 
