@@ -207,7 +207,7 @@ def test_track_force_past_the_checks_warns_how_many_estimates_are_not_finite(tmp
 
 
 COMMANDS = ["simulate", "info", "train", "select", "track", "export", "export-onnx", "evaluate", "front-end", "methods",
-            "merge", "demo"]
+            "merge", "compare", "demo"]
 
 
 def test_every_command_is_listed_in_order_and_has_its_help(capsys):

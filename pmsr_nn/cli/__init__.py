@@ -15,7 +15,7 @@ import sys
 
 from .. import __version__
 from ..errors import Interrupted
-from . import demo, evaluate, export, front_end, info, methods, simulate, track, train
+from . import compare, demo, evaluate, export, front_end, info, methods, simulate, track, train
 from .common import Parser, describe_error, signal_name
 from .demo import DEMO_EXPECTED
 
@@ -23,7 +23,7 @@ __all__ = ["DEMO_EXPECTED", "build_parser", "describe_error", "main"]
 
 COMMANDS = (simulate.add_simulate, info.add_info, train.add_train, train.add_select, track.add_track,
             export.add_export, export.add_export_onnx, evaluate.add_evaluate, front_end.add_front_end,
-            methods.add_methods, evaluate.add_merge, demo.add_demo)
+            methods.add_methods, evaluate.add_merge, compare.add_compare, demo.add_demo)
 """Each adds one sub-command (its parser, with ``run`` = its ``cmd_*`` function), in the order of ``pmsr --help``."""
 
 

@@ -42,7 +42,8 @@ from typing import Callable
 
 from .sandbox import RECIPE_YAML, SCENARIO_LEARNED_YAML, SCENARIO_YAML, TRAIN_YAML
 
-COMMANDS = ("simulate", "info", "train", "select", "track", "export", "evaluate", "merge", "demo", "front-end")
+COMMANDS = ("simulate", "info", "train", "select", "track", "export", "evaluate", "merge", "compare", "demo",
+            "front-end")
 DEFAULT_TIMEOUT = 60.0
 
 
@@ -1373,6 +1374,13 @@ case("merge/same-shard-via-symlink", "merge shard1 alias shard2 --out m", setup=
      message="alias", klass="refusal")
 case("merge/missing-shard", "merge shard1 --out m", message="blocks", klass="refusal")
 case("merge/shard-given-three-times", "merge shard1 shard2 shard2 --out m", message="shard2", klass="refusal")
+
+# compare (reads two results; writes nothing)
+case("compare/ok-same-results", "compare ev ev/results.json", "ok", klass="refusal")
+case("compare/missing", "compare ev nothing-here", message="no results.json", klass="refusal")
+case("compare/a-shard-is-not-results", "compare ev shard1", message="shard1", klass="refusal")
+case("compare/not-json", "compare ev z.csv", message="z.csv", klass="refusal")
+case("compare/threshold-zero", "compare ev ev --threshold 0", message="--threshold", klass="refusal")
 case("merge/not-a-shard", "merge shard1 user --out m", message="user", klass="refusal")
 case("merge/shard-folder-missing", "merge shard1 nope --out m", message="nope", klass="refusal")
 case("merge/full-result-not-a-shard", "merge ev --out m", message="ev", klass="refusal")
