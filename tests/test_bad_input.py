@@ -43,7 +43,7 @@ def test_the_catalogue_is_wide_and_distinct():
     plain = [(c.argv, c.signal) for c in CASES if c.setup is None]  # a setup makes its own input
     assert len(set(plain)) == len(plain)
     assert {c.command for c in CASES} == {"simulate", "info", "train", "select", "track", "export", "evaluate",
-                                          "merge", "demo", "front-end"}
+                                          "merge", "compare", "demo", "front-end"}
 
 
 @pytest.fixture(scope="session")
