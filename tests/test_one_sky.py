@@ -31,7 +31,8 @@ def test_sensors_detections_and_lives(setup):
     geometry = setup.geometry
     assert len(geometry.transmitters) == 2 and len(geometry.receivers) == 3 and len(geometry.pairs) == 6
     sc = setup.scenario
-    assert 0.8 <= sc.detections.pd <= 0.9 and sc.detections.clutter.per_scan > 0
+    # as the file states them (Pd inside the 0.8-0.9; clutter in every pair's list)
+    assert sc.detections.pd == 0.85 and sc.detections.clutter.per_scan == 10 and sc.detections.clutter.model == "fixed"
     case = setup.cases[0]
     assert len(case.targets) == 8
     births = case.alive.to(int).argmax(0)

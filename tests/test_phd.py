@@ -286,6 +286,7 @@ def test_the_kinds_run_through_the_runner_and_the_report_has_the_studys_figures(
     # one PHD run per block shared by the three PHD rows: the same integral, its seconds counted in each
     expected = case["curves"]["set"]["phd"]["phd_expected"]
     assert case["curves"]["set"]["g"]["phd_expected"] == expected == case["curves"]["set"]["h"]["phd_expected"]
+    # "> 0": the shared PHD time was recorded at all (two missing times, 0 == 0, would pass the equality)
     assert rows["g"]["phd_seconds_per_run"] == rows["phd"]["phd_seconds_per_run"] > 0
     assert rows["g"]["seconds_per_run"] >= rows["g"]["phd_seconds_per_run"]
     report = (tmp_path / "out" / "report.md").read_text()
@@ -392,6 +393,7 @@ def test_the_phd_runs_once_per_block_and_the_cache_changes_no_number(tmp_path):
     phd_pair._CACHE.clear()
     first = call_method(setup, g, case, products, (7, 0, 0))
     again = call_method(setup, h, case, products, (7, 0, 0))  # reads the PHD run of the call above
+    # the first call ran the PHD (its time recorded, "> 0"), the second read it and counts that same time
     assert first.extras["shared_seconds"] == 0.0 and again.extras["shared_seconds"] == first.extras["phd_seconds"] > 0
     assert again.extras["phd_expected"] is first.extras["phd_expected"]
     phd_pair._CACHE.clear()

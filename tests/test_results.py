@@ -25,7 +25,8 @@ def designed_row(rmse=10.9, bound=12.34, ratio=0.80, se=0.05, below=True, floor=
 
 
 def designed(**row) -> dict:
-    """A designed scenario's results with one case and one EKF row (as ``finalise`` writes them)."""
+    """A designed scenario's results with one case and one EKF row (as ``finalise`` writes them;
+    made-up values)."""
     pcrb = {"pos_m": 12.34, "vel_mps": 0.3, "smoothing_pos_m": 11.0, "smoothing_vel_mps": 0.2, "q0_pos_m": 8.0,
             "q0_smoothing_pos_m": 7.0}
     return {"scenario": "s", "seed": 0, "mc_runs": 5,
@@ -39,10 +40,11 @@ def designed(**row) -> dict:
 
 def sampled() -> dict:
     """A multi-target study's results (``kind: multitarget`` written before the result kind), one
-    tracker and the PCRB row."""
+    tracker and the PCRB row; made-up values chosen to be told apart in the rendered text (no
+    measured or paper figure)."""
     row = {"kind": "s_msjpda", "causal": True, "initiation": "detections", "rmse_pos_m": 52.0, "rmse_vel_mps": 3.0,
            "anees": None, "seconds_per_run": 1.5, "rmse_pos_pooled_m": 55.0, "rmse_pos_all_scans_m": 60.0,
-           "runs": 4, "rmse_pos_per_target_m": [50.0, 54.0], "ospa_m": 120.0, "gospa_m": 150.0, "gospa_se_m": 12.25,
+           "runs": 4, "rmse_pos_per_target_m": [50.0, 54.0], "ospa_m": 120.0, "gospa_m": 150.0, "gospa_se_m": 13.25,
            "gospa_localisation_share": 0.5, "gospa_missed_share": 0.3, "gospa_false_share": 0.2,
            "cardinality_mean_abs_error": 0.25, "rmse_pos_assigned_per_target_m": [51.0, None],
            "label_switches_per_run": 0.5, "confirmed_tracks_per_target": 1.0, "false_tracks_per_run": 0.5,
@@ -87,7 +89,7 @@ def test_rows_are_typed_with_their_optional_parts():
     r = Results.from_dict(sampled())
     case = r.cases["c"]
     tracker, bound = case.methods["S-MSJPDA"], case.methods["PCRB"]
-    assert tracker.sets.gospa_se_m == 12.25 and tracker.tracks.fragmentations_per_run == 0.25
+    assert tracker.sets.gospa_se_m == 13.25 and tracker.tracks.fragmentations_per_run == 0.25
     assert tracker.bound is None and tracker.memory is None and tracker.space is None and tracker.tbd is None
     assert bound.sets is None and bound.tracks is None and bound.bound.which == "filtering" and not bound.below_bound
     assert case.study.pd == 0.9 and case.study.clutter_list == "sensor" and case.pcrb is None
@@ -143,7 +145,7 @@ def test_cells_carry_their_standard_error_where_the_results_hold_it():
     with_se["cases"]["c"]["methods"]["EKF"]["rmse_pos_se_m"] = 0.8
     assert summary_table(with_se, None, "", False)[2] == "| EKF | 10.90 ± 0.80 |"
     table = "\n".join(multi_target_tables(sampled(), None, "paper"))
-    assert "| 150.0 ± 12.2: 50 / 30 / 20 |" in table  # GOSPA and its standard error (12.25 to one decimal)
+    assert "| 150.0 ± 13.2: 50 / 30 / 20 |" in table  # GOSPA and its standard error (13.25 to one decimal)
     assert "| PCRB | filtering bound (association known) | 20.0 |" in table
 
 
