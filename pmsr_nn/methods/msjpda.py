@@ -29,6 +29,7 @@ from ..trackers.base import Estimates
 from ..trackers.fix_initiator import FixInitiator
 from ..trackers.spherical_initiator import SphericalInitiator
 from ..trackers.management import Confirmer, Deleter, Management
+from ..trackers.jpda import floored_clutter_density
 from ..trackers.msjpda import JPDASettings, managed_msjpda, msjpda, true_assignment_ukf
 from . import MethodCall, MethodKind, Option, register
 
@@ -38,9 +39,7 @@ ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
 def clutter_density(s) -> float:
     """Expected clutter per unit of one pair's measurement space (``SensorSetup`` ``s``), floored:
     a tracker needs a positive clutter density even where none was simulated."""
-    components = s.detection_model.components
-    clutter = s.pair_clutter()  # the clutter of each pair's list
-    return max(clutter.density_of(components), 1e-3 / clutter.volume_of(components))
+    return floored_clutter_density(s.pair_clutter(), s.detection_model.components)  # the clutter of each pair's list
 
 
 def settings(call: MethodCall) -> JPDASettings:

@@ -31,6 +31,12 @@ def miss_cost(pd: float) -> float:
     return -math.log(max(1.0 - pd, MIN_MISS_PROBABILITY))
 
 
+def floored_clutter_density(clutter, components) -> float:
+    """Expected clutter per unit of the measurement space of ``components`` (a ``ClutterSpec``),
+    floored at 1e-3 points per box: a tracker needs a positive density even where none is simulated."""
+    return max(clutter.density_of(components), 1e-3 / clutter.volume_of(components))
+
+
 def detection_costs(log_lik: np.ndarray, pd: float, density: float) -> np.ndarray:
     """``-log(Pd N / lambda)`` for each (track, detection) from ``log_lik (..., M)`` (``log N``)."""
     if pd <= 0.0:

@@ -43,6 +43,7 @@ from ..simulation.detections import Scans, check_model_for_detections
 from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood
 from .management import Management, TrackReport, TrackTable, parked_state
+from .learned_gain import Association, GainCorrection, pda_marginals
 from .jpda import assignment_matrix, candidate_marginals, detection_costs, miss_cost, single_sensor_marginals
 
 
@@ -114,20 +115,10 @@ def _expand(m: MeasurementMoments) -> MeasurementMoments:
     return MeasurementMoments(m.z.unsqueeze(-2), m.S.unsqueeze(-3), m.C.unsqueeze(-3))
 
 
-def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
-                 s: JPDASettings, gamma: float, active: torch.Tensor | None = None
-                 ) -> tuple[Gaussian, np.ndarray, torch.Tensor, np.ndarray, torch.Tensor]:
-    """One sensor's detections ``z (B, M, d)`` update tracks ``g`` ``(B, T, n)`` (Eqs. 15-21);
-    a track outside ``active (B, T)`` gates nothing (it is only predicted). Returns the
-    posterior, whether no detection was the likeliest association ``(B, T)``, the predicted
-    range deviation ``(B, T)``, the gates ``(B, T, M)`` and the summed likelihood ratio of the
-    gated detections to clutter ``(B, T)`` (what a track's existence is updated with)."""
-    mom = unscented_moments(g, sub, R)
-    nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d)
-    d2, log_lik = gaussian_log_likelihood(nu, mom.S)
-    gate = (d2 <= gamma) & valid.unsqueeze(1)
-    gated = (gate if active is None else gate & active.unsqueeze(-1)).numpy()
-    cost = np.where(gated, detection_costs(log_lik.numpy(), s.pd, s.clutter_density), np.inf)
+def _jpda_marginals(gated: np.ndarray, log_lik: np.ndarray, s: JPDASettings) -> np.ndarray:
+    """``alpha (B, T, M + 1)`` of one sensor: per run, the tracks' clusters and the m-best events
+    of each (Murty); column ``M`` the miss."""
+    cost = np.where(gated, detection_costs(log_lik, s.pd, s.clutter_density), np.inf)
     B, T, M = gated.shape
     alpha = np.zeros((B, T, M + 1))
     alpha[..., M] = 1.0  # a track that gates nothing missed
@@ -138,13 +129,45 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
             a = single_sensor_marginals(assignment_matrix(cost[b][np.ix_(cl, cols)], miss), s.m_best)
             alpha[b, cl, M] = a[:, -1]
             alpha[b][np.ix_(cl, cols)] = a[:, :-1]
+    return alpha
+
+
+def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
+                 s: JPDASettings, gamma: float, active: torch.Tensor | None = None,
+                 association: Association = "jpda", correction: GainCorrection | None = None, pair: int = 0
+                 ) -> tuple[Gaussian, np.ndarray, torch.Tensor, np.ndarray, torch.Tensor]:
+    """One sensor's detections ``z (B, M, d)`` update tracks ``g`` ``(B, T, n)`` (Eqs. 15-21);
+    a track outside ``active (B, T)`` gates nothing (it is only predicted). Returns the
+    posterior, whether no detection was the likeliest association ``(B, T)``, the predicted
+    range deviation ``(B, T)``, the gates ``(B, T, M)`` and the summed likelihood ratio of the
+    gated detections to clutter ``(B, T)`` (what a track's existence is updated with).
+
+    ``association``: ``jpda`` (the paper's m-best joint events) or ``pda`` (each track on its
+    own, :func:`~.learned_gain.pda_marginals`). ``correction`` (the hybrid tracker of
+    :mod:`.learned_gain`) adds its learned gain times the combined innovation of sensor ``pair``
+    to the posterior mean; the association weights are constants to it (no gradient)."""
+    mom = unscented_moments(g, sub, R)
+    nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d)
+    d2, log_lik = gaussian_log_likelihood(nu, mom.S)
+    gate = (d2 <= gamma) & valid.unsqueeze(1)
+    gate = gate if active is None else gate & active.unsqueeze(-1)
+    gated = gate.numpy()
+    M = gated.shape[-1]
+    if association == "pda":
+        w = pda_marginals(log_lik.detach(), gate, s.pd, s.clutter_density)
+    else:
+        w = torch.from_numpy(_jpda_marginals(gated, log_lik.detach().numpy(), s))
     post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), z.unsqueeze(1), _expand(mom), sub)
-    w = torch.from_numpy(alpha)
     x_all = torch.cat([post.x, g.x.unsqueeze(-2)], dim=-2)
     P_all = torch.cat([post.P, g.P.unsqueeze(-3)], dim=-3)
+    alpha = w.numpy()
     dummy = alpha[..., M] >= alpha[..., :M].max(-1, initial=0.0)
-    ratio = torch.where(torch.from_numpy(gated), log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
-    return _collapse(w, x_all, P_all), dummy, mom.S[..., 0, 0].sqrt(), gated, ratio / s.clutter_density
+    ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
+    out = _collapse(w, x_all, P_all)
+    if correction is not None:
+        nu_c = (w[..., :M, None] * torch.where(gate[..., None], nu, torch.zeros((), dtype=nu.dtype))).sum(-2)
+        out = Gaussian(out.x + correction.step(pair, nu_c, w[..., M], mom.S, active), out.P)
+    return out, dummy, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / s.clutter_density
 
 
 def _wrap(nu: torch.Tensor, model: MeasurementModel) -> torch.Tensor:
@@ -257,6 +280,15 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
             ratio / s.clutter_density)
 
 
+def _check_variant(architecture: str, association: str, correction) -> None:
+    if architecture not in ("sequential", "parallel"):
+        raise ConfigError(f"architecture must be 'sequential' or 'parallel', got {architecture!r}")
+    if association not in ("jpda", "pda"):
+        raise ConfigError(f"association must be 'jpda' or 'pda', got {association!r}")
+    if architecture == "parallel" and (association != "jpda" or correction is not None):
+        raise ConfigError("P-MSJPDA associates jointly over the sensors: no pda association or learned gain")
+
+
 def _births(active: torch.Tensor | None, B: int, K: int, T: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
     """``active`` as ``(B, K, T)`` and each track's first active scan ``(B, T)`` (K if never)."""
     if active is None:
@@ -270,7 +302,8 @@ def _births(active: torch.Tensor | None, B: int, K: int, T: int) -> tuple[torch.
 
 def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: float, model: MeasurementModel,
            R: torch.Tensor, settings: JPDASettings, architecture: Literal["sequential", "parallel"],
-           active: torch.Tensor | None = None) -> MultiTargetResult:
+           active: torch.Tensor | None = None, association: Association = "jpda",
+           correction: GainCorrection | None = None) -> MultiTargetResult:
     """Track ``T`` targets through ``scans`` (``B`` runs, ``K`` scans) from ``prior`` ``x (B, T, n)``.
 
     Step 0 is an update of the prior only (the convention of :mod:`pmsr_nn.filters.kalman`); every
@@ -281,12 +314,15 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
     life: a track is started from its ``prior`` at its first active scan (the prior is then the
     state at that scan), takes part in the association only while active, and is only predicted
     otherwise (its estimates there mean nothing).
+
+    ``association`` and ``correction`` (sequential only): see :func:`_sensor_step`.
     """
     check_tracker_inputs(scans, prior, motion, model)
-    if architecture not in ("sequential", "parallel"):
-        raise ConfigError(f"architecture must be 'sequential' or 'parallel', got {architecture!r}")
+    _check_variant(architecture, association, correction)
     B, K, N, M = scans.shape
     T, n = prior.x.shape[1:]
+    if correction is not None:
+        correction.start(B, T)
     active, first = _births(active, B, K, T)
     d = len(model.components)
     gamma = gate_threshold(settings.gate_probability, d)
@@ -310,7 +346,7 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
             flags, sds = [], []
             for j in range(N):
                 g, f, sd, _, _ = _sensor_step(g, scans.z[:, k, j], scans.valid[:, k, j], subs[j], R[rows[j]][:, rows[j]],
-                                           settings, gamma, act)
+                                              settings, gamma, act, association, correction, j)
                 flags.append(f)
                 sds.append(sd)
             dummy[:, k] = np.logical_and.reduce(flags)
@@ -325,7 +361,8 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
 
 def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
                    settings: JPDASettings, architecture: Literal["sequential", "parallel"],
-                   management: Management) -> TrackReport:
+                   management: Management, association: Association = "jpda",
+                   correction: GainCorrection | None = None) -> TrackReport:
     """S-/P-MSJPDA that start, confirm and delete their own tracks (:mod:`.management`).
 
     Every scan: predict the table's tracks, associate and update them as :func:`msjpda` does
@@ -334,8 +371,12 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
     confirm and delete, then start tentative tracks from the detections no track gated. Step 0
     has no prediction. Returns the confirmed tracks as reported at each scan (those whose
     existence is at least the management's ``report_existence``).
+
+    ``association`` and ``correction`` (sequential only): see :func:`_sensor_step`; a slot's
+    learned memory is cleared when its track is deleted.
     """
     check_scans(scans, model)
+    _check_variant(architecture, association, correction)
     B, K, N, M = scans.shape
     management.check(model, f"{architecture} MSJPDA")
     n, dtype = motion.dim_x, scans.z.dtype
@@ -346,6 +387,8 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
     table = TrackTable.empty(B, n, parked_state(model, n, dtype))
     report = TrackReport.empty(B, K, n, dtype)
     pos = list(motion.pos_idx)
+    if correction is not None:
+        correction.start(B, table.g.x.shape[1])
     for k in range(K):
         if k > 0:
             table.g = predict(table.g, F, Q)
@@ -358,7 +401,8 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
             detected = torch.zeros(act.shape, dtype=torch.int64)
             for j in range(N):
                 table.g, missed, _, gated, ratio = _sensor_step(table.g, scans.z[:, k, j], scans.valid[:, k, j], subs[j],
-                                                                R[rows[j]][:, rows[j]], settings, gamma, act)
+                                                                R[rows[j]][:, rows[j]], settings, gamma, act,
+                                                                association, correction, j)
                 detected += torch.from_numpy(~missed) & act
                 used[:, j] = gated.any(1)
                 table.update_existence(ratio, pd_pg)
@@ -371,6 +415,8 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
                 table.update_existence(ratio[..., j], pd_pg)
         table.record(detected, management.hit_pairs)
         table.manage(management.confirmer, management.deleter, pos)
+        if correction is not None:
+            correction.forget(~table.active)
         unused = scans.valid[:, k] & ~torch.from_numpy(used)
         if bool(unused.any()):
             table.add(*management.initiator.initiate(scans.z[:, k], unused, model, n, management.other_sd),
