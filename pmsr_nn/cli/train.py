@@ -57,6 +57,8 @@ def cmd_train(args) -> int:
     config, overrides = split_overrides(args.config, args.overrides)
     if config is None and not args.resume:
         raise PmsrError("give a training config (e.g. train/smoke.yaml), or --resume an existing run")
+    if config is not None and _is_gain_config(config):
+        return _train_gain(config, overrides, args)
     cfg = load_train_config(config, overrides) if config is not None else None
     if args.resume and cfg is None and overrides:
         raise PmsrError("overrides need the config they apply to; a resumed run keeps its own config")
@@ -81,3 +83,23 @@ def cmd_select(args) -> int:
     print(result["table"])
     print(f"\nbest      member {result['best']} -> {args.out / 'best.pt'}")
     return 0
+
+
+def _is_gain_config(config: str) -> bool:
+    from pathlib import Path
+
+    from ..nets.jpda_training import is_gain_config
+
+    return Path(config).is_file() and is_gain_config(config)
+
+
+def _train_gain(config: str, overrides: list[str], args) -> int:
+    """A ``kind: jpda_gain`` config: the hybrid tracker on detections (:mod:`pmsr_nn.nets.jpda_training`)."""
+    from ..nets.jpda_training import load_gain_config, train_gain
+
+    if args.resume:
+        raise PmsrError("a jpda_gain run can not be resumed (its steps draw fresh scenes; a run takes minutes): "
+                        "train it again into a new --out")
+    m = train_gain(load_gain_config(config, overrides), args.out)
+    print(f"tracker   {args.out / 'tracker.pt'}   (tensorboard --logdir {args.out / 'tb'})")
+    return 0 if m["steps"] > 0 else 1

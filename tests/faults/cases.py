@@ -859,6 +859,20 @@ case("train/sigterm-after-checkpoint", "train train_long.yaml --out run_sig", si
      signal_after=("run_sig/checkpoints/last.ckpt",), outputs=("run_sig",), timeout=90,
      klass="traceback")
 
+# the hybrid tracker on detections (kind: jpda_gain): refused before anything is written
+GAIN_YAML = "kind: jpda_gain\nrecipe: r.yaml\nscenes: {window: 20, targets: [2, 2]}\noptim: {steps: 2, batch_size: 2}\n"
+GAIN = steps(write("r.yaml", RECIPE_YAML), write("g.yaml", GAIN_YAML))
+case("train/jpda-gain-resume", "train g.yaml --resume --out run3", setup=GAIN, message="can not be resumed",
+     klass="refusal")
+case("train/jpda-gain-pd-out-of-range", "train g.yaml scenes.pd=[0.5,1.5] --out run3", setup=GAIN,
+     message="scenes.pd must lie in (0, 1]", klass="refusal")
+case("train/jpda-gain-unknown-key", "train g.yaml optim.stepz=3 --out run3", setup=GAIN, message="unknown key 'stepz'",
+     klass="refusal")
+case("train/jpda-gain-recipe-missing", "train g.yaml recipe=nope.yaml --out run3", setup=GAIN, message="nope.yaml",
+     klass="refusal")
+case("train/jpda-gain-out-user", "train g.yaml --out user", setup=GAIN,
+     message="holds files that are not a training run", klass="data_loss")
+
 # ---------------------------------------------------------------------------------------------
 # select
 # ---------------------------------------------------------------------------------------------

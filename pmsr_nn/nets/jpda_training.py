@@ -1,0 +1,302 @@
+"""``pmsr train`` for the hybrid tracker on detections (a config with ``kind: jpda_gain``).
+
+The learned gain correction of :mod:`pmsr_nn.trackers.learned_gain` is trained inside the tracker
+it serves: S-MSJPDA with JPDA association, its tracks handed their targets' starts (the oracle
+initiator: training teaches the gain, not the track management), on scenes drawn on the fly
+(:func:`pmsr_nn.simulation.scenes.draw_scenes`: formations, crossings, independent tracks) with
+detections from the package's simulator at a Pd and clutter count drawn per batch from the
+config's ranges. No dataset on disk: step ``i`` draws from the seed ``(seed, i)``, so a run is
+reproducible and never reads the same scene twice; validation reads fixed scenes of its own seed.
+
+Loss: the Huber loss of each track's position error in units of ``loss_scale_m`` (quadratic
+below ``huber_delta`` of them, linear beyond: a track the association lost does not drown the
+rest), from scan ``skip_scans`` on. The association weights are constants (no gradient runs
+through Murty's assignment); gradients run through the gain, the UKF moments and the means.
+
+Run folder: ``config.yaml``, ``tb/`` (TensorBoard), ``checkpoints/last.ckpt`` and ``best.ckpt``
+(Lightning's, read with ``weights_only``), ``tracker.pt`` (the best weights as a
+:mod:`.jpda_gain` checkpoint, what ``kind: jpda_learned_gain`` reads) and ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from ..config import check_interval, from_dict, load_yaml, require, to_dict
+from ..errors import ConfigError
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """What the training scenes are (:func:`~pmsr_nn.simulation.scenes.draw_scenes`): ``window`` scans,
+    ``targets`` (fewest, most) per scene, the chances of a formation mate and a crossing target,
+    ``pd`` and ``clutter_per_scan`` ranges (per batch; clutter per pair and scan, uniform over the
+    box below), and the detections' noise deviations."""
+
+    window: int = 60
+    targets: tuple[int, int] = (2, 4)
+    formation: float = 0.35
+    crossing: float = 0.35
+    pd: tuple[float, float] = (0.7, 0.95)
+    clutter_per_scan: tuple[int, int] = (10, 50)
+    range_m: tuple[float, float] = (0.0, 25000.0)
+    range_rate_mps: tuple[float, float] = (-40.0, 40.0)
+    noise: dict = field(default_factory=lambda: {"range_m": 30.0, "range_rate_mps": 2.0, "azimuth_deg": 3.0})
+
+    def __post_init__(self) -> None:
+        require(self.window >= 5, f"scenes.window must be at least 5 scans, got {self.window}")
+        require(1 <= self.targets[0] <= self.targets[1] <= 20, f"scenes.targets must be 1 <= fewest <= most <= 20, "
+                                                                f"got {self.targets}")
+        require(0.0 < self.pd[0] <= self.pd[1] <= 1.0, f"scenes.pd must lie in (0, 1], got {self.pd}")
+        require(0 <= self.clutter_per_scan[0] <= self.clutter_per_scan[1], "scenes.clutter_per_scan must be "
+                                                                             "0 <= fewest <= most")
+        check_interval("scenes.range_m", self.range_m, nonneg=True)
+        check_interval("scenes.range_rate_mps", self.range_rate_mps)
+        require(set(self.noise) == {"range_m", "range_rate_mps", "azimuth_deg"} and all(
+            isinstance(v, (int, float)) and v > 0 for v in self.noise.values()),
+            "scenes.noise needs positive range_m, range_rate_mps and azimuth_deg")
+
+
+@dataclass(frozen=True)
+class GainModelConfig:
+    hidden: int = 32
+    gain_scale: float = 0.1
+
+    def __post_init__(self) -> None:
+        require(1 <= self.hidden <= 4096, f"model.hidden must be in [1, 4096], got {self.hidden}")
+        require(0 < self.gain_scale <= 10, f"model.gain_scale must be in (0, 10], got {self.gain_scale}")
+
+
+@dataclass(frozen=True)
+class GainOptimConfig:
+    """``steps`` optimiser steps of ``batch_size`` scenes; validation every ``val_every`` steps on
+    ``val_scenes`` fixed scenes; the loss (module docstring)."""
+
+    lr: float = 1.0e-3
+    batch_size: int = 16
+    steps: int = 300
+    val_every: int = 50
+    val_scenes: int = 32
+    loss_scale_m: float = 30.0
+    huber_delta: float = 3.0
+    skip_scans: int = 3
+    gradient_clip_val: float = 1.0
+    max_time_minutes: float | None = None
+
+    def __post_init__(self) -> None:
+        require(self.lr > 0 and self.batch_size >= 1 and self.steps >= 1 and self.val_every >= 1
+                and self.val_scenes >= 1, "optim: lr, batch_size, steps, val_every and val_scenes must be positive")
+        require(self.loss_scale_m > 0 and self.huber_delta > 0 and self.skip_scans >= 0, "optim: loss_scale_m and "
+                "huber_delta must be positive, skip_scans >= 0")
+
+
+@dataclass(frozen=True)
+class GainTrainConfig:
+    """A ``kind: jpda_gain`` training config (``train/jpda_gain.yaml``)."""
+
+    kind: str
+    name: str = "jpda_gain"
+    seed: int = 0
+    recipe: str = "../datasets/fitee2023_ca.yaml"
+    threads: int | None = None
+    m_best: int = 10
+    gate_probability: float = 0.999
+    scenes: SceneConfig = SceneConfig()
+    model: GainModelConfig = GainModelConfig()
+    optim: GainOptimConfig = GainOptimConfig()
+
+    def __post_init__(self) -> None:
+        require(self.kind == "jpda_gain", f"kind must be jpda_gain, got {self.kind!r}")
+        require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
+        require(self.threads is None or self.threads >= 1, f"threads must be at least 1, got {self.threads}")
+
+
+def is_gain_config(path) -> bool:
+    """Whether the YAML at ``path`` is a ``kind: jpda_gain`` training config."""
+    raw = load_yaml(path)
+    return isinstance(raw, dict) and raw.get("kind") == "jpda_gain"
+
+
+def load_gain_config(path, overrides=()) -> GainTrainConfig:
+    from .train_config import apply_overrides
+
+    raw = apply_overrides(load_yaml(path), list(overrides))
+    cfg = from_dict(GainTrainConfig, raw, where="train config")
+    recipe = Path(cfg.recipe)
+    if not recipe.is_absolute():
+        recipe = Path(path).parent / recipe
+    if not recipe.is_file():
+        raise ConfigError(f"train config: recipe {cfg.recipe} not found (looked at {recipe})")
+    from dataclasses import replace
+
+    return replace(cfg, recipe=str(recipe))
+
+
+class Problem:
+    """What training and validation share: the recipe, the sensors, the motion and the tracker
+    settings of a config."""
+
+    def __init__(self, cfg: GainTrainConfig):
+        from ..measurements import MeasurementModel
+        from ..simulation.recipe import load_recipe
+        from ..simulation.tracks import build_models
+
+        self.cfg = cfg
+        self.recipe = load_recipe(cfg.recipe)
+        self.motion, stream = build_models(self.recipe)
+        n = cfg.scenes.noise
+        self.noise_std = (n["range_m"], n["range_rate_mps"], math.radians(n["azimuth_deg"]))
+        self.model = MeasurementModel(stream.geometry, ("range", "range_rate", "azimuth"), self.noise_std,
+                                      self.motion.pos_idx, self.motion.vel_idx, layout="pair")
+        self.dt = self.recipe.motion.dt_s
+        self.q = self.recipe.effective_motion().q_psd
+        self.prior_sd = self.recipe.initiation_prior_sd()
+
+    def draw(self, seed: tuple[int, ...], B: int):
+        """``(scans, prior, truth, settings)`` of ``B`` scenes from the seed ``seed``."""
+        from ..filters.gaussian import Gaussian
+        from ..rng import seeded_generator
+        from ..simulation.detections import ClutterSpec, simulate_scans
+        from ..simulation.scenes import draw_scenes
+        from ..trackers.jpda import floored_clutter_density
+        from ..trackers.msjpda import JPDASettings
+
+        s = self.cfg.scenes
+        g = seeded_generator(*seed)
+        N = int(torch.randint(s.targets[0], s.targets[1] + 1, (1,), generator=g))
+        pd = s.pd[0] + (s.pd[1] - s.pd[0]) * float(torch.rand(1, generator=g, dtype=torch.float64))
+        per_scan = int(torch.randint(s.clutter_per_scan[0], s.clutter_per_scan[1] + 1, (1,), generator=g))
+        truth = draw_scenes(self.recipe, self.model.geometry, B, N, s.window, g, s.formation, s.crossing)
+        clutter = ClutterSpec(per_scan=per_scan, range_m=s.range_m, range_rate_mps=s.range_rate_mps)
+        scans = simulate_scans(truth, self.model, pd, clutter, g)
+        x0 = truth[:, 0] + torch.randn(truth[:, 0].shape, generator=g, dtype=torch.float64) * self.prior_sd
+        prior = Gaussian(x0, torch.diag(self.prior_sd**2).expand(B, N, -1, -1))
+        settings = JPDASettings(pd, floored_clutter_density(clutter, self.model.components), self.cfg.m_best,
+                                self.cfg.gate_probability)
+        return scans, prior, truth, settings
+
+    def track(self, net, scans, prior, settings):
+        """Tracks ``(B, K, N, n)`` of the hybrid (``net`` None: plain S-MSJPDA)."""
+        from ..trackers.learned_gain import GainCorrection
+        from ..trackers.msjpda import msjpda
+
+        corr = None if net is None else GainCorrection(net, torch.tensor(self.noise_std, dtype=torch.float64),
+                                                       self.prior_sd)
+        return msjpda(scans, prior, self.motion, self.dt, self.q, self.model, self.model.R(), settings, "sequential",
+                      correction=corr).x
+
+    def position_error(self, x: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+        pos = list(self.motion.pos_idx)
+        return (x[..., pos] - truth[..., pos]).norm(dim=-1)[:, self.cfg.optim.skip_scans:]  # (B, K', N)
+
+
+def _loss(err: torch.Tensor, o: GainOptimConfig) -> torch.Tensor:
+    return torch.nn.functional.huber_loss(err / o.loss_scale_m, torch.zeros_like(err), delta=o.huber_delta)
+
+
+def make_module(cfg: GainTrainConfig, problem: Problem):
+    import lightning.pytorch as pl
+
+    from .jpda_gain import GainNet
+
+    class GainModule(pl.LightningModule):
+        def __init__(self):
+            super().__init__()
+            self.net = GainNet(problem.model.n_pairs, len(problem.model.components), problem.motion.dim_x,
+                               cfg.model.hidden, cfg.model.gain_scale)
+
+        def training_step(self, step, _):
+            scans, prior, truth, settings = problem.draw((cfg.seed, int(step)), cfg.optim.batch_size)
+            loss = _loss(problem.position_error(problem.track(self.net, scans, prior, settings), truth), cfg.optim)
+            self.log("train/loss", loss, prog_bar=False, batch_size=cfg.optim.batch_size)
+            return loss
+
+        def validation_step(self, i, _):
+            scans, prior, truth, settings = problem.draw((cfg.seed, 1_000_000, int(i)), cfg.optim.batch_size)
+            err = problem.position_error(problem.track(self.net, scans, prior, settings), truth)
+            self.log("val/loss", _loss(err, cfg.optim), batch_size=cfg.optim.batch_size)
+            self.log("val/pos_rmse_m", err.square().mean().sqrt(), batch_size=cfg.optim.batch_size)
+
+        def configure_optimizers(self):
+            return torch.optim.Adam(self.net.parameters(), lr=cfg.optim.lr)
+
+    return GainModule()
+
+
+def baseline_validation(cfg: GainTrainConfig, problem: Problem) -> dict:
+    """The plain S-MSJPDA's loss and RMSE on the validation scenes (what training must beat)."""
+    losses, sq, count = [], 0.0, 0
+    for i in range(_val_batches(cfg)):
+        scans, prior, truth, settings = problem.draw((cfg.seed, 1_000_000, i), cfg.optim.batch_size)
+        err = problem.position_error(problem.track(None, scans, prior, settings), truth)
+        losses.append(float(_loss(err, cfg.optim)))
+        sq, count = sq + float(err.square().sum()), count + err.numel()
+    return {"loss": sum(losses) / len(losses), "pos_rmse_m": math.sqrt(sq / count)}
+
+
+def _val_batches(cfg: GainTrainConfig) -> int:
+    return max(1, math.ceil(cfg.optim.val_scenes / cfg.optim.batch_size))
+
+
+def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> dict:
+    """Train ``cfg`` into the new run folder ``out``; returns the metrics (also in metrics.json)."""
+    import lightning.pytorch as pl
+    import yaml
+    from lightning.pytorch.callbacks import ModelCheckpoint
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    from ..outputs import write_marker
+    from .jpda_gain import gain_metadata, save_gain_checkpoint
+    from .progress import quiet_lightning
+    from .training import _check_run_folder
+
+    out = Path(out)
+    _check_run_folder(out, resume=False, inputs=[Path(cfg.recipe)])
+    if cfg.threads is not None:
+        torch.set_num_threads(cfg.threads)
+    problem = Problem(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    write_marker(out, "train", state="running")
+    (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
+    base = baseline_validation(cfg, problem)
+    if progress:
+        print(f"S-MSJPDA alone on the validation scenes: loss {base['loss']:.4f}, position RMSE {base['pos_rmse_m']:.2f} m",
+              flush=True)
+    pl.seed_everything(cfg.seed, verbose=False)
+    module = make_module(cfg, problem)
+    ckpt = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="val/loss", mode="min", save_last=True)
+    o = cfg.optim
+    with quiet_lightning(True):
+        trainer = pl.Trainer(max_steps=o.steps, max_epochs=1, val_check_interval=o.val_every, accelerator="cpu",
+                             logger=TensorBoardLogger(out, name="tb", version=""), callbacks=[ckpt],
+                             gradient_clip_val=o.gradient_clip_val, enable_progress_bar=False,
+                             enable_model_summary=False, num_sanity_val_steps=0,
+                             max_time=None if o.max_time_minutes is None else {"minutes": o.max_time_minutes})
+        steps = torch.utils.data.DataLoader(list(range(o.steps)), batch_size=None)
+        val = torch.utils.data.DataLoader(list(range(_val_batches(cfg))), batch_size=None)
+        t0 = time.perf_counter()
+        trainer.fit(module, steps, val)
+    seconds = time.perf_counter() - t0
+    best = torch.load(ckpt.best_model_path, map_location="cpu", weights_only=True) if ckpt.best_model_path else None
+    if best is not None:
+        module.load_state_dict(best["state_dict"])
+    geometry = problem.model.geometry.to_dict()
+    meta = gain_metadata(geometry, list(problem.model.components), list(problem.noise_std), problem.dt, module.net,
+                         problem.prior_sd.tolist(), seed=cfg.seed, steps=int(trainer.global_step), config=to_dict(cfg))
+    save_gain_checkpoint(out / "tracker.pt", meta, module.net)
+    final = {k: float(v) for k, v in trainer.callback_metrics.items()}
+    metrics = {"steps": int(trainer.global_step), "fit_seconds": seconds, "baseline_val": base,
+               "best_val_loss": float(ckpt.best_model_score) if ckpt.best_model_score is not None else None,
+               "last": final, "machine_threads": torch.get_num_threads()}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_marker(out, "train", state="done")
+    if progress:
+        print(f"trained   {metrics['steps']} steps in {seconds:.0f} s; best validation loss {metrics['best_val_loss']} "
+              f"(S-MSJPDA alone {base['loss']:.4f})", flush=True)
+    return metrics
