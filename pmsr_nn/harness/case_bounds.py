@@ -57,7 +57,8 @@ def memory_bounds(x: torch.Tensor, alive: torch.Tensor, methods, resources: dict
     out, cache = {}, {}
     m = models
     for spec in methods:
-        if not method_kind(spec.kind).needs_checkpoint or not causal[spec.name]:
+        kind = method_kind(spec.kind)
+        if not (kind.needs_checkpoint and kind.reads == "measurements") or not causal[spec.name]:
             continue
         t = resources[spec.name]
         stride = spec.option("stride")

@@ -229,7 +229,9 @@ def _bound_fields(setup: Setup, spec: MethodSpec, case: Case, mse: np.ndarray, r
                     "bound_q0_pos_m": floor, "mse_over_q0_bound": ratio0, "mse_over_q0_bound_se": se0,
                     "below_q0_bound": below0})
     res = setup.resources[spec.name]
-    if setup.kinds[spec.name].needs_checkpoint:
+    if setup.kinds[spec.name].needs_checkpoint and setup.kinds[spec.name].reads != "measurements":
+        out.update({"checkpoint": res.source, "model": res.meta["format"]})  # a learned tracker on detections
+    elif setup.kinds[spec.name].needs_checkpoint:
         out.update({"checkpoint": res.source, "model": res.meta["model"]["kind"], "window": res.window})
         if spec.name in case.memory_bounds:
             scans, curve = case.memory_bounds[spec.name]

@@ -33,12 +33,15 @@ from .tuning import tune
 
 
 class LoadContext:
-    """What a method kind's ``load`` may read: paths, device, the scenario's geometry and labels."""
+    """What a method kind's ``load`` may read: paths, device, the scenario's geometry and labels,
+    and the detections' measurement model (None where the scenario makes no detections)."""
 
-    def __init__(self, sc: Scenario, recipe: TrackRecipe, model: MeasurementModel, device: str):
+    def __init__(self, sc: Scenario, recipe: TrackRecipe, model: MeasurementModel, device: str,
+                 detection_model: MeasurementModel | None = None):
         self.path, self.device = sc.path, device
         self.geometry = recipe.geometry.build(2).to_dict()
         self.labels, self.dt = list(model.labels), recipe.motion.dt_s
+        self.detection_model = detection_model
         self.where = f"scenario {sc.name!r}"
 
 
@@ -143,7 +146,7 @@ def prepare_designed(sc: Scenario, device: str = "cpu") -> Setup:
     models, detection_model = _models(sc, recipe)
     prior_sd = recipe.initiation_prior_sd()
     kinds = {m.name: method_kind(m.kind) for m in sc.methods}
-    context = LoadContext(sc, recipe, models.model, device)
+    context = LoadContext(sc, recipe, models.model, device, detection_model)
     resources = {m.name: kinds[m.name].load(m, context) if kinds[m.name].load else None for m in sc.methods}
     causal = {m.name: bool(kinds[m.name].causal(resources[m.name])) for m in sc.methods}
     det = sc.detections

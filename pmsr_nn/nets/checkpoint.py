@@ -120,6 +120,9 @@ def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
         raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): {first}") from None
     meta = blob.get("pmsr") if isinstance(blob, dict) else None
+    if isinstance(meta, dict) and meta.get("format") == "pmsr_nn.jpda_gain":
+        raise CheckpointError(f"{path} is the learned gain of the hybrid tracker on detections (kind jpda_learned_gain "
+                              "of a scenario); this command reads trackers of clean measurement streams")
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a pmsr_nn tracker checkpoint (no 'pmsr' block)")
     if meta.get("format_version") != FORMAT_VERSION:

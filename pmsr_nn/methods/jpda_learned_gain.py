@@ -1,0 +1,61 @@
+"""The hybrid tracker on detections: S-MSJPDA with a learned gain correction
+(:mod:`pmsr_nn.trackers.learned_gain`), from a checkpoint of ``pmsr train`` with a
+``kind: jpda_gain`` config (``train/jpda_gain.yaml``).
+
+Everything but the gain is S-MSJPDA's, options included: the JPDA settings, and ``initiation``
+``oracle`` (handed each target's birth, a reference row) or ``detections`` (the shared track
+management). ``association: pda`` treats each track on its own (no joint events; faster, but
+tracks that share detections coalesce).
+"""
+
+from __future__ import annotations
+
+from ..errors import ConfigError
+from ..trackers.base import Estimates
+from ..trackers.learned_gain import GainCorrection
+from ..trackers.msjpda import managed_msjpda, msjpda
+from . import MethodCall, MethodKind, Option, register
+from .msjpda import OPTIONS, check_initiation, management, settings
+
+
+def _load(spec, context):
+    """The checkpoint, checked against the scenario's sensors before anything is written."""
+    from ..nets.jpda_gain import check_gain_compatible, load_gain_checkpoint
+
+    where = f"method {spec.name!r}"
+    det = context.detection_model
+    if det is None:
+        raise ConfigError(f"{where}: kind jpda_learned_gain reads detections; the scenario makes none "
+                          "(add a detections section)")
+    ck = load_gain_checkpoint(context.path(spec.checkpoint))
+    check_gain_compatible(ck, context.geometry, det.components, det.noise_std, context.dt, len(ck.s_x), where)
+    return ck
+
+
+def run_learned_gain(call: MethodCall) -> Estimates:
+    m, s, det, ck = call.models, call.sensing, call.product, call.resource
+    if m.motion.dim_x != len(ck.s_x):
+        raise ConfigError(f"method {call.spec.name!r}: the checkpoint's state has {len(ck.s_x)} entries, the "
+                          f"scenario's {m.motion.dim_x}")
+    corr = GainCorrection(ck.net, ck.s_z, ck.s_x)
+    assoc = call.spec.option("association")
+    R = s.detection_model.R()
+    import torch
+
+    with torch.no_grad():
+        if call.spec.option("initiation") == "detections":
+            rep = managed_msjpda(det.scans, m.motion, m.dt, m.q, s.detection_model, R, settings(call), "sequential",
+                                 management(call.spec, s), assoc, corr)
+            return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
+        active = None if bool(call.alive.all()) else call.alive
+        res = msjpda(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, R, settings(call), "sequential",
+                     active, assoc, corr)
+    B, K, N = res.dummy_most_probable.shape
+    return Estimates(res.x, call.alive.expand(B, K, N), res.P)
+
+
+register(MethodKind("jpda_learned_gain", "detections", run_learned_gain,
+                    {**OPTIONS, "association": Option("jpda", str, choices=("jpda", "pda"))},
+                    needs_checkpoint=True, load=_load, check_sensing=check_initiation,
+                    description="S-MSJPDA with a learned correction of its gain (pmsr train train/jpda_gain.yaml); "
+                                "initiation: oracle or detections"))

@@ -1,0 +1,396 @@
+"""The hybrid tracker on detections (pmsr_nn.trackers.learned_gain, pmsr_nn.nets.jpda_gain): with
+a zero correction it is S-MSJPDA; its PDA update against the textbook formulas on moments from
+filterpy's unscented transform; the correction is the learned gain times the combined
+innovation; the training scenes; the checkpoint and its refusals."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from filterpy.kalman import MerweScaledSigmaPoints, unscented_transform
+
+from pmsr_nn.errors import CheckpointError, ConfigError
+from pmsr_nn.filters.gaussian import Gaussian
+from pmsr_nn.geometry import Geometry, Receiver, Transmitter
+from pmsr_nn.measurements import MeasurementModel
+from pmsr_nn.motion import ConstantAcceleration
+from pmsr_nn.nets.jpda_gain import (GainNet, check_gain_compatible, gain_metadata, load_gain_checkpoint,
+                                    save_gain_checkpoint)
+from pmsr_nn.rng import seeded_generator
+from pmsr_nn.simulation.detections import ClutterSpec, Scans, simulate_scans
+from pmsr_nn.trackers.learned_gain import GainCorrection, pda_marginals
+from pmsr_nn.trackers.management import Confirmer, Deleter, FixInitiator, Management
+from pmsr_nn.trackers.msjpda import JPDASettings, managed_msjpda, msjpda
+
+NOISE = (30.0, 2.0, math.radians(3.0))
+S_Z = torch.tensor(NOISE, dtype=torch.float64)
+S_X = torch.tensor([100.0, 5.0, 0.1] * 2, dtype=torch.float64)
+MOTION = ConstantAcceleration(spatial_dim=2)
+
+
+def geometry() -> Geometry:
+    return Geometry.all_pairs([Transmitter((0.0, 0.0), 650e6)],
+                              [Receiver((-7000.0, -3000.0)), Receiver((-8000.0, 500.0)), Receiver((-7500.0, 4000.0))])
+
+
+def model(components=("range", "range_rate", "azimuth"), noise=NOISE) -> MeasurementModel:
+    return MeasurementModel(geometry(), components, noise, (0, 3), (1, 4), layout="pair")
+
+
+def two_drones(B: int = 3, K: int = 30, apart_m: float = 300.0) -> torch.Tensor:
+    x0 = torch.tensor([[3000.0, 8.0, 0.0, 6000.0, -5.0, 0.0], [3000.0 + apart_m, 8.0, 0.0, 6100.0, -5.0, 0.0]],
+                      dtype=torch.float64)
+    F = MOTION.F(1.0, torch.float64)
+    return torch.stack([x0 @ torch.linalg.matrix_power(F, k).T for k in range(K)])[None].expand(B, K, 2, 6).contiguous()
+
+
+def scene(pd=0.8, clutter=15):
+    truth = two_drones()
+    m = model()
+    scans = simulate_scans(truth, m, pd, ClutterSpec(per_scan=clutter, range_m=(0, 25000), range_rate_mps=(-40, 40)),
+                           seeded_generator(3))
+    density = clutter / (25000 * 80 * 2 * math.pi)
+    return truth, m, scans, JPDASettings(pd, density)
+
+
+def management() -> Management:
+    return Management(FixInitiator(20.0, 2, 0.999), Confirmer(2, 3), Deleter(2), S_X)
+
+
+class ConstantGain(torch.nn.Module):
+    """A stand-in network: ``G`` constant, memory counting the steps."""
+
+    hidden_size, n_pairs = 1, 3
+
+    def __init__(self, G: torch.Tensor):
+        super().__init__()
+        self.G = G
+
+    def forward(self, features, memory):
+        return self.G.expand(len(features), *self.G.shape), memory + 1
+
+
+# -- an untrained hybrid is S-MSJPDA ----------------------------------------------------------------
+
+@pytest.mark.parametrize("association", ["jpda", "pda"])
+def test_a_zero_correction_reproduces_s_msjpda_with_oracle_births(association):
+    truth, m, scans, s = scene()
+    prior = Gaussian(truth[:, 0], torch.diag(S_X**2).expand(3, 2, 6, 6))
+    plain = msjpda(scans, prior, MOTION, 1.0, 0.01, m, m.R(), s, "sequential", association=association)
+    hybrid = msjpda(scans, prior, MOTION, 1.0, 0.01, m, m.R(), s, "sequential", association=association,
+                    correction=GainCorrection(GainNet(3, 3, 6), S_Z, S_X))
+    assert torch.allclose(hybrid.x, plain.x, rtol=0, atol=1e-9)
+    assert torch.allclose(hybrid.P, plain.P, rtol=0, atol=1e-9)
+
+
+def test_a_zero_correction_reproduces_s_msjpda_that_starts_its_own_tracks():
+    truth, m, scans, s = scene()
+    plain = managed_msjpda(scans, MOTION, 1.0, 0.01, m, m.R(), s, "sequential", management())
+    hybrid = managed_msjpda(scans, MOTION, 1.0, 0.01, m, m.R(), s, "sequential", management(),
+                            correction=GainCorrection(GainNet(3, 3, 6), S_Z, S_X))
+    assert plain.exists.any()  # the case confirms tracks, so the comparison means something
+    assert torch.equal(hybrid.exists, plain.exists)
+    assert torch.allclose(hybrid.x.nan_to_num(), plain.x.nan_to_num(), rtol=0, atol=1e-9)
+
+
+def test_the_parallel_tracker_refuses_a_learned_gain():
+    truth, m, scans, s = scene()
+    prior = Gaussian(truth[:, 0], torch.diag(S_X**2).expand(3, 2, 6, 6))
+    with pytest.raises(ConfigError, match="no pda association or learned gain"):
+        msjpda(scans, prior, MOTION, 1.0, 0.01, m, m.R(), s, "parallel", correction=GainCorrection(GainNet(3, 3, 6), S_Z, S_X))
+
+
+# -- the PDA update against the textbook, on filterpy's moments -------------------------------------
+
+def test_one_track_one_sensor_pda_is_the_textbook_update_on_filterpys_unscented_moments():
+    m = MeasurementModel(Geometry.all_pairs([Transmitter((0.0, 0.0), 650e6)], [Receiver((-7000.0, -3000.0))]),
+                         ("range", "range_rate"), (30.0, 2.0), (0, 3), (1, 4), layout="pair")
+    x = torch.tensor([3000.0, 8.0, 0.1, 6000.0, -5.0, -0.1], dtype=torch.float64)
+    P = torch.diag(torch.tensor([80.0, 4.0, 0.2, 60.0, 3.0, 0.2], dtype=torch.float64) ** 2)
+    zc = m.h(x[None])[0]
+    z = torch.stack([zc + torch.tensor([20.0, 1.0]), zc + torch.tensor([-60.0, 2.5]), zc + torch.tensor([5.0, -4.0]),
+                     zc + torch.tensor([5000.0, 0.0])]).to(torch.float64)  # the last is far outside the gate
+    scans = Scans(z[None, None, None], torch.ones(1, 1, 1, 4, dtype=torch.bool), torch.full((1, 1, 1, 4), -1))
+    pd, lam = 0.8, 1e-5
+    s = JPDASettings(pd, lam)
+    got = msjpda(scans, Gaussian(x[None, None], P[None, None]), MOTION, 1.0, 0.01, m, m.R(), s, "sequential",
+                 association="pda")
+
+    # independent: filterpy's scaled sigma points (alpha 1, beta 2, kappa 3 - n) and the textbook PDA
+    pts = MerweScaledSigmaPoints(6, alpha=1.0, beta=2.0, kappa=-3.0)
+    X = pts.sigma_points(x.numpy(), P.numpy())
+    Z = m.h(torch.from_numpy(X)).numpy()
+    Rn = np.diag([30.0**2, 2.0**2])
+    zhat, S = unscented_transform(Z, pts.Wm, pts.Wc, Rn)
+    C = ((X - x.numpy()).T * pts.Wc) @ (Z - zhat)
+    K = C @ np.linalg.inv(S)
+    nu = z.numpy() - zhat
+    d2 = np.einsum("mi,ij,mj->m", nu, np.linalg.inv(S), nu)
+    from scipy.stats import chi2
+
+    gated = d2 <= chi2.ppf(0.999, 2)
+    assert gated.tolist() == [True, True, True, False]
+    e = np.where(gated, pd * np.exp(-0.5 * d2) / (2 * np.pi * np.sqrt(np.linalg.det(S))) / lam, 0.0)
+    beta = e / (1 - pd + e.sum())
+    beta0 = (1 - pd) / (1 - pd + e.sum())
+    nu_c = (beta[:, None] * nu).sum(0)
+    mean = x.numpy() + K @ nu_c
+    spread = (beta[:, None, None] * nu[:, :, None] * nu[:, None, :]).sum(0) - np.outer(nu_c, nu_c)
+    cov = beta0 * P.numpy() + (1 - beta0) * (P.numpy() - K @ S @ K.T) + K @ spread @ K.T
+    assert np.allclose(got.x[0, 0, 0].numpy(), mean, rtol=0, atol=1e-9 * 1e4)
+    assert np.allclose(got.P[0, 0, 0].numpy(), cov, rtol=1e-9, atol=1e-9)
+    # and the JPDA of a lone track (three gated detections, fewer than m_best) agrees
+    jpda = msjpda(scans, Gaussian(x[None, None], P[None, None]), MOTION, 1.0, 0.01, m, m.R(), s, "sequential")
+    assert torch.allclose(jpda.x, got.x, rtol=0, atol=1e-9)
+
+
+def test_pda_marginals_sum_to_one_and_ignore_what_is_not_gated():
+    log_lik = torch.tensor([[-3.0, -5.0, 100.0]], dtype=torch.float64)
+    a = pda_marginals(log_lik, torch.tensor([[True, True, False]]), 0.9, 1e-3)
+    e = 0.9 * np.exp([-3.0, -5.0]) / 1e-3
+    assert np.allclose(a[0].numpy(), np.r_[e, 0.0, 0.1] / (e.sum() + 0.1), rtol=1e-12)
+
+
+# -- the correction ----------------------------------------------------------------------------------
+
+def test_the_correction_is_the_learned_gain_times_the_combined_innovation():
+    m = MeasurementModel(Geometry.all_pairs([Transmitter((0.0, 0.0), 650e6)], [Receiver((-7000.0, -3000.0))]),
+                         ("range", "range_rate", "azimuth"), NOISE, (0, 3), (1, 4), layout="pair")
+    x = torch.tensor([[3000.0, 8.0, 0.0, 6000.0, -5.0, 0.0]], dtype=torch.float64)
+    z = m.h(x)[:, None] + torch.tensor([40.0, 1.5, 0.01], dtype=torch.float64)  # one detection, off the prediction
+    scans = Scans(z[None, None], torch.ones(1, 1, 1, 1, dtype=torch.bool), torch.zeros(1, 1, 1, 1, dtype=torch.int64))
+    prior = Gaussian(x[None], torch.diag(S_X**2)[None, None])
+    s = JPDASettings(0.9, 1e-6)
+    G = torch.arange(18, dtype=torch.float64).reshape(6, 3) / 100
+    net = ConstantGain(G)
+    net.n_pairs = 1
+    plain = msjpda(scans, prior, MOTION, 1.0, 0.01, m, m.R(), s, "sequential")
+    corr = GainCorrection(net, S_Z, S_X)
+    got = msjpda(scans, prior, MOTION, 1.0, 0.01, m, m.R(), s, "sequential", correction=corr)
+    # one detection of weight alpha: the plain update moves the mean by alpha K nu, the learned
+    # part adds diag(s_x) G diag(1/s_z) alpha nu (the same alpha)
+    from pmsr_nn.filters.gaussian import unscented_moments
+
+    mom = unscented_moments(Gaussian(x[None], torch.diag(S_X**2)[None, None]), m, m.R())
+    K = torch.linalg.solve(mom.S, mom.C.transpose(-1, -2)).transpose(-1, -2)[0, 0]
+    nu = m.residual(z[0, 0], mom.z[0, 0])
+    d = got.x[0, 0, 0] - plain.x[0, 0, 0]
+    dK = S_X[:, None] * G / S_Z
+    # d = dK alpha nu for one scalar alpha in (0, 1): solve for it from one row, check every row
+    a = float(d[0] / (dK @ nu)[0])
+    assert 0.0 < a < 1.0
+    assert torch.allclose(d, a * (dK @ nu), rtol=1e-9, atol=1e-12)
+    assert torch.allclose(plain.x[0, 0, 0] - x[0], a * (K @ nu), rtol=1e-9, atol=1e-9)
+    assert float(corr.memory.sum()) == 1.0  # one step of one track
+
+
+def test_inactive_tracks_get_no_correction_and_freed_slots_forget():
+    net = ConstantGain(torch.ones(6, 3, dtype=torch.float64))
+    corr = GainCorrection(net, S_Z, S_X)
+    corr.start(1, 2)
+    nu = torch.ones(1, 2, 3, dtype=torch.float64)
+    dx = corr.step(0, nu, torch.zeros(1, 2, dtype=torch.float64), torch.eye(3, dtype=torch.float64).expand(1, 2, 3, 3),
+                   torch.tensor([[True, False]]))
+    assert bool((dx[0, 0] != 0).all()) and bool((dx[0, 1] == 0).all())
+    assert corr.memory[0, :, 0].tolist() == [1.0, 0.0]
+    corr.step(0, torch.ones(1, 3, 3, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64), torch.eye(3, dtype=torch.float64).expand(1, 3, 3, 3), None)
+    assert corr.memory.shape == (1, 3, 1) and corr.memory[0, :, 0].tolist() == [2.0, 1.0, 1.0]  # a grown table
+    corr.forget(torch.tensor([[True, False, False]]))
+    assert corr.memory[0, :, 0].tolist() == [0.0, 1.0, 1.0]
+
+
+# -- training scenes ----------------------------------------------------------------------------------
+
+def _recipe():
+    from pmsr_nn.simulation.recipe import load_recipe
+
+    return load_recipe("datasets/fitee2023_ca.yaml")
+
+
+@pytest.mark.parametrize("kind", ["formation", "crossing"])
+def test_scene_mates_fly_beside_or_across_the_first_target(kind):
+    from pmsr_nn.simulation.scenes import draw_scenes
+
+    recipe = _recipe()
+    g = seeded_generator(11)
+    B, K = 40, 60
+    x = draw_scenes(recipe, recipe.geometry.build(2), B, 2, K, g, formation=float(kind == "formation"),
+                    crossing=float(kind == "crossing"))
+    assert x.shape == (B, K, 2, 6) and bool(torch.isfinite(x).all())
+    gap = (x[:, :, 0, [0, 3]] - x[:, :, 1, [0, 3]]).norm(dim=-1)  # (B, K)
+    if kind == "formation":
+        assert torch.allclose(gap, gap[:, :1].expand(B, K), rtol=0, atol=1e-6)  # the same flight, shifted
+        assert bool(((gap[:, 0] >= 100.0) & (gap[:, 0] <= 500.0)).all())
+    else:
+        # the same point at one scan of the middle half (rotation about it), apart at the window's ends
+        at = gap.argmin(1)
+        assert bool((gap.amin(1) < 1e-6).all())
+        assert bool(((at >= K // 4) & (at < 3 * K // 4)).all())
+        assert bool((torch.maximum(gap[:, 0], gap[:, -1]) > 10.0).all())
+        speed = lambda i: x[:, :, i, [1, 4]].norm(dim=-1)
+        assert torch.allclose(speed(0), speed(1), rtol=1e-12)  # a rotation keeps the speed
+
+
+def test_the_same_seed_draws_the_same_scenes():
+    from pmsr_nn.simulation.scenes import draw_scenes
+
+    recipe = _recipe()
+    a = draw_scenes(recipe, recipe.geometry.build(2), 4, 3, 20, seeded_generator(5))
+    b = draw_scenes(recipe, recipe.geometry.build(2), 4, 3, 20, seeded_generator(5))
+    assert torch.equal(a, b)
+
+
+# -- checkpoint --------------------------------------------------------------------------------------
+
+def _saved(tmp_path, **change):
+    net = GainNet(3, 3, 6, hidden=8)
+    m = model()
+    meta = gain_metadata(geometry().to_dict(), list(m.components), list(NOISE), 1.0, net, S_X.tolist(), seed=0)
+    meta.update(change)
+    return save_gain_checkpoint(tmp_path / "g.pt", meta, net), net
+
+
+def test_a_checkpoint_round_trips_and_is_checked_against_the_scenario(tmp_path):
+    path, net = _saved(tmp_path)
+    ck = load_gain_checkpoint(path)
+    assert all(torch.equal(a, b) for a, b in zip(ck.net.state_dict().values(), net.state_dict().values()))
+    check_gain_compatible(ck, geometry().to_dict(), model().components, NOISE, 1.0, 6, "here")
+    other = Geometry.all_pairs([Transmitter((0.0, 0.0), 650e6)], [Receiver((-7000.0, -3000.0))]).to_dict()
+    with pytest.raises(ConfigError, match="another sensor geometry"):
+        check_gain_compatible(ck, other, model().components, NOISE, 1.0, 6, "here")
+    with pytest.raises(ConfigError, match="reads"):
+        check_gain_compatible(ck, geometry().to_dict(), ("range", "doppler"), NOISE[:2], 1.0, 6, "here")
+    with pytest.raises(ConfigError, match="dt = 1 s"):
+        check_gain_compatible(ck, geometry().to_dict(), model().components, NOISE, 2.0, 6, "here")
+    with pytest.raises(ConfigError, match="deviations"):
+        check_gain_compatible(ck, geometry().to_dict(), model().components, (20.0, 2.0, NOISE[2]), 1.0, 6, "here")
+
+
+def test_foreign_corrupted_and_edited_checkpoints_are_refused(tmp_path):
+    path, _ = _saved(tmp_path)
+    blob = path.read_bytes()
+    (tmp_path / "cut.pt").write_bytes(blob[: len(blob) // 2])
+    with pytest.raises(CheckpointError, match="not a readable torch checkpoint"):
+        load_gain_checkpoint(tmp_path / "cut.pt")
+    torch.save({"pmsr": {"format": "pmsr_nn.tracker"}}, tmp_path / "clean.pt")
+    with pytest.raises(CheckpointError, match="use it with kind learned"):
+        load_gain_checkpoint(tmp_path / "clean.pt")
+    bad, _ = _saved(tmp_path, state_scale=[1.0] * 5)
+    with pytest.raises(CheckpointError, match="scales or sizes"):
+        load_gain_checkpoint(bad)
+    import datetime
+
+    torch.save({"pmsr": datetime.date(2026, 1, 1)}, tmp_path / "pickled.pt")  # needs unpickling a class
+    with pytest.raises(CheckpointError, match="refusing to unpickle"):
+        load_gain_checkpoint(tmp_path / "pickled.pt")
+
+
+# -- as a method kind, through pmsr evaluate ------------------------------------------------------------
+
+def _scenario_and_checkpoint(tmp_path, **noise):
+    """A small scenario of two drones with clutter, S-MSJPDA and the hybrid from an untrained
+    checkpoint (zero correction) for the scenario's own sensors."""
+    import yaml
+
+    from pmsr_nn.harness.runner import prepare
+    from pmsr_nn.harness.scenario import load_scenario
+
+    flight = lambda r, b, h: {"start_range_m": r, "start_bearing_deg": b, "speed_mps": 10.0, "heading_deg": h,
+                              "segments": [{"duration_s": 40.0}]}
+    d = {"name": "hybrid", "seed": 3, "mc_runs": 2, "block_runs": 2, "warmup_steps": 5, "random_streams": "per_product",
+         "detections": {"pd": 0.9, "components": ["range", "range_rate", "azimuth"],
+                        "clutter": {"per_scan": 5, "range_m": [0.0, 25000.0], "range_rate_mps": [-40.0, 40.0]}},
+         "set_metrics": {"c_m": 300.0, "p": 2.0},
+         "cases": [{"name": "c", "targets": [{"name": "a", **flight(4000.0, 130.0, 20.0)},
+                                             {"name": "b", **flight(7800.0, 100.0, 0.0)}]}],
+         "methods": [{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}},
+                     {"name": "H", "kind": "jpda_learned_gain", "checkpoint": "g.pt",
+                      "options": {"initiation": "detections"}}]}
+    if noise:
+        d["noise"] = noise
+    path = tmp_path / "hybrid.yaml"
+    path.write_text(yaml.safe_dump(d))
+    plain = {**d, "methods": d["methods"][:1]}
+    (tmp_path / "plain.yaml").write_text(yaml.safe_dump(plain))
+    det = prepare(load_scenario(tmp_path / "plain.yaml")).cases[0].sensing.detection_model
+    net = GainNet(det.n_pairs, len(det.components), 6, hidden=8)
+    meta = gain_metadata(det.geometry.to_dict(), list(det.components), list(det.noise_std), 1.0, net, S_X.tolist())
+    save_gain_checkpoint(tmp_path / "g.pt", meta, net)
+    (tmp_path / "plain.yaml").unlink()
+    return path
+
+
+def test_an_untrained_checkpoint_scores_as_s_msjpda_in_pmsr_evaluate(tmp_path):
+    from pmsr_nn.harness import evaluate
+
+    res = evaluate(_scenario_and_checkpoint(tmp_path), tmp_path / "out", progress=False)
+    rows = res["cases"]["c"]["methods"]
+    assert rows["H"]["initiation"] == "detections"
+    for key in ("gospa_m", "ospa_m", "false_tracks_per_run", "confirmed_tracks_per_target"):
+        assert rows["H"][key] == pytest.approx(rows["S"][key], rel=1e-9, abs=1e-9), key
+
+
+def test_a_checkpoint_for_other_sensors_is_one_line_exit_2_and_nothing_written(tmp_path, capsys):
+    from pmsr_nn.cli import main
+
+    path = _scenario_and_checkpoint(tmp_path)
+    text = path.read_text().replace("name: hybrid", "name: hybrid\nnoise: {range_m: 20.0, range_rate_mps: 2.0, "
+                                                  "azimuth_deg: 3.0}", 1)
+    path.write_text(text)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "method 'H': the checkpoint was trained for measurement deviations" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_commands_for_clean_stream_trackers_refuse_the_hybrids_checkpoint_in_one_line(tmp_path, capsys):
+    from pmsr_nn.cli import main
+
+    path, _ = _saved(tmp_path)
+    (tmp_path / "z.csv").write_text("a\n1\n")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["track", "--checkpoint", str(path), "--input", str(tmp_path / "z.csv"), "--out",
+                 str(tmp_path / "est.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "kind jpda_learned_gain" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+# -- training ----------------------------------------------------------------------------------------
+
+def test_a_tiny_trained_gain_beats_the_untrained_one_where_the_model_is_wrong():
+    """The tracker is sure there is no acceleration (prior deviation 1e-3 m/s^2, q = 1e-9) while the
+    target accelerates: S-MSJPDA lags. Eight Adam steps on one draw must at least halve the mean
+    squared position error on another draw of the noise (gradients flow through the gain, the
+    UKF moments and the means; with them cut the error could not move)."""
+    torch.manual_seed(0)
+    m, B, K = model(), 4, 30
+    x0 = torch.tensor([3000.0, 8.0, 0.3, 6000.0, -5.0, 0.2], dtype=torch.float64)
+    F = MOTION.F(1.0, torch.float64)
+    truth = torch.stack([x0 @ torch.linalg.matrix_power(F, k).T for k in range(K)])[None, :, None]
+    truth = truth.expand(B, K, 1, 6).contiguous()
+    box = ClutterSpec(per_scan=0, range_m=(0, 25000), range_rate_mps=(-40, 40))
+    draws = [simulate_scans(truth, m, 1.0, box, seeded_generator(seed)) for seed in (1, 2)]
+    P0 = torch.diag(torch.tensor([30.0, 2.0, 1e-3] * 2, dtype=torch.float64) ** 2)
+    prior = Gaussian(truth[:, 0] * torch.tensor([1, 1, 0, 1, 1, 0.0], dtype=torch.float64), P0.expand(B, 1, 6, 6))
+
+    def mse(net, scans):
+        x = msjpda(scans, prior, MOTION, 1.0, 1e-9, m, m.R(), JPDASettings(1.0, 1e-9), "sequential",
+                   correction=GainCorrection(net, S_Z, S_X)).x
+        return (x[..., [0, 3]] - truth[..., [0, 3]]).norm(dim=-1)[:, 5:].square().mean()
+
+    net = GainNet(3, 3, 6, hidden=8, gain_scale=0.1)
+    with torch.no_grad():
+        before = float(mse(net, draws[1]))
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
+    for _ in range(8):
+        opt.zero_grad()
+        mse(net, draws[0]).backward()
+        opt.step()
+    with torch.no_grad():
+        after = float(mse(net, draws[1]))
+    assert after < 0.5 * before, (before, after)
