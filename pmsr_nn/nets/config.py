@@ -51,6 +51,14 @@ class ModelConfig:
     by ``gain_scale`` (a smaller first step of the optimiser on the gain, so the filter stays stable
     while it learns), and each innovation row is clipped to ``innovation_clip`` deviations before
     the update (bounded influence of range outliers; null: no clipping).
+
+    ``restart_gate`` (KalmanNet only): where the normalised innovation exceeds it in as many
+    measurement rows as there are pairs, the filter has lost the target and re-starts at the scan's
+    state fix (if that fix agrees with its own scan within the gate in every row); null: never
+    (:meth:`~pmsr_nn.nets.kalmannet.KalmanNetTracker.restarts`). The default, 10, holds for
+    checkpoints saved before the option existed: on the studies' KalmanNet checkpoints (mismatch,
+    three trajectories, shared drones, one sky) it fires only in the two mismatch runs whose
+    window started on a wrong-branch fix.
     """
 
     kind: Literal["mdfnn", "dfnn", "rnn", "kalmannet"] = "mdfnn"
@@ -68,6 +76,7 @@ class ModelConfig:
     output: Literal["state", "residual"] = "state"
     gain_scale: float = 1.0
     innovation_clip: float | None = None
+    restart_gate: float | None = 10.0
 
     def __post_init__(self) -> None:
         require(len(self.hidden) >= 1 and all(1 <= h <= MAX_WIDTH for h in self.hidden),
@@ -86,6 +95,8 @@ class ModelConfig:
         require(0 < self.gain_scale <= 1e3, f"model.gain_scale must be in (0, 1000], got {self.gain_scale}")
         require(self.innovation_clip is None or self.innovation_clip > 0,
                 f"model.innovation_clip must be positive (or null), got {self.innovation_clip}")
+        require(self.restart_gate is None or self.restart_gate > 0,
+                f"model.restart_gate must be positive (or null), got {self.restart_gate}")
         kalmannet = self.kind == "kalmannet"
         require(kalmannet == (self.inputs == "measurements_and_fixes") and (not kalmannet or self.output == "residual"),
                 "model: kind kalmannet goes with inputs: measurements_and_fixes and output: residual (and only it "

@@ -17,7 +17,15 @@ in those units, ``K = diag(s_x) G diag(1 / s_z)``: the physical gain of a 10 km-
 ~1e-3 m per m, far from what a network's output layer starts at.
 
 The filter starts at each sequence's first state fix (:mod:`pmsr_nn.filters.fixes`; acceleration
-zero), so, like every learned tracker, it reads only measurements. The network's inputs are the
+zero), so, like every learned tracker, it reads only measurements. A filter that has lost the target
+is re-started (``restart_gate``, :meth:`KalmanNetTracker.restarts`): where the normalised
+innovation ``|nu| / s_z`` exceeds the gate in as many rows as there are pairs, the filter starts
+afresh at the scan's own state fix (GRU state zero, as at a window's first scan), provided that
+fix agrees with its scan's measurements (every row within the gate). The case it is for: one range
+outlier (10x) can put a scan's fix on the wrong branch of the range equations, 3-20 km off (0.02-
+0.04 % of the mismatch study's scans); a window started there cannot come back through innovations
+clipped at ``innovation_clip`` deviations (~90 m a scan), and the sliding-window inference
+(:mod:`pmsr_nn.nets.inference`) restarts a window every 50 scans. The network's inputs are the
 measurements in SI units followed by the state fixes (``inputs: measurements_and_fixes``) and its
 outputs the correction to the fix (``output: residual``), so it trains, checkpoints and tracks
 through the same code as the MDFNN. :class:`EKFGain` puts the EKF's own gain in the network's
@@ -66,20 +74,28 @@ class KalmanNetTracker(nn.Module):
         G = self.out(hidden).view(-1, self.n, self.m) * self.cfg.gain_scale
         return self.s_x[:, None] * G / self.s_z, hidden
 
-    def filter(self, z: torch.Tensor, fix0: torch.Tensor, gain=None) -> torch.Tensor:
+    def filter(self, z: torch.Tensor, fix0: torch.Tensor, gain=None, fixes: torch.Tensor | None = None) -> torch.Tensor:
         """Filtered states ``(B, T, n)`` (SI) of ``z (B, T, m)`` started at ``fix0 (B, n)``.
 
         ``gain``: None for the network; else a callable ``(x_pred, nu) -> K (B, n, m)`` (e.g.
-        :class:`EKFGain`) that replaces it."""
+        :class:`EKFGain`) that replaces it. ``fixes (B, T, n)``: every scan's state fix, which a
+        lost filter is re-started at (``restart_gate``; without them, or with a ``gain``, never)."""
         B, T, _ = z.shape
         x = fix0
         x_prev, x_pred_prev = x, x
         hidden = z.new_zeros(B, self.gru.hidden_size) if gain is None else None
         F = self.F.to(z.dtype)
+        restart = fixes is not None and self.cfg.restart_gate is not None
         out = [x]
         for k in range(1, T):
             if gain is None:
                 x_new, x_pred, hidden = self.step(z[:, k], z[:, k - 1], x, x_prev, x_pred_prev, hidden)
+                if restart:
+                    r = self.restarts(z[:, k], x_pred, fixes[:, k])
+                    if bool(r.any()):  # as at a window's first scan: the fix, no history, GRU state zero
+                        f, rr = fixes[:, k].to(x_new.dtype), r[:, None]
+                        x, x_pred, x_new = (torch.where(rr, f, v) for v in (x, x_pred, x_new))
+                        hidden = torch.where(rr, torch.zeros_like(hidden), hidden)
             else:
                 x_pred = x @ F.T
                 nu = self.model.residual(z[:, k], self.model.h(x_pred))
@@ -107,9 +123,25 @@ class KalmanNetTracker(nn.Module):
         x_new = x_pred + (K.to(z.dtype) @ nu.unsqueeze(-1)).squeeze(-1)
         return x_new, x_pred, hidden
 
+    def restarts(self, z: torch.Tensor, x_pred: torch.Tensor, fix: torch.Tensor) -> torch.Tensor:
+        """``(B,)`` bool: where the filter re-starts at this scan's fix ``fix (B, n)``: it has lost
+        the target (at least as many rows of ``|z - h(x_pred)| / s_z`` as there are pairs exceed
+        ``restart_gate``: a position kilometres off misses every pair's range, one outlier moves
+        one row) and the fix agrees with its own scan ``z (B, m)`` (every row of
+        ``|z - h(fix)| / s_z`` within the gate: a fix on the wrong branch misses the azimuths by
+        tens of deviations). Never where ``restart_gate`` is null."""
+        g = self.cfg.restart_gate
+        if g is None:
+            return torch.zeros(z.shape[0], dtype=torch.bool, device=z.device)
+        fix = fix.to(z.dtype)
+        beyond = (self.model.residual(z, self.model.h(x_pred)) / self.s_z).abs() > g
+        lost = beyond.sum(-1) >= self.model.n_pairs
+        agrees = (self.model.residual(z, self.model.h(fix)) / self.s_z).abs().amax(-1) <= g
+        return lost & agrees & torch.isfinite(fix).all(-1)
+
     def forward(self, u: torch.Tensor) -> torch.Tensor:
         z, fix = u[..., : self.m], u[..., self.m :]
-        x = self.filter(z, fix[:, 0])
+        x = self.filter(z, fix[:, 0], fixes=fix)
         return (x - fix) / self.s_x
 
 
