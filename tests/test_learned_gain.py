@@ -61,16 +61,17 @@ def management() -> Management:
 
 
 class ConstantGain(torch.nn.Module):
-    """A stand-in network: ``G`` constant, memory counting the steps."""
+    """A stand-in network: ``G`` and ``scale`` constant, memory counting the steps."""
 
     hidden_size, n_pairs = 1, 3
 
-    def __init__(self, G: torch.Tensor):
+    def __init__(self, G: torch.Tensor, scale: float = 0.0):
         super().__init__()
-        self.G = G
+        self.G, self.scale = G, scale
 
     def forward(self, features, memory):
-        return self.G.expand(len(features), *self.G.shape), memory + 1
+        return (self.G.expand(len(features), *self.G.shape), torch.full((len(features),), self.scale, dtype=self.G.dtype),
+                memory + 1)
 
 
 # -- an untrained hybrid is S-MSJPDA ----------------------------------------------------------------
@@ -165,41 +166,64 @@ def test_the_correction_is_the_learned_gain_times_the_combined_innovation():
     prior = Gaussian(x[None], torch.diag(S_X**2)[None, None])
     s = JPDASettings(0.9, 1e-6)
     G = torch.arange(18, dtype=torch.float64).reshape(6, 3) / 100
-    net = ConstantGain(G)
+    net = ConstantGain(G, scale=0.3)
     net.n_pairs = 1
     plain = msjpda(scans, prior, MOTION, 1.0, 0.01, m, m.R(), s, "sequential")
     corr = GainCorrection(net, S_Z, S_X)
     got = msjpda(scans, prior, MOTION, 1.0, 0.01, m, m.R(), s, "sequential", correction=corr)
     # one detection of weight alpha: the plain update moves the mean by alpha K nu, the learned
-    # part adds diag(s_x) G diag(1/s_z) alpha nu (the same alpha)
+    # part adds (0.3 K + diag(s_x) G diag(1/s_z)) alpha nu, with the same alpha
     from pmsr_nn.filters.gaussian import unscented_moments
 
     mom = unscented_moments(Gaussian(x[None], torch.diag(S_X**2)[None, None]), m, m.R())
     K = torch.linalg.solve(mom.S, mom.C.transpose(-1, -2)).transpose(-1, -2)[0, 0]
     nu = m.residual(z[0, 0], mom.z[0, 0])
-    d = got.x[0, 0, 0] - plain.x[0, 0, 0]
-    dK = S_X[:, None] * G / S_Z
-    # d = dK alpha nu for one scalar alpha in (0, 1): solve for it from one row, check every row
-    a = float(d[0] / (dK @ nu)[0])
+    step = plain.x[0, 0, 0] - x[0]
+    a = float(step[0] / (K @ nu)[0])
     assert 0.0 < a < 1.0
-    assert torch.allclose(d, a * (dK @ nu), rtol=1e-9, atol=1e-12)
-    assert torch.allclose(plain.x[0, 0, 0] - x[0], a * (K @ nu), rtol=1e-9, atol=1e-9)
+    assert torch.allclose(step, a * (K @ nu), rtol=1e-9, atol=1e-9)
+    dK = 0.3 * K + S_X[:, None] * G / S_Z
+    assert torch.allclose(got.x[0, 0, 0] - plain.x[0, 0, 0], a * (dK @ nu), rtol=1e-9, atol=1e-9)
     assert float(corr.memory.sum()) == 1.0  # one step of one track
 
 
 def test_inactive_tracks_get_no_correction_and_freed_slots_forget():
+    from pmsr_nn.filters.gaussian import MeasurementMoments
+
     net = ConstantGain(torch.ones(6, 3, dtype=torch.float64))
     corr = GainCorrection(net, S_Z, S_X)
     corr.start(1, 2)
-    nu = torch.ones(1, 2, 3, dtype=torch.float64)
-    dx = corr.step(0, nu, torch.zeros(1, 2, dtype=torch.float64), torch.eye(3, dtype=torch.float64).expand(1, 2, 3, 3),
-                   torch.tensor([[True, False]]))
+
+    def step(T, active):  # one detection per track, taken with probability 1
+        mom = MeasurementMoments(torch.zeros(1, T, 3), torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3),
+                                 torch.zeros(1, T, 6, 3, dtype=torch.float64))
+        w = torch.tensor([1.0, 0.0], dtype=torch.float64).expand(1, T, 2)
+        return corr.step(0, w, torch.ones(1, T, 1, 3, dtype=torch.float64), torch.ones(1, T, 1, dtype=torch.bool), mom,
+                         active)
+
+    dx = step(2, torch.tensor([[True, False]]))
     assert bool((dx[0, 0] != 0).all()) and bool((dx[0, 1] == 0).all())
     assert corr.memory[0, :, 0].tolist() == [1.0, 0.0]
-    corr.step(0, torch.ones(1, 3, 3, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64), torch.eye(3, dtype=torch.float64).expand(1, 3, 3, 3), None)
+    step(3, None)
     assert corr.memory.shape == (1, 3, 1) and corr.memory[0, :, 0].tolist() == [2.0, 1.0, 1.0]  # a grown table
     corr.forget(torch.tensor([[True, False, False]]))
     assert corr.memory[0, :, 0].tolist() == [0.0, 1.0, 1.0]
+
+
+def test_the_features_say_how_much_the_association_is_in_doubt():
+    from pmsr_nn.trackers.learned_gain import feature_count, gain_features
+
+    S = torch.diag(torch.tensor([4.0, 1.0], dtype=torch.float64))
+    nu = torch.tensor([[2.0, 0.0], [-2.0, 1.0], [50.0, 50.0]], dtype=torch.float64)
+    w = torch.tensor([0.5, 0.25, 0.0, 0.25], dtype=torch.float64)  # the third detection is outside the gate
+    gate = torch.tensor([True, True, False])
+    nu_c, f = gain_features(1, 3, w, nu, gate, S, torch.tensor([2.0, 1.0], dtype=torch.float64))
+    assert f.shape == (feature_count(2, 3),)
+    assert torch.allclose(nu_c, torch.tensor([0.5, 0.25], dtype=torch.float64))
+    # spread: sum_i alpha_i nu_i^2 - nu_c^2, over diag S: (0.5*4 + 0.25*4 - 0.25) / 4, (0.25 - 0.0625) / 1
+    expect = [0.25, 0.25, 0.25, 0.0, 0.0, 2.75 / 4, 0.1875, 0.5, math.log(3.0),
+              math.log1p(0.5**2 / 4 + 0.25**2), 0.0, 1.0, 0.0]
+    assert torch.allclose(f, torch.tensor(expect, dtype=torch.float64), rtol=1e-12, atol=1e-12)
 
 
 # -- training scenes ----------------------------------------------------------------------------------

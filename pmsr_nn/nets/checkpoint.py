@@ -27,6 +27,8 @@ from .config import ModelConfig
 
 FORMAT = "pmsr_nn.tracker"
 FORMAT_VERSION = 1
+DETECTION_FORMATS = {"pmsr_nn.jpda_gain": "jpda_learned_gain", "pmsr_nn.set_tracker": "set_tracker"}
+"""Checkpoints of the trackers that read detections (format -> the method kind that reads them)."""
 
 
 def tracker_metadata(model: ModelConfig, manifest: dict, normalisation: dict, **training) -> dict:
@@ -55,14 +57,7 @@ def tracker_metadata(model: ModelConfig, manifest: dict, normalisation: dict, **
 
 def save_tracker(path: str | Path, meta: dict, state_dict: dict) -> Path:
     """Write ``{'pmsr': meta, 'state_dict': ...}`` atomically (temporary file, then rename)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    try:
-        torch.save({"pmsr": meta, "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}, tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return save_blob(path, meta, state_dict)
 
 
 _META_TYPES = {"model": dict, "dim_z": int, "dim_x": int, "window": int, "dt_s": (int, float), "geometry": dict,
@@ -120,9 +115,9 @@ def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
         raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): {first}") from None
     meta = blob.get("pmsr") if isinstance(blob, dict) else None
-    if isinstance(meta, dict) and meta.get("format") == "pmsr_nn.jpda_gain":
-        raise CheckpointError(f"{path} is the learned gain of the hybrid tracker on detections (kind jpda_learned_gain "
-                              "of a scenario); this command reads trackers of clean measurement streams")
+    if isinstance(meta, dict) and meta.get("format") in DETECTION_FORMATS:
+        raise CheckpointError(f"{path} is a tracker on detections (kind {DETECTION_FORMATS[meta['format']]} of a "
+                              "scenario); this command reads trackers of clean measurement streams")
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a pmsr_nn tracker checkpoint (no 'pmsr' block)")
     if meta.get("format_version") != FORMAT_VERSION:
@@ -143,3 +138,59 @@ def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
         if v.is_floating_point() and not torch.isfinite(v).all():
             raise CheckpointError(f"{path}: weight net.{k} holds NaN or infinite values (a diverged training run?)")
     return meta, cfg, net
+
+
+def read_blob(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
+    """``(meta, state_dict)`` of a plain-data checkpoint of format ``fmt`` (``what`` names it in the
+    one-line errors), read with ``weights_only=True``; its ``format_version`` must be 1."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint at {path}")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise CheckpointError(f"{path} holds objects other than tensors and plain data; refusing to unpickle it") from None
+    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, TypeError, KeyError, IndexError,
+            AttributeError, UnicodeDecodeError, MemoryError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+        raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): {first}") from None
+    meta = blob.get("pmsr") if isinstance(blob, dict) else None
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        found = meta.get("format") if isinstance(meta, dict) else None
+        hint = " (a learned tracker of clean streams: use it with kind learned)" if found == FORMAT else ""
+        raise CheckpointError(f"{path} is not a {what} checkpoint (format {found!r}){hint}")
+    if meta.get("format_version") != 1:
+        raise CheckpointError(f"{path} has checkpoint format {meta.get('format_version')}; this pmsr_nn reads 1")
+    sd = blob.get("state_dict")
+    if not isinstance(sd, dict) or any(not isinstance(v, torch.Tensor) or not torch.isfinite(v).all() for v in sd.values()):
+        raise CheckpointError(f"{path}: the network weights are missing, not tensors, or not finite")
+    return meta, sd
+
+
+def save_blob(path: str | Path, meta: dict, state_dict: dict) -> Path:
+    """Write ``{'pmsr': meta, 'state_dict': ...}`` atomically (temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    try:
+        torch.save({"pmsr": meta, "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def check_detection_sensors(meta: dict, geometry: dict, components, noise_std, dt_s: float, n: int, where: str) -> None:
+    """One line naming the first mismatch between the sensors a detection tracker's checkpoint
+    (``meta``: geometry, components, noise_std, dt_s, dim_x) was trained for and a scenario's."""
+    if meta["geometry"] != geometry:
+        raise ConfigError(f"{where}: the checkpoint was trained on another sensor geometry than the scenario's")
+    if list(components) != meta["components"]:
+        raise ConfigError(f"{where}: the checkpoint reads {meta['components']}, the detections are {list(components)}")
+    if n != meta["dim_x"]:
+        raise ConfigError(f"{where}: the checkpoint's state has {meta['dim_x']} entries, the scenario's {n}")
+    if abs(float(dt_s) - meta["dt_s"]) > 1e-9 * max(1.0, meta["dt_s"]):
+        raise ConfigError(f"{where}: the checkpoint was trained at dt = {meta['dt_s']:g} s, the scenario scans "
+                          f"every {dt_s:g} s")
+    if any(abs(a - b) > 1e-9 * max(abs(b), 1.0) for a, b in zip(noise_std, meta["noise_std"])):
+        raise ConfigError(f"{where}: the checkpoint was trained for measurement deviations {meta['noise_std']}, the "
+                          f"detections have {[float(v) for v in noise_std]}")

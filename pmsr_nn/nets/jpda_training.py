@@ -22,45 +22,13 @@ from __future__ import annotations
 
 import json
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from ..config import check_interval, from_dict, load_yaml, require, to_dict
-from ..errors import ConfigError
-
-
-@dataclass(frozen=True)
-class SceneConfig:
-    """What the training scenes are (:func:`~pmsr_nn.simulation.scenes.draw_scenes`): ``window`` scans,
-    ``targets`` (fewest, most) per scene, the chances of a formation mate and a crossing target,
-    ``pd`` and ``clutter_per_scan`` ranges (per batch; clutter per pair and scan, uniform over the
-    box below), and the detections' noise deviations."""
-
-    window: int = 60
-    targets: tuple[int, int] = (2, 4)
-    formation: float = 0.35
-    crossing: float = 0.35
-    pd: tuple[float, float] = (0.7, 0.95)
-    clutter_per_scan: tuple[int, int] = (10, 50)
-    range_m: tuple[float, float] = (0.0, 25000.0)
-    range_rate_mps: tuple[float, float] = (-40.0, 40.0)
-    noise: dict = field(default_factory=lambda: {"range_m": 30.0, "range_rate_mps": 2.0, "azimuth_deg": 3.0})
-
-    def __post_init__(self) -> None:
-        require(self.window >= 5, f"scenes.window must be at least 5 scans, got {self.window}")
-        require(1 <= self.targets[0] <= self.targets[1] <= 20, f"scenes.targets must be 1 <= fewest <= most <= 20, "
-                                                                f"got {self.targets}")
-        require(0.0 < self.pd[0] <= self.pd[1] <= 1.0, f"scenes.pd must lie in (0, 1], got {self.pd}")
-        require(0 <= self.clutter_per_scan[0] <= self.clutter_per_scan[1], "scenes.clutter_per_scan must be "
-                                                                             "0 <= fewest <= most")
-        check_interval("scenes.range_m", self.range_m, nonneg=True)
-        check_interval("scenes.range_rate_mps", self.range_rate_mps)
-        require(set(self.noise) == {"range_m", "range_rate_mps", "azimuth_deg"} and all(
-            isinstance(v, (int, float)) and v > 0 for v in self.noise.values()),
-            "scenes.noise needs positive range_m, range_rate_mps and azimuth_deg")
+from ..config import from_dict, load_yaml, require, to_dict
+from .scene_data import SceneConfig, SceneSampler, fit_on_the_fly, resolve_recipe_path, start_run
 
 
 @dataclass(frozen=True)
@@ -117,64 +85,35 @@ class GainTrainConfig:
         require(self.threads is None or self.threads >= 1, f"threads must be at least 1, got {self.threads}")
 
 
-def is_gain_config(path) -> bool:
-    """Whether the YAML at ``path`` is a ``kind: jpda_gain`` training config."""
-    raw = load_yaml(path)
-    return isinstance(raw, dict) and raw.get("kind") == "jpda_gain"
-
-
 def load_gain_config(path, overrides=()) -> GainTrainConfig:
-    from .train_config import apply_overrides
-
-    raw = apply_overrides(load_yaml(path), list(overrides))
-    cfg = from_dict(GainTrainConfig, raw, where="train config")
-    recipe = Path(cfg.recipe)
-    if not recipe.is_absolute():
-        recipe = Path(path).parent / recipe
-    if not recipe.is_file():
-        raise ConfigError(f"train config: recipe {cfg.recipe} not found (looked at {recipe})")
     from dataclasses import replace
 
-    return replace(cfg, recipe=str(recipe))
+    from .train_config import apply_overrides
+
+    cfg = from_dict(GainTrainConfig, apply_overrides(load_yaml(path), list(overrides)), where="train config")
+    return replace(cfg, recipe=resolve_recipe_path(cfg.recipe, path))
 
 
 class Problem:
-    """What training and validation share: the recipe, the sensors, the motion and the tracker
-    settings of a config."""
+    """What training and validation share: the scenes (:class:`~.scene_data.SceneSampler`), the
+    motion and the tracker settings of a config."""
 
     def __init__(self, cfg: GainTrainConfig):
-        from ..measurements import MeasurementModel
-        from ..simulation.recipe import load_recipe
-        from ..simulation.tracks import build_models
-
         self.cfg = cfg
-        self.recipe = load_recipe(cfg.recipe)
-        self.motion, stream = build_models(self.recipe)
-        n = cfg.scenes.noise
-        self.noise_std = (n["range_m"], n["range_rate_mps"], math.radians(n["azimuth_deg"]))
-        self.model = MeasurementModel(stream.geometry, ("range", "range_rate", "azimuth"), self.noise_std,
-                                      self.motion.pos_idx, self.motion.vel_idx, layout="pair")
-        self.dt = self.recipe.motion.dt_s
+        self.sampler = SceneSampler(cfg.recipe, cfg.scenes)
+        self.recipe, self.motion, self.model = self.sampler.recipe, self.sampler.motion, self.sampler.model
+        self.noise_std, self.dt = self.sampler.noise_std, self.sampler.dt
         self.q = self.recipe.effective_motion().q_psd
         self.prior_sd = self.recipe.initiation_prior_sd()
 
     def draw(self, seed: tuple[int, ...], B: int):
         """``(scans, prior, truth, settings)`` of ``B`` scenes from the seed ``seed``."""
         from ..filters.gaussian import Gaussian
-        from ..rng import seeded_generator
-        from ..simulation.detections import ClutterSpec, simulate_scans
-        from ..simulation.scenes import draw_scenes
         from ..trackers.jpda import floored_clutter_density
         from ..trackers.msjpda import JPDASettings
 
-        s = self.cfg.scenes
-        g = seeded_generator(*seed)
-        N = int(torch.randint(s.targets[0], s.targets[1] + 1, (1,), generator=g))
-        pd = s.pd[0] + (s.pd[1] - s.pd[0]) * float(torch.rand(1, generator=g, dtype=torch.float64))
-        per_scan = int(torch.randint(s.clutter_per_scan[0], s.clutter_per_scan[1] + 1, (1,), generator=g))
-        truth = draw_scenes(self.recipe, self.model.geometry, B, N, s.window, g, s.formation, s.crossing)
-        clutter = ClutterSpec(per_scan=per_scan, range_m=s.range_m, range_rate_mps=s.range_rate_mps)
-        scans = simulate_scans(truth, self.model, pd, clutter, g)
+        scans, truth, pd, clutter, g = self.sampler.draw(seed, B)
+        N = truth.shape[2]
         x0 = truth[:, 0] + torch.randn(truth[:, 0].shape, generator=g, dtype=torch.float64) * self.prior_sd
         prior = Gaussian(x0, torch.diag(self.prior_sd**2).expand(B, N, -1, -1))
         settings = JPDASettings(pd, floored_clutter_density(clutter, self.model.components), self.cfg.m_best,
@@ -247,53 +186,31 @@ def _val_batches(cfg: GainTrainConfig) -> int:
 def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> dict:
     """Train ``cfg`` into the new run folder ``out``; returns the metrics (also in metrics.json)."""
     import lightning.pytorch as pl
-    import yaml
-    from lightning.pytorch.callbacks import ModelCheckpoint
-    from lightning.pytorch.loggers import TensorBoardLogger
 
     from ..outputs import write_marker
     from .jpda_gain import gain_metadata, save_gain_checkpoint
-    from .progress import quiet_lightning
-    from .training import _check_run_folder
 
     out = Path(out)
-    _check_run_folder(out, resume=False, inputs=[Path(cfg.recipe)])
+    start_run(out, cfg, cfg.recipe)
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     problem = Problem(cfg)
-    out.mkdir(parents=True, exist_ok=True)
-    write_marker(out, "train", state="running")
-    (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
     base = baseline_validation(cfg, problem)
     if progress:
         print(f"S-MSJPDA alone on the validation scenes: loss {base['loss']:.4f}, position RMSE {base['pos_rmse_m']:.2f} m",
               flush=True)
     pl.seed_everything(cfg.seed, verbose=False)
     module = make_module(cfg, problem)
-    ckpt = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="val/loss", mode="min", save_last=True)
     o = cfg.optim
-    with quiet_lightning(True):
-        trainer = pl.Trainer(max_steps=o.steps, max_epochs=1, val_check_interval=o.val_every, accelerator="cpu",
-                             logger=TensorBoardLogger(out, name="tb", version=""), callbacks=[ckpt],
-                             gradient_clip_val=o.gradient_clip_val, enable_progress_bar=False,
-                             enable_model_summary=False, num_sanity_val_steps=0,
-                             max_time=None if o.max_time_minutes is None else {"minutes": o.max_time_minutes})
-        steps = torch.utils.data.DataLoader(list(range(o.steps)), batch_size=None)
-        val = torch.utils.data.DataLoader(list(range(_val_batches(cfg))), batch_size=None)
-        t0 = time.perf_counter()
-        trainer.fit(module, steps, val)
-    seconds = time.perf_counter() - t0
-    best = torch.load(ckpt.best_model_path, map_location="cpu", weights_only=True) if ckpt.best_model_path else None
-    if best is not None:
-        module.load_state_dict(best["state_dict"])
-    geometry = problem.model.geometry.to_dict()
-    meta = gain_metadata(geometry, list(problem.model.components), list(problem.noise_std), problem.dt, module.net,
-                         problem.prior_sd.tolist(), seed=cfg.seed, steps=int(trainer.global_step), config=to_dict(cfg))
+    trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, _val_batches(cfg), o.gradient_clip_val,
+                                            o.max_time_minutes)
+    meta = gain_metadata(problem.model.geometry.to_dict(), list(problem.model.components), list(problem.noise_std),
+                         problem.dt, module.net, problem.prior_sd.tolist(), seed=cfg.seed, steps=int(trainer.global_step),
+                         config=to_dict(cfg))
     save_gain_checkpoint(out / "tracker.pt", meta, module.net)
-    final = {k: float(v) for k, v in trainer.callback_metrics.items()}
     metrics = {"steps": int(trainer.global_step), "fit_seconds": seconds, "baseline_val": base,
                "best_val_loss": float(ckpt.best_model_score) if ckpt.best_model_score is not None else None,
-               "last": final, "machine_threads": torch.get_num_threads()}
+               "last": {k: float(v) for k, v in trainer.callback_metrics.items()}, "threads": torch.get_num_threads()}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     write_marker(out, "train", state="done")
     if progress:

@@ -7,16 +7,17 @@ association probabilities (a miss contributes none). The hybrid keeps all of tha
 predicted moments, the gate, the association weights, the existence and the track management)
 and adds a learned correction of the gain to the mean::
 
-    x = x_pred + (K + dK) nu_c,      dK = diag(s_x) G diag(1 / s_z),   G = net(features, memory)
+    x = x_pred + (K + dK) nu_c,     dK = scale K + diag(s_x) G diag(1 / s_z),     (scale, G) = net(features, memory)
 
-``G`` is what the network outputs per track and sensor, in units of the state scale ``s_x`` and
-the measurement noise deviation ``s_z`` (the physical gain of a 10 km scene is ~1e-3 m per m, far
-from what an output layer starts at). The network reads, per track and sensor, the combined
-innovation ``nu_c / s_z``, the miss probability ``alpha_miss``, the predicted measurement
-deviations ``log(sqrt(diag S) / s_z)`` and which sensor it is, and carries a memory per track
-(a GRU state, cleared when the track's slot is freed). Its output layer starts at zero, so an
-untrained network *is* S-MSJPDA; the covariance stays the model's mixture covariance (it
-gates and weighs the next scan's detections), so the learned part moves the estimate only.
+``scale`` (in (-1, 1)) trusts the model's gain more or less; ``G`` is a gain in units of the
+state scale ``s_x`` and the measurement noise deviation ``s_z`` (the physical gain of a 10 km
+scene is ~1e-3 m per m, far from what an output layer starts at). The network reads, per track
+and sensor, what the association says (:func:`gain_features`: the combined innovation, the miss
+probability, how spread the weighted innovations are, the largest weight, how many detections
+were gated) and carries a memory per track (a GRU state, cleared when the track's slot is freed).
+Its output layer starts at zero, so an untrained network *is* S-MSJPDA; the covariance stays the
+model's mixture covariance (it gates and weighs the next scan's detections), so the learned part
+moves the estimate only.
 
 This module holds the part the tracker loop needs (``pda_marginals``, :class:`GainCorrection`);
 the network is :class:`pmsr_nn.nets.jpda_gain.GainNet`.
@@ -49,22 +50,44 @@ def pda_marginals(log_lik: torch.Tensor, gated: torch.Tensor, pd: float, density
 
 
 class GainNetwork(Protocol):
-    """What :class:`GainCorrection` calls: ``(features (R, F), memory (R, H)) -> (G (R, n, d), memory)``."""
+    """What :class:`GainCorrection` calls: ``(features (R, F), memory (R, H)) -> (G (R, n, d),
+    scale (R,), memory)``, ``F = feature_count(d, n_pairs)``."""
 
     hidden_size: int
     n_pairs: int
 
-    def __call__(self, features: torch.Tensor, memory: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]: ...
+    def __call__(self, features: torch.Tensor, memory: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]: ...
 
 
-def gain_features(pair: int, n_pairs: int, nu_c: torch.Tensor, miss: torch.Tensor, S: torch.Tensor,
-                  s_z: torch.Tensor) -> torch.Tensor:
-    """``(..., 2 d + 1 + n_pairs)``: ``nu_c / s_z``, ``alpha_miss``, ``log(sqrt(diag S) / s_z)`` and
-    the sensor's one-hot, from ``nu_c (..., d)``, ``miss (...)`` and ``S (..., d, d)``."""
-    sd = torch.diagonal(S, dim1=-2, dim2=-1).clamp(min=1e-30).sqrt()
-    onehot = torch.zeros(*miss.shape, n_pairs, dtype=nu_c.dtype, device=nu_c.device)
+def feature_count(d: int, n_pairs: int) -> int:
+    return 3 * d + 4 + n_pairs
+
+
+def gain_features(pair: int, n_pairs: int, w: torch.Tensor, nu: torch.Tensor, gate: torch.Tensor, S: torch.Tensor,
+                  s_z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(nu_c (..., d), features (..., 3 d + 4 + n_pairs))`` of one sensor's association:
+    ``w (..., M + 1)`` its weights (the last the miss), ``nu (..., M, d)`` the innovations of its
+    ``M`` detections, ``gate (..., M)``, ``S (..., d, d)``.
+
+    Features: the combined innovation ``nu_c / s_z``; the miss probability; the predicted
+    deviations ``log(sqrt(diag S) / s_z)``; the spread of the weighted innovations about ``nu_c``
+    (diagonal of ``sum_i alpha_i nu_i nu_i^T - nu_c nu_c^T``, over ``diag S``: how much the
+    association is in doubt); the largest detection weight; ``log(1 + gated detections)``;
+    ``log(1 + nu_c^T S^-1 nu_c)``; the sensor's one-hot."""
+    M = nu.shape[-2]
+    a = w[..., :M].unsqueeze(-1)
+    nu0 = torch.where(gate.unsqueeze(-1), nu, torch.zeros((), dtype=nu.dtype))
+    nu_c = (a * nu0).sum(-2)
+    var = torch.diagonal(S, dim1=-2, dim2=-1).clamp(min=1e-30)
+    spread = ((a * nu0 * nu0).sum(-2) - nu_c * nu_c).clamp(min=0.0) / var
+    nis = (nu_c * torch.linalg.solve(S, nu_c.unsqueeze(-1)).squeeze(-1)).sum(-1).clamp(min=0.0)
+    top = w[..., :M].amax(-1) if M else torch.zeros_like(w[..., 0])
+    onehot = torch.zeros(*w.shape[:-1], n_pairs, dtype=nu.dtype, device=nu.device)
     onehot[..., pair] = 1.0
-    return torch.cat([nu_c / s_z, miss[..., None], torch.log(sd / s_z), onehot], -1)
+    feats = torch.cat([nu_c / s_z, w[..., M:], torch.log(var.sqrt() / s_z), spread, top[..., None],
+                       torch.log1p(gate.sum(-1, keepdim=True).to(nu.dtype)), torch.log1p(nis)[..., None], onehot], -1)
+    return nu_c, feats
 
 
 class GainCorrection:
@@ -72,7 +95,10 @@ class GainCorrection:
 
     ``net`` a :class:`GainNetwork`; ``s_z (d,)`` the deviation of one sensor's measurement
     components, ``s_x (n,)`` the state scale (SI). The tracker calls :meth:`start` once,
-    :meth:`step` for every sensor of every scan, and :meth:`forget` where slots were freed."""
+    :meth:`step` for every sensor of every scan, and :meth:`forget` where slots were freed.
+    The correction is ``dK = scale K + diag(s_x) G diag(1 / s_z)``: ``scale`` in (-1, 1) trusts
+    the model's gain ``K`` more or less (e.g. when the association is in doubt), ``G`` adds what a
+    rescaled ``K`` can not."""
 
     def __init__(self, net: GainNetwork, s_z: torch.Tensor, s_x: torch.Tensor):
         self.net, self.s_z, self.s_x = net, s_z, s_x
@@ -88,25 +114,29 @@ class GainCorrection:
             self.memory = torch.cat([self.memory, self.memory.new_zeros(B, T - T0, H)], 1)
         return self.memory
 
-    def step(self, pair: int, nu_c: torch.Tensor, miss: torch.Tensor, S: torch.Tensor,
+    def step(self, pair: int, w: torch.Tensor, nu: torch.Tensor, gate: torch.Tensor, mom,
              active: torch.Tensor | None) -> torch.Tensor:
         """The mean correction ``dK nu_c (B, T, n)`` (the tracker's dtype) of sensor ``pair``, from
-        ``nu_c (B, T, d)``, ``miss (B, T)`` and ``S (B, T, d, d)``. A track outside ``active (B, T)``
-        keeps an empty memory and no correction."""
-        B, T, d = nu_c.shape
+        its association weights ``w (B, T, M + 1)``, innovations ``nu (B, T, M, d)``, gates
+        ``gate (B, T, M)`` and predicted moments ``mom`` (``S (B, T, d, d)``, ``C (B, T, n, d)``).
+        A track outside ``active (B, T)`` keeps an empty memory and no correction."""
+        B, T, M, d = nu.shape
         memory = self._grown(T)
-        s_z = self.s_z.to(nu_c.dtype)
+        s_z = self.s_z.to(nu.dtype)
+        nu_c, feats = gain_features(pair, self.net.n_pairs, w, nu, gate, mom.S, s_z)
         params = next(iter(self.net.parameters()), None) if hasattr(self.net, "parameters") else None
-        net_dtype = nu_c.dtype if params is None else params.dtype
-        feats = gain_features(pair, self.net.n_pairs, nu_c, miss, S, s_z).to(net_dtype).reshape(B * T, -1)
-        G, new = self.net(feats, memory.reshape(B * T, -1).to(feats.dtype))
+        net_dtype = nu.dtype if params is None else params.dtype
+        G, scale, new = self.net(feats.to(net_dtype).reshape(B * T, -1), memory.reshape(B * T, -1).to(net_dtype))
         new = new.reshape(B, T, -1)
-        G = G.reshape(B, T, -1, d).to(nu_c.dtype)
+        G = G.reshape(B, T, -1, d).to(nu.dtype)
+        scale = scale.reshape(B, T).to(nu.dtype)
         if active is not None:
             new = torch.where(active[..., None], new, torch.zeros((), dtype=new.dtype))
+            scale = torch.where(active, scale, torch.zeros((), dtype=scale.dtype))
             G = torch.where(active[..., None, None], G, torch.zeros((), dtype=G.dtype))
         self.memory = new
-        dK = self.s_x.to(nu_c.dtype)[:, None] * G / s_z
+        K = torch.linalg.solve(mom.S, mom.C.transpose(-1, -2)).transpose(-1, -2)  # C S^-1 (S symmetric)
+        dK = scale[..., None, None] * K + self.s_x.to(nu.dtype)[:, None] * G / s_z
         return (dK @ nu_c.unsqueeze(-1)).squeeze(-1)
 
     def forget(self, where: torch.Tensor) -> None:

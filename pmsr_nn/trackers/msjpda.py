@@ -144,8 +144,9 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
 
     ``association``: ``jpda`` (the paper's m-best joint events) or ``pda`` (each track on its
     own, :func:`~.learned_gain.pda_marginals`). ``correction`` (the hybrid tracker of
-    :mod:`.learned_gain`) adds its learned gain times the combined innovation of sensor ``pair``
-    to the posterior mean; the association weights are constants to it (no gradient)."""
+    :mod:`.learned_gain`) adds its learned gain correction times the combined innovation of
+    sensor ``pair`` to the posterior mean; the association weights are constants to it (no
+    gradient)."""
     mom = unscented_moments(g, sub, R)
     nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d)
     d2, log_lik = gaussian_log_likelihood(nu, mom.S)
@@ -165,8 +166,7 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
     out = _collapse(w, x_all, P_all)
     if correction is not None:
-        nu_c = (w[..., :M, None] * torch.where(gate[..., None], nu, torch.zeros((), dtype=nu.dtype))).sum(-2)
-        out = Gaussian(out.x + correction.step(pair, nu_c, w[..., M], mom.S, active), out.P)
+        out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active), out.P)
     return out, dummy, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / s.clutter_density
 
 
