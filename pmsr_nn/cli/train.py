@@ -57,8 +57,9 @@ def cmd_train(args) -> int:
     config, overrides = split_overrides(args.config, args.overrides)
     if config is None and not args.resume:
         raise PmsrError("give a training config (e.g. train/smoke.yaml), or --resume an existing run")
-    if config is not None and _is_gain_config(config):
-        return _train_gain(config, overrides, args)
+    kind = _detection_tracker_kind(config)
+    if kind is not None:
+        return _train_on_detections(kind, config, overrides, args)
     cfg = load_train_config(config, overrides) if config is not None else None
     if args.resume and cfg is None and overrides:
         raise PmsrError("overrides need the config they apply to; a resumed run keeps its own config")
@@ -85,21 +86,31 @@ def cmd_select(args) -> int:
     return 0
 
 
-def _is_gain_config(config: str) -> bool:
+def _detection_tracker_kind(config: str | None) -> str | None:
+    """``jpda_gain`` or ``set_tracker`` for a config of a tracker on detections, else None."""
     from pathlib import Path
 
-    from ..nets.jpda_training import is_gain_config
+    from ..config import load_yaml
 
-    return Path(config).is_file() and is_gain_config(config)
+    if config is None or not Path(config).is_file():
+        return None
+    raw = load_yaml(config)
+    kind = raw.get("kind") if isinstance(raw, dict) else None
+    return kind if kind in ("jpda_gain", "set_tracker") else None
 
 
-def _train_gain(config: str, overrides: list[str], args) -> int:
-    """A ``kind: jpda_gain`` config: the hybrid tracker on detections (:mod:`pmsr_nn.nets.jpda_training`)."""
-    from ..nets.jpda_training import load_gain_config, train_gain
-
+def _train_on_detections(kind: str, config: str, overrides: list[str], args) -> int:
+    """A tracker on detections, trained on scenes drawn on the fly (:mod:`pmsr_nn.nets.jpda_training`,
+    :mod:`pmsr_nn.nets.set_training`)."""
     if args.resume:
-        raise PmsrError("a jpda_gain run can not be resumed (its steps draw fresh scenes; a run takes minutes): "
-                        "train it again into a new --out")
-    m = train_gain(load_gain_config(config, overrides), args.out)
+        raise PmsrError(f"a {kind} run can not be resumed (its steps draw fresh scenes): train it again into a new --out")
+    if kind == "jpda_gain":
+        from ..nets.jpda_training import load_gain_config, train_gain
+
+        m = train_gain(load_gain_config(config, overrides), args.out)
+    else:
+        from ..nets.set_training import load_set_config, train_set
+
+        m = train_set(load_set_config(config, overrides), args.out)
     print(f"tracker   {args.out / 'tracker.pt'}   (tensorboard --logdir {args.out / 'tb'})")
     return 0 if m["steps"] > 0 else 1

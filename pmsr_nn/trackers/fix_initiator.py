@@ -20,6 +20,24 @@ from .gating import gate_threshold
 from .initiators import velocity_fit
 
 
+def range_azimuth_fix(z: torch.Tensor, model: MeasurementModel) -> tuple[torch.Tensor, torch.Tensor]:
+    """Closed-form position fixes ``(..., S, M, 2)`` of detections ``z (..., S, M, d)`` (pair ``s``
+    measured by ``model``'s pair ``s``; planar) and ``ok (..., S, M)``: the receiver's ray at the
+    measured azimuth meets the pair's ellipse (range beyond the baseline, finite); 0 where not."""
+    comps = model.components
+    r, az = z[..., comps.index("range")], z[..., comps.index("azimuth")]
+    tx = model.geometry.pair_tx_positions(z.dtype).to(z.device)[:, None, :]  # (S, 1, 2)
+    rx = model.geometry.pair_rx_positions(z.dtype).to(z.device)[:, None, :]
+    base = rx - tx
+    u = torch.stack([torch.sin(az), torch.cos(az)], -1)  # azimuth clockwise from north
+    L2 = (base * base).sum(-1)
+    denom = 2 * (r + (base * u).sum(-1))
+    rho = (r * r - L2) / denom
+    pos = rx + rho.unsqueeze(-1) * u
+    ok = torch.isfinite(rho) & (rho > 0) & (r * r > L2)
+    return torch.where(ok.unsqueeze(-1), pos, torch.zeros((), dtype=z.dtype)), ok
+
+
 @dataclass(frozen=True)
 class FixInitiator:
     """Tentative tracks from the detections no track gated, one per group of detections of
@@ -60,17 +78,7 @@ class FixInitiator:
         ``(B, S, M, 2, 2)`` and ``ok (B, S, M)`` (a fix exists: range beyond the baseline,
         finite, ``H`` invertible)."""
         comps = model.components
-        r, az = z[..., comps.index("range")], z[..., comps.index("azimuth")]
-        tx = model.geometry.pair_tx_positions(z.dtype)[:, None, :]  # (S, 1, 2)
-        rx = model.geometry.pair_rx_positions(z.dtype)[:, None, :]
-        base = rx - tx
-        u = torch.stack([torch.sin(az), torch.cos(az)], -1)  # azimuth clockwise from north
-        L2 = (base * base).sum(-1)
-        denom = 2 * (r + (base * u).sum(-1))
-        rho = (r * r - L2) / denom
-        pos = rx + rho.unsqueeze(-1) * u
-        ok = torch.isfinite(rho) & (rho > 0) & (r * r > L2)
-        pos = torch.where(ok.unsqueeze(-1), pos, torch.zeros((), dtype=z.dtype))
+        pos, ok = range_azimuth_fix(z, model)
         # H = d(range, azimuth)/d(position) of each pair from the model's own Jacobian
         pi = list(model.pos_idx)
         H = []
