@@ -122,7 +122,9 @@ SHARDS = [tiny_blocks_scenario] + [["evaluate", "tiny/drones.yaml", "--out", f"r
                                     f"{i}/2", "--quiet"] for i in (1, 2)]
 STUDIES = ("fitee2023_mismatch", "one_sky", "remotesensing2020_icmb", "jeit2021_pmht", "fm_front_end", "daniyan_smcphd",
            "daniyan_smcphd_signals", "access2019_msjpda", "access2019_msjpda_pd", "access2019_msjpda_mbest",
-           "access2019_msjpda_clutter", "access2019_msjpda_initiation")
+           "access2019_msjpda_clutter", "access2019_msjpda_initiation", "dense_crossing")
+TINY_SCENES = ["optim.steps=2", "optim.val_every=1", "optim.val_scenes=2", "optim.batch_size=2", "scenes.targets=[2,2]"]
+"""A tracker on detections trained in seconds: two steps of two scenes of two targets."""
 
 RULES = [
     Rule(r"pmsr simulate datasets/fitee2023_ca\.yaml --out data/fitee --tracks 2000 --seed 7",
@@ -169,6 +171,11 @@ RULES = [
     Rule(r"pmsr methods( \w+)*"),
     # Scripts: their own tests cover them; here their options must exist (`--help` lists them).
     Rule(r"python (evaluate|benchmarks)/\w+\.py( evaluate/\w+\.yaml)?( --\S+( \S+)?)*"),
+    Rule(r"pmsr train train/jpda_gain\.yaml --out runs/jpda_gain_s0 seed=0", lambda a: [*a, *TINY_SCENES,
+                                                                                     "scenes.window=10"]),
+    Rule(r"pmsr train train/set_tracker\.yaml --out runs/set_tracker_s0 seed=0",
+         lambda a: [*a, *TINY_SCENES, "accelerator=cpu", "model.d_model=16", "model.heads=2", "model.encoder_layers=1",
+                    "model.decoder_layers=1"]),
 ]
 
 

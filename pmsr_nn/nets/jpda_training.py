@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 from ..config import from_dict, load_yaml, require, to_dict
-from .scene_data import SceneConfig, SceneSampler, fit_on_the_fly, resolve_recipe_path, start_run
+from .scene_data import FlyOptimConfig, SceneConfig, SceneSampler, fit_on_the_fly, resolve_recipe_path, start_run
 
 
 @dataclass(frozen=True)
@@ -42,24 +42,15 @@ class GainModelConfig:
 
 
 @dataclass(frozen=True)
-class GainOptimConfig:
-    """``steps`` optimiser steps of ``batch_size`` scenes; validation every ``val_every`` steps on
-    ``val_scenes`` fixed scenes; the loss (module docstring)."""
+class GainOptimConfig(FlyOptimConfig):
+    """:class:`~.scene_data.FlyOptimConfig` and the loss (module docstring)."""
 
-    lr: float = 1.0e-3
-    batch_size: int = 16
-    steps: int = 300
-    val_every: int = 50
-    val_scenes: int = 32
     loss_scale_m: float = 30.0
     huber_delta: float = 3.0
     skip_scans: int = 3
-    gradient_clip_val: float = 1.0
-    max_time_minutes: float | None = None
 
     def __post_init__(self) -> None:
-        require(self.lr > 0 and self.batch_size >= 1 and self.steps >= 1 and self.val_every >= 1
-                and self.val_scenes >= 1, "optim: lr, batch_size, steps, val_every and val_scenes must be positive")
+        super().__post_init__()
         require(self.loss_scale_m > 0 and self.huber_delta > 0 and self.skip_scans >= 0, "optim: loss_scale_m and "
                 "huber_delta must be positive, skip_scans >= 0")
 
@@ -171,16 +162,12 @@ def make_module(cfg: GainTrainConfig, problem: Problem):
 def baseline_validation(cfg: GainTrainConfig, problem: Problem) -> dict:
     """The plain S-MSJPDA's loss and RMSE on the validation scenes (what training must beat)."""
     losses, sq, count = [], 0.0, 0
-    for i in range(_val_batches(cfg)):
+    for i in range(cfg.optim.val_batches):
         scans, prior, truth, settings = problem.draw((cfg.seed, 1_000_000, i), cfg.optim.batch_size)
         err = problem.position_error(problem.track(None, scans, prior, settings), truth)
         losses.append(float(_loss(err, cfg.optim)))
         sq, count = sq + float(err.square().sum()), count + err.numel()
     return {"loss": sum(losses) / len(losses), "pos_rmse_m": math.sqrt(sq / count)}
-
-
-def _val_batches(cfg: GainTrainConfig) -> int:
-    return max(1, math.ceil(cfg.optim.val_scenes / cfg.optim.batch_size))
 
 
 def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> dict:
@@ -202,7 +189,7 @@ def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> 
     pl.seed_everything(cfg.seed, verbose=False)
     module = make_module(cfg, problem)
     o = cfg.optim
-    trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, _val_batches(cfg), o.gradient_clip_val,
+    trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, cfg.optim.val_batches, o.gradient_clip_val,
                                             o.max_time_minutes)
     meta = gain_metadata(problem.model.geometry.to_dict(), list(problem.model.components), list(problem.noise_std),
                          problem.dt, module.net, problem.prior_sd.tolist(), seed=cfg.seed, steps=int(trainer.global_step),

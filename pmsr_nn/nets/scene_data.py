@@ -47,6 +47,30 @@ class SceneConfig:
             "scenes.noise needs positive range_m, range_rate_mps and azimuth_deg")
 
 
+@dataclass(frozen=True)
+class FlyOptimConfig:
+    """Optimisation of a tracker trained on scenes drawn on the fly: ``steps`` Adam steps of
+    ``batch_size`` scenes, validation every ``val_every`` steps on ``val_scenes`` fixed scenes,
+    gradient clipping, an optional time limit."""
+
+    lr: float = 1.0e-3
+    batch_size: int = 16
+    steps: int = 300
+    val_every: int = 50
+    val_scenes: int = 32
+    gradient_clip_val: float = 1.0
+    max_time_minutes: float | None = None
+
+    def __post_init__(self) -> None:
+        require(self.lr > 0 and self.batch_size >= 1 and self.steps >= 1 and self.val_every >= 1
+                and self.val_scenes >= 1, "optim: lr, batch_size, steps, val_every and val_scenes must be positive")
+        require(self.max_time_minutes is None or self.max_time_minutes > 0, "optim: max_time_minutes must be positive")
+
+    @property
+    def val_batches(self) -> int:
+        return max(1, math.ceil(self.val_scenes / self.batch_size))
+
+
 def resolve_recipe_path(recipe: str, config_path) -> str:
     """A config's ``recipe``, relative to the config file; one-line error if it is not there."""
     path = Path(recipe)

@@ -21,25 +21,24 @@ import torch
 from scipy.optimize import linear_sum_assignment
 
 from ..config import from_dict, load_yaml, require, to_dict
-from .scene_data import SceneConfig, SceneSampler, fit_on_the_fly, resolve_recipe_path, start_run
+from .scene_data import FlyOptimConfig, SceneConfig, SceneSampler, fit_on_the_fly, resolve_recipe_path, start_run
 from .set_tracker import SetTracker, SetTrackerConfig, detection_tokens, set_loss
 
 
 @dataclass(frozen=True)
-class SetOptimConfig:
+class SetOptimConfig(FlyOptimConfig):
+    """:class:`~.scene_data.FlyOptimConfig` and the set loss's cut-off (m)."""
+
     lr: float = 3.0e-4
     batch_size: int = 64
     steps: int = 2000
     val_every: int = 250
     val_scenes: int = 256
     cutoff_m: float = 500.0
-    gradient_clip_val: float = 1.0
-    max_time_minutes: float | None = None
 
     def __post_init__(self) -> None:
-        require(self.lr > 0 and self.batch_size >= 1 and self.steps >= 1 and self.val_every >= 1
-                and self.val_scenes >= 1 and self.cutoff_m > 0, "optim: lr, batch_size, steps, val_every, val_scenes "
-                                                                "and cutoff_m must be positive")
+        super().__post_init__()
+        require(self.cutoff_m > 0, f"optim: cutoff_m must be positive, got {self.cutoff_m}")
 
 
 @dataclass(frozen=True)
@@ -149,7 +148,7 @@ def train_set(cfg: SetTrainConfig, out: str | Path, progress: bool = True) -> di
     pl.seed_everything(cfg.seed, verbose=False)
     module = make_module(cfg, sampler)
     o = cfg.optim
-    trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, max(1, math.ceil(o.val_scenes / o.batch_size)),
+    trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, o.val_batches,
                                             o.gradient_clip_val, o.max_time_minutes, cfg.accelerator)
     meta = set_metadata(cfg.model, sampler.model.geometry.to_dict(), sampler.model.components, sampler.noise_std,
                         sampler.dt, seed=cfg.seed, steps=int(trainer.global_step), config=to_dict(cfg),
