@@ -418,3 +418,31 @@ def test_a_tiny_trained_gain_beats_the_untrained_one_where_the_model_is_wrong():
     with torch.no_grad():
         after = float(mse(net, draws[1]))
     assert after < 0.5 * before, (before, after)
+
+
+def _one_detection_step(corr, T, nu_value, active=None):
+    from pmsr_nn.filters.gaussian import MeasurementMoments
+
+    mom = MeasurementMoments(torch.zeros(1, T, 3), torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3),
+                             torch.zeros(1, T, 6, 3, dtype=torch.float64))
+    w = torch.tensor([1.0, 0.0], dtype=torch.float64).expand(1, T, 2)
+    nu = torch.full((1, T, 1, 3), nu_value, dtype=torch.float64)
+    return corr.step(0, w, nu, torch.ones(1, T, 1, dtype=torch.bool), mom, active)
+
+
+def test_the_memory_is_cleared_every_horizon_steps():
+    corr = GainCorrection(ConstantGain(torch.ones(6, 3, dtype=torch.float64)), S_Z, S_X, horizon=3)
+    corr.start(1, 1)
+    seen = []
+    for _ in range(7):
+        _one_detection_step(corr, 1, 0.5)
+        seen.append(float(corr.memory[0, 0, 0]))
+    assert seen == [1.0, 2.0, 3.0, 1.0, 2.0, 3.0, 1.0]  # counts steps since the last clearing
+
+
+def test_an_inconsistent_combined_innovation_gets_the_models_gain_alone():
+    # S = I: nu_c^T S^-1 nu_c = 3 v^2; the 99 % chi-square gate of 3 dof is 11.34
+    corr = GainCorrection(ConstantGain(torch.ones(6, 3, dtype=torch.float64)), S_Z, S_X, consistency=11.34)
+    corr.start(1, 1)
+    assert bool((_one_detection_step(corr, 1, 1.9) != 0).all())  # NIS 10.8: the learned part acts
+    assert bool((_one_detection_step(corr, 1, 2.0) == 0).all())  # NIS 12.0: it does not

@@ -5,13 +5,16 @@
 Everything but the gain is S-MSJPDA's, options included: the JPDA settings, and ``initiation``
 ``oracle`` (handed each target's birth, a reference row) or ``detections`` (the shared track
 management). ``association: pda`` treats each track on its own (no joint events; faster, but
-tracks that share detections coalesce).
+tracks that share detections coalesce). ``memory``: ``training_window`` (default) clears a
+track's learned memory every training window's worth of scans (the checkpoint's
+``scenes.window``: the memory never runs longer than in training), ``unbounded`` never.
 """
 
 from __future__ import annotations
 
 from ..errors import ConfigError
 from ..trackers.base import Estimates
+from ..trackers.gating import gate_threshold
 from ..trackers.learned_gain import GainCorrection
 from ..trackers.msjpda import managed_msjpda, msjpda
 from . import MethodCall, MethodKind, Option, register
@@ -37,7 +40,12 @@ def run_learned_gain(call: MethodCall) -> Estimates:
     if m.motion.dim_x != len(ck.s_x):
         raise ConfigError(f"method {call.spec.name!r}: the checkpoint's state has {len(ck.s_x)} entries, the "
                           f"scenario's {m.motion.dim_x}")
-    corr = GainCorrection(ck.net, ck.s_z, ck.s_x)
+    window = ck.meta.get("training", {}).get("config", {}).get("scenes", {}).get("window")
+    horizon = None if call.spec.option("memory") == "unbounded" or not isinstance(window, int) else \
+        window * s.detection_model.n_pairs
+    p = call.spec.option("consistency_probability")
+    consistency = None if p is None else gate_threshold(float(p), len(s.detection_model.components))
+    corr = GainCorrection(ck.net, ck.s_z, ck.s_x, horizon, consistency)
     assoc = call.spec.option("association")
     R = s.detection_model.R()
     import torch
@@ -55,7 +63,10 @@ def run_learned_gain(call: MethodCall) -> Estimates:
 
 
 register(MethodKind("jpda_learned_gain", "detections", run_learned_gain,
-                    {**OPTIONS, "association": Option("jpda", str, choices=("jpda", "pda"))},
+                    {**OPTIONS, "association": Option("jpda", str, choices=("jpda", "pda")),
+                     "memory": Option("training_window", str, choices=("training_window", "unbounded")),
+                     "consistency_probability": Option(0.99, float, 0.5, 1.0 - 1e-12, nullable=True,
+                                                       null="the learned gain acts at every step")},
                     needs_checkpoint=True, load=_load, check_sensing=check_initiation,
                     description="S-MSJPDA with a learned correction of its gain (pmsr train train/jpda_gain.yaml); "
                                 "initiation: oracle or detections"))
