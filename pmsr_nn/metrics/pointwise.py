@@ -37,13 +37,21 @@ def pooled_rmse(est: torch.Tensor, truth: torch.Tensor, idx: Sequence[int], star
 
 def normalised_nees(x: torch.Tensor, P: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     """NEES over the full state divided by its dimension (1 for a consistent filter): ``x, truth (..., n)``,
-    ``P (..., n, n)`` -> ``(...)``; a singular covariance is solved by least squares instead of crashing."""
+    ``P (..., n, n)`` -> ``(...)``. NaN where the error or the covariance is not finite; a singular
+    covariance is solved with its pseudo-inverse (LAPACK's least squares must not see a NaN: it
+    stops the process with an internal error instead of raising)."""
     e = (x - truth).unsqueeze(-1)
-    try:
-        sol = torch.linalg.solve(P, e)
-    except RuntimeError:  # a singular covariance somewhere: those steps are NaN, not a crash
-        sol = torch.linalg.lstsq(P, e).solution
-    return (e * sol).sum((-2, -1)) / x.shape[-1]
+    ok = torch.isfinite(e).all(-1).all(-1) & torch.isfinite(P).all(-1).all(-1)
+    eye = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device)
+    Pf = torch.where(ok[..., None, None], P, eye)
+    ef = torch.where(ok[..., None, None], e, torch.zeros((), dtype=e.dtype, device=e.device))
+    sol, info = torch.linalg.solve_ex(Pf, ef)
+    singular = info != 0
+    if bool(singular.any()):
+        sol = sol.clone()
+        sol[singular] = torch.linalg.pinv(Pf[singular]) @ ef[singular]
+    value = (ef * sol).sum((-2, -1)) / x.shape[-1]
+    return torch.where(ok, value, torch.full_like(value, float("nan")))
 
 
 def track_loss(dummy_most_probable: torch.Tensor, gate_sd: torch.Tensor, successive: int, gate_limit: float) -> torch.Tensor:
