@@ -80,13 +80,15 @@ def test_one_target_no_clutter_pd_1_cardinality_and_error_against_the_kalman_fil
     assert bool((phd <= 1.2 * kf).all()), (phd, kf)
 
 
-def test_the_expected_number_equals_the_sum_of_weights_after_every_step():
+@pytest.mark.parametrize("adaptive", [True, False])
+def test_the_expected_number_equals_the_sum_of_weights_after_every_step(adaptive):
     """The recursion's count (births added, Pd / clutter update per detection partition, kept by
     resampling) against the particle weights; float64 sums of ~1e5 terms agree to ~1e-11."""
     g = torch.Generator().manual_seed(2)
     truth = cv_truth(torch.tensor([[15_000.0, 50.0], [30_000.0, -120.0], [45_000.0, 10.0]], dtype=torch.float64), 3, 25, g)
     z, valid = detections(truth, 0.8, 6, g)
-    f = SMCPHD(PHDSpec(particles_per_target=500, particles_per_birth=100), SD, 0.8, kappa(6), 1.0)
+    f = SMCPHD(PHDSpec(particles_per_target=500, particles_per_birth=100, birth_particles_min=20, adaptive_birth=adaptive),
+               SD, 0.8, kappa(6), 1.0)
     st = f.empty(3)
     for k in range(25):
         for step in ("predict", "update", "resample"):
@@ -99,6 +101,71 @@ def test_the_expected_number_equals_the_sum_of_weights_after_every_step():
             total = st.w.sum(1)
             assert torch.allclose(total, st.expected, rtol=1e-9, atol=0.0), (k, step, total, st.expected)
     assert float(st.expected.min()) > 1.5  # the check ran on a populated PHD
+
+
+def tracked_target(clutter: int, g: torch.Generator):
+    """One target (Pd 1) tracked for 15 clutter-free scans, then a last update with its detection and
+    ``clutter`` points far from it (row 0: the target's): the filter, the state and those detections."""
+    truth = cv_truth(torch.tensor([[20_000.0, -100.0]], dtype=torch.float64), 1, 16, g)
+    z, valid = detections(truth, 1.0, 0, g)
+    f = SMCPHD(PHDSpec(), SD, 1.0, kappa(clutter), 1.0)
+    st = f.empty(1)
+    for k in range(15):
+        st = f.predict(st, z[:, k - 1] if k else None, valid[:, k - 1] if k else None, g)
+        st = f.resample(f.update(st, z[:, k], valid[:, k])[0], g)
+    far = torch.stack([35_000.0 + 600.0 * torch.arange(clutter, dtype=torch.float64),
+                       torch.linspace(-250.0, 250.0, clutter, dtype=torch.float64)], -1)
+    zl = torch.cat([z[:, 15], far[None]], 1)
+    st = f.predict(st, z[:, 14], valid[:, 14], g)
+    st = f.resample(f.update(st, zl, torch.ones(1, 1 + clutter, dtype=torch.bool))[0], g)
+    return f, st, zl
+
+
+@pytest.mark.parametrize("clutter", [0, 10, 30])
+def test_births_only_where_no_target_explains_a_detection_and_their_particles_follow_their_mass(clutter):
+    """Adaptive births (Ristic et al. 2012): the tracked target's detection, of which the persistent
+    PHD took all but u0 = kappa / (kappa + taken) (about 1e-2 at 30 clutter points, below 1e-3
+    without), seeds round(u0 x per) particles, none or a few; each of the ``clutter`` unexplained
+    points (u = 1) seeds per = max(100, 800 / clutter) particles with birth_rate / clutter of mass.
+    One scan's births then cost 800 particles or 100 per unexplained detection, where the filter
+    before issue 37 put 800 on every detection (800 x 31 at 30 clutter points)."""
+    f, st, zl = tracked_target(clutter, torch.Generator().manual_seed(7))
+    spec = f.spec
+    assert abs(float(st.expected[0]) - 1.0) < 0.05  # the target is held: its PHD mass is ~1 at Pd 1
+    u0 = 1.0 - float(st.explained[0, 0])
+    assert u0 < 0.05 and bool((st.explained[0, 1:] == 0).all())
+    born = f.predict(st, zl, torch.ones(1, zl.shape[1], dtype=torch.bool), torch.Generator().manual_seed(8))
+    xb, wb = born.x[0, born.persistent:], born.w[0, born.persistent:]
+    xb = xb[wb > 0]
+    per = max(spec.birth_particles_min, spec.particles_per_birth / max(clutter + u0, 1.0))
+    # which detection each birth particle came from: within 6 deviations of it after one move (range
+    # spread sqrt(30^2 + 4.5^2 + 10^2) m, range-rate sqrt(4.5^2 + 20^2) m/s; the points are >= 600 m apart)
+    spread = torch.tensor([32.0, 20.6], dtype=torch.float64)
+    d = ((xb[:, None, :] - (zl[0] @ f.F.T)[None]) / spread).abs().amax(-1)  # (births, detections)
+    on_target = int((d[:, 0] < 6).sum())
+    assert on_target == round(u0 * per) and on_target <= 0.05 * per
+    assert bool((d.amin(1) < 6).all())  # and every other one on a clutter point
+    assert xb.shape[0] == on_target + clutter * round(per)
+    # the births' mass: birth_rate shared among the detections by how unexplained they are (a birth
+    # given no particle gets no mass)
+    birth_mass = float(born.expected[0] - spec.survival * st.expected[0])
+    shared = (clutter + (u0 if on_target else 0.0)) / max(clutter + u0, 1.0)
+    assert birth_mass == pytest.approx(spec.birth_rate * shared, rel=1e-9, abs=1e-15)
+    assert float(born.w.sum()) == pytest.approx(float(born.expected[0]), rel=1e-9)
+
+
+def test_the_birth_options_of_the_kind_reach_the_filter_and_bad_ones_are_refused():
+    from pmsr_nn.harness.method_spec import MethodSpec
+    from pmsr_nn.methods.phd_pair import phd_settings
+
+    spec = phd_settings(MethodSpec("p", "smc_phd_pair"))
+    assert spec.adaptive_birth and spec.birth_particles_min == 100  # the defaults: adaptive births on
+    spec = phd_settings(MethodSpec("p", "smc_phd_pair", options={"births": "every_detection", "birth_particles_min": 50}))
+    assert not spec.adaptive_birth and spec.birth_particles_min == 50
+    with pytest.raises(ConfigError, match="option births must be one of adaptive, every_detection"):
+        MethodSpec("p", "smc_phd_pair", options={"births": "some"})
+    with pytest.raises(ConfigError, match="option birth_particles_min must be an integer"):
+        MethodSpec("p", "smc_phd_pair", options={"birth_particles_min": 5})
 
 
 def test_the_update_weights_match_a_direct_evaluation_of_the_update_equation():
@@ -126,7 +193,9 @@ def test_the_update_weights_match_a_direct_evaluation_of_the_update_equation():
 
 def test_bad_settings_and_detections_are_refused_with_one_line():
     for kwargs, text in (({"particles_per_target": 9}, "at least 10"), ({"particles_per_birth": 5}, "at least 10"),
-                         ({"birth_rate": 0.0}, "no mass"), ({"survival": 1.5}, "survival")):
+                         ({"birth_rate": 0.0}, "no mass"), ({"survival": 1.5}, "survival"),
+                         ({"birth_particles_min": 9}, "birth_particles_min must be at least 10"),
+                         ({"adaptive_birth": "yes"}, "adaptive_birth must be true or false")):
         with pytest.raises(ConfigError, match=text):
             PHDSpec(**kwargs)
     for forgetting in (0.0, 1.01, float("nan")):

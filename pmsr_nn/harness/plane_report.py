@@ -213,7 +213,9 @@ def _setup_lines(results: Results) -> list[str]:
              f"{noise['range_m']:g} m / {noise.get('range_rate_mps', '-')} m/s"),
             ("process sigma (m/s^2)", 1e3 * t.get("process_sigma_km_s2", float("nan")), opt("process_sd_mps2")),
             ("particles per target / per birth", f"{t.get('particles_per_target')} / {t.get('birth_particles_per_target')}",
-             f"{opt('particles_per_target')} / {opt('particles_per_birth')}")]
+             f"{opt('particles_per_target')} / {opt('particles_per_birth')}" + (
+                 f" per scan's births, at least {opt('birth_particles_min')} per detection no target explains (adaptive)"
+                 if phd and opt("births") == "adaptive" else ""))]
     lines = [f"Set-up beside the seed's ({label}: {ref['key']}; the seed reports figures only, no numbers to compare; "
              "its data are a field recording, ours a simulation of its stated set-up):", "",
              f"| quantity | {label} | this scenario |", "|---|---|---|"]

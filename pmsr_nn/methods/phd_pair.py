@@ -18,6 +18,12 @@ detection model; the PHD uses the case's Pd and a clutter intensity per m x m/s:
 of one pair over the clutter box's range x range-rate extent (for detections of Doppler, the
 Doppler extent in m/s), floored as the other trackers'.
 
+Births (options ``births``, ``birth_particles_min``, :class:`~pmsr_nn.trackers.phd.PHDSpec`):
+``adaptive`` (the default since issue 37) seeds births only on the previous scan's detections the
+persistent PHD did not explain, ``particles_per_birth`` particles for a scan's whole birth mass,
+at least ``birth_particles_min`` per unexplained detection, so clutter costs little;
+``every_detection`` puts ``particles_per_birth`` particles on every detection (the filter before).
+
 Scoring: their estimates are not the scenario's state, so each kind declares its space
 (:class:`~pmsr_nn.methods.EstimateSpace`): the pair's ``[r, rdot]``. The runner projects the
 truth into it (the measurement model's range and range-rate of the pair, noise-free) and scores
@@ -123,7 +129,8 @@ def phd_settings(spec) -> PHDSpec:
     return PHDSpec(particles_per_target=int(o("particles_per_target")), particles_per_birth=int(o("particles_per_birth")),
                    survival=float(o("survival")), birth_rate=float(o("birth_rate")),
                    process_sd_mps2=float(o("process_sd_mps2")), kmeans_iterations=int(o("kmeans_iterations")),
-                   estimate_mass=float(o("estimate_mass")), gate_probability=float(o("phd_gate_probability")))
+                   estimate_mass=float(o("estimate_mass")), gate_probability=float(o("phd_gate_probability")),
+                   adaptive_birth=o("births") == "adaptive", birth_particles_min=int(o("birth_particles_min")))
 
 
 def run_phd(call: MethodCall):
@@ -256,6 +263,10 @@ OPTIONS = {
     "pair": PAIR,
     "particles_per_target": Option(4000, int, 10, 1_000_000),
     "particles_per_birth": Option(800, int, 10, 1_000_000),
+    # adaptive: births only where the persistent PHD explains no detection, particles following their mass
+    # (PHDSpec.adaptive_birth); every_detection: particles_per_birth on every detection (before issue 37)
+    "births": Option("adaptive", str, choices=("adaptive", "every_detection")),
+    "birth_particles_min": Option(100, int, 10, 1_000_000),
     "survival": Option(0.99, float, 1e-6, 1.0),
     "birth_rate": Option(0.05, float, 1e-9, 100.0),
     "process_sd_mps2": PROCESS_SD,
@@ -274,7 +285,8 @@ OPTIONS = {
 register(MethodKind("smc_phd_pair", "detections", run_smc_phd_pair, OPTIONS, check_sensing=check_pair_sensing,
                     starts_tracks=True, space=pair_space,
                     description="SMC-PHD in one pair's bistatic plane [r, rdot] (Daniyan et al.; births around the "
-                                "previous scan's detections), its estimates labelled by GTDA or the Hungarian "
+                                "previous scan's detections no existing target explains, births: adaptive; "
+                                "every_detection: on all of them), its estimates labelled by GTDA or the Hungarian "
                                 "baseline, or unlabelled (labelling: none); scored in that plane (OSPA on bistatic "
                                 "range); starts its own tracks"))
 register(MethodKind("known_association_kf_pair", "detections", run_known_association_kf_pair,

@@ -6,12 +6,24 @@ m/s^2), measured directly (Eq. 4, ``H = I``, ``R = diag(sd^2)``). The PHD is a w
 set whose weights sum to the expected number of targets. One scan:
 
 1. **predict**: every particle moves with the CV model plus drawn process noise; weights x ``p_S``;
-2. **birth** (measurement-driven, after Ristic et al. 2012): ``particles_per_birth`` particles are
-   drawn around each detection of the *previous* scan (``N(z, R)``) and moved one step; the birth
-   mass ``birth_rate`` (expected newborn targets per scan) is shared equally among them, so no
-   birth is placed where nothing was ever seen and the birth mass does not grow with clutter;
+2. **birth** (measurement-driven, after Ristic, Clark, Vo & Vo 2012, "Adaptive target birth
+   intensity for PHD and CPHD filters"): particles are drawn around detections of the *previous*
+   scan (``N(z, R)``) and moved one step, so no birth is placed where nothing was seen. With
+   ``adaptive_birth`` (the default) a detection ``j`` seeds a birth in proportion to how little the
+   persistent PHD (the particles not born this scan) explained it in its update: ``u_j = 1 - s_j``,
+   ``s_j = sum_{i persistent} Pd g_ij w_i / (kappa + sum_l Pd g_lj w_l)``. Its birth mass is
+   ``birth_rate u_j / max(1, U)`` (``U = sum_j u_j``: the prior's ``birth_rate`` expected newborn
+   targets per scan shared among the unexplained detections) and its particle count follows that
+   mass: ``round(u_j max(birth_particles_min, particles_per_birth / max(1, U)))``, i.e.
+   ``particles_per_birth`` particles for a scan's whole birth mass, at least ``birth_particles_min``
+   per unexplained detection (a birth needs enough particles to represent ``N(z, R)`` should it be
+   a target). A detection an existing target explains (``u_j`` near 0) seeds no particle and no
+   mass, and clutter births cost ``birth_particles_min`` each instead of ``particles_per_birth``.
+   Without ``adaptive_birth``: ``particles_per_birth`` particles on every detection, the mass
+   ``birth_rate`` shared equally among them (the filter before issue 37);
 3. **update** with the current detections (Pd, clutter intensity ``kappa`` per m x m/s):
-   ``w_i <- (1 - Pd) w_i + sum_j Pd g_ij w_i / (kappa + sum_l Pd g_lj w_l)``;
+   ``w_i <- (1 - Pd) w_i + sum_j Pd g_ij w_i / (kappa + sum_l Pd g_lj w_l)``; also each
+   detection's share ``s_j`` taken by the persistent particles (the next scan's births read it);
 4. **estimates** by a gated weighted k-means of the particles: the seeds are the per-detection
    partitions of the PHD (the mass and mean each detection takes in step 3, as Ristic et al.'s
    extraction), picked greedily by mass, heaviest first, skipping seeds inside a picked one's gate,
@@ -55,6 +67,8 @@ class PHDSpec:
     kmeans_iterations: int = 1
     estimate_mass: float = 0.5
     gate_probability: float = 0.999
+    adaptive_birth: bool = True
+    birth_particles_min: int = 100
 
     @property
     def gate(self) -> float:
@@ -65,6 +79,9 @@ class PHDSpec:
         check_phd_settings(self)
         require(self.process_sd_mps2 >= 0 and math.isfinite(self.process_sd_mps2),
                 f"process_sd_mps2 must be finite and >= 0, got {self.process_sd_mps2}")
+        require(isinstance(self.adaptive_birth, bool), f"adaptive_birth must be true or false, got {self.adaptive_birth!r}")
+        require(self.birth_particles_min >= 10,
+                f"birth_particles_min must be at least 10 (particles per unexplained detection), got {self.birth_particles_min}")
 
 
 def check_phd_settings(spec) -> None:
@@ -92,11 +109,17 @@ def cv_matrices(dt: float, sigma: float) -> tuple[torch.Tensor, torch.Tensor]:
 @dataclass
 class PHDState:
     """Particles ``x (B, M, 2)``, weights ``w (B, M)`` (0: padding), ``expected (B,)`` the PHD's
-    expected number of targets carried by the recursion's formulas (equal to ``w.sum(1)``)."""
+    expected number of targets carried by the recursion's formulas (equal to ``w.sum(1)``).
+    After a prediction, ``persistent``: the leading particles that were not born this scan (the
+    births follow them); after an update, ``explained (B, J)``: the share of each of that scan's
+    detections the persistent particles took (``s_j``; the adaptive births of the next scan read
+    it). Both null where unknown (a filter that does not track them)."""
 
     x: torch.Tensor
     w: torch.Tensor
     expected: torch.Tensor
+    persistent: int | None = None
+    explained: torch.Tensor | None = None
 
 
 @dataclass
@@ -131,8 +154,11 @@ def correct(st: PHDState, pg: torch.Tensor, valid: torch.Tensor, pd: float, kapp
     weighted likelihoods ``Pd g_ij w_i`` of detections ``valid (B, J)``, and the clutter intensity
     ``kappa`` (per unit of the measurement space, as ``g``): the updated state, and each detection's
     partition, the mass it takes ``part_w (B, J)`` (negative where ``j`` is padding) and its weighted
-    mean ``part_x (B, J, n)``."""
-    taken = pg.sum(1)  # (B, J)
+    mean ``part_x (B, J, n)``. Where ``st.persistent`` is known, the state carries ``explained (B, J)``,
+    the share of each detection the leading ``st.persistent`` particles took (0 for padding)."""
+    P = st.persistent
+    taken_p = None if P is None else pg[:, :P].sum(1)  # (B, J): the persistent particles' part
+    taken = pg.sum(1) if P is None else taken_p + pg[:, P:].sum(1)  # (B, J)
     denom = kappa + taken
     inv = torch.where(denom > 0, 1.0 / denom, torch.zeros((), dtype=denom.dtype))
     part_w = taken * inv
@@ -140,8 +166,9 @@ def correct(st: PHDState, pg: torch.Tensor, valid: torch.Tensor, pd: float, kapp
     w = (1 - pd) * st.w + torch.bmm(pg, inv[:, :, None])[..., 0]
     part_x = torch.bmm(pg.transpose(1, 2), st.x) / taken.clamp(min=1e-300)[..., None]
     expected = (1 - pd) * st.expected + part_w.sum(1)
+    explained = None if P is None else torch.where(valid, taken_p * inv, torch.zeros((), dtype=w.dtype))
     part_w = torch.where(valid & (taken > 0), part_w, torch.full((), -1.0, dtype=w.dtype))
-    return PHDState(st.x, w, expected), part_x, part_w
+    return PHDState(st.x, w, expected, explained=explained), part_x, part_w
 
 
 def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate: float, least: float,
@@ -226,11 +253,17 @@ class SMCPHD:
 
     def predict(self, st: PHDState, z_prev: torch.Tensor | None, valid_prev: torch.Tensor | None,
                 g: torch.Generator) -> PHDState:
-        """Survival and motion of the particles, then the births around ``z_prev (B, J, 2)``."""
+        """Survival and motion of the particles, then the births around ``z_prev (B, J, 2)`` (with
+        ``adaptive_birth``, weighted by ``st.explained``, the update's shares of those detections:
+        null counts them unexplained). The result's ``persistent``: the particles before the births."""
         ps = self.spec.survival
         x, w = self._move(st.x, g), st.w * ps
         expected = st.expected * ps
-        if z_prev is not None and z_prev.shape[1]:
+        persistent = x.shape[1]
+        if z_prev is not None and z_prev.shape[1] and self.spec.adaptive_birth:
+            xb, wb, mass = self.births(z_prev, valid_prev, st.explained, g)
+            x, w, expected = torch.cat([x, xb], 1), torch.cat([w, wb], 1), expected + mass
+        elif z_prev is not None and z_prev.shape[1]:
             B, J, _ = z_prev.shape
             n = self.spec.particles_per_birth
             seeds = torch.where(valid_prev[..., None], z_prev, torch.zeros((), dtype=z_prev.dtype))
@@ -242,7 +275,31 @@ class SMCPHD:
             x, w = torch.cat([x, xb], 1), torch.cat([w, wb], 1)
             expected = expected + torch.where(count > 0, torch.full_like(expected, self.spec.birth_rate),
                                               torch.zeros_like(expected))
-        return PHDState(x, w, expected)
+        return PHDState(x, w, expected, persistent=persistent)
+
+    def births(self, z: torch.Tensor, valid: torch.Tensor, explained: torch.Tensor | None, g: torch.Generator
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The adaptive births (module docstring, step 2) around detections ``z (B, J, 2)`` / ``valid (B, J)``
+        whose shares taken by the persistent PHD were ``explained (B, J)`` (null: none): particles
+        ``x (B, N, 2)`` (moved one step; padding weighs 0), weights ``w (B, N)`` and each run's birth
+        mass ``(B,)``. A birth given no particle is given no mass, so the mass stays ``w.sum(1)``."""
+        spec = self.spec
+        B, J, _ = z.shape
+        s = torch.zeros(B, J, dtype=torch.float64) if explained is None else explained.to(torch.float64)
+        u = torch.where(valid, (1.0 - s).clamp(0.0, 1.0), torch.zeros((), dtype=torch.float64))  # (B, J)
+        U = u.sum(1, keepdim=True).clamp(min=1.0)  # (B, 1)
+        per = torch.clamp(spec.particles_per_birth / U, min=float(spec.birth_particles_min))
+        n = torch.round(u * per).to(torch.int64)  # (B, J): particles follow the mass, floored per birth
+        mass = torch.where(n > 0, spec.birth_rate * u / U, torch.zeros((), dtype=torch.float64))  # (B, J)
+        ends = n.cumsum(1)
+        total = ends[:, -1]
+        N = int(total.max())
+        pos = torch.arange(N).expand(B, N)
+        seed = torch.searchsorted(ends, pos.contiguous(), right=True).clamp(max=J - 1)  # (B, N): its detection
+        born = pos < total[:, None]
+        xb = z.gather(1, seed[..., None].expand(B, N, 2)) + standard_normal((B, N, 2), g) * self.sd
+        wb = torch.where(born, (mass / n.clamp(min=1)).gather(1, seed), torch.zeros((), dtype=torch.float64))
+        return self._move(xb, g), wb, mass.sum(1)
 
     def weighted_likelihood(self, st: PHDState, z: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         """``Pd g_ij w_i (B, M, J)``: ``g_ij`` the Gaussian density of detection ``j`` given particle
@@ -290,7 +347,7 @@ class SMCPHD:
         comp = torch.where(st.w > 0, torch.zeros((), dtype=torch.int64), torch.ones((), dtype=torch.int64))
         x, comp_new, logw_new = segmented_resample(st.x, logw, comp, (mass > 0)[:, None], counts, g)
         w = torch.where(comp_new == 0, logw_new.exp() * mass[:, None], torch.zeros((), dtype=torch.float64))
-        return PHDState(x, w, st.expected)
+        return PHDState(x, w, st.expected, explained=st.explained)
 
     def run(self, z: torch.Tensor, valid: torch.Tensor, g: torch.Generator, progress=None) -> PHDEstimates:
         """The filter over detections ``z (B, K, J, 2)`` / ``valid (B, K, J)`` (NaN where padded)."""

@@ -1542,6 +1542,12 @@ case("evaluate/phd-particles-per-target-below-10", "evaluate p.yaml --out out",
 case("evaluate/phd-birth-without-mass", "evaluate p.yaml --out out",
      setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(birth_rate=0.0)),
      message="option birth_rate must be a number in", klass="refusal")
+case("evaluate/phd-births-unknown", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(births="sometimes")),
+     message="option births must be one of adaptive, every_detection", klass="refusal")
+case("evaluate/phd-birth-particles-min-below-10", "evaluate p.yaml --out out",
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(birth_particles_min=5)),
+     message="option birth_particles_min must be an integer in [10", klass="refusal")
 case("evaluate/phd-forgetting-zero", "evaluate p.yaml --out out",
      setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(forgetting=0.0)),
      message="option forgetting must be a number in", klass="refusal")
