@@ -5,13 +5,15 @@ clutter points per sensor per scan). Both trackers run on the same draws in this
 the P/S ratio is not disturbed by machine noise between runs. Two ways of timing:
 
 * ``serial``: one run at a time (block of 1), what the paper's MATLAB figures measure;
-* ``batched``: ``--block`` runs at once (the harness's way: the UKF and mixture algebra are batched
-  over runs, only the assignment loops over them), divided by the runs.
+* ``batched``: ``--block`` runs at once (the harness's way: S-MSJPDA batches everything over runs,
+  its small clusters' events included; P-MSJPDA's (N+1)-D assignment loops over runs and
+  clusters), divided by the runs; with ``--repeats`` the median of that many passes.
 
 Every method of the scenario is timed: P-MSJPDA at m = 10 (as S-MSJPDA) and at m = 100, and the
 true-assignment UKF (no association at all) as the floor of what a run costs.
 
     python benchmarks/bench_msjpda.py --runs 20 --json benchmarks/results/bench_msjpda.json
+    python benchmarks/bench_msjpda.py --runs 100 --block 100 --serial-runs 10 --repeats 3 --methods S-MSJPDA
 """
 
 from __future__ import annotations
@@ -40,8 +42,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=20, help="Monte Carlo runs timed (default 20)")
     ap.add_argument("--block", type=int, default=10, help="runs per batched call (default 10)")
+    ap.add_argument("--serial-runs", type=int, help="runs timed one at a time (default: --runs)")
+    ap.add_argument("--repeats", type=int, default=1, help="batched passes; the median is reported (default 1)")
+    ap.add_argument("--methods", nargs="+", help="names of the methods to time (default: all of the scenario)")
     ap.add_argument("--json", type=Path, help="write the figures here")
     args = ap.parse_args()
+    serial_runs = args.runs if args.serial_runs is None else args.serial_runs
+    if not (1 <= serial_runs <= args.runs and args.repeats >= 1 and 1 <= args.block):
+        ap.error("need 1 <= --serial-runs <= --runs, --repeats >= 1 and --block >= 1")
     data = load_yaml(SCENARIO)
     data.update(mc_runs=args.runs, block_runs=args.runs)
     sc = multitarget_from_dict(data, SCENARIO.parent)
@@ -49,24 +57,33 @@ def main() -> None:
     case = setup.cases[0]
     det = draw_block(setup, 0, 0)[1]["detections"]  # the nominal case, all runs in one draw
     methods = {m.name: m for m in setup.methods}
+    if args.methods:
+        unknown = sorted(set(args.methods) - set(methods))
+        if unknown:
+            ap.error(f"unknown methods {unknown}; the scenario has {sorted(methods)}")
+        methods = {k: v for k, v in methods.items() if k in args.methods}
     run = lambda m, i: call_method(setup, m, case, {"detections": det.runs(i)}, (sc.seed, 0, 0))
     for m in methods.values():  # untimed warm-up
         run(m, slice(0, 1))
     figures = {"scenario": str(SCENARIO.name), "case": sc.cases[0].name, "runs": args.runs, "block": args.block,
-               "threads": torch.get_num_threads(), "methods": {}}
+               "serial_runs": serial_runs, "repeats": args.repeats, "threads": torch.get_num_threads(), "methods": {}}
     for name, m in methods.items():
         serial = []
-        for r in range(args.runs):
+        for r in range(serial_runs):
             t0 = time.perf_counter()
             run(m, slice(r, r + 1))
             serial.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        for start in range(0, args.runs, args.block):
-            run(m, slice(start, start + args.block))
-        batched = (time.perf_counter() - t0) / args.runs
+        passes = []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            for start in range(0, args.runs, args.block):
+                run(m, slice(start, start + args.block))
+            passes.append((time.perf_counter() - t0) / args.runs)
+        batched = statistics.median(passes)
         figures["methods"][name] = {"serial_s_per_run_mean": statistics.fmean(serial),
                                     "serial_s_per_run_median": statistics.median(serial),
-                                    "batched_s_per_run": batched, "paper_s_per_run": PAPER_S.get(name)}
+                                    "batched_s_per_run": batched, "batched_s_per_run_passes": passes,
+                                    "paper_s_per_run": PAPER_S.get(name)}
         print(f"{name:16s} serial {statistics.fmean(serial):.3f} s/run (median {statistics.median(serial):.3f})  "
               f"batched {batched:.3f} s/run  paper {PAPER_S.get(name, '-')}")
     f = figures["methods"]

@@ -20,7 +20,8 @@ from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import ClutterSpec, Scans, simulate_scans
 from pmsr_nn.trackers.clustering import track_clusters
 from pmsr_nn.trackers.gating import gaussian_log_likelihood
-from pmsr_nn.trackers.jpda import assignment_matrix, candidate_marginals, miss_cost, single_sensor_marginals
+from pmsr_nn.trackers.jpda import (assignment_matrix, batched_single_sensor_marginals, candidate_marginals, miss_cost,
+                                   single_sensor_marginals)
 from pmsr_nn.trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
 
 TX = [Transmitter((-38e3, 12e3), 93.1e6), Transmitter((26e3, 31e3), 90.9e6), Transmitter((14e3, -42e3), 99.9e6)]
@@ -164,6 +165,94 @@ def test_one_track_marginals_keep_the_m_cheapest_events_like_murty():
         np.testing.assert_allclose(single_sensor_marginals(cost, m), expected, rtol=1e-12)
 
 
+def _blocks_of_costs(seed: int) -> np.ndarray:
+    """``(B, T, M)`` detection costs N(0, 1) (so no event is negligible: with at most 5 tracks every
+    event is within ~15 nats of the best), ``inf`` outside sparse random gates that chain tracks
+    into clusters of 1-5, different in every run."""
+    rng = np.random.default_rng(seed)
+    B, T, M = 6, 5, 7
+    cost = rng.normal(0.0, 1.0, (B, T, M))
+    cost[rng.random((B, T, M)) > 0.3] = np.inf
+    return cost
+
+
+def _per_cluster(cost: np.ndarray, miss: float, m: int | None) -> np.ndarray:
+    """The per-run, per-cluster path the batched one replaces (Murty, or brute force for ``None``)."""
+    B, T, M = cost.shape
+    alpha = np.zeros((B, T, M + 1))
+    alpha[..., M] = 1.0
+    for b in range(B):
+        gated = np.isfinite(cost[b])
+        for cl in track_clusters(gated):
+            cols = np.flatnonzero(gated[cl].any(0))
+            a = single_sensor_marginals(assignment_matrix(cost[b][np.ix_(cl, cols)], miss), m)
+            alpha[b, cl, M] = a[:, -1]
+            alpha[b][np.ix_(cl, cols)] = a[:, :-1]
+    return alpha
+
+
+# Probabilities are normalised sums of at most a few thousand exp(-cost) terms: their rounding
+# is ~1e-13; 1e-9 is far below the smallest event probability of these draws (exp(-15) ~ 3e-7).
+PROB_ATOL = 1e-9
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_batched_marginals_equal_brute_force_when_m_covers_every_event(seed):
+    cost = _blocks_of_costs(seed)
+    miss = miss_cost(0.8)
+    exact = _per_cluster(cost, miss, None)  # every event of every cluster, by enumeration
+    np.testing.assert_allclose(batched_single_sensor_marginals(cost, miss, 10_000), exact, atol=PROB_ATOL)
+    np.testing.assert_allclose(batched_single_sensor_marginals(cost, miss, 10_000, max_events=0), exact,
+                               atol=PROB_ATOL)  # every cluster through Murty
+
+
+@pytest.mark.parametrize("m", [1, 3, 10])
+def test_batched_m_best_marginals_equal_murty_per_cluster(m):
+    """Truncated to m events the enumeration keeps Murty's m cheapest; clusters above the event
+    limit (here every cluster of more than 16 events) go through Murty in the same call."""
+    for seed in range(4):
+        cost = _blocks_of_costs(seed)
+        expected = _per_cluster(cost, miss_cost(0.8), m)
+        for limit in (4096, 16):
+            got = batched_single_sensor_marginals(cost, miss_cost(0.8), m, max_events=limit)
+            np.testing.assert_allclose(got, expected, atol=PROB_ATOL)
+
+
+def test_batched_marginals_do_not_mix_runs():
+    """Every run solved in one call gives what it gives alone, whatever the other runs hold."""
+    cost = _blocks_of_costs(7)
+    together = batched_single_sensor_marginals(cost, miss_cost(0.8), 5)
+    for b in range(cost.shape[0]):
+        alone = batched_single_sensor_marginals(cost[b:b + 1], miss_cost(0.8), 5)
+        np.testing.assert_allclose(together[b:b + 1], alone, atol=PROB_ATOL)
+
+
+def test_pda_collapse_equals_the_mixture_of_kalman_updates():
+    """The shared-gain collapse of S-MSJPDA is the moment match of the per-detection posteriors."""
+    from pmsr_nn.filters.gaussian import kalman_update, safe_cholesky
+    from pmsr_nn.trackers.msjpda import _collapse, _expand, _pda_collapse
+
+    model = _model(1)
+    truth = _formation(B=2, K=2, T=3)
+    g = _prior(truth)
+    mom = unscented_moments(g, model, model.R())
+    rng = np.random.default_rng(0)
+    z = mom.z[:, :1] + torch.from_numpy(rng.normal(0.0, 1.0, (2, 6, 2)) * np.array([1500.0, 2.0]))  # (B, M, d)
+    z[1, 4:] = math.nan  # padding
+    gate = torch.from_numpy(rng.random((2, 3, 6)) < 0.6) & ~torch.isnan(z[:, None, :, 0])
+    w = torch.from_numpy(rng.random((2, 3, 7))) * torch.cat([gate, torch.ones(2, 3, 1, dtype=torch.bool)], -1)
+    w = w / w.sum(-1, keepdim=True)
+    post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), z.unsqueeze(1), _expand(mom), model)
+    ref = _collapse(w, torch.cat([post.x, g.x.unsqueeze(-2)], -2), torch.cat([post.P, g.P.unsqueeze(-3)], -3))
+    L = safe_cholesky(mom.S)
+    nu = model.residual(z.unsqueeze(1), mom.z.unsqueeze(2))
+    e = torch.linalg.solve_triangular(L, nu.nan_to_num().transpose(-1, -2), upper=False).transpose(-1, -2)
+    got = _pda_collapse(g, mom, L, e, gate, w)
+    # the reference subtracts positions of ~30 km: its rounding is ~1e-11 m, ~1e-8 m^2 in P
+    torch.testing.assert_close(got.x, ref.x, rtol=0, atol=1e-6)
+    torch.testing.assert_close(got.P, ref.P, rtol=1e-9, atol=1e-4)
+
+
 # ----------------------------------------------------------------------------------- trackers
 
 @pytest.mark.parametrize("architecture", ["sequential", "parallel"])
@@ -250,6 +339,26 @@ def test_well_separated_targets_track_like_the_reference():
         z = scans.target_measurements(2)[:, :, t].reshape(2, 10, 6)
         expected = _sequential_ukf(Gaussian(prior.x[:, t], prior.P[:, t]), z, model)
         torch.testing.assert_close(seq.x[:, :, t], expected, rtol=1e-9, atol=1e-7)
+
+
+@pytest.mark.parametrize("architecture", ["sequential", "parallel"])
+def test_runs_of_one_block_track_as_each_alone(architecture):
+    """Runs with different detections (targets 1.5 km apart, 30 clutter points: clusters of
+    several tracks) in one call give the estimates each gives alone: batching never mixes runs."""
+    model = _model()
+    truth = _formation(B=3, K=8, T=3, spacing=1500.0)
+    scans = simulate_scans(truth, model, 0.8, ClutterSpec(per_scan=30), seeded_generator(11))
+    prior = _prior(truth)
+    s = JPDASettings(pd=0.8, clutter_density=30 / ClutterSpec().volume)
+    block = msjpda(scans, prior, MOTION, 1.0, 1.0, model, model.R(), s, architecture)
+    for b in range(3):
+        one = Scans(scans.z[b:b + 1], scans.valid[b:b + 1], scans.origin[b:b + 1])
+        alone = msjpda(one, Gaussian(prior.x[b:b + 1], prior.P[b:b + 1]), MOTION, 1.0, 1.0, model, model.R(), s,
+                       architecture)
+        # the same algebra on a different batch size: rounding only (~1e-11 m at 30 km)
+        torch.testing.assert_close(block.x[b:b + 1], alone.x, rtol=1e-9, atol=1e-6)
+        torch.testing.assert_close(block.P[b:b + 1], alone.P, rtol=1e-9, atol=1e-6)
+        assert torch.equal(block.dummy_most_probable[b:b + 1], alone.dummy_most_probable)
 
 
 def test_bad_tracker_inputs():

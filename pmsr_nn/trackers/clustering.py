@@ -34,3 +34,17 @@ def track_clusters(gated: np.ndarray) -> list[np.ndarray]:
         return [active[first == c] for c in np.unique(first)]
     n, labels = connected_components(csr_matrix(share), directed=False)
     return [active[labels == c] for c in range(n)]
+
+
+def batched_track_labels(gated: np.ndarray) -> np.ndarray:
+    """Clusters of every run at once from ``gated (B, T, M)`` bool: ``labels (B, T)``, each
+    track's cluster named by its lowest member, -1 for a track that gates nothing. The same
+    clusters as :func:`track_clusters` per run (transitive closure by repeated squaring of the
+    batched ``(B, T, T)`` sharing matrix; ``ceil(log2 T)`` products reach every chain)."""
+    B, T, _ = gated.shape
+    g = gated.astype(np.float64)
+    reach = (g @ g.transpose(0, 2, 1)) > 0  # (B, T, T), the diagonal set for every track with a gate
+    for _ in range(max(int(np.ceil(np.log2(max(T, 1)))), 0)):
+        f = reach.astype(np.float64)
+        reach = (f @ f) > 0
+    return np.where(gated.any(-1), reach.argmax(-1), -1)

@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from .assignment import m_best_sd
+from .clustering import batched_track_labels
 from .assignment_2d import murty
 
 MIN_MISS_PROBABILITY = 1e-300
@@ -98,3 +99,113 @@ def candidate_marginals(tuples: np.ndarray, costs: np.ndarray, n_meas: list[int]
     for w, e in zip(p, events):
         beta[e.picks] += w
     return beta, max(e.gap for e in events)
+
+
+ENUMERATION_MAX_EVENTS = 4096
+"""A cluster whose events (``prod(gated + 1)`` over its tracks, conflicts included) are at most
+this many is solved by enumeration in :func:`batched_single_sensor_marginals`; larger ones by Murty."""
+
+
+def batched_single_sensor_marginals(cost: np.ndarray, miss: float, m: int,
+                                    max_events: int = ENUMERATION_MAX_EVENTS) -> np.ndarray:
+    """:func:`single_sensor_marginals` of every cluster of every run at once.
+
+    ``cost (B, T, M)`` detection costs, ``inf`` outside a track's gate; ``miss`` the cost of a
+    miss. Returns ``alpha (B, T, M + 1)`` (last column the miss; 1 for a track that gates
+    nothing). The clusters (:func:`.clustering.batched_track_labels`) of all runs whose event
+    count is at most ``max_events`` are enumerated together in one flat array: event ``l`` of a
+    cluster is the mixed-radix number whose digit ``j`` picks track ``j``'s option (0: miss,
+    ``k``: its ``k``-th gated detection); events that give one detection to two tracks are
+    dropped, and each cluster keeps its ``m`` cheapest. Those are the events Murty ranks (exact
+    for 2-D), so the marginals are the same up to the order of floating-point sums (ties in cost
+    at the m-th event aside, which continuous likelihoods make improbable). Larger clusters go
+    through :func:`single_sensor_marginals` one by one.
+    """
+    B, T, M = cost.shape
+    gated = np.isfinite(cost)
+    alpha = np.zeros((B, T, M + 1))
+    alpha[..., M] = 1.0  # a track that gates nothing missed
+    labels = batched_track_labels(gated)
+    member = labels >= 0
+    if not member.any():
+        return alpha
+    # Clusters as (run, lowest member) keys; rows of ``tracks`` in ascending track order.
+    b_idx, t_idx = np.nonzero(member)  # row-major: by run, then track
+    key = b_idx * T + labels[b_idx, t_idx]
+    uniq, cid = np.unique(key, return_inverse=True)
+    by_cluster = np.argsort(cid, kind="stable")  # rows grouped by cluster, tracks ascending inside
+    b_idx, t_idx, cid = b_idx[by_cluster], t_idx[by_cluster], cid[by_cluster]
+    C = len(uniq)
+    size = np.bincount(cid, minlength=C)
+    n_opt = gated.sum(-1) + 1  # (B, T): options of each track, the miss included
+    log_events = np.bincount(cid, weights=np.log(n_opt[b_idx, t_idx]), minlength=C)
+    # counts compared in logs (a product could overflow); 1e-9 absorbs the rounding of the sum
+    small = log_events <= math.log(max_events) + 1e-9 if max_events >= 1 else np.zeros(C, dtype=bool)
+    alpha[member] = 0.0
+    # Large clusters: one Murty problem each.
+    for c in np.flatnonzero(~small):
+        b, cl = uniq[c] // T, t_idx[cid == c]
+        cols = np.flatnonzero(gated[b, cl].any(0))
+        a = single_sensor_marginals(assignment_matrix(cost[b][np.ix_(cl, cols)], miss), m)
+        alpha[b, cl, M] = a[:, -1]
+        alpha[b][np.ix_(cl, cols)] = a[:, :-1]
+    if not small.any():
+        return alpha
+    # Small clusters: the tracks of cluster c padded to (C, J) with a one-option pad.
+    keep = small[cid]
+    cid_s = np.cumsum(small) - 1  # cluster -> index among the small ones
+    rows_c, rows_b, rows_t = cid_s[cid[keep]], b_idx[keep], t_idx[keep]
+    Cs = int(small.sum())
+    size_s = size[small]
+    J = int(size_s.max())
+    slot = np.arange(len(rows_c)) - np.concatenate(([0], np.cumsum(size_s)[:-1]))[rows_c]
+    track = np.full((Cs, J), -1)
+    track[rows_c, slot] = rows_t
+    run = uniq[small] // T
+    radix = np.ones((Cs, J), dtype=np.int64)
+    radix[rows_c, slot] = n_opt[rows_b, rows_t]
+    # Options of every track: column -1 (miss) then its gated detections in ascending order.
+    G = int(n_opt.max()) - 1
+    det_order = np.argsort(~gated, axis=-1, kind="stable")[..., :G]  # (B, T, G), gated first
+    opt_col = np.concatenate([np.full((B, T, 1), -1), np.where(
+        np.take_along_axis(gated, det_order, -1), det_order, -1)], -1)  # (B, T, G + 1)
+    opt_cost = np.concatenate([np.full((B, T, 1), miss), np.take_along_axis(cost, det_order, -1)], -1)
+    # Events built track by track: each partial event is extended by every option of the next
+    # track (a pad has one, the miss of cost 0) and dropped as soon as two tracks share a
+    # detection. ``ev`` stays sorted by cluster (np.repeat keeps the order).
+    ev = np.arange(Cs)
+    col = np.zeros((Cs, 0), dtype=np.int64)
+    c_ev = np.zeros(Cs)
+    for j in range(J):
+        r = radix[ev, j]
+        ev_new = np.repeat(ev, r)
+        digit = np.arange(len(ev_new)) - np.repeat(np.cumsum(r) - r, r)
+        t = track[ev_new, j]
+        pad = t < 0
+        bj, tj = run[ev_new], np.maximum(t, 0)
+        cj = np.where(pad, -1, opt_col[bj, tj, digit])
+        c_ev = np.repeat(c_ev, r) + np.where(pad, 0.0, opt_cost[bj, tj, digit])  # summed in track order, as Murty
+        col = np.repeat(col, r, axis=0)
+        ok = ~((col == cj[:, None]) & (cj[:, None] >= 0)).any(1)
+        ev, col, c_ev = ev_new[ok], np.concatenate([col[ok], cj[ok, None]], 1), c_ev[ok]
+    # The m cheapest feasible events of each cluster: only clusters with more than m are sorted.
+    n_feasible = np.bincount(ev, minlength=Cs)
+    if (n_feasible > m).any():
+        cut = n_feasible[ev] > m
+        idx = np.flatnonzero(cut)
+        order = idx[np.lexsort((c_ev[idx], ev[idx]))]  # grouped by cluster, cheapest first
+        sizes = n_feasible[n_feasible > m]
+        rank = np.arange(len(order)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+        kept = np.sort(np.concatenate([np.flatnonzero(~cut), order[rank < m]]))  # back in cluster order
+        ev, col, c_ev = ev[kept], col[kept], c_ev[kept]
+    group = np.concatenate(([0], np.cumsum(np.bincount(ev, minlength=Cs))[:-1]))
+    c_min = np.minimum.reduceat(c_ev, group)  # every cluster keeps its all-miss event, none is empty
+    w = np.exp(-(c_ev - c_min[ev]))
+    p = w / np.bincount(ev, weights=w, minlength=Cs)[ev]
+    tr = track[ev]
+    # alpha[b, t, col or M] += p for every kept event and real track.
+    real = tr >= 0
+    flat = (run[ev][:, None] * T + tr) * (M + 1) + np.where(col >= 0, col, M)
+    alpha += np.bincount(flat[real], weights=np.broadcast_to(p[:, None], flat.shape)[real],
+                         minlength=B * T * (M + 1)).reshape(B, T, M + 1)
+    return alpha

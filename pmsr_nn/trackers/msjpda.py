@@ -2,12 +2,15 @@
 
 Both keep one Gaussian per track (``T`` tracks, maintained from a given initiation; no birth or
 death) and run all Monte Carlo runs at once: the UKF moments, gates, likelihoods and the mixture
-updates are batched over runs and tracks; only the combinatorial part (clusters and the m-best
-assignment of each) loops over runs.
+updates are batched over runs and tracks. S-MSJPDA's combinatorial part is batched too (the
+clusters of all runs, and the m-best events of every cluster up to 4096 events enumerated in one
+array; only larger clusters go through Murty one by one); P-MSJPDA's (N+1)-D assignment still
+loops over runs and clusters.
 
 * **S-MSJPDA** (Eqs. 15-21): sensor by sensor. Each sensor's detections update the tracks left by
-  the previous sensor: UKF moments of that sensor's (range, Doppler), the m-best 2-D events by
-  Murty's ranked assignment, the marginals ``alpha`` and a Gaussian mixture collapse (Eq. 16).
+  the previous sensor: UKF moments of that sensor's (range, Doppler), the m-best 2-D events (the
+  m cheapest of a cluster's enumerated events, or Murty's ranked assignment), the marginals
+  ``alpha`` and a Gaussian mixture collapse (Eq. 16).
 * **P-MSJPDA** (Eqs. 9-14): all sensors at once. A track's candidate is one detection (or none)
   per sensor; its likelihood is the *joint* predicted density of the stacked measurements (one
   set of sigma points through all sensors, so the correlation between sensors that the state
@@ -44,7 +47,7 @@ from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood
 from .management import Management, TrackReport, TrackTable, parked_state
 from .learned_gain import Association, GainCorrection, pda_marginals
-from .jpda import assignment_matrix, candidate_marginals, detection_costs, miss_cost, single_sensor_marginals
+from .jpda import batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
 
 
 @dataclass(frozen=True)
@@ -111,25 +114,40 @@ def _collapse(weights: torch.Tensor, x: torch.Tensor, P: torch.Tensor) -> Gaussi
     return Gaussian(mean, 0.5 * (cov + cov.transpose(-1, -2)))
 
 
+def _pda_collapse(g: Gaussian, mom: MeasurementMoments, L: torch.Tensor, e: torch.Tensor, gate: torch.Tensor,
+                  w: torch.Tensor) -> Gaussian:
+    """Moment-matched Gaussian of the PDA mixture of tracks ``g`` ``(B, T, n)``: weight
+    ``w[..., i]`` on the Kalman update with detection ``i``, whose whitened innovation is
+    ``e (B, T, M, d)`` (``L^-1 nu``, ``L L^T = S (B, T, d, d)``; used only where ``gate (B, T, M)``,
+    ``w`` is 0 elsewhere), ``w[..., M]`` on the prediction.
+
+    The mixture :func:`_collapse` of :func:`~pmsr_nn.filters.gaussian.kalman_update`'s
+    per-detection posteriors, written with what they share: one gain ``K = W^T L^-1`` and one
+    ``P - W^T W`` per track (``W = L^-1 C^T``), so the ``M`` detections cost no posteriors
+    ``(n, n)`` of their own. The spread of the means is taken about the prediction
+    (``dx_i = K nu_i``), which also avoids the cancellation of subtracting positions of tens of km."""
+    Wc = torch.linalg.solve_triangular(L, mom.C.transpose(-1, -2), upper=False)  # (B, T, d, n)
+    e = e.masked_fill(~gate.unsqueeze(-1), 0.0)
+    dx = e @ Wc  # (B, T, M, n): K nu_i
+    wd, wm = w[..., :-1], w[..., -1]
+    wdx = (wd.unsqueeze(-1) * dx).transpose(-1, -2)  # (B, T, n, M)
+    dbar = wdx.sum(-1)  # (B, T, n)
+    # sum_i w_i (dx_i - dbar)(..)^T + w_M dbar dbar^T, with the weights summing to 1
+    spread = wdx @ dx - dbar.unsqueeze(-1) * dbar.unsqueeze(-2)
+    P_post = g.P - Wc.transpose(-1, -2) @ Wc
+    cov = wd.sum(-1)[..., None, None] * P_post + wm[..., None, None] * g.P + spread
+    return Gaussian(g.x + dbar, 0.5 * (cov + cov.transpose(-1, -2)))
+
+
 def _expand(m: MeasurementMoments) -> MeasurementMoments:
     return MeasurementMoments(m.z.unsqueeze(-2), m.S.unsqueeze(-3), m.C.unsqueeze(-3))
 
 
 def _jpda_marginals(gated: np.ndarray, log_lik: np.ndarray, s: JPDASettings) -> np.ndarray:
-    """``alpha (B, T, M + 1)`` of one sensor: per run, the tracks' clusters and the m-best events
-    of each (Murty); column ``M`` the miss."""
+    """``alpha (B, T, M + 1)`` of one sensor: the tracks' clusters of all runs and the m-best
+    events of each (:func:`~.jpda.batched_single_sensor_marginals`); column ``M`` the miss."""
     cost = np.where(gated, detection_costs(log_lik, s.pd, s.clutter_density), np.inf)
-    B, T, M = gated.shape
-    alpha = np.zeros((B, T, M + 1))
-    alpha[..., M] = 1.0  # a track that gates nothing missed
-    miss = miss_cost(s.pd)
-    for b in range(B):
-        for cl in track_clusters(gated[b]):
-            cols = np.flatnonzero(gated[b, cl].any(0))
-            a = single_sensor_marginals(assignment_matrix(cost[b][np.ix_(cl, cols)], miss), s.m_best)
-            alpha[b, cl, M] = a[:, -1]
-            alpha[b][np.ix_(cl, cols)] = a[:, :-1]
-    return alpha
+    return batched_single_sensor_marginals(cost, miss_cost(s.pd), s.m_best)
 
 
 def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
@@ -148,8 +166,17 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     sensor ``pair`` to the posterior mean; the association weights are constants to it (no
     gradient)."""
     mom = unscented_moments(g, sub, R)
-    nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d)
-    d2, log_lik = gaussian_log_likelihood(nu, mom.S)
+    nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d), NaN for padding
+    # gaussian_log_likelihood's algebra with one triangular solve per track for all M detections
+    # (M right-hand sides, not M broadcast solves); L and e = L^-1 nu serve the update too.
+    L = safe_cholesky(mom.S)  # (B, T, d, d)
+    pad = ~valid.unsqueeze(1)  # (B, 1, M)
+    e = torch.linalg.solve_triangular(L, nu.masked_fill(pad.unsqueeze(-1), 0.0).transpose(-1, -2),
+                                      upper=False).transpose(-1, -2)  # (B, T, M, d)
+    d2 = (e * e).sum(-1)
+    half_logdet = torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+    log_lik = (-0.5 * d2 - half_logdet.unsqueeze(-1) - 0.5 * nu.shape[-1] * math.log(2 * math.pi)).masked_fill(
+        pad, math.nan)
     gate = (d2 <= gamma) & valid.unsqueeze(1)
     gate = gate if active is None else gate & active.unsqueeze(-1)
     gated = gate.numpy()
@@ -158,13 +185,10 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
         w = pda_marginals(log_lik.detach(), gate, s.pd, s.clutter_density)
     else:
         w = torch.from_numpy(_jpda_marginals(gated, log_lik.detach().numpy(), s))
-    post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), z.unsqueeze(1), _expand(mom), sub)
-    x_all = torch.cat([post.x, g.x.unsqueeze(-2)], dim=-2)
-    P_all = torch.cat([post.P, g.P.unsqueeze(-3)], dim=-3)
     alpha = w.numpy()
     dummy = alpha[..., M] >= alpha[..., :M].max(-1, initial=0.0)
     ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
-    out = _collapse(w, x_all, P_all)
+    out = _pda_collapse(g, mom, L, e, gate, w)
     if correction is not None:
         out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active), out.P)
     return out, dummy, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / s.clutter_density
