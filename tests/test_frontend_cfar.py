@@ -17,7 +17,7 @@ from scipy.stats import binom
 
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.frontend.centroid import SHAPE_BIAS_DOPPLER, centroids
-from pmsr_nn.frontend.cfar import _kth_torch, _layout, os_cfar, os_cfar_alpha
+from pmsr_nn.frontend.cfar import _kth_torch, _layout, calibrate_alpha_factor, os_cfar, os_cfar_alpha
 
 
 def _exponential(shape, seed: int, mean=1.0) -> torch.Tensor:
@@ -153,6 +153,63 @@ def test_false_alarm_rate_on_noise_only_maps(wrap):
     _within_99(int(result.detections[~cut].sum()), int((~cut).sum()), pfa)
     # the noise estimate is unbiased: its mean over the maps is the noise mean 2.5 (sd of the mean ~ 0.003)
     assert float(result.noise.mean()) == pytest.approx(2.5, abs=0.015)
+
+
+def _range_correlated(maps: int, seed: int, taps=(1.0, 1.0, 1.0), D: int = 64, U: int = 80) -> torch.Tensor:
+    """Square-law noise whose complex amplitudes are white noise filtered by ``taps`` along range:
+    amplitude correlation 2/3 and 1/3 at 1 and 2 bins for three equal taps, none in Doppler."""
+    g = torch.Generator().manual_seed(seed)
+    z = torch.complex(*torch.randn(2, maps, D, U + len(taps) - 1, generator=g, dtype=torch.float64))
+    return sum(t * z[..., i:i + U] for i, t in enumerate(taps)).abs() ** 2
+
+
+def test_calibrated_factor_keeps_pfa_on_range_correlated_noise():
+    """Range-correlated noise (3-tap FIR along range) and a range-only window (16 training cells,
+    guard 3: the CUT is independent of its training cells, but the training cells are not of each
+    other, so X_(k) varies more than Eq. 2 assumes). Eq. 2's threshold: about 2.2x Pfa, outside the
+    binomial 99% interval of 409,600 cells at Pfa 1e-3 (expected 410, interval about +-52). With the
+    factor calibrated on 4x as many independent cells (1640 exceedances: its rate error ~2.5 %,
+    a few % more for clustered exceedances), the count falls inside the interval."""
+    kw = dict(guard=(0, 3), train=(0, 8), rank=0.75, pfa=1e-3)
+    cal = calibrate_alpha_factor(_range_correlated(320, seed=21), **kw)
+    assert cal["cells"] == 320 * 64 * 80 and cal["alpha_factor"] > 1
+    test = _range_correlated(80, seed=22)
+    plain = int(os_cfar(test, full_maps=False, **kw).detections.sum())
+    fixed = int(os_cfar(test, full_maps=False, alpha_factor=cal["alpha_factor"], **kw).detections.sum())
+    lo, hi = binom.interval(0.99, test.numel(), kw["pfa"])
+    assert plain > hi, (plain, lo, hi)
+    _within_99(fixed, test.numel(), kw["pfa"])
+
+
+def test_calibrated_factor_of_independent_cells_is_one_within_its_binomial_error():
+    """i.i.d. exponential maps: Eq. 2 holds, so the calibrated factor is 1 up to the error of a count
+    of 1000 exceedances (99 % interval of the count +-8 %; a factor f changes the rate by about
+    exp(-(f - 1) alpha E X_(k)) with alpha E X_(k) = ln(1/pfa) roughly: |f - 1| < 0.08 / 6.9 ~ 1.2 %)."""
+    cal = calibrate_alpha_factor(_exponential((250, 64, 64), seed=23), (1, 1), (4, 4), 0.75, 1e-3)
+    assert abs(cal["alpha_factor"] - 1) < 0.012
+    hits = round(cal["rate_unscaled"] * cal["cells"])
+    _within_99(hits, cal["cells"], 1e-3)
+
+
+def test_gaussian_lobe_fit_places_whole_and_cut_lobes_where_the_centroid_does_not():
+    """Noise-free Gaussian range lobes (amplitude exp(-2 pi^2 B^2 x^2), B = 25/320 cycles per
+    sample: an FM reference) on a noise floor of 1 that the noise estimate removes exactly: the fit
+    returns the true delay (to rounding) inside the map and for lobes cut by either end of it, peak
+    at 0.2-1 bins beyond the map (where the centroid sits over half a bin inside)."""
+    B, U, D = 25.0 / 320.0, 20, 5
+    tau = torch.tensor([9.3, 10.5, 12.05, 0.4, -0.6, 18.7, 19.2, 20.0], dtype=torch.float64)
+    u = torch.arange(U, dtype=torch.float64)
+    lobe = 1e3 * torch.exp(-4 * math.pi**2 * B**2 * (u - tau[:, None]) ** 2)  # (maps, U) power
+    power = 1.0 + torch.zeros(len(tau), D, U, dtype=torch.float64)
+    power[:, D // 2] += lobe
+    det = power > 20.0
+    noise = torch.ones_like(power)
+    fit = centroids(power, det, noise, lobe_bandwidth=torch.full((len(tau),), B, dtype=torch.float64))
+    plain = centroids(power, det, noise)
+    assert bool(fit.valid[:, 0].all()) and fit.valid.shape[1] == 1
+    assert torch.allclose(fit.range_bin[:, 0], tau, atol=1e-6)
+    cut = (tau < 0) | (tau > U - 1)
+    assert bool(((plain.range_bin[:, 0] - tau).abs()[cut] > 0.5).all())
 
 
 def test_false_alarm_rate_with_a_10_db_ramp_across_range():
@@ -377,8 +434,13 @@ def test_bad_maps_and_alpha_arguments():
         (lambda: os_cfar(good.numpy(), (1, 1), (3, 2)), "CFAR power must be a tensor (..., Doppler, range), got ndarray"),
         (lambda: os_cfar_alpha(10, 11, 1e-3), "CFAR rank k must lie in [1, n_train], got k=11 for n_train=10"),
         (lambda: os_cfar_alpha(10, 5, 1.0), "CFAR pfa must be in (0, 1), got 1.0"),
+        (lambda: os_cfar(good, (1, 1), (3, 2), alpha_factor=0.0), "CFAR alpha_factor must be positive, got 0.0"),
+        (lambda: calibrate_alpha_factor(good, (1, 1), (3, 2), 0.75, 1e-3),
+         "calibrate_alpha_factor: 240 cells hold fewer than 100 expected false alarms at pfa 0.001; give at least 100000 cells"),
         (lambda: centroids(good, good > 3, good[:10]), "centroids: noise must have power's shape (20, 12), got shape (10, 12)"),
         (lambda: centroids(good, good, good), "centroids: detections must be bool, got torch.float64"),
+        (lambda: centroids(good, good > 3, good, lobe_bandwidth=torch.zeros(())),
+         "centroids: lobe_bandwidth must be positive and finite, one per map (), got shape ()"),
         (lambda: centroids(good, good > 3, good, max_per_map=-1),
          "centroids: max_per_map must be a whole number >= 0 or None, got -1"),
     ]

@@ -50,7 +50,8 @@ class Centroids:
     """Measurements of the connected detections of maps ``(..., D, U)``, padded to ``M`` per map.
 
     ``doppler_bin``, ``range_bin (..., M)``: power-weighted centroid in fractional bins (Doppler row
-    ``0 .. D-1``, range column ``0 .. U-1``). ``peak_power``: largest power of the component (power
+    ``0 .. D-1``, range column ``0 .. U-1``; the range is a lobe fit instead where :func:`centroids`
+    is given ``lobe_bandwidth``, and may then lie beyond the map's ends). ``peak_power``: largest power of the component (power
     units). ``snr_db``: ``10 log10(peak power / noise estimate at the peak cell)``.
     ``sd_doppler_bin``, ``sd_range_bin``: standard deviation of the centroid's error (bins), see
     :func:`centroids`. ``cells`` int64: the component's number of cells. ``valid`` bool. Valid
@@ -68,7 +69,8 @@ class Centroids:
 
 
 def centroids(power: torch.Tensor, detections: torch.Tensor, noise: torch.Tensor,
-              max_per_map: int | None = None, threshold: torch.Tensor | None = None) -> Centroids:
+              max_per_map: int | None = None, threshold: torch.Tensor | None = None,
+              lobe_bandwidth: torch.Tensor | None = None) -> Centroids:
     """One measurement per 8-connected component of ``detections (..., D, U)`` (bool) in each map.
 
     ``power (..., D, U)``: the square-law map; ``noise (..., D, U)``: the mean noise power estimate
@@ -93,12 +95,30 @@ def centroids(power: torch.Tensor, detections: torch.Tensor, noise: torch.Tensor
       over noise minus 1 (both from the peak cell), the neighbour/peak ratio ``e/(1-e)`` (triangle)
       or ``(d/(1-d))^2`` (sinc^2) equals ``T/S`` there: ``a = r/(1+r)``, ``r = T/S`` in range and
       ``r = sqrt(T/S)`` in Doppler. Without ``threshold``, ``a = 1/2`` (``sd^2 = 1/12``).
+
+    ``lobe_bandwidth (...)`` (cycles per sample, one per map; :func:`~.chain.rms_bandwidth` of the
+    CPI's reference): the range lobe is then taken as that of an FM reference, whose spectrum
+    follows the distribution of its instantaneous frequency (Woodward), Gaussian for a Gaussian
+    programme: the amplitude autocorrelation is ``exp(-2 pi^2 B^2 x^2)`` (0.89, 0.62, 0.34 at 1-3
+    bins for ``B`` = 25 / 320), the log of the power lobe a parabola of known curvature ``kappa = 4
+    pi^2 B^2``. The range is then the least-squares fit of that parabola's vertex to the log signal
+    powers (power less the noise estimate) of the peak cell and its range neighbours in the peak's
+    Doppler row: ``u_p + (ln s_+ - ln s_-) / (4 kappa)`` inside the map, and from the two cells left
+    at its last or first range bin ``u_p -+ 1/2 +- (ln s_p - ln s_n) / (2 kappa)`` (``s_n`` the
+    neighbour's), which
+    extrapolates a lobe cut by the map's edge instead of pulling it inwards as the centroid does.
+    ``sd_range_bin`` stays the centroid's model (a floor set by the caller: see
+    :func:`~.chain.process_cpi`).
     """
     def describe(x) -> str:
         return f"shape {tuple(x.shape)}" if isinstance(x, torch.Tensor) else type(x).__name__
 
     require(isinstance(power, torch.Tensor) and power.dim() >= 2,
             f"centroids: power must be a tensor (..., Doppler, range), got {describe(power)}")
+    require(lobe_bandwidth is None or (isinstance(lobe_bandwidth, torch.Tensor) and lobe_bandwidth.shape == power.shape[:-2]
+                                       and bool(torch.isfinite(lobe_bandwidth).all() and (lobe_bandwidth > 0).all())),
+            f"centroids: lobe_bandwidth must be positive and finite, one per map {tuple(power.shape[:-2])}, got "
+            f"{describe(lobe_bandwidth)}")
     for name, t in (("detections", detections), ("noise", noise), ("threshold", threshold)):
         if t is not None:
             require(isinstance(t, torch.Tensor) and t.shape == power.shape,
@@ -146,6 +166,8 @@ def centroids(power: torch.Tensor, detections: torch.Tensor, noise: torch.Tensor
         a_u = np.minimum(0.5, np.where(np.isinf(ratio), 0.5, ratio / (1.0 + ratio)))
         root = np.sqrt(ratio)
         a_d = np.minimum(0.5, np.where(np.isinf(root), 0.5, root / (1.0 + root)))
+    if lobe_bandwidth is not None:
+        cu = _gaussian_lobe_range(P, nz, flat[peak], D, U, lobe_bandwidth, B)
     sd_d = np.sqrt(np.where(one_d, a_d ** 2 / 3.0, var_d + SHAPE_BIAS_DOPPLER ** 2))
     sd_u = np.sqrt(np.where(one_u, a_u ** 2 / 3.0, var_u + SHAPE_BIAS_RANGE ** 2))
 
@@ -171,3 +193,27 @@ def centroids(power: torch.Tensor, detections: torch.Tensor, noise: torch.Tensor
                      peak_power=padded(p[peak], np.nan, dtype), snr_db=padded(snr_db, np.nan, dtype),
                      sd_doppler_bin=padded(sd_d, np.nan, dtype), sd_range_bin=padded(sd_u, np.nan, dtype),
                      cells=padded(count, 0, torch.int64), valid=padded(np.ones(n, dtype=bool), False, torch.bool))
+
+
+def _gaussian_lobe_range(P: np.ndarray, nz: np.ndarray, peak: np.ndarray, D: int, U: int, bandwidth: torch.Tensor,
+                         B: int) -> np.ndarray:
+    """Range (fractional bins) of components whose peak cells are ``peak`` (flat indices into
+    ``P``, maps ``(B, D, U)`` flattened) from the Gaussian lobe of RMS bandwidth ``bandwidth (B,)``
+    (cycles per sample), see :func:`centroids`."""
+    kappa = 4.0 * math.pi**2 * bandwidth.detach().double().cpu().numpy().reshape(B)[peak // (D * U)] ** 2
+    up = peak % U
+    lo, hi = up > 0, up < U - 1
+    noise = nz[peak]
+    # signal power of a cell: power less the noise estimate, floored where noise swamps it (a
+    # neighbour's log is then only a bound, which caps the offset rather than letting it run off)
+    def log_signal(i: np.ndarray) -> np.ndarray:
+        return np.log(np.maximum(P[i] - noise, 1e-3 * np.maximum(P[peak] - noise, 1e-300)))
+
+    lp = log_signal(peak)
+    lm = log_signal(np.where(lo, peak - 1, peak))
+    lq = log_signal(np.where(hi, peak + 1, peak))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        both = up + (lq - lm) / (4.0 * kappa)
+        first = up + 0.5 + (lq - lp) / (2.0 * kappa)  # no left neighbour: cells u_p, u_p + 1
+        last = up - 0.5 + (lp - lm) / (2.0 * kappa)  # no right neighbour: cells u_p - 1, u_p
+    return np.where(lo & hi, both, np.where(hi, first, np.where(lo, last, up.astype(np.float64))))

@@ -203,7 +203,7 @@ def _describe(x) -> str:
 
 def os_cfar(power: torch.Tensor, guard: tuple[int, int] = (2, 1), train: tuple[int, int] = (8, 4),
             rank: float | int = 0.75, pfa: float = 1e-4, wrap_doppler: bool = False,
-            full_maps: bool = True) -> CfarResult:
+            full_maps: bool = True, alpha_factor: float = 1.0) -> CfarResult:
     """2-D OS-CFAR of maps ``power (..., D, U)`` (square-law power, Doppler rows, range columns).
 
     ``guard = (g_doppler, g_range)`` and ``train = (t_doppler, t_range)`` are half-widths in bins:
@@ -224,8 +224,14 @@ def os_cfar(power: torch.Tensor, guard: tuple[int, int] = (2, 1), train: tuple[i
     counted with one comparison per training cell and no copy or selection; the cells that pass
     (with a relative margin for rounding) then get their ``X_(k)`` by sorting their own windows, and
     the decision is made with the same arithmetic as the full path.
+
+    ``alpha_factor`` (> 0) multiplies every cell's ``alpha``: 1 is Eq. 2 (i.i.d. cells); maps whose
+    noise cells are correlated (an FM reference along range) need the factor of
+    :func:`calibrate_alpha_factor` to keep ``pfa``.
     """
     guard, train = _check(power, guard, train, rank, pfa)
+    require(isinstance(alpha_factor, (int, float)) and not isinstance(alpha_factor, bool)
+            and math.isfinite(alpha_factor) and alpha_factor > 0, f"CFAR alpha_factor must be positive, got {alpha_factor!r}")
     D, U = power.shape[-2:]
     rank = float(rank) if isinstance(rank, float) else int(rank)
     lay = _layout(int(D), int(U), guard, train, rank, float(pfa), bool(wrap_doppler))
@@ -233,12 +239,12 @@ def os_cfar(power: torch.Tensor, guard: tuple[int, int] = (2, 1), train: tuple[i
     if maps.dtype not in (torch.float32, torch.float64):
         maps = maps.float()  # half precisions: select in float32 (numpy has no bfloat16)
     dev = power.device
-    alpha = torch.tensor(lay.alpha, device=dev)  # copies: the layout is cached
+    alpha = torch.tensor(lay.alpha * float(alpha_factor), device=dev)  # copies: the layout is cached
     scale = torch.tensor(lay.scale, device=dev)
     common = dict(alpha=alpha, n_train=torch.tensor(lay.n, device=dev), k=torch.tensor(lay.k, device=dev))
     if not full_maps and dev.type == "cpu":
         margin = 1.0 + 4 * torch.finfo(power.dtype).eps + 1e-12  # candidates: a superset of the detections
-        b, d, u, xk = _kth_of_candidates(maps.numpy(), lay, guard, train, wrap_doppler, margin)
+        b, d, u, xk = _kth_of_candidates(maps.numpy(), lay, alpha.numpy(), guard, train, wrap_doppler, margin)
         b, d, u, xk = (torch.from_numpy(a) for a in (b, d, u, xk))
         thr = (alpha[d, u] * xk).to(power.dtype)
         hit = maps.to(power.dtype)[b, d, u] > thr
@@ -334,15 +340,15 @@ def _kth_numpy(maps: np.ndarray, lay: _Layout, guard, train, wrap: bool) -> np.n
     return out
 
 
-def _kth_of_candidates(maps: np.ndarray, lay: _Layout, guard, train, wrap: bool, margin: float):
+def _kth_of_candidates(maps: np.ndarray, lay: _Layout, alpha: np.ndarray, guard, train, wrap: bool, margin: float):
     """Cells of ``maps (B, D, U)`` with at least ``k`` training powers below ``margin * power /
-    alpha`` (``b, d, u`` int64 arrays) and their ``X_(k)``: the counts in threads over chunks of
+    alpha`` (``alpha (D, U)``; ``b, d, u`` int64 arrays) and their ``X_(k)``: the counts in threads over chunks of
     Doppler rows, one vectorised comparison per training slot."""
     B, D, U = maps.shape
     Rd, Rr = guard[0] + train[0], guard[1] + train[1]
     padded = _padded(maps, Rd, Rr, wrap)
     offsets = _ring_offsets(guard, train) + (Rd, Rr)
-    level = (maps / lay.alpha * margin).astype(maps.dtype)
+    level = (maps / alpha * margin).astype(maps.dtype)
     count = np.zeros((B, D, U), dtype=np.int16 if lay.n_full < 2**15 else np.int32)
     workers = max(1, min(D, torch.get_num_threads()))
     edges = np.linspace(0, D, workers + 1).astype(int)
@@ -391,3 +397,31 @@ def _kth_torch(maps: torch.Tensor, lay: _Layout, guard, train, wrap: bool) -> to
         w[:, cut_row[lo:hi] - d0, cut_col[lo:hi], cut_pos[lo:hi]] = -float("inf")
         out[:, d0:d1] = torch.kthvalue(w, K, dim=-1).values
     return out
+
+
+def calibrate_alpha_factor(noise_maps: torch.Tensor, guard: tuple[int, int] = (2, 1), train: tuple[int, int] = (8, 4),
+                           rank: float | int = 0.75, pfa: float = 1e-4, wrap_doppler: bool = False) -> dict:
+    """Empirical ``alpha_factor`` for :func:`os_cfar` from noise-only maps ``noise_maps (..., D, U)``.
+
+    Eq. 2 assumes independent training cells. Where the map's noise is correlated (an FM reference
+    correlates range cells over its autocorrelation's width, a Doppler taper neighbouring rows) the
+    order statistic varies more than for independent cells and the CUT is partly predicted by its
+    neighbours; the net rate is no longer ``pfa`` and no closed form gives it. The factor ``f`` is the
+    empirical ``1 - pfa`` quantile of ``power / (alpha X_(k))`` over all cells (edges included), so
+    that the fraction of these cells over ``f alpha X_(k)`` is ``pfa``. Its error is that of a binomial
+    count of ``pfa x cells`` exceedances; at least ``100 / pfa`` cells are required (the count's
+    relative standard error is then at most 10 %; ``d log f`` is about ``d log(rate) / (alpha
+    E X_(k))``, under 2 % for the defaults). Maps made with the same reference statistics,
+    independent of those the factor is then used on. Returns ``{"alpha_factor", "cells",
+    "rate_unscaled"}`` (``rate_unscaled``: the measured rate with ``f = 1``).
+    """
+    require(isinstance(noise_maps, torch.Tensor) and noise_maps.dim() >= 2,
+            f"calibrate_alpha_factor: noise_maps must be a tensor (..., Doppler, range), got {_describe(noise_maps)}")
+    cells = noise_maps.numel()
+    require(cells * pfa >= 100, f"calibrate_alpha_factor: {cells} cells hold fewer than 100 expected false alarms at "
+                                f"pfa {pfa:g}; give at least {math.ceil(100 / pfa)} cells")
+    res = os_cfar(noise_maps, guard, train, rank, pfa, wrap_doppler=wrap_doppler, full_maps=True)
+    ratio = (noise_maps.detach().double() / res.threshold.double()).reshape(-1).cpu().numpy()
+    exceed = int(round(pfa * ratio.size))  # the factor puts exactly this many cells over the threshold
+    f = float(np.partition(ratio, ratio.size - exceed - 1)[ratio.size - exceed - 1])
+    return {"alpha_factor": f, "cells": int(ratio.size), "rate_unscaled": float((ratio > 1.0).mean())}

@@ -1321,6 +1321,9 @@ case("evaluate/front-end-sample-rate-cannot-resolve-range", "evaluate fm.yaml --
 case("evaluate/front-end-cfar-window-larger-than-map", "evaluate fm.yaml --out out",
      setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"]["cfar"].update(guard=[2, 4], train=[4, 4])),
      message="larger than the", klass="refusal")
+case("evaluate/front-end-cfar-alpha-factor-not-positive", "evaluate fm.yaml --out out",
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"]["cfar"].update(alpha_factor=0.0)),
+     message="cfar alpha_factor must be positive and finite, got 0.0", klass="refusal")
 case("evaluate/front-end-doppler-beyond-ambiguity", "evaluate fm.yaml --out out",
      setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"].update(max_doppler_hz=128.0)),
      message="max_doppler_hz", klass="refusal")
