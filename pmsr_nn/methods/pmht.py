@@ -33,7 +33,7 @@ from ..trackers.base import Estimates
 from ..trackers.msjpda import true_assignment_ukf
 from ..trackers.pmht import pmht
 from ..trackers.pmht_managed import managed_pmht
-from ..trackers.pmht_model import AssociationLists, PMHTSettings
+from ..trackers.pmht_model import E_STEPS, AssociationLists, PMHTSettings
 from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, register
 from .msjpda import MANAGEMENT_OPTIONS, check_initiation, management
 
@@ -48,7 +48,7 @@ def settings(call: MethodCall) -> PMHTSettings:
         pd=s.pd, clutter_rate=(rate,) * s.detection_model.n_pairs, volume=clutter.volume_of(s.detection_model.components),
         window=int(spec.option("window")), overlap=int(spec.option("overlap")),
         em_iterations=int(spec.option("em_iterations")), tolerance_m=float(spec.option("tolerance_m")),
-        anneal=float(spec.option("anneal")),
+        anneal=float(spec.option("anneal")), e_step=str(spec.option("e_step")),
         kappa=(1.0, float(spec.option("wide_kappa"))) if wide else (1.0,),
         kappa_weights=(1.0 - float(spec.option("wide_weight")), float(spec.option("wide_weight"))) if wide else None)
 
@@ -110,7 +110,8 @@ def _all_throughout(spec, alive: torch.Tensor, resource, case: str) -> None:
 
 OPTIONS = {"window": Option(10, int, 1, 100_000), "overlap": Option(3, int, 0, 99_999),
            "em_iterations": Option(6, int, 1, 1000), "tolerance_m": Option(0.0, float, 0.0, 1e6),
-           "anneal": Option(1.0, float, 1.0, 1e6), **MANAGEMENT_OPTIONS}
+           "anneal": Option(1.0, float, 1.0, 1e6), "e_step": Option("point", str, choices=E_STEPS),
+           **MANAGEMENT_OPTIONS}
 OPTIONS_3D = {**OPTIONS, "wide_kappa": Option(4.0, float, 1.0, 1e4), "wide_weight": Option(0.5, float, 0.0, 0.99)}
 register(MethodKind("pmht", "detections", run_pmht, OPTIONS, causal=lambda r: False, check=_check_pmht,
                     check_sensing=_check_sensing,

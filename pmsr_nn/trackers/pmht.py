@@ -38,6 +38,12 @@ EM over a window of scans (MAP estimate of the states ``X`` of every target at e
 * Annealing (optional, ``anneal``): the first iterations of a batch use an inflated measurement
   covariance, shrinking to ``R`` by the middle (:meth:`~.pmht_model.PMHTSettings.inflation`), so that EM
   started several deviations from the detections (a loose initiation) still finds them.
+* Marginal E-step (optional, ``e_step = "marginal"``): each detection is weighed by
+  ``N(z_r; h_s(x_t), kappa_p R_s + H P H^T)`` under the track's current covariance ``P`` instead of
+  at its point estimate, so that a track started several deviations off weighs what its own
+  uncertainty covers (issue 37: with the point E-step such tracks settled on another target's
+  detections through one pair, or on none, in the first window). EM's objective is then no
+  longer the one below.
 * With a linear measurement model the M-step is exact and the objective (:func:`~.pmht_em.window_objective`:
   the log prior of the window's first state, the transitions and every detection's mixture
   density) never decreases over iterations; with the bistatic model the UKF's linearisation makes
@@ -115,16 +121,20 @@ def pmht(lists: AssociationLists, prior: Gaussian, motion: KinematicModel, dt: f
         runs = slice(c0, min(B, c0 + settings.chunk_runs))
         b = runs.stop - runs.start
         g = Gaussian(prior.x[runs].reshape(b * N, n), prior.P[runs].reshape(b * N, n, n))
-        X_prev = None
+        X_prev = P_prev = None
+        marginal = settings.e_step == "marginal"
         for i, a in enumerate(starts):
             W = min(settings.window, K - a)
             nxt = starts[i + 1] if i + 1 < len(starts) else K
             win = lists.take(runs, slice(a, a + W))
-            X = initial_states(pr, g, X_prev, a - starts[i - 1] if i else 0, W, b, N)
+            shift = a - starts[i - 1] if i else 0
+            X = initial_states(pr, g, X_prev, shift, W, b, N)
+            P = initial_covariances(pr, g, P_prev, shift, W, b, N) if marginal else None
             win_prior = Gaussian(g.x.reshape(b, N, n), g.P.reshape(b, N, n, n))
             record = [window_objective(pr, X, win_prior, win)] if record_objective else None
             for it in range(settings.em_iterations):
-                X_new, P, handed, _ = em_step(pr, X, g, win, settings.inflation(it), nxt - a)
+                X_new, P, handed, _ = em_step(pr, X, g, win, settings.inflation(it), nxt - a,
+                                              P=P if marginal else None)
                 moved = (X_new - X)[..., list(motion.pos_idx)].norm(dim=-1).max()
                 X = X_new
                 if record is not None:
@@ -134,7 +144,7 @@ def pmht(lists: AssociationLists, prior: Gaussian, motion: KinematicModel, dt: f
             done = nxt - a
             x_out[runs, a:a + done] = X[:, :done]
             P_out[runs, a:a + done] = P[:, :done]
-            g, X_prev = handed, X
+            g, X_prev, P_prev = handed, X, P
             if record is not None:
                 history.append(torch.stack(record))
     return PMHTResult(x_out, P_out, history)
@@ -153,4 +163,22 @@ def initial_states(pr: PMHTProblem, g: Gaussian, X_prev: torch.Tensor | None, sh
     while len(out) < W:
         out.append(cur)
         cur = cur @ pr.F.transpose(-1, -2)
+    return torch.stack(out, 1)
+
+
+def initial_covariances(pr: PMHTProblem, g: Gaussian, P_prev: torch.Tensor | None, shift: int, W: int, b: int,
+                        N: int) -> torch.Tensor:
+    """Covariances ``(b, W, N, n, n)`` of :func:`initial_states` (for the marginal E-step): the
+    previous window's smoothed ones on the overlap, predicted (``F P F^T + Q``) beyond; in the first
+    window the prior's, predicted through it."""
+    n = pr.F.shape[0]
+    if P_prev is None:
+        cur, out = g.P.reshape(b, N, n, n), []
+    else:
+        keep = P_prev[:, shift:]
+        out = list(keep.unbind(1))[:W]
+        cur = pr.F @ keep[:, -1] @ pr.F.T + pr.Q
+    while len(out) < W:
+        out.append(cur)
+        cur = pr.F @ cur @ pr.F.T + pr.Q
     return torch.stack(out, 1)

@@ -21,13 +21,16 @@ from .pmht_model import AssociationLists, PMHTProblem
 
 
 def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflate: float = 1.0,
-               alive: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+               alive: torch.Tensor | None = None,
+               P: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """For states ``X (B, W, N, n)`` and a window's lists: residuals ``nu (B, W, L, M, N, S, d)``,
     ``log(Pd c_p N(z_r; h_s(x_t), kappa_p R_s)) (B, W, L, M, N, S, n_components)`` (-inf where
     pair ``s`` is not a candidate or the slot is padding) and the clutter term
     ``log(lambda_A / V) (B, W, L, M)``;
     ``inflate`` scales every ``kappa`` (annealing); a track outside ``alive (B, W, N)`` (default:
-    every track at every scan) explains no detection there (-inf)."""
+    every track at every scan) explains no detection there (-inf). With the states' covariances
+    ``P (B, W, N, n, n)`` the Gaussian is the marginal one, ``N(z_r; h_s(x_t), kappa_p R_s + H P H^T)``
+    (``H`` the Jacobian of ``h_s`` at ``x_t``): see :func:`marginal_covariances`."""
     B, W, N, _ = X.shape
     S, d = pr.pairs, pr.R_inv_chol.shape[-1]
     h = pr.model.h(X).reshape(B, W, 1, 1, N, S, d)
@@ -35,10 +38,16 @@ def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflat
     nu = z - h
     if bool(pr.angles.any()):
         nu = torch.where(pr.angles, wrap_angle(nu), nu)
-    e = torch.einsum("sij,bwlmtsj->bwlmtsi", pr.R_inv_chol, nu)
-    maha = (e * e).sum(-1, keepdim=True)  # (B, W, L, M, N, S, 1)
     k = pr.kappa * inflate
-    log_n = -0.5 * maha / k - 0.5 * (d * torch.log(2 * math.pi * k) + pr.log_det[:, None])
+    if P is None:
+        e = torch.einsum("sij,bwlmtsj->bwlmtsi", pr.R_inv_chol, nu)
+        maha = (e * e).sum(-1, keepdim=True)  # (B, W, L, M, N, S, 1)
+        log_n = -0.5 * maha / k - 0.5 * (d * torch.log(2 * math.pi * k) + pr.log_det[:, None])
+    else:
+        C = marginal_covariances(pr, X, P, k)  # (B, W, N, S, n_components, d, d)
+        Ci = torch.linalg.inv(C)
+        maha = torch.einsum("bwlmtsi,bwtspij,bwlmtsj->bwlmtsp", nu, Ci, nu)
+        log_n = -0.5 * maha - 0.5 * (d * math.log(2 * math.pi) + torch.logdet(C))[:, :, None, None]
     ok = lists.candidates & lists.valid.unsqueeze(-1)  # (B, W, L, M, S)
     log_t = torch.where(ok[:, :, :, :, None, :, None], math.log(pr.settings.pd) + pr.log_c + log_n,
                         torch.full((), -math.inf, dtype=X.dtype, device=X.device))
@@ -49,16 +58,32 @@ def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflat
     return nu, log_t, log_clutter
 
 
+def marginal_covariances(pr: PMHTProblem, X: torch.Tensor, P: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """``kappa_p R_s + H_s P H_s^T`` ``(B, W, N, S, n_components, d, d)`` for states ``X (B, W, N, n)``
+    with covariances ``P (B, W, N, n, n)`` and scales ``k (n_components,)``: the covariance of a
+    detection of track ``t`` through pair ``s`` when the track's state is only known to ``P``
+    (linearised at ``X``), as a PDA filter gates with. Where ``P`` is wide (a loose initiation) a
+    track weighs the detections its own uncertainty covers, and nothing beyond (a blanket
+    inflation of ``R`` reaches other targets' detections too); as ``P`` shrinks it is plain PMHT."""
+    B, W, N, n = X.shape
+    S, d = pr.pairs, pr.R_inv_chol.shape[-1]
+    H = pr.model.jacobian(X).reshape(B, W, N, S, d, n)
+    HPH = H @ P[:, :, :, None] @ H.transpose(-1, -2)  # (B, W, N, S, d, d)
+    HPH = 0.5 * (HPH + HPH.transpose(-1, -2))
+    return k[:, None, None] * pr.R_blocks[:, None] + HPH[:, :, :, :, None]
+
+
 def _log_density(log_t: torch.Tensor, log_clutter: torch.Tensor) -> torch.Tensor:
     """Log of each detection's mixture density ``(B, W, L, M)`` (up to a constant)."""
     return torch.logsumexp(torch.cat([log_clutter.unsqueeze(-1), log_t.flatten(-3)], -1), -1)
 
 
 def association_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflate: float = 1.0,
-                        alive: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                        alive: torch.Tensor | None = None, P: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """E-step: weights ``w (B, W, L, M, N, S, n_components)`` (0 on padding and where a track is not
-    ``alive (B, W, N)``) and the residuals ``nu``."""
-    nu, log_t, log_clutter = _log_terms(pr, X, lists, inflate, alive)
+    ``alive (B, W, N)``) and the residuals ``nu``; ``P (B, W, N, n, n)``: the marginal E-step
+    (:func:`marginal_covariances`), None: plain PMHT's."""
+    nu, log_t, log_clutter = _log_terms(pr, X, lists, inflate, alive, P)
     w = torch.exp(log_t - _log_density(log_t, log_clutter)[..., None, None, None])
     return torch.where(lists.valid[..., None, None, None], w, torch.zeros((), dtype=w.dtype, device=w.device)), nu
 
@@ -168,15 +193,16 @@ def expected_complete_log_likelihood(pr: PMHTProblem, X: torch.Tensor, prior: Ga
 
 def em_step(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists, inflate: float = 1.0,
             hand_off: int | None = None, alive: torch.Tensor | None = None, born: torch.Tensor | None = None,
-            start: Gaussian | None = None):
+            start: Gaussian | None = None, P: torch.Tensor | None = None):
     """One EM iteration on a window: states ``X (b, W, N, n)``, ``prior`` the predicted moments at
     its first scan (one row per run and target, ``(b N, n)``). Returns the new states, their
     covariances ``(b, W, N, n, n)``, the forward filter's prediction at scan ``hand_off`` (default:
     after the window) and the E-step's weights. Tracks that start inside the window (track
     management): ``alive (b, W, N)`` where each explains detections, ``born (b, N)`` the scan of
-    the window each starts at (-1: before it) as ``start`` ``(b N, n)`` (see :func:`_smooth`)."""
+    the window each starts at (-1: before it) as ``start`` ``(b N, n)`` (see :func:`_smooth`).
+    ``P (b, W, N, n, n)``: covariances of ``X`` for the marginal E-step (None: plain PMHT's)."""
     b, W, N, n = X.shape
-    w, nu = association_weights(pr, X, lists, inflate, alive)
+    w, nu = association_weights(pr, X, lists, inflate, alive, P)
     z, scale = synthetic_measurements(pr, X, w, nu, inflate)
     xs, Ps, handed = _smooth(pr, prior, _rows(z), _rows(scale), W if hand_off is None else hand_off,
                              None if born is None else born.reshape(b * N), start)

@@ -19,6 +19,12 @@ from ..motion import KinematicModel
 from ..simulation.detections import PooledScans, Scans
 
 
+E_STEPS = ("point", "marginal")
+"""How the E-step weighs a detection: at the point estimate, ``N(z; h(x), kappa R)`` (PMHT as
+published), or under the track's Gaussian, ``N(z; h(x), kappa R + H P H^T)``
+(:func:`~.pmht_em.marginal_covariances`)."""
+
+
 @dataclass(frozen=True)
 class PMHTSettings:
     """``pd``: detection probability per target and pair; ``clutter_rate (S,)``: expected clutter
@@ -27,8 +33,8 @@ class PMHTSettings:
     consecutive batches; ``em_iterations`` per batch (at most: EM stops earlier once no position
     moves more than ``tolerance_m``, 0 = never); ``kappa`` covariance scales of the measurement
     mixture with ``kappa_weights`` (default equal); ``anneal``: the measurement covariance of the
-    first EM iteration of a batch is ``anneal`` times ``R`` (:meth:`inflation`); ``chunk_runs``:
-    runs per pass (bounds memory)."""
+    first EM iteration of a batch is ``anneal`` times ``R`` (:meth:`inflation`); ``e_step``: one
+    of :data:`E_STEPS`; ``chunk_runs``: runs per pass (bounds memory)."""
 
     pd: float
     clutter_rate: tuple[float, ...]
@@ -40,6 +46,7 @@ class PMHTSettings:
     kappa: tuple[float, ...] = (1.0,)
     kappa_weights: tuple[float, ...] | None = None
     anneal: float = 1.0
+    e_step: str = "point"
     min_weight: float = 1e-9
     chunk_runs: int = 64
 
@@ -59,6 +66,7 @@ class PMHTSettings:
                 f"kappa_weights must be one positive weight per kappa, got {w}")
         require(self.min_weight > 0 and self.chunk_runs >= 1, "min_weight must be positive and chunk_runs >= 1")
         require(self.anneal >= 1 and math.isfinite(self.anneal), f"anneal must be >= 1, got {self.anneal}")
+        require(self.e_step in E_STEPS, f"e_step must be one of {E_STEPS}, got {self.e_step!r}")
 
     def inflation(self, iteration: int) -> float:
         """Annealing (homotopy) of the measurement covariance: iteration ``i`` (0-based) of a batch
@@ -121,6 +129,7 @@ class PMHTProblem:
     Q: torch.Tensor
     R: torch.Tensor  # (S d, S d) block-diagonal
     R_inv_chol: torch.Tensor  # (S, d, d): L_s^-1 with L_s L_s^T = R_s
+    R_blocks: torch.Tensor  # (S, d, d): R_s
     log_det: torch.Tensor  # (S,): log det R_s
     angles: torch.Tensor  # (d,) bool
     rate: torch.Tensor  # (S,)
@@ -154,7 +163,7 @@ def problem(model, motion: KinematicModel, dt: float, q, R: torch.Tensor, s: PMH
     eye = torch.eye(d, dtype=dtype, device=device).expand_as(L)
     kappa, log_c = s.mixture(dtype, device)
     return PMHTProblem(model, motion.F(dt, dtype, device), motion.Q(dt, q, dtype, device), R,
-                    torch.linalg.solve_triangular(L, eye, upper=False),
+                    torch.linalg.solve_triangular(L, eye, upper=False), blocks,
                     2 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1), model.angle_mask[:d].to(device),
                     torch.tensor(s.clutter_rate, dtype=dtype, device=device), kappa, log_c,
                     SigmaPoints().weights(motion.dim_x, dtype, device), s)
