@@ -31,7 +31,7 @@ from scipy.stats import multivariate_normal
 from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ukf
-from pmsr_nn.filters.smoothing import unscented_rts_smoother
+from pmsr_nn.filters.smoothing import rts_from_predictions, unscented_rts_smoother
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
 from pmsr_nn.harness.blocks import call_method, draw_block
 from pmsr_nn.harness.runner import prepare
@@ -42,9 +42,10 @@ from pmsr_nn.motion import ConstantVelocity, ContinuousConstantVelocity
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import CLUTTER, ClutterSpec, Scans, pool_by_receiver, simulate_scans
 from pmsr_nn.trackers.pmht import pmht
-from pmsr_nn.trackers.pmht_em import association_weights, em_step, expected_complete_log_likelihood
+from pmsr_nn.trackers.pmht_em import (_log_terms, _rts, _smooth, association_weights, em_step,
+                                      expected_complete_log_likelihood)
 from pmsr_nn.trackers.pmht_managed import managed_pmht
-from pmsr_nn.trackers.pmht_model import AssociationLists, PMHTSettings, problem
+from pmsr_nn.trackers.pmht_model import AssociationLists, PMHTSettings, pair_h, problem
 from test_track_management import scenario as births_scenario
 
 MOTION = ContinuousConstantVelocity(3)
@@ -479,3 +480,108 @@ def test_marginal_e_step_keeps_a_loosely_started_track_on_a_parallel_course():
 def test_unknown_e_step_is_a_one_line_error():
     with pytest.raises(ConfigError, match="e_step must be one of"):
         _settings(_model(2), e_step="exact")
+
+
+# ------------------------------------------------------------------ cheaper run (issue 37): same results
+
+
+def test_pair_h_is_the_models_h():
+    """The UKF's h over (..., S, D) tensors equals MeasurementModel.h to rounding (rtol 1e-10: a few
+    roundings of 1e5 m sums, against h values of 1e2-1e5); a model it does not cover keeps its own h."""
+    g = seeded_generator(21)
+    x = X0[None] + torch.randn(4, 3, 6, generator=g, dtype=torch.float64) * torch.tensor([3e4, 200.0] * 3)
+    for comps in [("range", "doppler"), ("delay", "range_rate"), ("doppler", "range")]:
+        model = MeasurementModel(Geometry.all_pairs(TX, RX), comps, (50.0, 20.0), MOTION.pos_idx, MOTION.vel_idx,
+                                 layout="pair")
+        assert torch.allclose(pair_h(model)(x), model.h(x), rtol=1e-10, atol=0.0)
+    angles = MeasurementModel(Geometry.all_pairs(TX, RX), ("range", "azimuth"), (50.0, 0.01), MOTION.pos_idx,
+                              MOTION.vel_idx, layout="pair")
+    assert pair_h(angles) == angles.h
+    component = MeasurementModel(Geometry.all_pairs(TX, RX), ("range", "doppler"), (50.0, 20.0), MOTION.pos_idx,
+                                 MOTION.vel_idx)
+    assert pair_h(component) == component.h
+
+
+def _reference_weights(pr, X, lists, inflate, alive, P):
+    """The E-step as log-sum-exp of :func:`_log_terms` (the formulation the fast one replaces)."""
+    _, log_t, log_clutter = _log_terms(pr, X, lists, inflate, alive, P)
+    dens = torch.logsumexp(torch.cat([log_clutter.unsqueeze(-1), log_t.flatten(-3)], -1), -1)
+    w = torch.exp(log_t - dens[..., None, None, None])
+    return torch.where(lists.valid[..., None, None, None], w, torch.zeros(()))
+
+
+@pytest.mark.parametrize("marginal", [False, True])
+def test_e_step_weights_equal_the_log_sum_exp_formulation(marginal):
+    """Pooled lists of two pairs, clutter over the whole box (most detection-track terms far below
+    exp(-700)), a mixture, annealing, padding and a track not alive at some scans: the weights equal
+    exp(log_t - logsumexp) to rtol 1e-9 (the exponents' rounding: eps times Mahalanobis distances of
+    up to ~1e5 for the terms that are not negligible), terms below 1e-300 of their detection's density
+    may be 0, and what the reference gives exactly 0 (padding, no candidate, not alive) is exactly 0."""
+    B, K = 2, 6
+    model = _model(2)
+    truth = _truth(B, K)
+    g = seeded_generator(9)
+    scans = simulate_scans(truth, model, 0.9, CLUTTER_BOX, g)
+    lists = AssociationLists.pooled(pool_by_receiver(scans, model, g))
+    s = _settings(model, kappa=(1.0, 4.0), anneal=16.0, e_step="marginal" if marginal else "point")
+    pr = problem(model, MOTION, 1.0, 5.0, model.R(), s)
+    X = truth + torch.randn(truth.shape, generator=g, dtype=torch.float64) * torch.tensor([60.0, 3.0] * 3)
+    P = torch.diag(torch.tensor([200.0, 10.0] * 3, dtype=torch.float64) ** 2).expand(B, K, 3, 6, 6) if marginal else None
+    alive = torch.ones(B, K, 3, dtype=torch.bool)
+    alive[0, :2, 1] = False
+    for inflate in (1.0, 16.0):
+        w, _ = association_weights(pr, X, lists, inflate, alive, P)
+        ref = _reference_weights(pr, X, lists, inflate, alive, P)
+        assert torch.allclose(w, ref, rtol=1e-9, atol=1e-300)
+        assert bool((w[ref == 0] == 0).all())
+    assert float(ref.amax()) > 0.5 and bool(((ref > 0) & (ref < 1e-300)).any()) and bool((~lists.valid).any())
+
+
+def test_point_e_step_skips_covariances_without_changing_the_states():
+    motion, lin, lists, prior, s = _linear_problem(B=2, K=8)
+    pr = problem(lin, motion, 1.0, 0.5, lin.R(), s)
+    B, T, n = prior.x.shape
+    g = Gaussian(prior.x.reshape(B * T, n), prior.P.reshape(B * T, n, n))
+    X = torch.stack([prior.x @ torch.linalg.matrix_power(pr.F, k).T for k in range(8)], 1)
+    x1, P1, h1, _ = em_step(pr, X, g, lists)
+    x2, P2, h2, _ = em_step(pr, X, g, lists, covariances=False)
+    assert P2 is None and P1.shape == (B, 8, T, n, n)
+    assert torch.allclose(x1, x2, rtol=1e-12, atol=0.0) and torch.allclose(h1.P, h2.P, rtol=1e-12, atol=0.0)
+
+
+def test_rts_pass_equals_the_library_smoother():
+    """_rts's rearranged recursion against rts_from_predictions on a UKF's moments (rtol 1e-9:
+    rounding of 1e5 m states through 9 gains)."""
+    model = _model(1)
+    truth = _truth(3, 10, targets=1)[:, :, 0]
+    z = model.h(truth) + torch.randn(3, 10, 2, generator=seeded_generator(2), dtype=torch.float64) * 30.0
+    f = ukf(Gaussian(truth[:, 0] + 20.0, torch.eye(6, dtype=torch.float64).expand(3, 6, 6) * 400.0), z, MOTION, 1.0,
+            5.0, model, model.R())
+    F, Q = MOTION.F(1.0), MOTION.Q(1.0, 5.0)
+    xp, Pp = f.x[:, :-1] @ F.T, F @ f.P[:, :-1] @ F.T + Q
+    ref = rts_from_predictions(f.x, f.P, xp, Pp, F)
+    xs, Ps = _rts(F, f.x, f.P, xp, Pp)
+    assert torch.allclose(xs, ref.x, rtol=1e-9, atol=1e-6) and torch.allclose(Ps, ref.P, rtol=1e-9, atol=1e-9)
+    assert _rts(F, f.x, f.P, xp, Pp, covariances=False)[1] is None
+
+
+def test_a_window_whose_cholesky_check_fails_is_redone_with_jitter():
+    """The UKF's factors are checked once per window: a prior covariance made indefinite by
+    rounding (-1e-9 of its scale on one eigenvalue) fails the plain factor; the window is redone
+    through safe_cholesky's jitter, as every step was before, and its results are finite and those
+    of the checked-per-step path."""
+    model = _model(1)
+    truth = _truth(2, 5, targets=1)
+    s = _settings(model, window=5, overlap=0)
+    pr = problem(model, MOTION, 1.0, 5.0, model.R(), s)
+    U = torch.linalg.qr(torch.randn(6, 6, generator=seeded_generator(3), dtype=torch.float64))[0]
+    ev = torch.tensor([4e4, 4e4, 4e4, 100.0, 100.0, -4e-5], dtype=torch.float64)
+    P0 = (U * ev) @ U.T
+    prior = Gaussian(truth[:, 0, 0], P0.expand(2, 6, 6).contiguous())
+    assert bool((torch.linalg.cholesky_ex(pr.sigma[2] * P0)[1] != 0).any())
+    z = model.h(truth[:, :, 0]) + 10.0
+    scale = torch.ones_like(z)
+    xs, Ps, _ = _smooth(pr, prior, z, scale, 5)
+    xs_safe, Ps_safe, _ = _smooth(pr, prior, z, scale, 5, safe=True)
+    assert bool(torch.isfinite(xs).all()) and bool(torch.isfinite(Ps).all())
+    assert torch.allclose(xs, xs_safe, rtol=1e-12, atol=0.0) and torch.allclose(Ps, Ps_safe, rtol=1e-12, atol=0.0)

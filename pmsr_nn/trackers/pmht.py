@@ -133,8 +133,10 @@ def pmht(lists: AssociationLists, prior: Gaussian, motion: KinematicModel, dt: f
             win_prior = Gaussian(g.x.reshape(b, N, n), g.P.reshape(b, N, n, n))
             record = [window_objective(pr, X, win_prior, win)] if record_objective else None
             for it in range(settings.em_iterations):
+                # the point E-step reads no covariance: only the last iteration's are kept
+                need_P = marginal or settings.tolerance_m > 0 or it == settings.em_iterations - 1
                 X_new, P, handed, _ = em_step(pr, X, g, win, settings.inflation(it), nxt - a,
-                                              P=P if marginal else None)
+                                              P=P if marginal else None, covariances=need_P)
                 moved = (X_new - X)[..., list(motion.pos_idx)].norm(dim=-1).max()
                 X = X_new
                 if record is not None:

@@ -14,7 +14,6 @@ import math
 import torch
 
 from ..filters.gaussian import Gaussian, safe_cholesky
-from ..filters.smoothing import rts_from_predictions
 from ..measurements import wrap_angle
 from .gating import gaussian_log_likelihood
 from .pmht_model import AssociationLists, PMHTProblem
@@ -33,7 +32,7 @@ def _log_terms(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflat
     (``H`` the Jacobian of ``h_s`` at ``x_t``): see :func:`marginal_covariances`."""
     B, W, N, _ = X.shape
     S, d = pr.pairs, pr.R_inv_chol.shape[-1]
-    h = pr.model.h(X).reshape(B, W, 1, 1, N, S, d)
+    h = pr.h(X).reshape(B, W, 1, 1, N, S, d)
     z = torch.nan_to_num(lists.z)[:, :, :, :, None, None, :]
     nu = z - h
     if bool(pr.angles.any()):
@@ -78,25 +77,99 @@ def _log_density(log_t: torch.Tensor, log_clutter: torch.Tensor) -> torch.Tensor
     return torch.logsumexp(torch.cat([log_clutter.unsqueeze(-1), log_t.flatten(-3)], -1), -1)
 
 
+EXP_FLOOR = -700.0
+"""Exponents below this give weight 0 (``exp(-700) ~ 1e-304``, far below any weight's rounding):
+``exp`` of an argument that under- or nearly underflows (and of ``-inf``) takes a slow path on x86
+that cost 10-300x the ordinary one, and most detection-track terms are that far out."""
+
+
+def _residual_components(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists) -> list[torch.Tensor]:
+    """Residuals ``z_r - h_s(x_t)`` as ``d`` contiguous ``(B, W, L, M, N, S)`` tensors, one per
+    value of a pair (angles wrapped): elementwise work on them avoids the tiny trailing ``d`` axis."""
+    B, W, N, _ = X.shape
+    S, d = pr.pairs, pr.R_inv_chol.shape[-1]
+    h = pr.h(X).reshape(B, W, N, S, d)
+    z = torch.nan_to_num(lists.z)
+    angles = pr.angles.tolist()
+    out = []
+    for i in range(d):
+        nu = z[:, :, :, :, None, None, i] - h[:, :, None, None, :, :, i]
+        out.append(wrap_angle(nu) if angles[i] else nu)
+    return out
+
+
+def _marginal_terms(pr: PMHTProblem, X: torch.Tensor, P: torch.Tensor,
+                    k: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The marginal E-step's Gaussians (:func:`marginal_covariances`, ``C (B, W, N, S,
+    n_components, d, d)``): their inverses ``C^-1`` and ``log(Pd c_p) - log det(2 pi C) / 2``
+    ``(B, W, N, S, n_components)``; ``k (n_components,)`` the annealed scales. 2 x 2 covariances
+    (range-Doppler) are inverted in closed form (a batched LU of 2 x 2 matrices costs more)."""
+    d = pr.R_inv_chol.shape[-1]
+    base = math.log(pr.settings.pd) + pr.log_c - 0.5 * d * math.log(2 * math.pi)
+    C = marginal_covariances(pr, X, P, k)
+    if d == 2:
+        a, b, c = C[..., 0, 0], C[..., 0, 1], C[..., 1, 1]
+        det = a * c - b * b
+        J = torch.stack([torch.stack([c, -b], -1), torch.stack([-b, a], -1)], -2) / det[..., None, None]
+        return J, base - 0.5 * torch.log(det)
+    return torch.linalg.inv(C), base - 0.5 * torch.logdet(C)
+
+
 def association_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflate: float = 1.0,
-                        alive: torch.Tensor | None = None, P: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                        alive: torch.Tensor | None = None,
+                        P: torch.Tensor | None = None) -> tuple[torch.Tensor, list[torch.Tensor]]:
     """E-step: weights ``w (B, W, L, M, N, S, n_components)`` (0 on padding and where a track is not
-    ``alive (B, W, N)``) and the residuals ``nu``; ``P (B, W, N, n, n)``: the marginal E-step
-    (:func:`marginal_covariances`), None: plain PMHT's."""
-    nu, log_t, log_clutter = _log_terms(pr, X, lists, inflate, alive, P)
-    w = torch.exp(log_t - _log_density(log_t, log_clutter)[..., None, None, None])
-    return torch.where(lists.valid[..., None, None, None], w, torch.zeros((), dtype=w.dtype, device=w.device)), nu
+    ``alive (B, W, N)``) and the residuals (:func:`_residual_components`); ``P (B, W, N, n, n)``: the
+    marginal E-step (:func:`marginal_covariances`), None: plain PMHT's.
+
+    The same weights as ``exp(log_t - log p(z_r))`` from :func:`_log_terms` (to rounding; terms
+    below ``exp(EXP_FLOOR)`` of a detection's largest are 0), computed in fewer passes over the
+    large tensors: the quadratic form from the ``d (d + 1) / 2`` products of residual values, the
+    log-sum-exp's shift by each detection's largest term (clutter included), so every term is
+    ``<= 1`` and the density ``>= 1``."""
+    nu = _residual_components(pr, X, lists)
+    d = len(nu)
+    k = pr.kappa * inflate
+    # products nu_i nu_j (B, W, L, M, N, S, 1); a pair that is no candidate for a detection (or
+    # padding, or a track not alive) gets nu_0^2 = inf: its term is exp(-inf) = 0
+    prods = {(i, j): (nu[i] * nu[j]).unsqueeze(-1) for i in range(d) for j in range(i, d)}
+    off = ~(lists.candidates & lists.valid.unsqueeze(-1))[:, :, :, :, None, :, None]  # (B, W, L, M, 1, S, 1)
+    if alive is not None:
+        off = off | ~alive[:, :, None, None, :, None, None]
+    prods[0, 0] = prods[0, 0].masked_fill(off, math.inf)
+    if P is None:  # N(z; h, kappa_p R_s): one quadratic form per pair, scaled by 1 / kappa_p
+        Ri = pr.R_inv_chol.transpose(-1, -2) @ pr.R_inv_chol  # (S, d, d) = R_s^-1
+        log_norm = (math.log(pr.settings.pd) + pr.log_c
+                    - 0.5 * (d * torch.log(2 * math.pi * k) + pr.log_det[:, None]))  # (S, n_components)
+        maha = None
+        for (i, j), q in prods.items():
+            c = Ri[:, i, j, None] * (1.0 if i == j else 2.0)  # (S, 1)
+            maha = q * c if maha is None else torch.addcmul(maha, q, c)
+        arg = torch.addcmul(log_norm, maha, -0.5 / k)  # (B, W, L, M, N, S, n_components)
+    else:  # N(z; h, C): log_norm - sum_ij (C^-1)_ij nu_i nu_j / 2
+        J, log_norm = _marginal_terms(pr, X, P, k)
+        J, arg = J[:, :, None, None], log_norm[:, :, None, None]
+        for (i, j), q in prods.items():
+            arg = torch.addcmul(arg, q, J[..., i, j], value=-0.5 if i == j else -1.0)
+    lam = (lists.candidates.to(X.dtype) * pr.rate).sum(-1)  # (B, W, L, M)
+    log_clutter = torch.log(lam.clamp_min(1e-300)) - math.log(pr.settings.volume)
+    top = torch.maximum(arg.amax((-3, -2, -1)), log_clutter)  # (B, W, L, M)
+    e = (arg - top[..., None, None, None]).clamp_min_(EXP_FLOOR).exp_()
+    e = torch.nn.functional.threshold_(e, 1.5 * math.exp(EXP_FLOOR), 0.0)  # the floor's exp(EXP_FLOOR) -> 0
+    dens = e.sum((-3, -2, -1)) + torch.exp(log_clutter - top)  # >= 1: the largest term is exp(0)
+    return e / dens[..., None, None, None], nu
 
 
-def synthetic_measurements(pr: PMHTProblem, X: torch.Tensor, w: torch.Tensor, nu: torch.Tensor, inflate: float = 1.0):
-    """M-step's measurements: ``z~ (B, W, N, S d)`` (NaN rows where a pair's weight is below
+def synthetic_measurements(pr: PMHTProblem, X: torch.Tensor, w: torch.Tensor, nu: list[torch.Tensor], inflate: float = 1.0):
+    """M-step's measurements from the E-step's weights ``w`` and residual values ``nu``
+    (:func:`association_weights`): ``z~ (B, W, N, S d)`` (NaN rows where a pair's weight is below
     ``min_weight``) and the diagonal scale ``1 / sum(w / kappa)`` per row ``(B, W, N, S d)``."""
     B, W, N, _ = X.shape
     S, d = pr.pairs, pr.R_inv_chol.shape[-1]
-    a = (w / (pr.kappa * inflate)).sum(-1)  # (B, W, L, M, N, S)
+    a = w @ (1.0 / (pr.kappa * inflate))  # (B, W, L, M, N, S): sum_p w_p / kappa_p
     total = a.sum((2, 3))  # (B, W, N, S)
-    shift = torch.einsum("bwlmts,bwlmtsd->bwtsd", a, nu) / total.clamp_min(pr.settings.min_weight)[..., None]
-    z = pr.model.h(X).reshape(B, W, N, S, d) + shift
+    shift = torch.stack([(a * v).sum((2, 3)) for v in nu], -1) / total.clamp_min(pr.settings.min_weight)[..., None]
+    z = pr.h(X).reshape(B, W, N, S, d) + shift
     if bool(pr.angles.any()):
         z = torch.where(pr.angles, wrap_angle(z), z)
     missing = (total < pr.settings.min_weight)[..., None].expand(B, W, N, S, d)
@@ -105,62 +178,110 @@ def synthetic_measurements(pr: PMHTProblem, X: torch.Tensor, w: torch.Tensor, nu
 
 
 def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tensor, hand_off: int,
-            born: torch.Tensor | None = None, start: Gaussian | None = None):
+            born: torch.Tensor | None = None, start: Gaussian | None = None, covariances: bool = True,
+            safe: bool = False):
     """Unscented Kalman smoother over synthetic measurements ``z (rows, W, m)``, one row per run
     and track (NaN entries missing; covariance ``D R D``, ``D = diag(sqrt(scale))``) from
     ``prior`` (predicted moments at the window's first scan, ``(rows, n)``): a UKF forward (the
     update of
     :func:`~pmsr_nn.filters.gaussian.kalman_update` with the moments of
     :func:`~pmsr_nn.filters.gaussian.unscented_moments`, written out once for the fixed shapes of
-    this loop), then the RTS pass. Returns smoothed ``x (rows, W, n)``, ``P (rows, W, n, n)`` and the
-    filter's prediction at scan ``hand_off`` of the window (the next window's prior).
+    this loop), then the RTS pass (:func:`_rts`). Returns smoothed ``x (rows, W, n)``, ``P (rows,
+    W, n, n)`` (None unless ``covariances``) and the filter's prediction at scan ``hand_off`` of
+    the window (the next window's prior).
 
     ``born (rows,)`` (optional, -1: none) and ``start`` ``(rows, n)``: a row born at scan ``born`` of
     the window is filtered as ``start`` there (the initiator's Gaussian, made from that scan's
     detections: they are not counted twice); before it, it only has ``prior`` and no measurement,
-    and its smoothed states there mean nothing."""
+    and its smoothed states there mean nothing.
+
+    The loop is bound by the count of small tensor operations (a window has ``W`` steps of a few
+    rows each), so it keeps them few: the Cholesky factors are checked once per window (``safe``:
+    through :func:`~pmsr_nn.filters.gaussian.safe_cholesky` at every step, what a window whose
+    check failed is redone with), the sigma points' offsets serve as ``X - x``, the updates are
+    fused multiply-adds."""
     _, W, m = z.shape
     wm, wc, c = pr.sigma
     missing = torch.isnan(z)
     any_missing = missing.any((0, 2)).tolist()
+    keep = (~missing).to(z.dtype)
+    born_at = set() if born is None else set(born.tolist())
     z = torch.nan_to_num(z)
     root = scale.sqrt()
     Rw = root[..., :, None] * pr.R * root[..., None, :]  # (rows, W, m, m)
+    Ft = pr.F.T
+    infos = []
+
+    def factor(A: torch.Tensor) -> torch.Tensor:
+        if safe:
+            return safe_cholesky(A)
+        L, info = torch.linalg.cholesky_ex(A)
+        infos.append(info)
+        return L
+
     x, P = prior.x, prior.P
     xf, Pf, xp, Pp = [], [], [x], [P]
     for k in range(W):
         if k:
-            x, P = x @ pr.F.T, pr.F @ P @ pr.F.T + pr.Q
+            x, P = x @ Ft, pr.F @ P @ Ft + pr.Q
             xp.append(x)
             Pp.append(P)
-        L = safe_cholesky(c * P).transpose(-1, -2)
-        X = torch.cat([x[:, None], x[:, None] + L, x[:, None] - L], 1)  # (rows, 2n+1, n)
-        Z = pr.model.h(X)
+        L = factor(c * P).transpose(-1, -2)
+        D = torch.cat([torch.zeros_like(L[:, :1]), L, -L], 1)  # (rows, 2n+1, n): sigma points - x
+        Z = pr.h(x[:, None] + D)
         zm = wm @ Z
-        dZ, dX = Z - zm[:, None], X - x[:, None]
-        dZw = dZ * wc[:, None]
-        S = dZw.transpose(-1, -2) @ dZ + Rw[:, k]
-        C = dX.transpose(-1, -2) @ dZw
+        dZw = (Z - zm[:, None]) * wc[:, None]
+        S = torch.baddbmm(Rw[:, k], dZw.transpose(-1, -2), Z - zm[:, None])
+        C = D.transpose(-1, -2) @ dZw
         nu = z[:, k] - zm
         if any_missing[k]:
-            keep = (~missing[:, k]).to(S.dtype)
-            S = S * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(1.0 - keep)
-            C, nu = C * keep[:, None, :], nu * keep
-        Kt = torch.cholesky_solve(C.transpose(-1, -2), safe_cholesky(S))  # (rows, m, n) = K^T
-        x = x + (nu[:, None, :] @ Kt)[:, 0]
-        P = P - C @ Kt
-        P = 0.5 * (P + P.transpose(-1, -2))
-        if born is not None and bool((born == k).any()):
+            kp = keep[:, k]
+            S = S * kp[:, :, None] * kp[:, None, :] + torch.diag_embed(1.0 - kp)
+            C, nu = C * kp[:, None, :], nu * kp
+        Kt = torch.cholesky_solve(C.transpose(-1, -2), factor(S))  # (rows, m, n) = K^T
+        x = torch.baddbmm(x[:, None], nu[:, None], Kt)[:, 0]
+        P = torch.baddbmm(P, C, Kt, alpha=-1.0)
+        P = (P + P.transpose(-1, -2)).mul_(0.5)
+        if k in born_at:
             here = born == k
             x, P = torch.where(here[:, None], start.x, x), torch.where(here[:, None, None], start.P, P)
         xf.append(x)
         Pf.append(P)
-    xp.append(x @ pr.F.T)
-    Pp.append(pr.F @ P @ pr.F.T + pr.Q)
-    sm = rts_from_predictions(torch.stack(xf, 1), torch.stack(Pf, 1), torch.stack(xp[1:], 1)[:, :W - 1],
-                              torch.stack(Pp[1:], 1)[:, :W - 1], pr.F)
-    handed = Gaussian(xp[hand_off], Pp[hand_off])
-    return sm.x, sm.P, handed
+    if infos and bool(torch.stack(infos).any()):  # a factor failed: redo with the jitter fallback
+        return _smooth(pr, prior, z.masked_fill(missing, math.nan), scale, hand_off, born, start, covariances, True)
+    xp.append(x @ Ft)
+    Pp.append(pr.F @ P @ Ft + pr.Q)
+    xs, Ps = _rts(pr.F, torch.stack(xf, 1), torch.stack(Pf, 1), torch.stack(xp[1:W], 1), torch.stack(Pp[1:W], 1),
+                  covariances)
+    return xs, Ps, Gaussian(xp[hand_off], Pp[hand_off])
+
+
+def _rts(F: torch.Tensor, x: torch.Tensor, P: torch.Tensor, x_pred: torch.Tensor, P_pred: torch.Tensor,
+         covariances: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """RTS pass of :func:`~pmsr_nn.filters.smoothing.rts_from_predictions` (filtered ``x (rows,
+    W, n)``, ``P (rows, W, n, n)``, predictions for scans ``1..W-1``: ``x_pred (rows, W-1, n)``,
+    ``P_pred``) with what does not depend on the smoothed moments done for every scan at once:
+    ``x_s[k] = (x[k] - G_k x_pred[k]) + G_k x_s[k+1]`` and ``P_s[k] = (P[k] - G_k P_pred[k] G_k^T)
+    + G_k P_s[k+1] G_k^T``, two fused multiply-adds per scan. Returns ``x_s``, ``P_s`` (None
+    unless ``covariances``: EM's point E-step needs only the last iteration's)."""
+    W = x.shape[1]
+    if W < 2:
+        return x, P if covariances else None
+    Gt = torch.cholesky_solve(F @ P[:, :-1], safe_cholesky(P_pred))  # G_k^T = P_pred_k^-1 F P_k
+    G = Gt.transpose(-1, -2)
+    cx = x[:, :-1] - (x_pred[:, :, None] @ Gt)[:, :, 0]
+    xs = [x[:, -1]]
+    for k in range(W - 2, -1, -1):
+        xs.append(torch.baddbmm(cx[:, k, None], xs[-1][:, None], Gt[:, k])[:, 0])
+    xs = torch.stack(xs[::-1], 1)
+    if not covariances:
+        return xs, None
+    cP = P[:, :-1] - G @ P_pred @ Gt
+    Ps = [P[:, -1]]
+    for k in range(W - 2, -1, -1):
+        Ps.append(torch.baddbmm(cP[:, k], G[:, k] @ Ps[-1], Gt[:, k]))
+    Ps = torch.stack(Ps[::-1], 1)
+    return xs, 0.5 * (Ps + Ps.transpose(-1, -2))
 
 
 def state_log_prior(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian) -> torch.Tensor:
@@ -193,20 +314,22 @@ def expected_complete_log_likelihood(pr: PMHTProblem, X: torch.Tensor, prior: Ga
 
 def em_step(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists, inflate: float = 1.0,
             hand_off: int | None = None, alive: torch.Tensor | None = None, born: torch.Tensor | None = None,
-            start: Gaussian | None = None, P: torch.Tensor | None = None):
+            start: Gaussian | None = None, P: torch.Tensor | None = None, covariances: bool = True):
     """One EM iteration on a window: states ``X (b, W, N, n)``, ``prior`` the predicted moments at
     its first scan (one row per run and target, ``(b N, n)``). Returns the new states, their
     covariances ``(b, W, N, n, n)``, the forward filter's prediction at scan ``hand_off`` (default:
     after the window) and the E-step's weights. Tracks that start inside the window (track
     management): ``alive (b, W, N)`` where each explains detections, ``born (b, N)`` the scan of
     the window each starts at (-1: before it) as ``start`` ``(b N, n)`` (see :func:`_smooth`).
-    ``P (b, W, N, n, n)``: covariances of ``X`` for the marginal E-step (None: plain PMHT's)."""
+    ``P (b, W, N, n, n)``: covariances of ``X`` for the marginal E-step (None: plain PMHT's);
+    ``covariances`` False: the smoothed covariances are not computed (None is returned)."""
     b, W, N, n = X.shape
     w, nu = association_weights(pr, X, lists, inflate, alive, P)
     z, scale = synthetic_measurements(pr, X, w, nu, inflate)
     xs, Ps, handed = _smooth(pr, prior, _rows(z), _rows(scale), W if hand_off is None else hand_off,
-                             None if born is None else born.reshape(b * N), start)
-    return xs.reshape(b, N, W, n).transpose(1, 2), Ps.reshape(b, N, W, n, n).transpose(1, 2), handed, w
+                             None if born is None else born.reshape(b * N), start, covariances)
+    Ps = None if Ps is None else Ps.reshape(b, N, W, n, n).transpose(1, 2)
+    return xs.reshape(b, N, W, n).transpose(1, 2), Ps, handed, w
 
 
 def _rows(t: torch.Tensor) -> torch.Tensor:
