@@ -230,7 +230,7 @@ def test_batched_marginals_do_not_mix_runs():
 def test_pda_collapse_equals_the_mixture_of_kalman_updates():
     """The shared-gain collapse of S-MSJPDA is the moment match of the per-detection posteriors."""
     from pmsr_nn.filters.gaussian import kalman_update, safe_cholesky
-    from pmsr_nn.trackers.msjpda import _collapse, _expand, _pda_collapse
+    from pmsr_nn.trackers.mixture import collapse as _collapse, expand_moments as _expand, pda_collapse as _pda_collapse
 
     model = _model(1)
     truth = _formation(B=2, K=2, T=3)

@@ -39,13 +39,14 @@ import torch
 
 from ..config import require
 from ..errors import ConfigError
-from ..filters.gaussian import Gaussian, MeasurementMoments, kalman_update, predict, safe_cholesky, unscented_moments
+from ..filters.gaussian import Gaussian, kalman_update, predict, safe_cholesky, unscented_moments
 from ..measurements import MeasurementModel, wrap_angle
 from ..motion import KinematicModel
 from ..simulation.detections import Scans, check_model_for_detections
 from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood
 from .management import Management, TrackReport, TrackTable, parked_state
+from .mixture import collapse, expand_moments, pda_collapse
 from .learned_gain import Association, GainCorrection, pda_marginals
 from .jpda import batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
 
@@ -106,43 +107,6 @@ def check_tracker_inputs(scans: Scans, prior: Gaussian, motion: KinematicModel, 
         raise ConfigError("the prior mean is not finite")
 
 
-def _collapse(weights: torch.Tensor, x: torch.Tensor, P: torch.Tensor) -> Gaussian:
-    """Moment-matched Gaussian of the mixture ``weights (..., L)``, ``x (..., L, n)``, ``P (..., L, n, n)``."""
-    mean = (weights.unsqueeze(-1) * x).sum(-2)
-    d = x - mean.unsqueeze(-2)
-    cov = (weights[..., None, None] * (P + d.unsqueeze(-1) * d.unsqueeze(-2))).sum(-3)
-    return Gaussian(mean, 0.5 * (cov + cov.transpose(-1, -2)))
-
-
-def _pda_collapse(g: Gaussian, mom: MeasurementMoments, L: torch.Tensor, e: torch.Tensor, gate: torch.Tensor,
-                  w: torch.Tensor) -> Gaussian:
-    """Moment-matched Gaussian of the PDA mixture of tracks ``g`` ``(B, T, n)``: weight
-    ``w[..., i]`` on the Kalman update with detection ``i``, whose whitened innovation is
-    ``e (B, T, M, d)`` (``L^-1 nu``, ``L L^T = S (B, T, d, d)``; used only where ``gate (B, T, M)``,
-    ``w`` is 0 elsewhere), ``w[..., M]`` on the prediction.
-
-    The mixture :func:`_collapse` of :func:`~pmsr_nn.filters.gaussian.kalman_update`'s
-    per-detection posteriors, written with what they share: one gain ``K = W^T L^-1`` and one
-    ``P - W^T W`` per track (``W = L^-1 C^T``), so the ``M`` detections cost no posteriors
-    ``(n, n)`` of their own. The spread of the means is taken about the prediction
-    (``dx_i = K nu_i``), which also avoids the cancellation of subtracting positions of tens of km."""
-    Wc = torch.linalg.solve_triangular(L, mom.C.transpose(-1, -2), upper=False)  # (B, T, d, n)
-    e = e.masked_fill(~gate.unsqueeze(-1), 0.0)
-    dx = e @ Wc  # (B, T, M, n): K nu_i
-    wd, wm = w[..., :-1], w[..., -1]
-    wdx = (wd.unsqueeze(-1) * dx).transpose(-1, -2)  # (B, T, n, M)
-    dbar = wdx.sum(-1)  # (B, T, n)
-    # sum_i w_i (dx_i - dbar)(..)^T + w_M dbar dbar^T, with the weights summing to 1
-    spread = wdx @ dx - dbar.unsqueeze(-1) * dbar.unsqueeze(-2)
-    P_post = g.P - Wc.transpose(-1, -2) @ Wc
-    cov = wd.sum(-1)[..., None, None] * P_post + wm[..., None, None] * g.P + spread
-    return Gaussian(g.x + dbar, 0.5 * (cov + cov.transpose(-1, -2)))
-
-
-def _expand(m: MeasurementMoments) -> MeasurementMoments:
-    return MeasurementMoments(m.z.unsqueeze(-2), m.S.unsqueeze(-3), m.C.unsqueeze(-3))
-
-
 def _jpda_marginals(gated: np.ndarray, log_lik: np.ndarray, s: JPDASettings) -> np.ndarray:
     """``alpha (B, T, M + 1)`` of one sensor: the tracks' clusters of all runs and the m-best
     events of each (:func:`~.jpda.batched_single_sensor_marginals`); column ``M`` the miss."""
@@ -188,7 +152,7 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     alpha = w.numpy()
     dummy = alpha[..., M] >= alpha[..., :M].max(-1, initial=0.0)
     ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
-    out = _pda_collapse(g, mom, L, e, gate, w)
+    out = pda_collapse(g, mom, L, e, gate, w)
     if correction is not None:
         out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active), out.P)
     return out, dummy, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / s.clutter_density
@@ -297,10 +261,10 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
         for t in range(T):
             L = len(cand_w[b][t])
             Zc[b, t, :L], Wc[b, t, :L] = cand_z[b][t], cand_w[b][t]
-    post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), torch.from_numpy(Zc), _expand(mom), model)
+    post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), torch.from_numpy(Zc), expand_moments(mom), model)
     range_sd = mom.S.diagonal(dim1=-2, dim2=-1)[..., 0::d].sqrt().amax(-1)
     ratio = torch.where(torch.from_numpy(gated), block_log_lik.exp(), torch.zeros((), dtype=d2.dtype)).sum(-1)
-    return (_collapse(torch.from_numpy(Wc), post.x, post.P), dummy, range_sd, worst_gap, gated, detected,
+    return (collapse(torch.from_numpy(Wc), post.x, post.P), dummy, range_sd, worst_gap, gated, detected,
             ratio / s.clutter_density)
 
 
