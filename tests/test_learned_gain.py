@@ -293,6 +293,23 @@ def test_a_checkpoint_round_trips_and_is_checked_against_the_scenario(tmp_path):
         check_gain_compatible(ck, geometry().to_dict(), model().components, (20.0, 2.0, NOISE[2]), 1.0, 6, "here")
 
 
+def test_saving_never_overwrites_or_removes_a_temporary_name_it_did_not_write(tmp_path):
+    """The checkpoint goes through a temporary file beside it; one of that name that is not ours is
+    refused in one line and left as it was, and nothing else is written."""
+    import os
+
+    from pmsr_nn.errors import OutputError
+
+    path, _ = _saved(tmp_path)
+    before = path.read_bytes()
+    theirs = tmp_path / f".{path.name}.partial-{os.getpid()}"
+    theirs.write_text("someone else's")
+    with pytest.raises(OutputError, match="temporary name .* is taken"):
+        _saved(tmp_path)
+    assert theirs.read_text() == "someone else's" and path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([path.name, theirs.name])
+
+
 def test_foreign_corrupted_and_edited_checkpoints_are_refused(tmp_path):
     path, _ = _saved(tmp_path)
     blob = path.read_bytes()

@@ -13,7 +13,6 @@ dicts only. A file that needs anything else is refused, never executed.
 
 from __future__ import annotations
 
-import os
 import pickle
 import zipfile
 from pathlib import Path
@@ -23,6 +22,7 @@ import torch
 from .. import __version__
 from ..config import from_dict, to_dict
 from ..errors import CheckpointError, ConfigError
+from ..outputs import atomic_file
 from .config import ModelConfig
 
 FORMAT = "pmsr_nn.tracker"
@@ -168,14 +168,12 @@ def read_blob(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
 
 
 def save_blob(path: str | Path, meta: dict, state_dict: dict) -> Path:
-    """Write ``{'pmsr': meta, 'state_dict': ...}`` atomically (temporary file, then rename)."""
+    """Write ``{'pmsr': meta, 'state_dict': ...}`` atomically (:func:`~pmsr_nn.outputs.atomic_file`:
+    a temporary file of ours, synced, then renamed; a temporary name someone else holds is refused,
+    never overwritten or removed)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    try:
+    with atomic_file(path, overwrite=True, what="checkpoint") as tmp:
         torch.save({"pmsr": meta, "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}, tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 
