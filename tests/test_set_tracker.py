@@ -14,7 +14,8 @@ import torch
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
 from pmsr_nn.measurements import MeasurementModel
 from pmsr_nn.nets.set_inference import link_tracks
-from pmsr_nn.nets.set_tracker import SetTracker, SetTrackerConfig, detection_tokens, match, set_loss
+from pmsr_nn.nets.set_refine import gauss_newton
+from pmsr_nn.nets.set_tracker import SetOutput, SetTracker, SetTrackerConfig, detection_tokens, match, set_loss
 from pmsr_nn.trackers.fix_initiator import range_azimuth_fix
 
 
@@ -42,14 +43,24 @@ def test_the_set_loss_is_zero_state_error_where_the_set_is_right_and_counts_fals
     pos = torch.tensor([[[3000.0, -500.0], [1000.0, 2000.0], [9000.0, 9000.0]]], dtype=torch.float64)
     vel = torch.tensor([[[0.0, -3.0], [5.0, 0.0], [0.0, 0.0]]], dtype=torch.float64)
     logit = torch.tensor([[4.0, 4.0, -4.0]], dtype=torch.float64)
-    loss, parts = set_loss(pos, vel, logit, true_pos, true_vel, torch.ones(1, 2, dtype=torch.bool), 500.0)
-    assert parts["matched"] == 2 and parts["state"] == 0.0
+    # association logits over 4 tokens: token 0 is truth 0's, token 1 truth 1's, 2 clutter, 3 padding
+    assoc = torch.tensor([[[-3.0, 3.0, -3.0, -math.inf], [3.0, -3.0, -3.0, -math.inf], [0.0, 0.0, 0.0, -math.inf]]],
+                         dtype=torch.float64)
+    out = SetOutput(pos, vel, logit, assoc, pos.clone(), torch.full((1, 4), -math.inf, dtype=torch.float64))
+    alive = torch.ones(1, 2, dtype=torch.bool)
+    loss, parts = set_loss(out, true_pos, true_vel, alive, 500.0)
+    assert parts["matched"] == 2 and parts["state"] == 0.0 and parts["association"] == 0.0
     bce = -(2 * math.log(1 / (1 + math.exp(-4.0))) + math.log(1 - 1 / (1 + math.exp(4.0)))) / 3
     assert float(loss) == pytest.approx(bce, rel=1e-9)
-    # a target nobody is near: matched (so its query is pulled towards it) but its existence target is 0
+    # association: per matched query the mean softplus over its own tokens plus over the other usable ones
+    origin = torch.tensor([[0, 1, -1, -2]])
+    _, parts = set_loss(out, true_pos, true_vel, alive, 500.0, origin)
+    sp = lambda a: math.log1p(math.exp(a))
+    assert parts["association"] == pytest.approx(sp(-3.0) + sp(-3.0), rel=1e-9)  # own at +3, the two others at -3
+    # a target nobody is near: still matched (its query is pulled towards it and told it exists)
     far = true_pos.clone()
     far[0, 1] = torch.tensor([-9000.0, 0.0])
-    _, parts = set_loss(pos, vel, logit, far, true_vel, torch.ones(1, 2, dtype=torch.bool), 500.0)
+    _, parts = set_loss(out, far, true_vel, alive, 500.0)
     assert parts["matched"] == 2 and parts["state"] > 100.0
 
 
@@ -61,8 +72,9 @@ def test_tokens_carry_the_closed_form_fixes_and_mask_the_padding():
     z = z[None].expand(1, 2, 3, 2, 3).clone()  # (W=1, L=2, S, M, d)
     valid = torch.ones(1, 2, 3, 2, dtype=torch.bool)
     valid[0, 0, :, 1] = False  # padding in the first scan
-    feats, pair, age, mask = detection_tokens(z, valid, m, cfg)
-    assert feats.shape == (1, 12, 7) and mask.sum() == 3
+    feats, pair, age, mask, raw = detection_tokens(z, valid, m, cfg)
+    assert feats.shape == (1, 12, 7) and mask.sum() == 3 and raw.shape == (1, 12, 3)
+    assert torch.equal(raw[0, 6:], z[0, 1].reshape(6, 3)) and not raw[0, :6][mask[0, :6]].any()
     pos, ok = range_azimuth_fix(z[0, 1], m)
     assert bool(ok.all())
     got = feats[0].reshape(2, 3, 2, 7)[1, ..., :2].double() * cfg.position_scale_m
@@ -100,13 +112,32 @@ def test_a_tiny_set_tracker_fits_a_fixed_batch():
     valid = torch.ones(4, 2, 3, 2, dtype=torch.bool)
     toks = detection_tokens(z, valid, m, cfg)
     tp, tv = x[:, [0, 3]].expand(4, 2, 2), x[:, [1, 4]].expand(4, 2, 2)
-    net = SetTracker(cfg, 3)
+    net = SetTracker(cfg, m, 1.0)
     opt = torch.optim.Adam(net.parameters(), lr=3e-3)
     first = None
     for _ in range(40):
-        loss, _ = set_loss(*net(*toks), tp, tv, torch.ones(4, 2, dtype=torch.bool), 500.0)
+        loss, _ = set_loss(net(toks), tp, tv, torch.ones(4, 2, dtype=torch.bool), 500.0)
         first = float(loss.detach()) if first is None else first
         opt.zero_grad()
         loss.backward()
         opt.step()
     assert float(loss.detach()) < 0.5 * first, (first, float(loss.detach()))
+
+
+def test_a_saved_set_tracker_loads_back_with_its_sensors_and_answers_the_same(tmp_path):
+    from pmsr_nn.nets.set_inference import load_set_checkpoint, save_set_checkpoint, set_metadata
+
+    torch.manual_seed(1)
+    m = model()
+    cfg = SetTrackerConfig(window=2, d_model=16, heads=2, encoder_layers=1, decoder_layers=1, queries=3, reassociate=1)
+    net = SetTracker(cfg, m, 1.0).eval()
+    x = torch.tensor([[3000.0, 8.0, 0.0, 6000.0, -5.0, 0.0]], dtype=torch.float64)
+    z = m.h(x).reshape(1, 3, 1, 3)[None].expand(2, 2, 3, 1, 3).clone()
+    toks = detection_tokens(z, torch.ones(2, 2, 3, 1, dtype=torch.bool), m, cfg)
+    save_set_checkpoint(tmp_path / "ck.pt", set_metadata(cfg, m, 1.0, 6, seed=0), net)
+    back = load_set_checkpoint(tmp_path / "ck.pt")
+    assert back.net.model == m and back.net.dt == 1.0 and back.net.cfg == cfg
+    with torch.no_grad():
+        a, b = net(toks), back.net(toks)
+    assert a.pos.shape == (2, 3, 2) and torch.isfinite(a.pos).all()
+    assert torch.equal(a.pos, b.pos) and torch.equal(a.logit, b.logit)

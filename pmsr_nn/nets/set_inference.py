@@ -21,6 +21,7 @@ from scipy.optimize import linear_sum_assignment
 from .. import __version__
 from ..config import from_dict, to_dict
 from ..errors import CheckpointError, ConfigError
+from ..geometry import Geometry
 from ..measurements import MeasurementModel
 from .checkpoint import read_blob, save_blob
 from .set_tracker import SetTracker, SetTrackerConfig, detection_tokens
@@ -35,10 +36,19 @@ class SetCheckpoint:
     source: str = ""
 
 
-def set_metadata(cfg: SetTrackerConfig, geometry: dict, components, noise_std, dt_s: float, **training) -> dict:
+def set_metadata(cfg: SetTrackerConfig, model: MeasurementModel, dt_s: float, dim_x: int, **training) -> dict:
+    """The plain-data description of a set tracker for ``model``'s detections every ``dt_s`` s."""
     return {"format": FORMAT, "format_version": 1, "pmsr_nn_version": __version__, "model": to_dict(cfg),
-            "geometry": geometry, "components": list(components), "noise_std": [float(v) for v in noise_std],
-            "dt_s": float(dt_s), "dim_x": 6, "training": training}
+            "geometry": model.geometry.to_dict(), "components": list(model.components),
+            "noise_std": [float(v) for v in model.noise_std], "pos_idx": list(model.pos_idx),
+            "vel_idx": list(model.vel_idx), "dt_s": float(dt_s), "dim_x": int(dim_x), "training": training}
+
+
+def checkpoint_model(meta: dict) -> MeasurementModel:
+    """The measurement model a set checkpoint was trained for (``meta``: geometry, components, ...)."""
+    return MeasurementModel(Geometry.from_dict(meta["geometry"]), tuple(meta["components"]),
+                            tuple(float(v) for v in meta["noise_std"]), tuple(meta["pos_idx"]),
+                            tuple(meta["vel_idx"]), layout="pair")
 
 
 def save_set_checkpoint(path: str | Path, meta: dict, net: SetTracker) -> Path:
@@ -50,12 +60,15 @@ def load_set_checkpoint(path: str | Path) -> SetCheckpoint:
     meta, sd = read_blob(path, FORMAT, "set tracker")
     try:
         cfg = from_dict(SetTrackerConfig, meta.get("model"), where="checkpoint model")
-        n_pairs = len(meta["geometry"]["pairs"])
         if not isinstance(meta.get("components"), list) or not isinstance(meta.get("noise_std"), list):
             raise KeyError("components")
-    except (ConfigError, KeyError, TypeError) as exc:
+        model = checkpoint_model(meta)
+        dt, dim_x = float(meta["dt_s"]), int(meta["dim_x"])
+        if not (dt > 0 and dim_x > max(model.pos_idx + model.vel_idx)):
+            raise ValueError(f"dt_s {dt}, dim_x {dim_x}")
+    except (ConfigError, KeyError, TypeError, ValueError, IndexError) as exc:
         raise CheckpointError(f"{path}: the checkpoint's description is unreadable ({exc})") from None
-    net = SetTracker(cfg, n_pairs)
+    net = SetTracker(cfg, model, dt, dim_x)
     try:
         net.load_state_dict(sd)
     except RuntimeError:
@@ -83,11 +96,10 @@ def track_runs(net: SetTracker, z: torch.Tensor, valid: torch.Tensor, model: Mea
     out_p, out_v, out_e = [], [], []
     net = net.to(device)
     for i in range(0, zw.shape[0], chunk):
-        toks = detection_tokens(zw[i:i + chunk], vw[i:i + chunk], model, net.cfg)
-        a, b, c = net(*(t.to(device) for t in toks))
-        out_p.append(a.double().cpu())
-        out_v.append(b.double().cpu())
-        out_e.append(torch.sigmoid(c).double().cpu())
+        out = net(detection_tokens(zw[i:i + chunk], vw[i:i + chunk], model, net.cfg).to(device))
+        out_p.append(out.pos.double().cpu())
+        out_v.append(out.vel.double().cpu())
+        out_e.append(torch.sigmoid(out.logit).double().cpu())
     pos[:, L - 1:] = torch.cat(out_p).reshape(B, K - L + 1, Q, 2)
     vel[:, L - 1:] = torch.cat(out_v).reshape(B, K - L + 1, Q, 2)
     p[:, L - 1:] = torch.cat(out_e).reshape(B, K - L + 1, Q)

@@ -92,26 +92,30 @@ def make_module(cfg: SetTrainConfig, sampler: SceneSampler):
     class SetModule(pl.LightningModule):
         def __init__(self):
             super().__init__()
-            self.net = SetTracker(cfg.model, sampler.model.n_pairs)
+            self.net = SetTracker(cfg.model, sampler.model, sampler.dt, sampler.motion.dim_x)
 
         def _batch(self, seed):
             scans, truth, _, _, _ = sampler.draw(seed, cfg.optim.batch_size)
-            toks = [t.to(self.device) for t in detection_tokens(scans.z, scans.valid, sampler.model, cfg.model)]
+            toks = detection_tokens(scans.z, scans.valid, sampler.model, cfg.model).to(self.device)
+            origin = scans.origin.reshape(len(truth), -1).to(self.device)
             last = truth[:, -1].to(self.device)
             alive = torch.ones(last.shape[:2], dtype=torch.bool, device=self.device)
-            return toks, last[..., [0, 3]], last[..., [1, 4]], alive
+            return toks, origin, last[..., [0, 3]], last[..., [1, 4]], alive
 
         def training_step(self, step, _):
-            toks, tp, tv, alive = self._batch((cfg.seed, int(step)))
-            loss, parts = set_loss(*self.net(*toks), tp, tv, alive, cfg.optim.cutoff_m)
+            toks, origin, tp, tv, alive = self._batch((cfg.seed, int(step)))
+            loss, parts = set_loss(self.net(toks), tp, tv, alive, cfg.optim.cutoff_m, origin)
             self.log("train/loss", loss, batch_size=cfg.optim.batch_size)
+            for key in ("state", "existence", "association"):
+                self.log(f"train/{key}", parts[key], batch_size=cfg.optim.batch_size)
             return loss
 
         def validation_step(self, i, _):
-            toks, tp, tv, alive = self._batch((cfg.seed, 1_000_000, int(i)))
-            pos, vel, logit = self.net(*toks)
-            loss, _ = set_loss(pos, vel, logit, tp, tv, alive, cfg.optim.cutoff_m)
-            parts = [gospa_parts(pos[w], torch.sigmoid(logit[w]), tp[w], cfg.optim.cutoff_m) for w in range(len(pos))]
+            toks, origin, tp, tv, alive = self._batch((cfg.seed, 1_000_000, int(i)))
+            out = self.net(toks)
+            loss, _ = set_loss(out, tp, tv, alive, cfg.optim.cutoff_m, origin)
+            p = torch.sigmoid(out.logit)
+            parts = [gospa_parts(out.pos[w], p[w], tp[w], cfg.optim.cutoff_m) for w in range(len(p))]
             sq, n_ok, missed, false = (sum(x[j] for x in parts) for j in range(4))
             W = len(parts)
             c2 = cfg.optim.cutoff_m**2 / 2
@@ -150,9 +154,8 @@ def train_set(cfg: SetTrainConfig, out: str | Path, progress: bool = True) -> di
     o = cfg.optim
     trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, o.val_batches,
                                             o.gradient_clip_val, o.max_time_minutes, cfg.accelerator)
-    meta = set_metadata(cfg.model, sampler.model.geometry.to_dict(), sampler.model.components, sampler.noise_std,
-                        sampler.dt, seed=cfg.seed, steps=int(trainer.global_step), config=to_dict(cfg),
-                        device=str(trainer.strategy.root_device))
+    meta = set_metadata(cfg.model, sampler.model, sampler.dt, sampler.motion.dim_x, seed=cfg.seed,
+                        steps=int(trainer.global_step), config=to_dict(cfg), device=str(trainer.strategy.root_device))
     save_set_checkpoint(out / "tracker.pt", meta, module.net.cpu())
     metrics = {"steps": int(trainer.global_step), "fit_seconds": seconds, "device": str(trainer.strategy.root_device),
                "best_val_loss": float(ckpt.best_model_score) if ckpt.best_model_score is not None else None,
