@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -29,16 +30,18 @@ def main(argv=None) -> int:
     ap.add_argument("--scans", type=int, default=240)
     ap.add_argument("--targets", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--devices", default="cpu,cuda", help="comma-separated: cpu, cuda (cuda only where there is one)")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
     ck = load_set_checkpoint(a.checkpoint)
     scenes = SceneConfig(window=a.scans, targets=(a.targets, a.targets), pd=(0.7, 0.7), clutter_per_scan=(40, 40))
     sampler = SceneSampler(str(Path(__file__).resolve().parents[1] / "datasets" / "fitee2023_ca.yaml"), scenes)
     scans, *_ = sampler.draw((0,), a.runs)
-    out = {"command": "python benchmarks/bench_set_tracker.py " + " ".join(argv or []), "date": time.strftime("%Y-%m-%d"),
+    out = {"command": "python benchmarks/bench_set_tracker.py " + " ".join(sys.argv[1:] if argv is None else argv), "date": time.strftime("%Y-%m-%d"),
            "machine": platform.processor() or platform.machine(), "torch": torch.__version__, "threads": torch.get_num_threads(),
            "runs": a.runs, "scans": a.scans, "targets": a.targets, "windows": a.runs * (a.scans - ck.net.cfg.window + 1)}
-    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    asked = a.devices.split(",")
+    devices = [d for d in ("cpu", "cuda") if d in asked and (d == "cpu" or torch.cuda.is_available())]
     for dev in devices:
         track_runs(ck.net, scans.z, scans.valid, sampler.model, device=dev)  # warm-up
         times = []
