@@ -51,7 +51,8 @@ def case_bounds(x: torch.Tensor, alive: torch.Tensor, models: Models, P0: torch.
 def memory_bounds(x: torch.Tensor, alive: torch.Tensor, methods, resources: dict, causal: dict[str, bool],
                   models: Models) -> dict[str, tuple[int, np.ndarray]]:
     """Per causal learned method, the filtering bound of only the scans its estimates read
-    (:meth:`Tracker.memory` at the method's stride) with the training states' spread as prior: no
+    (:meth:`Tracker.memory` at the method's stride; every scan for whole-sequence inference) with
+    the training states' spread as prior: no
     network of that shape can beat it, whatever its training. Returns ``name -> (scans read,
     (K, N) curve)``; methods that share both share one computation."""
     out, cache = {}, {}
@@ -62,7 +63,9 @@ def memory_bounds(x: torch.Tensor, alive: torch.Tensor, methods, resources: dict
             continue
         t = resources[spec.name]
         stride = spec.option("stride")
-        L, P0 = t.memory(None if stride is None else int(stride)), t.training_spread()
+        whole = "inference" in kind.options and spec.option("inference") == "whole_sequence"
+        L = alive.shape[0] if whole else t.memory(None if stride is None else int(stride))
+        P0 = t.training_spread()
         key = (L, tuple(torch.diagonal(P0).tolist()))
         if key not in cache:
             parts = _per_target(x, alive, lambda tr: finite_memory_pcrb(tr, m.motion, m.dt, m.q, m.model, m.R, P0,

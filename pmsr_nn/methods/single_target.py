@@ -77,7 +77,8 @@ def run_single(spec, z: torch.Tensor, prior: Gaussian, m: Models, resource, seed
         return MethodOutput(r.x, r.P)
     if spec.kind == "learned":
         stride = spec.option("stride")
-        return MethodOutput(resource.track(z, stride=None if stride is None else int(stride)))
+        return MethodOutput(resource.track(z, stride=None if stride is None else int(stride),
+                                           whole=spec.option("inference") == "whole_sequence"))
     raise ValueError(f"{spec.kind!r} is not a single-target method kind")
 
 
@@ -128,6 +129,9 @@ def _load_learned(spec, context):
     t = Tracker.load(context.path(spec.checkpoint), device=context.device)
     t.check_compatible(context.geometry, context.labels, context.dt, where=context.where)
     stride = spec.option("stride")
+    if spec.option("inference") == "whole_sequence" and t.net.context[0] is not None:
+        raise ConfigError(f"method {spec.name!r}: inference whole_sequence is for recurrent networks; "
+                          f"{spec.checkpoint} is a {t.model.kind}, which reads {t.net.context[0] + 1} scans (drop the option)")
     if stride is not None and stride > t.window:
         raise ConfigError(f"method {spec.name!r}: stride {stride} is longer than the network's window of "
                           f"{t.window} samples (scans between windows would get no estimate)")
@@ -157,7 +161,8 @@ for _kind, _options, _extra in (
     # a block of runs x particles x 9 states must fit in memory
     ("particle_filter", {"particles": Option(2000, int, 1, 1_000_000), "roughening": Option(0.2, float, 0.0, 10.0)},
      {"description": "bootstrap particle filter with roughening"}),
-    ("learned", {"stride": Option(None, int, 1, 1_000_000, nullable=True, null="the checkpoint's default stride")},
+    ("learned", {"stride": Option(None, int, 1, 1_000_000, nullable=True, null="the checkpoint's default stride"),
+                 "inference": Option("windows", str, choices=("windows", "whole_sequence"))},
      {"needs_checkpoint": True, "load": _load_learned, "causal": lambda t: not t.looks_ahead, "check": _check_learned,
       "description": "a trained DFNN, MDFNN, RNN or KalmanNet (pmsr train) from its checkpoint"}),
 ):

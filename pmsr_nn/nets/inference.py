@@ -158,9 +158,10 @@ class Tracker:
 
     @torch.no_grad()
     def track(self, z: torch.Tensor, *, stride: int | None = None, nan: str = "error",
-              windows_per_batch: int = 2048) -> torch.Tensor:
+              windows_per_batch: int = 2048, whole: bool = False) -> torch.Tensor:
         """State estimates ``(B, K, dim_x)`` (float64, SI) for measurements ``z (B, K, dim_z)``
-        (or one sequence ``(K, dim_z)``) in SI units, any ``K >= window``."""
+        (or one sequence ``(K, dim_z)``) in SI units, any ``K >= window``. ``whole``: one pass of a
+        recurrent network (unbounded memory) over each whole sequence instead of spliced windows."""
         z = torch.as_tensor(z, dtype=torch.float64)
         single = z.ndim == 2
         if single:
@@ -177,18 +178,28 @@ class Tracker:
         stride = stride or self.default_stride()
         if stride < 1:
             raise MeasurementError(f"stride must be at least 1, got {stride}")
-        starts, which, offset = splice_plan(K, self.window, stride, self.net.context)
+        window = self.window
+        if whole:
+            if self.net.context[0] is not None:
+                raise MeasurementError(f"whole-sequence inference is for recurrent networks; this "
+                                       f"{self.model.kind} reads {self.net.context[0] + 1} scans")
+            if K < window:
+                raise MeasurementError(f"sequence of {K} samples is shorter than the network's window of {window}")
+            window, starts, which, offset = K, torch.zeros(1, dtype=torch.long), torch.zeros(K, dtype=torch.long), \
+                torch.arange(K)
+        else:
+            starts, which, offset = splice_plan(K, window, stride, self.net.context)
         p = next(self.net.parameters())
         device = p.device
         rep = self.representation
         fixes = rep.fixes(z) if rep.needs_fixes else None
         zn = rep.features(z, fixes).to(p.dtype)  # whole sequences: a window's first inputs read the scan before it
-        t = starts[:, None] + torch.arange(self.window)  # (W, window)
+        t = starts[:, None] + torch.arange(window)  # (W, window)
         windows = zn[:, t]  # (B, W, window, dim_z)
-        flat = windows.reshape(-1, self.window, zn.shape[-1])
+        flat = windows.reshape(-1, window, zn.shape[-1])
         out = torch.cat([self.net(flat[i : i + windows_per_batch].to(device)).cpu()
                          for i in range(0, len(flat), windows_per_batch)])
-        out = out.reshape(B, len(starts), self.window, -1)
+        out = out.reshape(B, len(starts), window, -1)
         est = out[:, which, offset]  # (B, K, dim_x)
         est = rep.states(est, rep.base(z, fixes))
         return est[0] if single else est
