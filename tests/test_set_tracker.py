@@ -141,3 +141,45 @@ def test_a_saved_set_tracker_loads_back_with_its_sensors_and_answers_the_same(tm
         a, b = net(toks), back.net(toks)
     assert a.pos.shape == (2, 3, 2) and torch.isfinite(a.pos).all()
     assert torch.equal(a.pos, b.pos) and torch.equal(a.logit, b.logit)
+
+
+def test_existence_near_calls_present_only_the_matched_queries_within_the_cutoff():
+    true_pos = torch.tensor([[[1000.0, 2000.0], [3000.0, -500.0]]], dtype=torch.float64)
+    pos = torch.tensor([[[1000.0, 2100.0], [3900.0, -500.0], [9000.0, 9000.0]]], dtype=torch.float64)  # 100 m, 900 m off
+    out = SetOutput(pos, torch.zeros(1, 3, 2, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64),
+                    torch.zeros(1, 3, 1, dtype=torch.float64), pos.clone(), torch.zeros(1, 1, dtype=torch.float64))
+    alive = torch.ones(1, 2, dtype=torch.bool)
+    zero_v = torch.zeros(1, 2, 2, dtype=torch.float64)
+    _, matched = set_loss(out, true_pos, zero_v, alive, 500.0)
+    _, near = set_loss(out, true_pos, zero_v, alive, 500.0, existence="near")
+    # every logit is 0: the existence term is log 2 whatever the targets; so compare through the gradient
+    logit = torch.zeros(1, 3, dtype=torch.float64, requires_grad=True)
+    set_loss(out._replace(logit=logit), true_pos, zero_v, alive, 500.0, existence="near")[0].backward()
+    # d BCE / d logit = (sigmoid(0) - target) / 3: target 1 only for the query 100 m off
+    assert torch.allclose(logit.grad, torch.tensor([[-0.5, 0.5, 0.5]], dtype=torch.float64) / 3)
+    assert matched["matched"] == near["matched"] == 2
+    with pytest.raises(Exception, match="existence must be"):
+        set_loss(out, true_pos, zero_v, alive, 500.0, existence="sometimes")
+
+
+def test_fine_tuning_starts_from_a_checkpoint_of_the_same_size_and_refuses_another(tmp_path):
+    from pathlib import Path
+
+    from pmsr_nn.errors import CheckpointError
+    from pmsr_nn.nets.scene_data import SceneConfig, SceneSampler
+    from pmsr_nn.nets.set_inference import save_set_checkpoint, set_metadata
+    from pmsr_nn.nets.set_training import start_from
+
+    recipe = Path(__file__).resolve().parents[1] / "datasets" / "fitee2023_ca.yaml"
+    sampler = SceneSampler(str(recipe), SceneConfig(window=5))
+    cfg = SetTrackerConfig(window=5, d_model=16, heads=2, encoder_layers=1, decoder_layers=1, queries=3)
+    torch.manual_seed(0)
+    trained = SetTracker(cfg, sampler.model, sampler.dt)
+    save_set_checkpoint(tmp_path / "ck.pt", set_metadata(cfg, sampler.model, sampler.dt, 6), trained)
+    fresh = SetTracker(cfg, sampler.model, sampler.dt)
+    start_from(fresh, str(tmp_path / "ck.pt"), sampler)
+    assert all(torch.equal(a, b) for a, b in zip(fresh.state_dict().values(), trained.state_dict().values()))
+    wider = SetTracker(SetTrackerConfig(window=5, d_model=32, heads=2, encoder_layers=1, decoder_layers=1, queries=3),
+                       sampler.model, sampler.dt)
+    with pytest.raises(CheckpointError, match="another size"):
+        start_from(wider, str(tmp_path / "ck.pt"), sampler)

@@ -221,7 +221,7 @@ def match(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def set_loss(out: SetOutput, true_pos: torch.Tensor, true_vel: torch.Tensor, alive: torch.Tensor, cutoff_m: float,
              origin: torch.Tensor | None = None, position_unit_m: float = 30.0, velocity_unit_mps: float = 2.0,
-             start_weight: float = 0.2) -> tuple[torch.Tensor, dict]:
+             start_weight: float = 0.2, existence: str = "matched") -> tuple[torch.Tensor, dict]:
     """The set-prediction loss of a batch, and its parts.
 
     Predictions ``out`` (:class:`SetOutput`, ``Q`` per window); truths ``true_pos (W, N, 2)``,
@@ -233,14 +233,16 @@ def set_loss(out: SetOutput, true_pos: torch.Tensor, true_vel: torch.Tensor, ali
       ``position_unit_m``, velocities in ``velocity_unit_mps``) plus ``start_weight`` times that
       of their unrefined positions, averaged over the matched pairs;
     * *existence*: the binary cross-entropy of every prediction's existence, 1 for the matched
-      (however far: the matching, not a distance, says which query answers for a target), 0 for
-      the others;
+      (``existence="matched"``: however far; the matching, not a distance, says which query answers
+      for a target) or for the matched nearer than ``cutoff_m`` (``"near"``: what GOSPA counts as
+      found), 0 for the others;
     * *association* (where ``origin (W, T)``, the index of the truth behind each token or < 0 for
       clutter and padding, is given): per matched pair the binary cross-entropy of the query's
       association logits, the mean over the target's own detections plus the mean over the other
       usable tokens; and *objectness*: the binary cross-entropy of every usable token's
       objectness against whether it is a target's detection.
     """
+    require(existence in ("matched", "near"), f"set loss: existence must be 'matched' or 'near', got {existence!r}")
     pos, vel, logit = out.pos, out.vel, out.logit
     W, Q, _ = pos.shape
     dist = torch.cdist(pos.detach().double(), true_pos.double())  # (W, Q, N)
@@ -265,7 +267,11 @@ def set_loss(out: SetOutput, true_pos: torch.Tensor, true_vel: torch.Tensor, ali
         state = (huber((pos[iw, iq] - tp.to(pos.dtype)) / position_unit_m)
                  + huber((vel[iw, iq] - tv.to(vel.dtype)) / velocity_unit_mps)
                  + start_weight * huber((out.pos0[iw, iq] - tp.to(out.pos0.dtype)) / position_unit_m)) / len(rows_w)
-        target[iw, iq] = 1.0
+        if existence == "near":
+            near = (pos.detach()[iw, iq] - tp.to(pos.dtype)).norm(dim=-1) < cutoff_m
+            target[iw[near], iq[near]] = 1.0
+        else:
+            target[iw, iq] = 1.0
         if origin is not None:
             a = out.assoc[iw, iq]  # (P, T)
             usable = torch.isfinite(a)

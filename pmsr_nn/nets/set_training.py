@@ -27,7 +27,8 @@ from .set_tracker import SetTracker, SetTrackerConfig, detection_tokens, set_los
 
 @dataclass(frozen=True)
 class SetOptimConfig(FlyOptimConfig):
-    """:class:`~.scene_data.FlyOptimConfig` and the set loss's cut-off (m)."""
+    """:class:`~.scene_data.FlyOptimConfig`, the set loss's cut-off (m) and which matched queries
+    its existence term calls present (:func:`~.set_tracker.set_loss`)."""
 
     lr: float = 3.0e-4
     batch_size: int = 64
@@ -35,16 +36,21 @@ class SetOptimConfig(FlyOptimConfig):
     val_every: int = 250
     val_scenes: int = 256
     cutoff_m: float = 500.0
+    existence: str = "matched"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         require(self.cutoff_m > 0, f"optim: cutoff_m must be positive, got {self.cutoff_m}")
+        require(self.existence in ("matched", "near"), f"optim: existence must be 'matched' (every query the "
+                                                       f"matching pairs with a target) or 'near' (those within "
+                                                       f"cutoff_m), got {self.existence!r}")
 
 
 @dataclass(frozen=True)
 class SetTrainConfig:
     """A ``kind: set_tracker`` training config (``train/set_tracker.yaml``); ``scenes.window`` is
-    the network's ``model.window``."""
+    the network's ``model.window``; ``init``: a set tracker checkpoint whose weights training
+    starts from (fine-tuning; same sensors and network size), else random weights."""
 
     kind: str
     name: str = "set_tracker"
@@ -52,6 +58,7 @@ class SetTrainConfig:
     recipe: str = "../datasets/fitee2023_ca.yaml"
     accelerator: str = "auto"
     threads: int | None = None
+    init: str | None = None
     scenes: SceneConfig = SceneConfig(window=6, targets=(1, 5))
     model: SetTrackerConfig = SetTrackerConfig()
     optim: SetOptimConfig = SetOptimConfig()
@@ -104,7 +111,7 @@ def make_module(cfg: SetTrainConfig, sampler: SceneSampler):
 
         def training_step(self, step, _):
             toks, origin, tp, tv, alive = self._batch((cfg.seed, int(step)))
-            loss, parts = set_loss(self.net(toks), tp, tv, alive, cfg.optim.cutoff_m, origin)
+            loss, parts = set_loss(self.net(toks), tp, tv, alive, cfg.optim.cutoff_m, origin, existence=cfg.optim.existence)
             self.log("train/loss", loss, batch_size=cfg.optim.batch_size)
             for key in ("state", "existence", "association"):
                 self.log(f"train/{key}", parts[key], batch_size=cfg.optim.batch_size)
@@ -113,7 +120,7 @@ def make_module(cfg: SetTrainConfig, sampler: SceneSampler):
         def validation_step(self, i, _):
             toks, origin, tp, tv, alive = self._batch((cfg.seed, 1_000_000, int(i)))
             out = self.net(toks)
-            loss, _ = set_loss(out, tp, tv, alive, cfg.optim.cutoff_m, origin)
+            loss, _ = set_loss(out, tp, tv, alive, cfg.optim.cutoff_m, origin, existence=cfg.optim.existence)
             p = torch.sigmoid(out.logit)
             parts = [gospa_parts(out.pos[w], p[w], tp[w], cfg.optim.cutoff_m) for w in range(len(p))]
             sq, n_ok, missed, false = (sum(x[j] for x in parts) for j in range(4))
@@ -131,6 +138,24 @@ def make_module(cfg: SetTrainConfig, sampler: SceneSampler):
             return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
     return SetModule()
+
+
+def start_from(net, path: str, sampler: SceneSampler) -> None:
+    """Load the weights of the set checkpoint at ``path`` into ``net``; one line if its sensors or
+    network size differ."""
+    from ..errors import CheckpointError
+    from .checkpoint import check_detection_sensors
+    from .set_inference import load_set_checkpoint
+
+    ck = load_set_checkpoint(path)
+    m = sampler.model
+    check_detection_sensors(ck.meta, m.geometry.to_dict(), m.components, m.noise_std, sampler.dt,
+                            sampler.motion.dim_x, f"init {path}")
+    shapes = {k: tuple(v.shape) for k, v in net.state_dict().items()}
+    if shapes != {k: tuple(v.shape) for k, v in ck.net.state_dict().items()}:
+        raise CheckpointError(f"init {path}: its network has another size than model (d_model, heads, layers, "
+                              "queries)")
+    net.load_state_dict(ck.net.state_dict())
 
 
 def train_set(cfg: SetTrainConfig, out: str | Path, progress: bool = True) -> dict:
@@ -151,6 +176,8 @@ def train_set(cfg: SetTrainConfig, out: str | Path, progress: bool = True) -> di
     sampler = SceneSampler(cfg.recipe, cfg.scenes)
     pl.seed_everything(cfg.seed, verbose=False)
     module = make_module(cfg, sampler)
+    if cfg.init is not None:
+        start_from(module.net, cfg.init, sampler)
     o = cfg.optim
     trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, o.val_batches,
                                             o.gradient_clip_val, o.max_time_minutes, cfg.accelerator)
