@@ -56,8 +56,10 @@ def accuracy(res: dict) -> dict:
 def test_shipped_scenario_loads_and_its_cases_are_the_built_in_ones():
     sc = load_scenario(SHIPPED)
     assert sc.cases == FITEE2023_TRAJECTORIES
-    seeds = [f"{n} [seed {k}]" for n in ("MDFNN local", "KalmanNet") for k in range(3)]
+    seeds = [f"{n} [seed {k}]" for n in ("MDFNN local", "KalmanNet", "KalmanNet, whole sequence",
+                                          "KalmanNet 300-scan training, whole sequence") for k in range(3)]
     assert [m.name for m in sc.methods] == ["EKF", "UKF", "SI+KF", "PF", "DFNN", "MDFNN", "RNN", *seeds]
+    assert [m.options.get("inference") for m in sc.methods if "whole" in m.name] == ["whole_sequence"] * 6
     assert sc.mc_runs == 100 and sc.noise.si() == (30.0, 2.0, math.radians(3.0))
     for m in sc.methods:
         if m.checkpoint:
