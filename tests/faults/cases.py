@@ -1144,6 +1144,11 @@ case("evaluate/learned-stride-zero", "evaluate s.yaml --quiet --out out", setup=
      outputs=("out",), message="stride", klass="silent_wrong", note="0 is read as 'default stride'")
 case("evaluate/learned-stride-huge", "evaluate s.yaml --quiet --out out",
      setup=scenario_learned_options("s.yaml", {"stride": 100000}), message="stride", klass="traceback")
+case("evaluate/learned-whole-sequence-finite-context", "evaluate s.yaml --quiet --out out",
+     setup=scenario_learned_options("s.yaml", {"inference": "whole_sequence"}), message="whole_sequence",
+     klass="refusal", note="an MDFNN reads a finite window: a whole-sequence pass is not defined for it")
+case("evaluate/learned-inference-unknown", "evaluate s.yaml --quiet --out out",
+     setup=scenario_learned_options("s.yaml", {"inference": "sideways"}), message="inference", klass="refusal")
 case("evaluate/device-unknown", f"{EV} --out out --device banana", outputs=("out",), message="device", klass="silent_wrong")
 case("evaluate/device-cuda-without-gpu", f"{EV} --out out --device cuda", message="cuda", klass="traceback")
 case("evaluate/scenario-alias-bomb", "evaluate s.yaml --out out",
