@@ -68,27 +68,34 @@ def main(argv=None) -> int:
             stats["seed_is_target"].append(float((origin.gather(1, seed) >= 0).double().mean()))
             stats["base_rate"].append(float((origin[usable] >= 0).double().mean()))
             p = torch.sigmoid(out.logit)
-            for w in range(a.scenes):
+            iw, iq, jn = [], [], []  # the matched (window, query, target) triples of the batch
+            for w in range(a.scenes):  # GOSPA and the Hungarian matching: one assignment problem per window
                 s2, ok, mi, fa = gospa_parts(out.pos[w], p[w], tp[w], cut)
                 sq, missed, false, n_truth, windows = sq + s2, missed + mi, false + fa, n_truth + len(tp[w]), windows + 1
                 d = torch.cdist(out.pos[w].double(), tp[w].double()).numpy()
                 rows, cols = match(np.minimum(d, cut) / cut - p[w].double().numpy()[:, None])
-                stats["p_unmatched"] += p[w][np.setdiff1d(np.arange(Q), rows)].tolist()
-                for q, n in zip(rows, cols):
-                    stats["p_matched"].append(float(p[w, q]))
-                    top, idx = out.assoc[w, q].topk(min(net.cfg.top_k, out.assoc.shape[-1]))
-                    wk = torch.sigmoid(top).double()
-                    own = (origin[w, idx] == n).double()
-                    mine = origin[w] == n
-                    stats["own_weight_share"].append(float((wk * own).sum() / wk.sum().clamp_min(1e-12)))
-                    stats["own_recall"].append(float(own.sum() / max(int(mine.sum()), 1)))
-                    stats["error_start_m"].append(float((out.pos0[w, q] - tp[w, n]).norm()))
-                    stats["error_refined_m"].append(float((out.pos[w, q] - tp[w, n]).norm()))
-                    pos, _, _ = gauss_newton(out.pos0[w, q], out.vel[w, q], toks.z[w][mine], toks.pair[w][mine],
-                                             toks.age[w][mine], torch.ones(int(mine.sum())), net.model, net.dt,
-                                             net.dim_x, max(net.cfg.refine_iterations, 1),
-                                             (net.cfg.prior_position_m, net.cfg.prior_velocity_mps))
-                    stats["error_true_association_m"].append(float((pos - tp[w, n]).norm()))
+                iw += [w] * len(rows)
+                iq += rows.tolist()
+                jn += cols.tolist()
+            iw, iq, jn = torch.tensor(iw), torch.tensor(iq), torch.tensor(jn)
+            matched = torch.zeros_like(p, dtype=torch.bool)
+            matched[iw, iq] = True
+            stats["p_unmatched"] += p[~matched].tolist()
+            stats["p_matched"] += p[iw, iq].tolist()
+            top, idx = out.assoc[iw, iq].topk(min(net.cfg.top_k, out.assoc.shape[-1]))  # (P, k)
+            wk = torch.sigmoid(top).double()
+            mine = origin[iw] == jn[:, None]  # (P, T): each matched target's own detections
+            own = mine.gather(1, idx).double()
+            stats["own_weight_share"] += ((wk * own).sum(-1) / wk.sum(-1).clamp_min(1e-12)).tolist()
+            stats["own_recall"] += (own.sum(-1) / mine.sum(-1).clamp_min(1)).tolist()
+            truth_pos = tp[iw, jn]
+            stats["error_start_m"] += (out.pos0[iw, iq] - truth_pos).norm(dim=-1).tolist()
+            stats["error_refined_m"] += (out.pos[iw, iq] - truth_pos).norm(dim=-1).tolist()
+            # the same refinement on each target's own detections alone (every other token weighs 0)
+            pos, _, _ = gauss_newton(out.pos0[iw, iq], out.vel[iw, iq], toks.z[iw], toks.pair[iw], toks.age[iw],
+                                     mine.double(), net.model, net.dt, net.dim_x, max(net.cfg.refine_iterations, 1),
+                                     (net.cfg.prior_position_m, net.cfg.prior_velocity_mps))
+            stats["error_true_association_m"] += (pos - truth_pos).norm(dim=-1).tolist()
     c2 = cut**2 / 2
     report = {"checkpoint": str(a.checkpoint), "reassociate": net.cfg.reassociate, "command": "python evaluate/set_tracker_diagnosis.py " + " ".join(
                   sys.argv[1:] if argv is None else argv), "windows": windows,

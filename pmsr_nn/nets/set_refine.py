@@ -41,20 +41,34 @@ def _select_pair(t: torch.Tensor, pair: torch.Tensor, S: int, d: int) -> torch.T
     return t.gather(pair.dim(), idx).squeeze(pair.dim())
 
 
+def _whitened(p: torch.Tensor, v: torch.Tensor, z: torch.Tensor, pair: torch.Tensor, age: torch.Tensor,
+              model: MeasurementModel, dt: float, dim_x: int, jacobian: bool = False):
+    """Whitened residuals ``(..., k, d)`` (angles wrapped) of detections ``z (..., k, d)`` with their
+    ``pair`` and ``age (..., k)`` under states ``p, v (..., 2)`` carried back to each detection's scan
+    (leading dimensions broadcast), and with ``jacobian`` their derivatives ``(..., k, d, 4)`` by
+    ``(p, v)`` at the last scan (else None). Float64."""
+    S, d = model.n_pairs, len(model.components)
+    std = torch.tensor(model.noise_std, dtype=torch.float64, device=z.device)
+    angle = torch.tensor([c == "azimuth" for c in model.components], device=z.device)
+    lag = (age.double() * dt).unsqueeze(-1)  # (..., k, 1) seconds before the last scan
+    p, v = p.double().unsqueeze(-2), v.double().unsqueeze(-2)
+    at = p - lag * v  # (..., k, 2): the position at each detection's scan
+    x = state_vector(model, at, v.expand_as(at), dim_x)
+    pair = pair.expand(at.shape[:-1])
+    r = z.double() - _select_pair(model.h(x), pair, S, d)
+    r = torch.where(angle, wrap_angle(r), r) / std
+    if not jacobian:
+        return r, None
+    J = _select_pair(model.jacobian(x), pair, S, d)  # (..., k, d, dim_x)
+    Jp, Jv = J[..., list(model.pos_idx)], J[..., list(model.vel_idx)]
+    return r, torch.cat([Jp, Jv - lag.unsqueeze(-1) * Jp], -1) / std[:, None]
+
+
 def token_residuals(pos: torch.Tensor, vel: torch.Tensor, z: torch.Tensor, pair: torch.Tensor, age: torch.Tensor,
                     model: MeasurementModel, dt: float, dim_x: int) -> torch.Tensor:
     """Squared whitened residual ``(W, Q, T)`` of every token ``z (W, T, d)`` (its ``pair``, ``age``
     ``(W, T)``) under every query's state ``pos, vel (W, Q, 2)`` carried back to the token's scan."""
-    S, d = model.n_pairs, len(model.components)
-    std = torch.tensor(model.noise_std, dtype=torch.float64, device=z.device)
-    angle = torch.tensor([c == "azimuth" for c in model.components], device=z.device)
-    lag = (age.double() * dt)[:, None, :, None]  # (W, 1, T, 1)
-    p, v = pos.double().unsqueeze(2), vel.double().unsqueeze(2)  # (W, Q, 1, 2)
-    at = p - lag * v
-    hz = _select_pair(model.h(state_vector(model, at, v.expand_as(at), dim_x)),
-                      pair[:, None, :].expand(*at.shape[:-1]), S, d)  # (W, Q, T, d)
-    r = z.double()[:, None] - hz
-    r = torch.where(angle, wrap_angle(r), r) / std
+    r, _ = _whitened(pos, vel, z[:, None], pair[:, None], age[:, None], model, dt, dim_x)
     return (r * r).sum(-1)
 
 
@@ -71,25 +85,13 @@ def gauss_newton(pos0: torch.Tensor, vel0: torch.Tensor, z: torch.Tensor, pair: 
     ``w_t rho(|r_t|^2)``, a soft count of the detections consistent with the refined state.
     All in float64.
     """
-    S, comps = model.n_pairs, model.components
-    d = len(comps)
-    std = torch.tensor(model.noise_std, dtype=torch.float64, device=z.device)
-    angle = torch.tensor([c == "azimuth" for c in comps], device=z.device)
-    z, w = z.double(), weight.double()
-    lag = (age.double() * dt).unsqueeze(-1)  # (..., k, 1) seconds before the last scan
+    w = weight.double()
     p, v = pos0.double(), vel0.double()
     p0, v0 = p, v
     lam = torch.tensor([prior_sd[0] ** -2] * 2 + [prior_sd[1] ** -2] * 2, dtype=torch.float64, device=z.device)
     omega = w
     for i in range(iterations):
-        at = p.unsqueeze(-2) - lag * v.unsqueeze(-2)  # (..., k, 2): the position at each detection's scan
-        x = state_vector(model, at, v.unsqueeze(-2).expand_as(at), dim_x)
-        hz = _select_pair(model.h(x), pair, S, d)  # (..., k, d)
-        J = _select_pair(model.jacobian(x), pair, S, d)  # (..., k, d, dim_x)
-        Jp, Jv = J[..., list(model.pos_idx)], J[..., list(model.vel_idx)]
-        Jx = torch.cat([Jp, Jv - lag.unsqueeze(-1) * Jp], -1) / std[:, None]  # (..., k, d, 4) by (p, v) at the last scan
-        r = z - hz
-        r = torch.where(angle, wrap_angle(r), r) / std
+        r, Jx = _whitened(p, v, z, pair, age, model, dt, dim_x, jacobian=True)  # (..., k, d), (..., k, d, 4)
         e2 = (r * r).sum(-1)
         scale = kernel_scales[min(i, len(kernel_scales) - 1)]
         omega = w if scale is None else w * torch.exp(-e2.clamp(max=400.0) / (2 * scale**2))

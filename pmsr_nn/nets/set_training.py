@@ -128,6 +128,7 @@ def make_module(cfg: SetTrainConfig, sampler: SceneSampler):
             c2 = cfg.optim.cutoff_m**2 / 2
             self.log("val/loss", loss, batch_size=W)
             self.log("val/gospa_m", math.sqrt((sq + c2 * (missed + false)) / W), batch_size=W)
+            self.log("val/gospa_empty_set_m", math.sqrt(c2 * sum(len(t) for t in tp) / W), batch_size=W)  # "no target"
             self.log("val/matched_rmse_m", math.sqrt(sq / max(n_ok, 1)), batch_size=W)
             self.log("val/missed_per_window", missed / W, batch_size=W)
             self.log("val/false_per_window", false / W, batch_size=W)
