@@ -4,7 +4,9 @@
 evaluate/fitee2023_three_trajectories.yaml, access2019_msjpda.yaml and access2019_msjpda_pd.yaml;
 ``figures.json`` holds what the two separate harnesses before issue 14 wrote for them (commit
 0c9fec2). Every number recorded then must come out again; the only changes allowed are the
-renames listed in :data:`RENAMED` and P-MSJPDA-only fields no longer given (as null) to others.
+renames listed in :data:`RENAMED` and P-MSJPDA-only fields no longer given (as null) to others. The
+P-MSJPDA rows run the paper's Lagrangian relaxation they were recorded with (``m_best_search``;
+the default has since become the exact branch and bound).
 
 The figures were recorded on another CPU (AMD EPYC, AVX2); BLAS, oneDNN and vectorised maths
 round differently on each CPU, so a figure is compared to a tolerance (issue 33):

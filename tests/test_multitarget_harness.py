@@ -40,7 +40,7 @@ def test_small_scenario_writes_every_method_with_timing_and_loss(tmp_path):
     res = evaluate(_small(tmp_path), tmp_path / "out", progress=False)
     assert res["kind"] == "sampled" and res["mc_runs"] == 3  # truth sampled per run: no per-case PCRB
     for case in res["cases"].values():
-        assert set(case["methods"]) == {"S-MSJPDA", "P-MSJPDA", "P-MSJPDA m=100", "true assignment"}
+        assert set(case["methods"]) == {"S-MSJPDA", "P-MSJPDA", "P-MSJPDA relaxation", "P-MSJPDA m=100", "true assignment"}
         for r in case["methods"].values():
             for key in ("rmse_pos_m", "rmse_vel_mps", "anees", "seconds_per_run", "loss_probability", "swap_probability"):
                 assert math.isfinite(r[key]), key
@@ -49,7 +49,9 @@ def test_small_scenario_writes_every_method_with_timing_and_loss(tmp_path):
             assert lost == pytest.approx(round(lost), abs=1e-9) and 0 <= round(lost) <= 6
             assert len(r["rmse_pos_per_target_m"]) == 2
         assert len(case["curves"]["rmse_pos_m"]["S-MSJPDA"][0]) == 6
-        assert math.isfinite(case["methods"]["P-MSJPDA"]["max_duality_gap"]) and "max_duality_gap" not in case["methods"]["S-MSJPDA"]
+        assert case["methods"]["P-MSJPDA"]["max_duality_gap"] == 0.0  # ranked exactly (branch and bound)
+        assert math.isfinite(case["methods"]["P-MSJPDA relaxation"]["max_duality_gap"])
+        assert "max_duality_gap" not in case["methods"]["S-MSJPDA"]
     saved = json.loads((tmp_path / "out" / "results.json").read_text())
     assert saved["kind"] == "sampled" and all(c["pcrb"] is None for c in saved["cases"].values())
     assert saved["cases"]["nominal"]["methods"]["P-MSJPDA"]["rmse_pos_m"] == res["cases"]["nominal"]["methods"]["P-MSJPDA"]["rmse_pos_m"]
@@ -160,7 +162,7 @@ def test_per_run_errors_use_the_harness_draws(tmp_path):
     mod = _worst_runs_module()
     p = _small(tmp_path)
     err = mod.per_run_errors(p, "nominal", blocks=2)
-    assert set(err) == {"S-MSJPDA", "P-MSJPDA", "P-MSJPDA m=100", "true assignment"}
+    assert set(err) == {"S-MSJPDA", "P-MSJPDA", "P-MSJPDA relaxation", "P-MSJPDA m=100", "true assignment"}
     assert all(e.shape == (3, 2) and np.isfinite(e).all() for e in err.values())  # 3 runs in blocks of 2, 2 targets
     # the same draws as `pmsr evaluate`: the mean squared error over runs gives its converged RMSE
     # when every scan from converged_from_scan on is averaged with the same weight

@@ -15,6 +15,10 @@ Option ``initiation`` says how S-/P-MSJPDA's tracks start:
   pair, at 3 or 4 pairs that share one transmitter or one receiver, whose joint fit of ranges
   and rates passes the gate).
 
+P-MSJPDA ranks its (N+1)-D events by ``m_best_search``: ``branch_and_bound`` (the default, exact;
+:mod:`pmsr_nn.trackers.assignment_bnb`) or ``relaxation`` (the paper's Lagrangian relaxation,
+``relaxation_iterations`` per subproblem; its duality gap can hide cheaper events).
+
 Extras of oracle-initiated rows (read by the paper's loss rule and the report):
 ``dummy_most_probable (B, K, N)``, ``gate_range_sd_m (B, K, N)`` and, for P-MSJPDA,
 ``max_duality_gap`` (nats).
@@ -29,7 +33,7 @@ from ..trackers.base import Estimates
 from ..trackers.fix_initiator import FixInitiator
 from ..trackers.spherical_initiator import SphericalInitiator
 from ..trackers.management import Confirmer, Deleter, Management
-from ..trackers.jpda import floored_clutter_density
+from ..trackers.jpda import M_BEST_SEARCHES, floored_clutter_density
 from ..trackers.msjpda import JPDASettings, managed_msjpda, msjpda, true_assignment_ukf
 from . import MethodCall, MethodKind, Option, register
 
@@ -48,7 +52,8 @@ def settings(call: MethodCall) -> JPDASettings:
     s, spec = call.sensing, call.spec
     return JPDASettings(pd=s.pd, clutter_density=clutter_density(s), m_best=int(spec.option("m_best")),
                         gate_probability=float(spec.option("gate_probability")),
-                        relaxation_iterations=int(spec.option("relaxation_iterations")))
+                        relaxation_iterations=int(spec.option("relaxation_iterations")),
+                        m_best_search=str(spec.option("m_best_search")))
 
 
 def _estimates(res, alive: torch.Tensor, gap: float | None) -> Estimates:
@@ -128,7 +133,9 @@ MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS),
                       "survival": Option(0.99, float, 1e-6, 1.0), "initial_existence": Option(0.5, float, 1e-6, 1.0),
                       "report_existence": Option(0.5, float, 0.0, 1.0)}
 OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
-           "relaxation_iterations": Option(20, int, 1, 10_000), **MANAGEMENT_OPTIONS}
+           # P-MSJPDA's (N+1)-D events (S-MSJPDA's 2-D events are always exact)
+           "relaxation_iterations": Option(20, int, 1, 10_000),
+           "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS}
 register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
                     description="sequential multi-sensor JPDA (Lyu & Wang, IEEE Access 2019), pair by pair; "
                                 "initiation: oracle (handed the births) or detections (starts its own tracks)"))

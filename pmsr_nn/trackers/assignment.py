@@ -65,7 +65,7 @@ class _Result:
     u: np.ndarray  # multipliers of sensors 2..S, all their measurements (warm start)
 
 
-def _check_problem(tuples, costs, n_meas, n_targets):
+def check_problem(tuples, costs, n_meas, n_targets):
     """Validated ``(target (L,), meas (L, S), costs (L,), n_meas (S,), N)``."""
     N = check_integer(n_targets, "n_targets", 0)
     try:
@@ -101,7 +101,7 @@ def _check_problem(tuples, costs, n_meas, n_targets):
     return tg, meas, c, nm.astype(np.intp), N
 
 
-def _slots(meas: np.ndarray, n_meas: np.ndarray) -> tuple[np.ndarray, int]:
+def measurement_slots(meas: np.ndarray, n_meas: np.ndarray) -> tuple[np.ndarray, int]:
     """Global measurement slots ``(L, S)`` (sensor offset + index; misses -> ``total``), total."""
     cum = np.cumsum(n_meas)
     total = int(cum[-1]) if len(cum) else 0
@@ -198,7 +198,7 @@ def _solve(tg, meas, costs, n_meas, N, iterations, tol, u0=None, cutoff=math.inf
     if len(starts) < N:
         return None  # a target without candidates
     picks = order[starts]
-    slot_p, total = _slots(meas[picks], n_meas)
+    slot_p, total = measurement_slots(meas[picks], n_meas)
     if np.bincount(slot_p.ravel(), minlength=total + 1)[:total].max(initial=0) <= 1:
         c = float(costs[picks].sum())
         return _Result(picks, c, c, np.zeros(n_relaxed) if u0 is None else u0)
@@ -215,7 +215,7 @@ def _solve(tg, meas, costs, n_meas, N, iterations, tol, u0=None, cutoff=math.inf
 
     # Relax "used at most once" of sensors 2..S, only for measurements that candidates of two or
     # more targets share: the others can never be used twice, their optimal multiplier is 0.
-    g, _ = _slots(meas[:, 1:], n_meas[1:])
+    g, _ = measurement_slots(meas[:, 1:], n_meas[1:])
     pairs = np.unique(tg[:, None] * (n_relaxed + 1) + g)
     shared = np.flatnonzero(np.bincount(pairs % (n_relaxed + 1), minlength=n_relaxed + 1)[:n_relaxed] >= 2)
     n_shared = len(shared)
@@ -286,11 +286,11 @@ def _solve(tg, meas, costs, n_meas, N, iterations, tol, u0=None, cutoff=math.inf
     if best_picks is None:
         if best_lb >= cutoff:
             return None
-        best_picks = _greedy(tg, _slots(meas, n_meas)[0], costs, N, total)
+        best_picks = _greedy(tg, measurement_slots(meas, n_meas)[0], costs, N, total)
         if best_picks is None:
             return None
     if best_ub - best_lb > tol * max(abs(best_ub), 1e-12):
-        best_picks = _improve(best_picks, tg, _slots(meas, n_meas)[0], costs, total)
+        best_picks = _improve(best_picks, tg, measurement_slots(meas, n_meas)[0], costs, total)
     c = float(costs[best_picks].sum())
     if c >= cutoff and best_lb >= cutoff:
         return None
@@ -325,7 +325,7 @@ def sd_assign(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int], n_ta
     (the others are 0 at the optimum), and when every target's cheapest candidate is compatible
     with the others' the answer is immediate and exact.
     """
-    tg, meas, c, nm, N = _check_problem(tuples, costs, n_meas, n_targets)
+    tg, meas, c, nm, N = check_problem(tuples, costs, n_meas, n_targets)
     it = _check_iterations(iterations, tol)
     res = _solve(tg, meas, c, nm, N, it, float(tol))
     assert res is not None, "an all-(-1) event always exists"
@@ -349,11 +349,11 @@ def m_best_sd(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[int], n_ta
     events are the best the relaxation found in each subproblem, so a cheaper event can be
     missed when a relaxation ends with a duality gap (see :attr:`SDSolution.gap`).
     """
-    tg, meas, c, nm, N = _check_problem(tuples, costs, n_meas, n_targets)
+    tg, meas, c, nm, N = check_problem(tuples, costs, n_meas, n_targets)
     m = check_integer(m, "m", 1)
     it = _check_iterations(iterations)
     tol = 1e-6
-    slot, total = _slots(meas, nm)
+    slot, total = measurement_slots(meas, nm)
     use = np.zeros((len(c), total + 1))
     use[np.arange(len(c))[:, None], slot] = 1.0
     conflict = (use[:, :total] @ use[:, :total].T) > 0  # (L, L): candidates sharing a measurement
@@ -403,7 +403,7 @@ def brute_force_events(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[i
                        n_targets: int) -> list[tuple[np.ndarray, float]]:
     """All feasible events ``(picks (N,), cost)`` sorted by cost (stable), by enumeration of
     every combination of one candidate per target: for tests (at most 200,000 combinations)."""
-    tg, meas, c, nm, N = _check_problem(tuples, costs, n_meas, n_targets)
+    tg, meas, c, nm, N = check_problem(tuples, costs, n_meas, n_targets)
     if N == 0:
         return [(np.zeros(0, dtype=np.intp), 0.0)]
     per_target = [np.flatnonzero(tg == k) for k in range(N)]
@@ -411,7 +411,7 @@ def brute_force_events(tuples: np.ndarray, costs: np.ndarray, n_meas: Sequence[i
     if n_comb > BRUTE_FORCE_MAX_EVENTS:
         raise ConfigError(f"brute force is limited to {BRUTE_FORCE_MAX_EVENTS} combinations, got {n_comb}")
     combos = np.stack(np.meshgrid(*per_target, indexing="ij"), axis=-1).reshape(-1, N)
-    slot, total = _slots(meas, nm)
+    slot, total = measurement_slots(meas, nm)
     s = np.sort(slot[combos].reshape(len(combos), -1), axis=1)
     clash = ((s[:, 1:] == s[:, :-1]) & (s[:, 1:] < total)).any(axis=1)
     combos = combos[~clash]

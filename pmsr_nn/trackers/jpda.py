@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from .assignment import m_best_sd
+from .assignment_bnb import m_best_bnb
 from .clustering import batched_track_labels
 from .assignment_2d import murty
 
@@ -89,11 +90,22 @@ def assignment_matrix(det_cost: np.ndarray, miss: float) -> np.ndarray:
     return np.concatenate([det_cost, extra], axis=1)
 
 
+M_BEST_SEARCHES = ("branch_and_bound", "relaxation")
+"""How P-MSJPDA ranks its (N+1)-D events: exactly by :func:`.assignment_bnb.m_best_bnb` (falling
+back on the relaxation past its state budget), or by :func:`.assignment.m_best_sd`'s Lagrangian
+relaxation and Murty partitioning (the paper's solver; a duality gap can hide cheaper events)."""
+
+
 def candidate_marginals(tuples: np.ndarray, costs: np.ndarray, n_meas: list[int], n_targets: int, m: int,
-                        iterations: int) -> tuple[np.ndarray, float]:
+                        iterations: int, search: str = "branch_and_bound") -> tuple[np.ndarray, float]:
     """Probabilities ``beta (L,)`` of the multi-sensor candidates ``tuples (L, 1 + N)`` (track,
-    detection per sensor or -1) from the m-best (N+1)-D events, and the largest duality gap met."""
-    events = m_best_sd(tuples, costs, n_meas, n_targets, m, iterations=iterations)
+    detection per sensor or -1) from the m-best (N+1)-D events ranked by ``search`` (one of
+    :data:`M_BEST_SEARCHES`), and the largest duality gap met (0 for exactly ranked events)."""
+    if search not in M_BEST_SEARCHES:
+        raise ValueError(f"search must be one of {M_BEST_SEARCHES}, got {search!r}")
+    events = m_best_bnb(tuples, costs, n_meas, n_targets, m) if search == "branch_and_bound" else None
+    if events is None:
+        events = m_best_sd(tuples, costs, n_meas, n_targets, m, iterations=iterations)
     p = event_probabilities(np.array([e.cost for e in events]))
     beta = np.zeros(len(costs))
     for w, e in zip(p, events):

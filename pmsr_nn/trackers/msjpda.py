@@ -4,8 +4,9 @@ Both keep one Gaussian per track (``T`` tracks, maintained from a given initiati
 death) and run all Monte Carlo runs at once: the UKF moments, gates, likelihoods and the mixture
 updates are batched over runs and tracks. S-MSJPDA's combinatorial part is batched too (the
 clusters of all runs, and the m-best events of every cluster up to 4096 events enumerated in one
-array; only larger clusters go through Murty one by one); P-MSJPDA's (N+1)-D assignment still
-loops over runs and clusters.
+array; only larger clusters go through Murty one by one); P-MSJPDA's (N+1)-D events are ranked
+cluster by cluster (exactly by a vectorised branch and bound; or by the paper's Lagrangian
+relaxation).
 
 * **S-MSJPDA** (Eqs. 15-21): sensor by sensor. Each sensor's detections update the tracks left by
   the previous sensor: UKF moments of that sensor's (range, Doppler), the m-best 2-D events (the
@@ -14,8 +15,9 @@ loops over runs and clusters.
 * **P-MSJPDA** (Eqs. 9-14): all sensors at once. A track's candidate is one detection (or none)
   per sensor; its likelihood is the *joint* predicted density of the stacked measurements (one
   set of sigma points through all sensors, so the correlation between sensors that the state
-  uncertainty creates is kept), the m-best (N+1)-D events come from Lagrangian relaxation, and
-  the update collapses the joint UKF updates of the candidates. Eq. 11 of the paper writes the
+  uncertainty creates is kept), the m-best (N+1)-D events come from an exact branch and bound
+  (``m_best_search``; the paper's Lagrangian relaxation as an option, and past the search's
+  state budget), and the update collapses the joint UKF updates of the candidates. Eq. 11 of the paper writes the
   candidate likelihood as a product over sensors; that is the special case of uncorrelated
   predicted measurements, under which the (N+1)-D problem would split into N 2-D ones.
 
@@ -48,20 +50,22 @@ from .gating import gate_threshold, gaussian_log_likelihood
 from .management import Management, TrackReport, TrackTable, parked_state
 from .mixture import collapse, expand_moments, pda_collapse
 from .learned_gain import Association, GainCorrection, pda_marginals
-from .jpda import batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
+from .jpda import M_BEST_SEARCHES, batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
 
 
 @dataclass(frozen=True)
 class JPDASettings:
     """``pd`` detection probability, ``clutter_density`` expected clutter per unit of measurement
     space (1 / (m Hz)), ``m_best`` events per cluster, ``gate_probability`` of the chi-square gate,
-    ``relaxation_iterations`` of each (N+1)-D assignment (P-MSJPDA)."""
+    and for P-MSJPDA's (N+1)-D events ``m_best_search`` (:data:`.jpda.M_BEST_SEARCHES`: exact
+    branch and bound, or the paper's Lagrangian relaxation) and ``relaxation_iterations``."""
 
     pd: float
     clutter_density: float
     m_best: int = 10
     gate_probability: float = 0.999
     relaxation_iterations: int = 20
+    m_best_search: str = "branch_and_bound"
 
     def __post_init__(self) -> None:
         require(0.0 < self.pd <= 1.0, f"pd must be in (0, 1], got {self.pd}")
@@ -69,6 +73,8 @@ class JPDASettings:
                 f"clutter_density must be positive (a tracker needs a clutter model), got {self.clutter_density}")
         require(self.m_best >= 1, f"m_best must be at least 1, got {self.m_best}")
         require(self.relaxation_iterations >= 1, "relaxation_iterations must be at least 1")
+        require(self.m_best_search in M_BEST_SEARCHES,
+                f"m_best_search must be one of {', '.join(M_BEST_SEARCHES)}, got {self.m_best_search!r}")
 
 
 @dataclass
@@ -236,7 +242,7 @@ def _joint_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, model: Measur
                 zs.append(meas.reshape(len(idx), N * d))
                 owners.append(idx)
             beta, gap = candidate_marginals(np.concatenate(tuples), np.concatenate(costs), n_meas, len(cl), s.m_best,
-                                            s.relaxation_iterations)
+                                            s.relaxation_iterations, s.m_best_search)
             worst_gap = max(worst_gap, gap)
             start = 0
             for j, t in enumerate(cl):

@@ -1293,6 +1293,10 @@ case("evaluate/stonesoup-unknown-tracker", "evaluate p.yaml --out out",
      setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"].append({"name": "S", "kind": "stonesoup",
                                                                         "options": {"tracker": "mht"}})),
      message="must be one of jpda, gnn", klass="refusal")
+case("evaluate/p-msjpda-unknown-m-best-search", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"].append({"name": "PJ", "kind": "p_msjpda",
+                                                                        "options": {"m_best_search": "murty"}})),
+     message="option m_best_search must be one of branch_and_bound, relaxation", klass="refusal")
 FM_YAML = """\
 kind: multitarget
 name: fm_tiny
