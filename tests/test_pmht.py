@@ -329,9 +329,10 @@ def _births_scenario(tmp_path: Path, methods, pd=1.0, clutter=0) -> Path:
     return births_scenario(tmp_path, pd=pd, clutter=clutter, methods=methods)
 
 
-@pytest.mark.parametrize("kind", ["pmht", "pmht_3d"])
-def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(tmp_path, kind):
-    path = _births_scenario(tmp_path, [{"name": "P", "kind": kind, "options": {"initiation": "detections"}}])
+@pytest.mark.parametrize("kind, e_step", [("pmht", "point"), ("pmht_3d", "point"), ("pmht", "marginal")])
+def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(tmp_path, kind, e_step):
+    path = _births_scenario(tmp_path, [{"name": "P", "kind": kind, "options": {"initiation": "detections",
+                                                                               "e_step": e_step}}])
     setup = prepare(load_scenario(path))  # births and deaths are no longer refused
     case = setup.cases[0]
     truth, products = draw_block(setup, 0, 0)
@@ -358,6 +359,28 @@ def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(t
             # the smoothed states: 30 m range and 3 deg azimuth through three pairs
             err = (est.x[b, k0 + 1:k1, slot[b]][:, pos] - truth.x[b, k0 + 1:k1, t][:, pos]).norm(dim=-1)
             assert float(err.max()) < 150.0, float(err.max())
+
+
+def test_managed_pmht_reads_the_marginal_e_step(tmp_path):
+    """``e_step: marginal`` with ``initiation: detections`` (once silently the point E-step): at Pd
+    0.8 with 10 clutter points per pair both E-steps keep one track per target and no false one,
+    and the marginal one's estimates differ (its detections are weighed under the tracks' spread)."""
+    methods = [{"name": e, "kind": "pmht", "options": {"initiation": "detections", "e_step": e}}
+               for e in ("point", "marginal")]
+    path = births_scenario(tmp_path, pd=0.8, clutter=10, mc_runs=2, block_runs=2, methods=methods)
+    setup = prepare(load_scenario(path))
+    case = setup.cases[0]
+    truth, products = draw_block(setup, 0, 0)
+    est = {m.name: call_method(setup, m, case, products, (3, 0, 0)) for m in setup.methods}
+    for e in est.values():
+        B, K, _ = e.exists.shape
+        alive = case.alive.expand(B, K, 2)
+        sets = set_scores(e.x[..., [0, 3]], e.exists, truth.x[..., [0, 3]], alive, 300.0, 2.0)
+        ts = track_scores(sets.assignment, e.exists, alive)
+        assert ts.tracks_per_target.tolist() == [[1.0, 1.0]] * B and ts.false_tracks.tolist() == [0.0] * B
+    point, marginal = est["point"], est["marginal"]
+    both = point.exists & marginal.exists
+    assert float((point.x[both] - marginal.x[both]).abs().max()) > 1e-3  # metres: not the point E-step again
 
 
 @pytest.mark.slow  # three PMHT runs of a block, each alone and together

@@ -16,7 +16,7 @@ from ..filters.gaussian import Gaussian, predict
 from ..motion import KinematicModel
 from ..simulation.detections import Scans
 from .management import Management, TrackReport, TrackTable, parked_state
-from .pmht import initial_states, window_starts
+from .pmht import initial_covariances, initial_states, window_starts
 from .pmht_em import em_step, window_evidence
 from .pmht_model import AssociationLists, PMHTProblem, PMHTSettings, check_lists, problem
 
@@ -45,7 +45,10 @@ def managed_pmht(scans: Scans, motion: KinematicModel, dt: float, q, model, R: t
     :func:`~.pmht_em.em_step`). So that it explains its own later detections in the window (and starts no
     second track from them, and can be confirmed at ``k + 1``), EM is run again on the window
     with the new tracks and the committed scans go on from ``k + 1``; a track started at the last
-    committed scan is only predicted into the next window. Returns the reported confirmed tracks
+    committed scan is only predicted into the next window. With ``e_step = "marginal"`` EM weighs
+    each detection under the track's spread as in :func:`~.pmht.pmht`: the covariances start as
+    the previous window's smoothed ones on the overlap, and a new track's as its initiator's
+    covariance predicted from the scan it starts at. Returns the reported confirmed tracks
     (:class:`~.management.TrackReport`, ``(B, K, N, n)``), smoothed: not causal.
     """
     S = getattr(model, "n_pairs", 1)
@@ -71,14 +74,21 @@ def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], m
     s, model, n, dtype = pr.settings, pr.model, pr.F.shape[0], lists.z.dtype
     table = TrackTable.empty(b, n, parked_state(model, n, dtype))
     report = TrackReport.empty(b, K, n, dtype)
-    X = None
+    X = Pm = None
+    marginal = s.e_step == "marginal"
+    fresh = torch.ones(b, 0, dtype=torch.bool)  # slots without smoothed covariances from the last window
     for i, a in enumerate(starts):
         W = min(s.window, K - a)
         h = (starts[i + 1] if i + 1 < len(starts) else K) - a  # scans this window commits
         win = lists.take(slice(None), slice(a, a + W))
         C = table.g.x.shape[1]
-        X = initial_states(pr, table.g, X, a - starts[i - 1] if i else 0, W, b, C)
+        shift = a - starts[i - 1] if i else 0
+        X = initial_states(pr, table.g, X, shift, W, b, C)
         born = torch.full((b, C), -1, dtype=torch.int64)  # scan of the window a track started at (-1: before)
+        if marginal:
+            Pm = initial_covariances(pr, table.g, Pm, shift, W, b, C)
+            fresh = _pad_slots(fresh, C, True, 1)
+            Pm = _started_covariances(pr, Pm, fresh, torch.zeros_like(born), table.g.P)
         fit = _WindowFit.empty(X, lists.z.shape[3], S)
         redo = torch.ones(b, dtype=torch.bool)  # runs whose EM must run (again) before scan k
         late = torch.zeros(b, C, dtype=torch.bool)  # tracks started at the last committed scan
@@ -91,8 +101,11 @@ def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], m
                 # initiator's Gaussian of one started inside it (the smoother's start at its scan)
                 rows = redo.nonzero()[:, 0]
                 fit = fit.padded(C).put(rows, _window_em(pr, X[rows], Gaussian(table.g.x[rows], table.g.P[rows]),
-                                                         win.take(rows), h, alive[rows], born[rows], pos))
+                                                         win.take(rows), h, alive[rows], born[rows], pos,
+                                                         None if Pm is None else Pm[rows]))
                 X = fit.X
+                if marginal:
+                    Pm = fit.P.clone()
             if a + k > 0:
                 table.predict_existence(mg.survival)
             for j in range(S):
@@ -111,6 +124,8 @@ def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], m
             if bool(redo.any()):
                 born = torch.where(late, k, _pad_slots(born, C, -1, 1))
                 X = _started_rows(pr, _pad_slots(X, C, 0.0), late, born, table.g.x)
+                if marginal:
+                    Pm = _started_covariances(pr, _pad_slots(Pm, C, 0.0), late, born, table.g.P)
         # hand on: the last EM's forward prediction at the next window's first scan; a track
         # started at the last committed scan (after that EM) predicted from its initiator
         fit = fit.padded(table.g.x.shape[1])
@@ -118,6 +133,9 @@ def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], m
         table.g = Gaussian(torch.where(late[..., None], step.x, fit.handed.x),
                            torch.where(late[..., None, None], step.P, fit.handed.P))
         table.free(~table.active)  # keep free slots parked
+        if marginal:  # the smoothed covariances the next window starts from; late tracks have none
+            Pm = fit.P
+            fresh = late.clone()
     return report
 
 
@@ -158,19 +176,21 @@ class _WindowFit:
 
 
 def _window_em(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, win: AssociationLists, h: int,
-               alive: torch.Tensor, born: torch.Tensor, pos: list[int]) -> _WindowFit:
+               alive: torch.Tensor, born: torch.Tensor, pos: list[int], P: torch.Tensor | None = None) -> _WindowFit:
     """EM of :func:`managed_pmht` on a window for ``b`` runs from states ``X (b, W, C, n)`` and
     ``prior`` ``(b, C, n)``: ``em_iterations`` per run, fewer for a run whose positions all move
-    less than ``tolerance_m``."""
+    less than ``tolerance_m``. ``P (b, W, C, n, n)``: the covariances of ``X`` for the marginal
+    E-step (None: the point E-step)."""
     b, W, C, n = X.shape
     s = pr.settings
-    X, P = X.clone(), X.new_zeros(b, W, C, n, n)
+    marginal = P is not None
+    X, P = X.clone(), (P.clone() if marginal else X.new_zeros(b, W, C, n, n))
     hx, hP = X.new_zeros(b, C, n), X.new_zeros(b, C, n, n)
     todo = torch.arange(b)
     for it in range(s.em_iterations):
         g = Gaussian(prior.x[todo].reshape(-1, n), prior.P[todo].reshape(-1, n, n))
         X_new, P_new, handed, _ = em_step(pr, X[todo], g, win.take(todo), s.inflation(it), h, alive[todo],
-                                          born[todo], g)
+                                          born[todo], g, P=P[todo] if marginal else None)
         moved = (X_new - X[todo])[..., pos].norm(dim=-1).flatten(1).amax(1)
         X[todo], P[todo] = X_new, P_new
         hx[todo], hP[todo] = handed.x.reshape(-1, C, n), handed.P.reshape(-1, C, n, n)
@@ -201,3 +221,18 @@ def _started_rows(pr: PMHTProblem, X: torch.Tensor, rows: torch.Tensor, born: to
     steps = (torch.arange(W)[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
     xk = (powers[steps] @ x0[:, None, :, :, None]).squeeze(-1)
     return torch.where(rows[:, None, :, None], xk, X)
+
+
+def _started_covariances(pr: PMHTProblem, P: torch.Tensor, rows: torch.Tensor, born: torch.Tensor,
+                         P0: torch.Tensor) -> torch.Tensor:
+    """The marginal E-step's covariances ``P (b, W, C, n, n)`` with the tracks ``rows (b, C)``
+    started at scan ``born (b, C)`` set to ``P0 (b, C, n, n)`` there, predicted (``F P F^T + Q``)
+    after and the same before (where they explain nothing)."""
+    W = P.shape[1]
+    seq = [P0]
+    for _ in range(W - 1):
+        seq.append(pr.F @ seq[-1] @ pr.F.T + pr.Q)
+    seq = torch.stack(seq, 1)  # (b, W, C, n, n): j steps after the start
+    steps = (torch.arange(W)[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
+    Pk = seq.gather(1, steps[..., None, None].expand(*steps.shape, *P.shape[-2:]))
+    return torch.where(rows[:, None, :, None, None], Pk, P)
