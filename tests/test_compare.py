@@ -43,6 +43,16 @@ def test_rows_in_one_file_only_and_the_other_values_are_counted():
     assert "the same draws" in text and "1 differ" in text and "1 only new" in text
 
 
+def test_equal_infinities_are_the_same_and_unequal_ones_differ():
+    """A standard error of one run is inf in both files: not a difference (inf - inf is NaN)."""
+    old = designed()
+    old["cases"]["c"]["methods"]["EKF"]["anees"] = math.inf
+    new = copy.deepcopy(old)
+    assert other_numbers(old, new)[1] == []
+    new["cases"]["c"]["methods"]["EKF"]["anees"] = -math.inf
+    assert other_numbers(old, new)[1] == ["c / EKF / anees: inf -> -inf"]
+
+
 def test_the_command_prints_the_table_and_refuses_what_is_not_a_results_file(tmp_path, capsys):
     a, b = tmp_path / "a", tmp_path / "b.json"
     a.mkdir()

@@ -53,6 +53,8 @@ class Difference:
 def _same(a: float, b: float) -> bool:
     if math.isnan(a) or math.isnan(b):
         return math.isnan(a) and math.isnan(b)
+    if math.isinf(a) or math.isinf(b):  # inf - inf is NaN: equal infinities are the same value
+        return a == b
     return abs(a - b) <= SAME_RELATIVE * max(abs(a), abs(b))
 
 
