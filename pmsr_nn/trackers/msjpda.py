@@ -17,9 +17,10 @@ relaxation).
   set of sigma points through all sensors, so the correlation between sensors that the state
   uncertainty creates is kept), the m-best (N+1)-D events come from an exact branch and bound
   (``m_best_search``; the paper's Lagrangian relaxation as an option, and past the search's
-  state budget), and the update collapses the joint UKF updates of the candidates. Eq. 11 of the paper writes the
-  candidate likelihood as a product over sensors; that is the special case of uncorrelated
-  predicted measurements, under which the (N+1)-D problem would split into N 2-D ones.
+  state budget), and the update collapses the joint UKF updates of the candidates. Eq. 11 of
+  the paper writes the candidate likelihood as a product over sensors; that is the special case
+  of uncorrelated predicted measurements, under which the (N+1)-D problem would split into N
+  2-D ones.
 
 Missed detections at Pd = 1 keep a finite cost (``1 - Pd`` floored at 1e-300) so an event always
 exists; with one track, one sensor, no clutter and Pd = 1 both trackers are the UKF.
