@@ -228,11 +228,8 @@ def _started_covariances(pr: PMHTProblem, P: torch.Tensor, rows: torch.Tensor, b
     """The marginal E-step's covariances ``P (b, W, C, n, n)`` with the tracks ``rows (b, C)``
     started at scan ``born (b, C)`` set to ``P0 (b, C, n, n)`` there, predicted (``F P F^T + Q``)
     after and the same before (where they explain nothing)."""
-    W = P.shape[1]
-    seq = [P0]
-    for _ in range(W - 1):
-        seq.append(pr.F @ seq[-1] @ pr.F.T + pr.Q)
-    seq = torch.stack(seq, 1)  # (b, W, C, n, n): j steps after the start
+    b, W, C = P.shape[:3]
+    seq = initial_covariances(pr, Gaussian(P0[..., 0], P0), None, 0, W, b, C)  # (b, W, C, n, n): j steps after the start
     steps = (torch.arange(W)[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
     Pk = seq.gather(1, steps[..., None, None].expand(*steps.shape, *P.shape[-2:]))
     return torch.where(rows[:, None, :, None, None], Pk, P)
