@@ -1,11 +1,19 @@
-"""The measured values behind two statistical checks of tests/test_tbd.py (same scenes, seeds and
-particle budgets), printed: the false-alarm rate of the multi-Bernoulli filter without a target,
-and the online SNR estimate once the target has been held for a while.
+"""The measured values behind the statistical checks of tests/test_tbd.py and tests/test_tbd_snr.py
+(same scenes, seeds and particle budgets), printed: the false-alarm rate of the multi-Bernoulli
+filter without a target, and the online SNR estimate once the target has been held for a while.
+
+``--estimators``: instead, the seed's scene (5x5, the seed's particle budget) over 32 runs for each
+of ``--seeds``, the ICMB with known SNRs beside the modified ICMB with the seed's SNR estimate and
+with the bias-corrected one (issue 37): the detected-frame rate over the present frames, the
+estimate over frames 11-16 and over the absent frames (about 6 minutes per seed on one core).
 
     python evaluate/tbd_checks.py
+    python evaluate/tbd_checks.py --estimators --seeds 7 11
 """
 
 from __future__ import annotations
+
+import argparse
 
 from pmsr_nn.tbd.maps import MapSpec, Satellite
 from pmsr_nn.tbd.multibernoulli import MBSpec
@@ -17,7 +25,30 @@ SATS = (Satellite("SVN2", (-17745.0e3, 1835.5e3, 13077.3e3), (2229.2, -519.2, 20
         Satellite("SVN18", (6818.7e3, -6090.4e3, 18620.3e3), (1654.7, -2019.3, -926.3)))
 
 
+def estimators(seeds: list[int], runs: int = 32) -> None:
+    scene = TBDScene(SATS, (8.0, 9.0, 10.0), MapSpec(doppler_cell_hz=10.0))
+    specs = {"ICMB, known SNRs": MBSpec(), "modified ICMB, seed's max": MBSpec(estimate_snr=True),
+             "modified ICMB, bootstrap": MBSpec(estimate_snr=True, snr_estimator="bootstrap")}
+    for seed in seeds:
+        for name, spec in specs.items():
+            out, truth = simulate_and_run(scene, spec, runs, seed)
+            alive = truth.alive[:, 0]
+            rate = float(out.best(0.5)[1][:, alive].double().mean())
+            fa = float(out.best(0.5)[1][:, ~alive].double().mean())
+            held = ", ".join(f"{v:.2f}" for v in out.snr_db[:, 10:16].mean((0, 1)).tolist())
+            absent = ", ".join(f"{v:.2f}" for v in out.snr_db[:, ~alive].mean((0, 1)).tolist())
+            print(f"seed {seed}, {runs} runs, {name}: detected {100 * rate:.1f} % of the present frames, "
+                  f"{100 * fa:.2f} % of the absent; SNR used, frames 11-16: {held} dB; absent: {absent} dB")
+
+
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--estimators", action="store_true")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[7, 11])
+    args = ap.parse_args()
+    if args.estimators:
+        estimators(args.seeds)
+        return
     maps = MapSpec(doppler_cell_hz=10.0)
     # no target before frame 20: 24 runs x 19 absent frames, particle budget 500-2,000 (4,000 births)
     scene = TBDScene(SATS, (8.0, 9.0, 10.0), maps, frames=20, appears_frame=20, disappears_frame=20)

@@ -170,7 +170,7 @@ RULES = [
     Rule(r"pmsr --help|pmsr simulate --help"),
     Rule(r"pmsr methods( \w+)*"),
     # Scripts: their own tests cover them; here their options must exist (`--help` lists them).
-    Rule(r"python (evaluate|benchmarks)/\w+\.py( evaluate/\w+\.yaml)?( --\S+( \S+)?)*"),
+    Rule(r"python (evaluate|benchmarks)/\w+\.py( evaluate/\w+\.yaml)?( --\S+( [^-\s]\S*)*)*"),
     Rule(r"pmsr train train/jpda_gain\.yaml --out runs/jpda_gain_s0 seed=0", lambda a: [*a, *TINY_SCENES,
                                                                                      "scenes.window=10"]),
     Rule(r"pmsr train train/set_tracker\.yaml --out runs/set_tracker_s0 seed=0",

@@ -156,17 +156,22 @@ def test_maps_of_a_scene_hold_each_living_target_at_its_cell():
 # ------------------------------------------------------------------ through the runner
 
 
-def test_a_tbd_kind_runs_through_prepare_and_blocks_and_finds_the_target(tmp_path):
+@pytest.mark.parametrize("estimator", ["max", "bootstrap"])
+def test_a_tbd_kind_runs_through_prepare_and_blocks_and_finds_the_target(tmp_path, estimator):
     """25 dB maps, a 1x1 sub-area, births around the target: the modified ICMB detects it in every
-    run at every frame it is present and at none before it is born; a frame after it died its
-    tracks have faded (a component persists at most a frame: survival 0.95 and maps without it);
-    its tracks are scored like every tracker's (OSPA, GOSPA, matched RMSE) besides the per-frame
-    figures."""
+    run at every frame it is present and at none before it is born; its tracks are scored like
+    every tracker's (OSPA, GOSPA, matched RMSE) besides the per-frame figures. With the seed's SNR
+    estimate a frame after it died its tracks have faded (a component persists at most a frame:
+    survival 0.95 and maps without it). The bias-corrected estimate does not promise that: without
+    the target it falls to the noise peaks' level, lower than the seed's, under which a target is
+    harder to reject (measured over 20 runs: detected 0.5 / 0.2 of the runs one / two frames
+    after death, against 0.2 / 0)."""
     d = tiny(mc_runs=4, block_runs=2)
     d["rd_maps"]["snr_db"] = [25.0]
     d["rd_maps"]["birth_box"] = {"x_m": [4800.0, 5200.0], "y_m": [2800.0, 3200.0], "vx_mps": [-23.0, -17.0],
                                  "vy_mps": [7.0, 13.0]}
-    d["methods"][0]["options"] = {"particles_min": 200, "particles_max": 800, "birth_particles": 2000, "subarea_half": 0}
+    d["methods"][0]["options"] = {"particles_min": 200, "particles_max": 800, "birth_particles": 2000, "subarea_half": 0,
+                                  "snr_estimator": estimator}
     d["cases"][0]["targets"][0]["segments"] = [{"duration_s": 4.0}]
     d["cases"][0]["end_s"] = 7.0
     sc = scenario_from_dict(d, tmp_path)
@@ -180,8 +185,10 @@ def test_a_tbd_kind_runs_through_prepare_and_blocks_and_finds_the_target(tmp_pat
 
     row = finalise(setup, bs)["c"]["methods"]["m"]
     t = row["tbd"]
-    assert t["detected_frame_rate"][:5] == [0.0, 1.0, 1.0, 1.0, 1.0] and t["detected_frame_rate"][6] == 0.0
-    assert t["existence"][6] < 0.1 and t["false_alarm_rate_absent"] <= 1 / 3  # at most the frame after it died
+    assert t["detected_frame_rate"][:5] == [0.0, 1.0, 1.0, 1.0, 1.0]
+    if estimator == "max":
+        assert t["detected_frame_rate"][6] == 0.0 and t["existence"][6] < 0.1
+        assert t["false_alarm_rate_absent"] <= 1 / 3  # at most the frame after it died
     assert max(t["rms_pos_m"][1:5]) < 300.0  # inside the range triangle's half-width (293 m of path)
     snr = np.asarray(t["snr_db"])  # (K, S): the online estimate, biased up on a 1x1 sub-area (the largest of the
     assert snr.shape == (7, 2) and bool((snr[2:5] > 22.0).all())  # particles' ML amplitudes) but near the 25 dB
@@ -256,7 +263,7 @@ def test_pmsr_evaluate_writes_the_remote_sensing_figures(tmp_path):
     m5 = case["methods"]["m5"]["tbd"]
     assert len(m5["detected_frame_rate"]) == 4 and len(m5["snr_db"]) == 4 and len(m5["snr_db"][0]) == 2
     assert m5["power_ratio"] == pytest.approx(power_ratio(2, MapSpec(sample_rate_hz=5e6).lobe_cells))
-    assert m5["update"] == "ascending" and m5["snr"] == "estimated" and len(m5["median_pos_err_m"]) == 4
+    assert m5["update"] == "ascending" and m5["snr"] == "estimated (bootstrap)" and len(m5["median_pos_err_m"]) == 4
     dtt = case["methods"]["dtt"]["tbd"]
     assert dtt["power_ratio"] is None and dtt["update"] == "detect-then-track" and dtt["snr"] == "true"
     assert "tbd.detected_frame_rate" in res["definitions"] and res["settings"]["set_metrics"] == {"c_m": 1000.0, "p": 1.0}
@@ -390,7 +397,7 @@ def test_the_shipped_scenario_is_the_seeds_set_up():
     assert [c.sensing.rd_maps.snr_db for c in setup.cases[1:3]] == [(8.0,) * 3, (10.0,) * 3]
     assert setup.cases[3].sensing.rd_maps.maps.doppler_cell_hz == 0.5
     assert [c.methods for c in setup.cases[1:]] == [("ICMB ascending (known SNR)",)] * 3
-    assert setup.set_metric == (1000.0, 1.0) and len(setup.methods) == 12
+    assert setup.set_metric == (1000.0, 1.0) and len(setup.methods) == 13
 
 
 def test_a_reused_component_slot_starts_a_new_track():

@@ -131,11 +131,19 @@ def _maps_figure(path: Path, ex: dict, maps: dict) -> bool:
     return True
 
 
+def _subarea_rows(rows: dict[str, MethodRow]) -> dict[str, MethodRow]:
+    """The rows of the sub-area study: map likelihoods with an estimated SNR, estimated as the
+    first such row estimates it (the others, e.g. the seed's estimate beside ours, are rows of
+    the case's table only)."""
+    est = [r.tbd.snr for r in rows.values() if r.tbd.snr.startswith("estimated") and r.tbd.power_ratio is not None]
+    return {n: r for n, r in rows.items() if est and r.tbd.snr == est[0] and r.tbd.power_ratio is not None}
+
+
 def table2(rows: dict[str, MethodRow], ref: dict | None, frame: int, label: str) -> list[str]:
     """The sub-area study (the seed's Table 2): the methods with an estimated SNR and map
     likelihoods, by sub-area, beside the reference's rows (``ref``: its ``size``,
     ``power_ratio_pct``, ``computation_time_s`` and ``detected_frame_rate_pct`` lists)."""
-    sub = [(n, r) for n, r in rows.items() if r.tbd.power_ratio is not None and r.tbd.snr == "estimated"]
+    sub = list(_subarea_rows(rows).items())
     if len(sub) < 2:
         return []
     lines = [f"Sub-area study (the seed's Table 2; detected-frame rate at frame {frame}; times per run on this machine"
@@ -212,7 +220,7 @@ def report_lines(res: Results | dict, out: Path, examples: dict) -> list[str]:
         lines += _case_table(rows, frame)
         lines += table2(rows, sub_ref.get("table"), frame, label)
         # the sub-area variants get their own figure; the others show the one sub-area most of them use
-        sub = {n: r for n, r in rows.items() if r.tbd.snr == "estimated" and r.tbd.power_ratio is not None}
+        sub = _subarea_rows(rows)
         areas = [r.tbd.subarea for n, r in rows.items() if r.tbd.subarea]
         default = max(set(areas), key=areas.count) if areas else None
         main = {n: r for n, r in rows.items() if n not in sub or r.tbd.subarea == default}
@@ -240,14 +248,16 @@ def report_lines(res: Results | dict, out: Path, examples: dict) -> list[str]:
         fig.tight_layout()
         fig.savefig(out / f"{cname}_tbd_rms.png", dpi=110)
         plt.close(fig)
-        est = {n: r for n, r in rows.items() if r.tbd.snr == "estimated"}
+        est = {}  # the first row of each way of estimating the SNR
+        for n, r in rows.items():
+            if r.tbd.snr.startswith("estimated") and r.tbd.snr not in {e.tbd.snr for e in est.values()}:
+                est[n] = r
         if est:
-            name, r = next(iter(est.items()))
-            snr = np.asarray(r.tbd.snr_db)
-            _curves(out / f"{cname}_snr.png", frames,
-                    {f"{maps['maps'][p]} estimated ({name})": snr[:, p] for p in range(snr.shape[1])},
+            series = {f"{maps['maps'][p]} ({name})": np.asarray(r.tbd.snr_db)[:, p]
+                      for name, r in est.items() for p in range(np.asarray(r.tbd.snr_db).shape[1])}
+            _curves(out / f"{cname}_snr.png", frames, series,
                     "SNR (dB)", f"{case.title}: online SNR estimate (true dashed)", present,
-                    dashed={f"map {p + 1}": np.full(len(frames), maps["snr_db"][p]) for p in range(snr.shape[1])})
+                    dashed={f"map {p + 1}": np.full(len(frames), v) for p, v in enumerate(maps["snr_db"])})
         _maps_figure(out / f"{cname}_maps.png", examples.get(cname, {}), maps)
         lines += [f"![{k}]({cname}_{k}.png)" for k in ("detected", "tbd_rms", "snr", "subarea", "existence", "ospa", "maps")
                   if (out / f"{cname}_{k}.png").exists()] + [""]

@@ -20,7 +20,8 @@ options are what varies within a filter:
 
 Common options: the filter's detection ``threshold`` on the existence, ``survival``, ``birth_r``,
 ``prune``, the particle counts, the CV model's ``accel_sd_mps2`` and (map likelihoods) the
-``subarea_half`` read around each state (null: the whole map). Defaults are the seed's.
+``subarea_half`` read around each state (null: the whole map). Defaults are the seed's, except
+``snr_estimator``.
 
 Every kind starts its own tracks: it returns the Bernoulli components as unpaired tracks in the
 scenario's state (the planar CV state at the maps' altitude placed in the truth's position and
@@ -57,8 +58,9 @@ def mb_spec(spec) -> MBSpec:
     kind = spec.kind
     update = "product" if kind == "pmb" else o("order")
     model = o("snr_model_db") if kind in ("pmb", "icmb") else None
+    estimator = o("snr_estimator") if kind == "modified_icmb" else "max"
     try:
-        return MBSpec(update=update, estimate_snr=kind == "modified_icmb",
+        return MBSpec(update=update, estimate_snr=kind == "modified_icmb", snr_estimator=estimator,
                       snr_model_db=None if model is None else (float(model),),
                       subarea_half=o("subarea_half") if kind in MAP_KINDS else 2,
                       particles_min=int(o("particles_min")), particles_max=int(o("particles_max")),
@@ -125,7 +127,7 @@ def describe(spec, scene) -> dict:
     else:
         update = mb.update
     if mb.estimate_snr:
-        snr = "estimated"
+        snr = f"estimated ({mb.snr_estimator})"
     elif mb.snr_model_db is None or not maps:
         snr = "true"
     else:
@@ -182,6 +184,8 @@ register(MethodKind("icmb", "rd_maps", run_tbd, {**ORDER, **SNR_MODEL, **SUBAREA
                                 "Zeng et al.), modelled or true SNR; starts its own tracks"))
 register(MethodKind("modified_icmb", "rd_maps", run_tbd, {"order": Option("ascending", str, choices=("ascending",
                                                                                                       "descending")),
+                                                          "snr_estimator": Option("bootstrap", str,
+                                                                                  choices=("bootstrap", "max")),
                                                           **SUBAREA, **COMMON},
                     check_sensing=check_sensing, starts_tracks=True,
                     description="ICMB with each map's SNR estimated online, ordering the maps (the modified ICMB of "

@@ -67,6 +67,18 @@ def gather_cells(maps_abs: torch.Tensor, d: torch.Tensor, u: torch.Tensor, lobe_
 
 def _gather_chunk(flat_maps: torch.Tensor, shape: tuple[int, int, int], d: torch.Tensor, u: torch.Tensor,
                   lobe_cells: float, half: int | None) -> tuple[torch.Tensor, torch.Tensor]:
+    B, M = d.shape[:2]
+    G, flat = sub_area(shape, d, u, lobe_cells, half)
+    absz = flat_maps.gather(1, flat.reshape(B, -1)).view(B, M, shape[0], -1)
+    return absz, G.to(absz.dtype)
+
+
+def sub_area(shape: tuple[int, int, int], d: torch.Tensor, u: torch.Tensor, lobe_cells: float,
+             half: int | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The unit responses ``G`` and the flat indices into maps of ``shape = (P, D, U)`` (map ``p``'s
+    cell ``(row, col)`` at ``(p D + row) U + col``; cells outside the map clamped to its edge, with
+    ``G = 0``) of the sub-area cells of states at fractional cells ``d, u (B, M, P)``: each
+    ``(B, M, P, S)``."""
     P, D, U = shape
     B, M = d.shape[:2]
     if half is None:  # every row; the columns the triangle reaches
@@ -81,8 +93,7 @@ def _gather_chunk(flat_maps: torch.Tensor, shape: tuple[int, int, int], d: torch
     col_f = triangle((cols - u[..., None]) / lobe_cells) * ((cols >= 0) & (cols < U))
     G = (row_f[..., :, None] * col_f[..., None, :]).reshape(B, M, P, -1)
     flat = (torch.arange(P).view(1, 1, P, 1) * D + rows.clamp(0, D - 1))[..., :, None] * U + cols.clamp(0, U - 1)[..., None, :]
-    absz = flat_maps.gather(1, flat.reshape(B, -1)).view(B, M, P, -1)
-    return absz, G.to(absz.dtype)
+    return G, flat.reshape(B, M, P, -1)
 
 
 # Abramowitz & Stegun 9.8.1 (t = (x / 3.75)^2, x <= 3.75; stated error 1.6e-7 relative) and 9.8.2
@@ -183,12 +194,20 @@ def ml_amplitude(cells: CellValues, noise_power: float, iterations: int = 30, to
 def max_ml_amplitude(cells: CellValues, valid: torch.Tensor, noise_power: float, iterations: int = 30,
                      candidates: int | None = 256) -> torch.Tensor:
     """The largest maximum-likelihood amplitude over the valid states ``valid (B, M)`` of each run
-    and map ``(B, P)`` (the seed's estimate below Eq. 24). Every state's ML amplitude is at most its
-    starting value ``sum |z| G / sum G^2`` (``rho < 1``), so only the ``candidates`` states with the
-    largest starting values are iterated (``None``: all, exact). The pre-selection can miss the
-    maximum where noise inflates a starting value more than the iteration deflates it; the cost
-    of iterating every particle (the special functions on ``B x M x P x S`` cells, 30 times) is
-    what it saves."""
+    and map ``(B, P)`` (the seed's estimate below Eq. 24), over the states
+    :func:`candidate_ml_amplitudes` iterates."""
+    return candidate_ml_amplitudes(cells, valid, noise_power, iterations, candidates)[0].amax(1)
+
+
+def candidate_ml_amplitudes(cells: CellValues, valid: torch.Tensor, noise_power: float, iterations: int = 30,
+                            candidates: int | None = 256) -> tuple[torch.Tensor, torch.Tensor]:
+    """The maximum-likelihood amplitudes ``(B, k, P)`` of the ``k = candidates`` valid states
+    (``valid (B, M)``) with the largest starting values per run and map, and those states' indices
+    ``(B, k, P)`` into ``M``. Every state's ML amplitude is at most its starting value
+    ``sum |z| G / sum G^2`` (``rho < 1``), so only those are iterated (``None``: all states, exact).
+    The pre-selection can miss the maximum where noise inflates a starting value more than the
+    iteration deflates it; the cost of iterating every particle (the special functions on
+    ``B x M x P x S`` cells, 30 times) is what it saves."""
     zG = (cells.absz * cells.G).sum(-1)
     G2 = (cells.G * cells.G).sum(-1)
     a0 = torch.where(valid[..., None] & (G2 > 0), zG / torch.where(G2 > 0, G2, torch.ones((), dtype=G2.dtype)),
@@ -199,7 +218,7 @@ def max_ml_amplitude(cells: CellValues, valid: torch.Tensor, noise_power: float,
     S = cells.absz.shape[-1]
     sub = CellValues(cells.absz.gather(1, idx[..., None].expand(-1, -1, -1, S)),
                      cells.G.gather(1, idx[..., None].expand(-1, -1, -1, S)))
-    return ml_amplitude(sub, noise_power, iterations).amax(1)
+    return ml_amplitude(sub, noise_power, iterations), idx
 
 
 def cells_of_states(grid: MapGrid, rng: torch.Tensor, dop: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -216,18 +216,27 @@ def simulate_frame(rng: torch.Tensor, dop: torch.Tensor, present: torch.Tensor, 
     """One frame's maps ``(B, P, D, U)`` complex64: noise of power ``spec.noise_power`` plus each
     target present: target ``n`` at ``rng``, ``dop (B, P, N)`` where ``present (B, N)`` (or one
     target: ``(B, P)`` and ``(B,)``) with map SNR ``snr_db (P,)`` and a uniform random phase per
-    run, map and target. Noise is drawn first, then the phases ``(B, P, N)``, in that order always;
-    the responses are summed in complex128 (target by target) and added to the noise in complex64."""
+    run, map and target (:func:`frame_at_cells`)."""
     if rng.dim() == 2:
         rng, dop, present = rng[..., None], dop[..., None], present[:, None]
-    B, P, N = rng.shape
-    D, U = grid.D, grid.U
-    s = math.sqrt(spec.noise_power / 2)
+    amp = torch.sqrt(spec.noise_power * 10.0 ** (snr_db.to(torch.float64) / 10))  # (P,)
+    d, u = grid.cell_coordinates(rng.transpose(1, 2), dop.transpose(1, 2))  # (B, N, P)
+    return frame_at_cells(d, u, present, amp, (grid.D, grid.U), spec.noise_power, spec.lobe_cells, g)
+
+
+def frame_at_cells(d: torch.Tensor, u: torch.Tensor, present: torch.Tensor, amplitude: torch.Tensor,
+                   size: tuple[int, int], noise_power: float, lobe_cells: float, g: torch.Generator) -> torch.Tensor:
+    """Maps ``(B, P, D, U)`` complex64 of ``size = (D, U)`` cells: noise of power ``noise_power``
+    plus target ``n`` at fractional cells ``d, u (B, N, P)`` where ``present (B, N)``, of amplitude
+    ``amplitude`` (``(P,)`` or ``(B, P)``), range lobe half-width ``lobe_cells``, and a uniform
+    random phase per run, map and target. Noise is drawn first, then the phases ``(B, P, N)``, in that order always; the responses are
+    summed in complex128 (target by target) and added to the noise in complex64."""
+    B, N, P = d.shape
+    D, U = size
+    s = math.sqrt(noise_power / 2)
     noise = torch.randn((B, P, D, U, 2), generator=g, dtype=torch.float32) * s
     maps = torch.view_as_complex(noise)
     phase = torch.rand((B, P, N), generator=g, dtype=torch.float64) * (2 * math.pi)
-    amp = torch.sqrt(spec.noise_power * 10.0 ** (snr_db.to(torch.float64) / 10))  # (P,)
-    d, u = grid.cell_coordinates(rng.transpose(1, 2), dop.transpose(1, 2))  # (B, N, P)
     rows = torch.arange(D, dtype=torch.float64)
     cols = torch.arange(U, dtype=torch.float64)
     sig = None
@@ -235,8 +244,8 @@ def simulate_frame(rng: torch.Tensor, dop: torch.Tensor, present: torch.Tensor, 
     for n in range(N):
         # separable: (B, P, D, 1) x (B, P, 1, U)
         dr = torch.sinc(rows - d[:, n, :, None])
-        ur = triangle((cols - u[:, n, :, None]) / spec.lobe_cells)
-        c = amp * torch.polar(torch.ones_like(phase[..., n]), phase[..., n])  # (B, P)
+        ur = triangle((cols - u[:, n, :, None]) / lobe_cells)
+        c = amplitude * torch.polar(torch.ones_like(phase[..., n]), phase[..., n])  # (B, P)
         term = torch.where(present[:, n, None, None, None], c[..., None, None] * dr[..., :, None] * ur[..., None, :], zero)
         sig = term if sig is None else sig + term
     return maps + sig.to(torch.complex64)

@@ -5,9 +5,9 @@ particles (Vo et al. 2010, the seed's Eqs. 6-8 and 21-27). One frame:
 
 1. *prediction*: particles through the CV model, ``r <- p_S r``; one birth component with
    ``r_birth`` and particles uniform over the birth box (the seed's choice);
-2. *online SNR estimate* (``update: estimated``): per map, the largest of the particles'
-   maximum-likelihood amplitudes (:func:`~.likelihood.ml_amplitude`, Eq. 25), which also orders
-   the maps;
+2. *online SNR estimate* (``estimate_snr``): per map, the largest of the particles'
+   maximum-likelihood amplitudes (:func:`~.likelihood.ml_amplitude`, Eq. 25; ``snr_estimator:
+   max``), or that with its bias removed (``bootstrap``, :mod:`.snr`); it also orders the maps;
 3. *update*: ``product`` (PMB, Eq. 16: one update with the product of the maps' ratios) or one map
    after another (ICMB, Eqs. 26-27) in the order ``ascending`` / ``descending`` of the SNRs used
    (given, or estimated). A component's ``r <- r m / (1 - r + r m)`` with ``m`` the weighted mean of
@@ -39,6 +39,7 @@ import torch
 from ..config import require
 from ..filters.particle import segmented_resample
 from .likelihood import gather_cells, log_likelihood_ratio, max_ml_amplitude
+from .snr import SNR_ESTIMATORS, SnrEstimator, bootstrap_ml_amplitude
 
 UpdateOrder = Literal["product", "ascending", "descending", "given"]
 
@@ -69,9 +70,12 @@ class MBSpec:
     """Settings of the SMC multi-Bernoulli filter (defaults: the seed's, where it gives them).
 
     ``snr_model_db``: the SNR (per map, or one for all) the likelihood assumes; ``None`` with
-    ``estimate_snr`` false means the true SNRs (known-SNR study). ``subarea_half``: sub-area
-    ``(2h+1)^2`` (``None``: the whole map). ``accel_sd_mps2``: the CV model's white acceleration
-    deviation (the seed gives no Q)."""
+    ``estimate_snr`` false means the true SNRs (known-SNR study). ``snr_estimator``: how
+    ``estimate_snr`` estimates (:mod:`.snr`: ``max`` the seed's, ``bootstrap`` with its bias
+    removed over ``snr_replicas`` replica maps and the ``snr_kept_states`` best states);
+    ``snr_candidates``: the states whose ML amplitude is iterated (the largest starting values).
+    ``subarea_half``: sub-area ``(2h+1)^2`` (``None``: the whole map). ``accel_sd_mps2``: the CV
+    model's white acceleration deviation (the seed gives no Q)."""
 
     update: UpdateOrder = "ascending"
     estimate_snr: bool = False
@@ -89,6 +93,10 @@ class MBSpec:
     accel_sd_mps2: float = 0.05
     max_components: int = 24
     ml_iterations: int = 30
+    snr_estimator: SnrEstimator = "max"
+    snr_candidates: int = 256
+    snr_replicas: int = 4
+    snr_kept_states: int = 32
 
     def __post_init__(self) -> None:
         require(self.update in ("product", "ascending", "descending", "given"),
@@ -103,6 +111,10 @@ class MBSpec:
         require(self.subarea_half is None or self.subarea_half >= 0, "subarea_half must be >= 0 (or null: whole map)")
         require(self.accel_sd_mps2 >= 0 and self.merge_doppler_cells >= 0, "negative deviation or gate")
         require(self.max_components >= 2, "max_components must be at least 2")
+        require(self.snr_estimator in SNR_ESTIMATORS,
+                f"snr_estimator must be one of {', '.join(SNR_ESTIMATORS)}, got {self.snr_estimator!r}")
+        require(self.snr_candidates >= 1 and self.snr_replicas >= 1 and self.snr_kept_states >= 1,
+                "snr_candidates, snr_replicas and snr_kept_states must be at least 1")
 
 
 @dataclass
@@ -157,13 +169,16 @@ class MapLikelihood:
     """The maps' likelihood ratios of states (the seed's filter): ``maps(k) -> (B, P, D, U)``
     gives frame ``k``'s maps, ``cells(x, k) -> (d, u)`` the fractional cells ``(B, M, P)`` of states
     ``x (B, M, 4)`` at frame ``k``; ``true_snr_db (P,)`` the scenario's, used when ``spec`` models
-    none and estimates none."""
+    none and estimates none; ``g``: the generator of the ``bootstrap`` estimate's replica maps."""
 
     def __init__(self, spec: MBSpec, maps: Callable, cells: Callable, lobe_cells: float, noise_power: float,
-                 true_snr_db: torch.Tensor):
+                 true_snr_db: torch.Tensor, g: torch.Generator | None = None):
         self.spec, self.maps, self.cells = spec, maps, cells
         self.lobe_cells, self.noise_power = lobe_cells, noise_power
         self.true_snr_db = true_snr_db.to(torch.float64)
+        require(not (spec.estimate_snr and spec.snr_estimator == "bootstrap") or g is not None,
+                "the bootstrap SNR estimate needs a generator for its replica maps")
+        self.g = g
 
     def modelled_snr(self, B: int, P: int) -> torch.Tensor:
         s = self.spec.snr_model_db
@@ -179,8 +194,13 @@ class MapLikelihood:
         d, u = self.cells(x, k)
         cv = gather_cells(z, d, u, self.lobe_cells, spec.subarea_half)
         if spec.estimate_snr:
-            a = max_ml_amplitude(cv, valid, self.noise_power, spec.ml_iterations).to(torch.float64)  # (B, P)
-            snr = 20 * torch.log10(a.clamp(min=1e-12) / math.sqrt(self.noise_power))
+            if spec.snr_estimator == "bootstrap":
+                a = bootstrap_ml_amplitude(z.shape[1:], d, u, cv, valid, self.lobe_cells, spec.subarea_half,
+                                           self.noise_power, spec.ml_iterations, spec.snr_candidates,
+                                           spec.snr_replicas, spec.snr_kept_states, self.g)
+            else:
+                a = max_ml_amplitude(cv, valid, self.noise_power, spec.ml_iterations, spec.snr_candidates)
+            snr = 20 * torch.log10(a.to(torch.float64).clamp(min=1e-12) / math.sqrt(self.noise_power))  # (B, P)
         else:
             snr = self.modelled_snr(B, P)
         amp = torch.sqrt(self.noise_power * 10.0 ** (snr / 10))[:, None, :]  # (B, 1, P)

@@ -30,7 +30,7 @@ def run_filter(scene: MapScene, spec: MBSpec, product: RangeDopplerMaps, g: torc
         measure = DetectionLikelihood(detect, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power,
                                       snr)
     else:
-        measure = MapLikelihood(spec, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power, snr)
+        measure = MapLikelihood(spec, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power, snr, g)
     return mb.run(scene.frames, measure, scene.cells, product.B, g)
 
 

@@ -1504,6 +1504,9 @@ case("evaluate/tbd-receiver-million-numbers", "evaluate t.yaml --out out",
 case("evaluate/tbd-receiver-four-numbers", "evaluate t.yaml --out out",
      setup=text_sub(TBD_YAML, "t.yaml", "receiver_m: [0.0, 0.0, 0.0]", "receiver_m: [0.0, 0.0, 0.0, 0.0]"),
      message="receiver_m", klass="refusal")
+case("evaluate/tbd-unknown-snr-estimator", "evaluate t.yaml --out out",
+     setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["options"].update(snr_estimator="median")),
+     message="option snr_estimator must be one of bootstrap, max", klass="refusal")
 case("evaluate/tbd-subarea-larger-than-map", "evaluate t.yaml --out out",
      setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d["methods"][0]["options"].update(subarea_half=400)),
      message="larger than the maps", klass="refusal")
