@@ -21,9 +21,9 @@ states per map: a replica is drawn only on the cells the kept states read (one n
 distinct cell, so states that share a cell see the same noise, as on a whole map; tested against
 whole-map replicas), and the replicas re-run the maximum over the kept states only, not over
 every particle. A maximum over fewer states is less biased, so the correction removes only a part
-of the bias (``tests/test_tbd_snr.py``, static maps at 8 dB with 800 states: +1.2 dB before,
-+0.8 dB after); on the seed's scene, where the particles crowd the target, it leaves about
-+0.1 to +0.4 dB (``evaluate/RESULTS.md``).
+of the bias (``tests/test_tbd_snr.py``, static maps with 800 states: +1.0 dB before, +0.5 dB
+after at 8 dB; +0.7 and +0.3 dB at 10 dB); on the seed's scene, where the particles crowd the
+target, -0.3 to +0.45 dB is left (``evaluate/RESULTS.md``).
 
 What neither estimate can do is tell that no target is there: both are the amplitude of a target
 assumed present, so with none they report the strongest noise peak's (corrected: a little lower).
