@@ -5,7 +5,8 @@ filter without a target, and the online SNR estimate once the target has been he
 ``--estimators``: instead, the seed's scene (5x5, the seed's particle budget) over 32 runs for each
 of ``--seeds``, the ICMB with known SNRs beside the modified ICMB with the seed's SNR estimate and
 with the bias-corrected one (issue 37): the detected-frame rate over the present frames, the
-estimate over frames 11-16 and over the absent frames (about 6 minutes per seed on one core).
+estimate over frames 11-16 and over the absent frames (about 6 minutes per seed on one core);
+then the detected rates' paired differences over every run, with their standard errors.
 
     python evaluate/tbd_checks.py
     python evaluate/tbd_checks.py --estimators --seeds 7 11
@@ -14,6 +15,9 @@ estimate over frames 11-16 and over the absent frames (about 6 minutes per seed 
 from __future__ import annotations
 
 import argparse
+import math
+
+import torch
 
 from pmsr_nn.tbd.maps import MapSpec, Satellite
 from pmsr_nn.tbd.multibernoulli import MBSpec
@@ -29,16 +33,24 @@ def estimators(seeds: list[int], runs: int = 32) -> None:
     scene = TBDScene(SATS, (8.0, 9.0, 10.0), MapSpec(doppler_cell_hz=10.0))
     specs = {"ICMB, known SNRs": MBSpec(), "modified ICMB, seed's max": MBSpec(estimate_snr=True),
              "modified ICMB, bootstrap": MBSpec(estimate_snr=True, snr_estimator="bootstrap")}
+    per_run = {name: [] for name in specs}  # each run's detected rate over its present frames
     for seed in seeds:
         for name, spec in specs.items():
             out, truth = simulate_and_run(scene, spec, runs, seed)
             alive = truth.alive[:, 0]
+            per_run[name].append(out.best(0.5)[1][:, alive].double().mean(1))
             rate = float(out.best(0.5)[1][:, alive].double().mean())
             fa = float(out.best(0.5)[1][:, ~alive].double().mean())
             held = ", ".join(f"{v:.2f}" for v in out.snr_db[:, 10:16].mean((0, 1)).tolist())
             absent = ", ".join(f"{v:.2f}" for v in out.snr_db[:, ~alive].mean((0, 1)).tolist())
             print(f"seed {seed}, {runs} runs, {name}: detected {100 * rate:.1f} % of the present frames, "
                   f"{100 * fa:.2f} % of the absent; SNR used, frames 11-16: {held} dB; absent: {absent} dB")
+    rate = {name: torch.cat(v) for name, v in per_run.items()}
+    names = list(specs)
+    for a, b in ((names[2], names[1]), (names[2], names[0]), (names[1], names[0])):
+        d = rate[a] - rate[b]  # paired: the same maps, each filter its own particles
+        print(f"{a} - {b}, paired over {len(d)} runs: {100 * float(d.mean()):+.1f} +- "
+              f"{100 * float(d.std()) / math.sqrt(len(d)):.1f} points (1 s.e.)")
 
 
 def main() -> None:
