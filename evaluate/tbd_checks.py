@@ -38,9 +38,9 @@ def estimators(seeds: list[int], runs: int = 32) -> None:
         for name, spec in specs.items():
             out, truth = simulate_and_run(scene, spec, runs, seed)
             alive = truth.alive[:, 0]
-            per_run[name].append(out.best(0.5)[1][:, alive].double().mean(1))
-            rate = float(out.best(0.5)[1][:, alive].double().mean())
-            fa = float(out.best(0.5)[1][:, ~alive].double().mean())
+            detected = out.best(0.5)[1].double()  # (runs, frames)
+            per_run[name].append(detected[:, alive].mean(1))
+            rate, fa = float(detected[:, alive].mean()), float(detected[:, ~alive].mean())
             held = ", ".join(f"{v:.2f}" for v in out.snr_db[:, 10:16].mean((0, 1)).tolist())
             absent = ", ".join(f"{v:.2f}" for v in out.snr_db[:, ~alive].mean((0, 1)).tolist())
             print(f"seed {seed}, {runs} runs, {name}: detected {100 * rate:.1f} % of the present frames, "

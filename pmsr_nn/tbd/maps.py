@@ -229,8 +229,9 @@ def frame_at_cells(d: torch.Tensor, u: torch.Tensor, present: torch.Tensor, ampl
     """Maps ``(B, P, D, U)`` complex64 of ``size = (D, U)`` cells: noise of power ``noise_power``
     plus target ``n`` at fractional cells ``d, u (B, N, P)`` where ``present (B, N)``, of amplitude
     ``amplitude`` (``(P,)`` or ``(B, P)``), range lobe half-width ``lobe_cells``, and a uniform
-    random phase per run, map and target. Noise is drawn first, then the phases ``(B, P, N)``, in that order always; the responses are
-    summed in complex128 (target by target) and added to the noise in complex64."""
+    random phase per run, map and target. Noise is drawn first, then the phases ``(B, P, N)``, in
+    that order always; the responses are summed in complex128 (target by target) and added to the
+    noise in complex64."""
     B, N, P = d.shape
     D, U = size
     s = math.sqrt(noise_power / 2)
