@@ -434,15 +434,16 @@ def test_oracle_pmht_still_refuses_births_and_deaths(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("kind, message", [
-    ("pmht_3d", "method 'P': initiation from detections fixes positions from per-pair lists; the detections are "
-                "pooled per receiver (illuminator unknown): use initiation: oracle"),
+    ("pmht_3d", "method 'P': initiation from detections: tracks start from lists pooled per receiver (illuminator "
+                "unknown) only where each pair measures azimuth (a position fix per illuminator hypothesis); the "
+                "detections measure ['range', 'doppler'] (use initiation: oracle)"),
     ("pmht", "fixes positions from (bistatic range, azimuth) in 2-D"),
 ])
 def test_initiation_from_detections_the_receiver_can_not_fix_is_refused(tmp_path, capsys, kind, message):
     """The JEIT study pools detections per receiver (illuminator unknown) and measures range and
-    Doppler: PMHT-3D can not initiate from per-pair lists it does not have (the scenario's
-    per-pair lists are information the receiver lacks), and neither kind can fix positions
-    without azimuth."""
+    Doppler: PMHT-3D starts tracks from pooled lists only by fixing each detection under every
+    illuminator hypothesis, which needs azimuth (the spherical initiator reads per-pair lists, which
+    the receiver does not have), and neither kind can fix positions without azimuth."""
     sc = {"kind": "multitarget", "name": "pmht_small", "mc_runs": 1, "block_runs": 1, "scans": 20, "dimensions": 3,
           "geometry": {"transmitters": [{"position_m": [29434.0, -34761.0, 293.0], "carrier_hz": 500.0e6}],
                        "receivers": [{"position_m": [0.0, 0.0, 0.0]}]},

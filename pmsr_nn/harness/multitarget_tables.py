@@ -51,8 +51,9 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
             assigned = " / ".join("-" if v is None else f"{v:.0f}" for v in s.rmse_pos_assigned_per_target_m)
             split = (f"{fmt_se(s.gospa_m, s.gospa_se_m, 1)}: " + " / ".join(
                 f"{100 * share:.0f}" for share in (s.gospa_localisation_share, s.gospa_missed_share, s.gospa_false_share)))
-            reads = results.settings.methods[m].reads
-            line = (f"| {m} | {'-' if reads is None else reads}{starts(r)}{space_mark(r)} | {rmse} | "
+            how = results.settings.methods[m]
+            reads = "-" if how.reads is None else how.reads + (f", {how.lists}" if how.lists else "")
+            line = (f"| {m} | {reads}{starts(r)}{space_mark(r)} | {rmse} | "
                     f"{fmt(r.rmse_pos_all_scans_m, 1)} | {per} | {assigned} | {fmt_se(s.ospa_m, s.ospa_se_m, 1)} | "
                     f"{split} | {fmt(s.cardinality_mean_abs_error, 3)} | {fmt(s.label_switches_per_run, 2)} | "
                     f"{fmt(r.swap_probability, 3)} | {fmt(r.loss_probability, 3)} | {fmt(r.seconds_per_run, 3)} |")

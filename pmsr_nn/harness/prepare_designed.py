@@ -19,8 +19,8 @@ import torch
 from ..config import to_dict
 from ..errors import ConfigError
 from ..measurements import MeasurementModel
-from ..methods import Models, method_kind
-from ..simulation.products import DesignedTruth, SensorSetup
+from ..methods import Models, lists_read, method_kind
+from ..simulation.products import DesignedTruth, SensorSetup, check_pooled_clutter
 from ..simulation.recipe import TrackRecipe, load_recipe
 from ..simulation.tracks import MEASUREMENT_COMPONENTS, build_models
 from ..tbd.scene import build_scene
@@ -151,7 +151,10 @@ def prepare_designed(sc: Scenario, device: str = "cpu") -> Setup:
     causal = {m.name: bool(kinds[m.name].causal(resources[m.name])) for m in sc.methods}
     det = sc.detections
     sensing = SensorSetup(models.model, prior_sd, sc.noise.range_outlier_prob, sc.noise.range_outlier_scale,
-                          detection_model, det.pd if det else None, det.clutter if det else None)
+                          detection_model, det.pd if det else None, det.clutter if det else None,
+                          illuminator_known=det.illuminator_known if det else True)
+    if det is not None and not det.illuminator_known:
+        check_pooled_clutter(det.clutter, detection_model, "detections")
     cases, refusals = [], []
     for c in sc.cases:
         x, alive = design_case(c, recipe, sc.ramp_s)
@@ -208,6 +211,11 @@ def describe_designed(sc: Scenario, recipe: TrackRecipe, models: Models, prior_s
         out["detections"] = {"pd": d.pd, "components": list(d.components), "clutter_per_scan": d.clutter.per_scan,
                              "clutter_model": d.clutter.model, "clutter_box_si": [[a, a + e] for a, e in zip(lo, ext)],
                              "sensors": detection_model.n_pairs}
+        if not d.illuminator_known:  # a single-frequency network: which list each detection reader takes
+            out["detections"].update({"illuminator_known": False, "receivers": len(detection_model.geometry.receivers)})
+            for m in sc.methods:
+                if method_kind(m.kind).reads == "detections":
+                    out["methods"][m.name]["lists"] = lists_read(method_kind(m.kind))
     if sc.random_streams != "per_block" or any(len(c.flights()) > 1 for c in sc.cases):
         out["random_streams"] = sc.random_streams
         out["set_metrics"] = {"c_m": sc.set_metrics.c_m, "p": sc.set_metrics.p}

@@ -21,10 +21,10 @@ import torch
 from ..config import to_dict
 from ..errors import ConfigError
 from ..measurements import SPEED_OF_LIGHT, MeasurementModel
-from ..methods import Models, method_kind
+from ..methods import Models, lists_read, method_kind
 from ..motion import motion_model
 from ..simulation.aircraft import fly_all
-from ..simulation.products import DesignedTruth, SampledTruth, SensorSetup
+from ..simulation.products import DesignedTruth, SampledTruth, SensorSetup, check_pooled_clutter
 from .case_bounds import case_bounds
 from .definitions import multitarget_definitions
 from .method_spec import MethodSpec
@@ -80,13 +80,9 @@ def prepare_multitarget(sc: MultiTargetScenario, device: str = "cpu") -> Setup:
     q = sc.motion.q_per_axis(dims)
     model, signal_model = detection_models(sc, geometry, motion)
     models = Models(motion, model, sc.motion.dt_s, q, model.R(), torch.tensor(model.noise_std, dtype=torch.float64))
-    share = model.n_pairs // len(geometry.receivers)
-    if not sc.illuminator_known and sc.clutter.model == "fixed":
+    if not sc.illuminator_known:
         for c in sc.cases:
-            per = sc.case_settings(c)[1].per_scan
-            if per % share:
-                raise ConfigError(f"case {c.name!r}: {per:g} fixed clutter points per receiver do not split evenly over "
-                                  f"its {share} pairs; use a multiple of {share} or clutter model poisson")
+            check_pooled_clutter(sc.case_settings(c)[1], model, f"case {c.name!r}")
     methods = tracker_methods(sc)
     kinds = {m.name: method_kind(m.kind) for m in methods}
     straight = sc.motion.truth == "straight"
@@ -146,7 +142,9 @@ def describe_multitarget(sc: MultiTargetScenario, model: MeasurementModel, metho
            "block_runs": sc.block_runs, "set_metrics": to_dict(sc.set_metrics),
            "transmitters": [{"position_m": list(t.position_m), "carrier_hz": t.carrier_hz} for t in g.transmitters],
            "receivers": [list(r.position_m) for r in g.receivers],
-           "methods": {m.name: {"kind": m.kind, "reads": method_kind(m.kind).reads, **m.options} for m in methods}}
+           "methods": {m.name: {"kind": m.kind, "reads": method_kind(m.kind).reads, **m.options,
+                                **({} if sc.illuminator_known or method_kind(m.kind).reads != "detections"
+                                   else {"lists": lists_read(method_kind(m.kind))})} for m in methods}}
     if sc.dimensions == 3 or sc.initial_states or sc.motion != MTMotionSpec(sc.motion.dt_s, sc.motion.q) \
             or not sc.illuminator_known:
         out.update({"dimensions": sc.dimensions, "motion": to_dict(sc.motion), "illuminator_known": sc.illuminator_known,

@@ -78,9 +78,17 @@ def setting_lines(results: Results) -> list[str]:
              "The pooled RMSE is given beside it; it weighs late, large errors more."]
     if "detections" in st:
         d = st["detections"]
+        over = " x ".join(d["components"])
+        seen = (f" and reports {d['clutter_per_scan']:g} clutter points per scan ({d['clutter_model']}) uniform over "
+                f"{over}")
+        if d.get("illuminator_known") is False:
+            seen = (f"; each of the {d['receivers']} receivers reports its pairs' detections in one list, the transmitter "
+                    f"of each unknown (a single-frequency network), with {d['clutter_per_scan']:g} clutter points per "
+                    f"list and scan ({d['clutter_model']}) uniform over {over}; rows marked \"pooled per receiver\" "
+                    "read those lists, the other detection rows each pair's own list (the illuminator given; the "
+                    "clutter split evenly over a receiver's pairs)")
         lines.append(f"Detections: every one of the {d['sensors']} transmitter-receiver pairs detects each living target "
-                     f"with probability {d['pd']} and reports {d['clutter_per_scan']:g} clutter points per scan "
-                     f"({d['clutter_model']}) uniform over {' x '.join(d['components'])}; the single-target methods read "
+                     f"with probability {d['pd']}{seen}; the single-target methods read "
                      "each target's own clean stream (association known). Random streams: "
                      f"{st.get('random_streams', 'per_block')}; OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, "
                      f"order {st['set_metrics']['p']:g}.")

@@ -172,12 +172,14 @@ class Tuning:
 
 @dataclass(frozen=True)
 class MethodSettings:
-    """How a method was set up: its ``kind``, what it ``reads`` and its ``options`` as given."""
+    """How a method was set up: its ``kind``, what it ``reads`` and its ``options`` as given;
+    ``lists``: which detection lists it read where a single-frequency network pools them."""
 
     kind: str | None
     reads: str | None
     tuning: Tuning | None
     options: dict
+    lists: str | None = None
 
 
 @dataclass(frozen=True)
@@ -208,7 +210,7 @@ class Settings:
     @classmethod
     def from_dict(cls, st: dict) -> "Settings":
         methods = {m: MethodSettings(kind=s.get("kind"), reads=s.get("reads"), tuning=pick(Tuning, s.get("tuning")),
-                                     options=s) for m, s in st.get("methods", {}).items()}
+                                     options=s, lists=s.get("lists")) for m, s in st.get("methods", {}).items()}
         return cls(dt_s=st.get("dt_s", 1.0), warmup_steps=st.get("warmup_steps", 0), block_runs=st.get("block_runs"),
                    sweep=st.get("sweep", "none"), divergence_m=st.get("divergence_m"),
                    set_metrics=pick(SetMetric, st.get("set_metrics")), methods=methods, state_dim=st.get("state_dim"),

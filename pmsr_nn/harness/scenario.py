@@ -43,11 +43,16 @@ MAX_MC_RUNS = 10_000_000
 class DetectionSpec:
     """Detections for multi-target trackers: every transmitter-receiver pair detects each living
     target with probability ``pd`` per scan and reports clutter (:class:`ClutterSpec`, its box over
-    ``components``); the noise is the scenario's fixed noise."""
+    ``components``); the noise is the scenario's fixed noise. ``illuminator_known`` false: a
+    single-frequency network, each receiver reports one list per scan (its pairs' detections
+    pooled, the transmitter of each unknown) and ``clutter.per_scan`` counts per receiver list
+    (split evenly over its pairs); the kinds that read pooled lists (``pmht_3d``) read those,
+    the others each pair's own list (the illuminator given)."""
 
     pd: float = 0.9
     clutter: ClutterSpec = ClutterSpec()
     components: tuple[str, ...] = ("range", "range_rate", "azimuth")
+    illuminator_known: bool = True
 
     def __post_init__(self) -> None:
         require(0 < self.pd <= 1, f"detections.pd must be in (0, 1], got {self.pd}")

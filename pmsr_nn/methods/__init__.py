@@ -107,7 +107,10 @@ class MethodKind:
     kind's estimates are not the scenario's state but live in another space (one pair's bistatic
     plane): the runner scores them against the truth projected into it (:class:`EstimateSpace`);
     ``initiation``: how the kind's tracks start where the runner can not tell from ``reads`` and
-    ``starts_tracks`` (e.g. ``association known`` for a reference that reads the detections' origins).
+    ``starts_tracks`` (e.g. ``association known`` for a reference that reads the detections' origins);
+    ``pooled_lists``: where the scenario pools the detections per receiver (a single-frequency
+    network), the kind reads those lists (the illuminator unknown); the other readers of
+    ``detections`` read the per-pair lists (the illuminator given).
     """
 
     name: str
@@ -124,6 +127,13 @@ class MethodKind:
     bound: bool = False
     space: Callable | None = None
     initiation: str = ""
+    pooled_lists: bool = False
+
+
+def lists_read(kind: MethodKind) -> str:
+    """Which detection lists a reader of ``detections`` takes where a single-frequency network
+    pools them per receiver (``MethodKind.pooled_lists``)."""
+    return "pooled per receiver, illuminator unknown" if kind.pooled_lists else "per pair, illuminator given"
 
 
 @dataclass(frozen=True)
@@ -229,7 +239,8 @@ def catalogue(names: list[str] | None = None) -> list[str]:
     chosen = [method_kind(n) for n in names] if names else [kinds[k] for k in sorted(kinds)]
     lines = ["Method kinds of a scenario's 'methods:' list ({name: ..., kind: KIND, options: {...}}):", ""]
     for k in chosen:
-        lines.append(f"{k.name}  (reads {k.reads}: {PRODUCTS.get(k.reads, k.reads)})")
+        pooled = "; the lists pooled per receiver where the illuminator is unknown" if k.pooled_lists else ""
+        lines.append(f"{k.name}  (reads {k.reads}: {PRODUCTS.get(k.reads, k.reads)}{pooled})")
         lines.append(f"    {k.description}")
         if k.needs_checkpoint:
             lines.append("    needs: checkpoint: PATH (a tracker.pt of pmsr train)")

@@ -109,13 +109,14 @@ def _all_from_start(spec, alive: torch.Tensor, resource, case: str) -> None:
                           "has targets born later")
 
 
-def check_initiation(spec, sensing) -> None:
+def check_initiation(spec, sensing, pooled: bool = False) -> None:
     """Track management that could never confirm a track, or detections neither initiator can
-    start tracks from (``initiation: detections`` only; see :func:`management`)."""
+    start tracks from (``initiation: detections`` only; see :func:`management`; ``pooled``: the
+    method reads lists pooled per receiver)."""
     if spec.option("initiation") != "detections":
         return
     try:
-        management(spec, sensing).check(sensing.detection_model, "initiation from detections")
+        management(spec, sensing).check(sensing.detection_model, "initiation from detections", pooled=pooled)
     except ConfigError as exc:
         raise ConfigError(f"method {spec.name!r}: {exc}") from None
 

@@ -17,8 +17,9 @@ Option ``initiation`` of ``pmht`` and ``pmht_3d`` says how tracks start (as for 
   ``N(0, P0)``), lasting the whole scenario; a case with births or deaths is refused;
 * ``detections``: the tracker starts, confirms and deletes its own tracks
   (:func:`~pmsr_nn.trackers.pmht_managed.managed_pmht`) and returns unpaired tracks, scored as tracks.
-  It needs each detection's illuminator (the initiators read per-pair lists), so
-  ``pmht_3d`` refuses it on detections pooled per receiver.
+  ``pmht_3d`` does so on the lists a single-frequency-network receiver has (pooled, the
+  illuminator unknown): each unused detection is fixed under every illuminator hypothesis
+  (:class:`~pmsr_nn.trackers.fix_initiator.FixInitiator`), so the pairs must measure azimuth.
 
 The association priors are fixed from the case's Pd and clutter.
 """
@@ -63,7 +64,8 @@ def lists_of(call: MethodCall) -> AssociationLists:
 def run_pmht(call: MethodCall) -> Estimates:
     m, s = call.models, call.sensing
     if call.spec.option("initiation") == "detections":
-        rep = managed_pmht(call.product.scans, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
+        pooled = call.spec.kind == "pmht_3d" and call.product.pooled is not None
+        rep = managed_pmht(call.product.pooled if pooled else call.product.scans, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
                            settings(call), management(call.spec, s))
         return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
     res = pmht(lists_of(call), call.product.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
@@ -94,12 +96,9 @@ def _check_pmht(spec, alive: torch.Tensor, resource, case: str) -> None:
 
 
 def _check_sensing(spec, sensing) -> None:
-    """Track management that could never confirm a track, detections no initiator can
-    read; for ``pmht_3d`` also detections pooled per receiver (``initiation: detections``)."""
-    if spec.option("initiation") == "detections" and spec.kind == "pmht_3d" and not sensing.illuminator_known:
-        raise ConfigError(f"method {spec.name!r}: initiation from detections fixes positions from per-pair lists; the "
-                          "detections are pooled per receiver (illuminator unknown): use initiation: oracle")
-    check_initiation(spec, sensing)
+    """Track management that could never confirm a track, detections no initiator can read
+    (for ``pmht_3d`` on lists pooled per receiver: pairs without azimuth)."""
+    check_initiation(spec, sensing, pooled=spec.kind == "pmht_3d" and not sensing.illuminator_known)
 
 
 def _all_throughout(spec, alive: torch.Tensor, resource, case: str) -> None:
@@ -118,9 +117,10 @@ register(MethodKind("pmht", "detections", run_pmht, OPTIONS, causal=lambda r: Fa
                     description="PMHT with an unscented smoother, illuminator of each detection given "
                                 "(Streit & Luginbuhl 1995); smoothed, not causal; initiation: oracle or detections"))
 register(MethodKind("pmht_3d", "detections", run_pmht, OPTIONS_3D, causal=lambda r: False, check=_check_pmht,
-                    check_sensing=_check_sensing,
+                    check_sensing=_check_sensing, pooled_lists=True,
                     description="target-detection-illuminator PMHT with a Gaussian scale mixture "
-                                "(Li et al., JEIT 2021): per receiver, illuminator unknown; initiation: oracle or detections"))
+                                "(Li et al., JEIT 2021): per receiver, illuminator unknown; initiation: oracle or "
+                                "detections (also from the pooled lists)"))
 register(MethodKind("true_assignment_smoother", "detections", run_true_assignment_smoother, {},
                     causal=lambda r: False, check=_all_throughout,
                     description="reference: a UKF + RTS smoother per target on exactly its own detections"))

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..errors import ConfigError
 from ..filters import Gaussian
 from ..measurements import MeasurementModel, wrap_angle
 from ..motion import KinematicModel
@@ -120,6 +121,15 @@ class SensorSetup:
 
         share = self.detection_model.n_pairs // len(self.detection_model.geometry.receivers)
         return dataclasses.replace(self.clutter, per_scan=self.clutter.per_scan / share)
+
+
+def check_pooled_clutter(clutter: ClutterSpec, model: MeasurementModel, where: str) -> None:
+    """One-line refusal of a fixed clutter count per receiver list (detections pooled per
+    receiver) that does not split evenly over the receiver's pairs (:meth:`SensorSetup.pair_clutter`)."""
+    share = model.n_pairs // len(model.geometry.receivers)
+    if clutter.model == "fixed" and clutter.per_scan % share:
+        raise ConfigError(f"{where}: {clutter.per_scan:g} fixed clutter points per receiver list do not split evenly over "
+                          f"its {share} pairs (illuminator unknown); use a multiple of {share} or clutter model poisson")
 
 
 def initiation_prior(truth: Truth, prior_sd: torch.Tensor, g: torch.Generator) -> Gaussian:

@@ -97,27 +97,62 @@ class FixInitiator:
         Hinv = torch.linalg.inv(H)
         return pos, Hinv @ torch.diag(sd**2) @ Hinv.transpose(-1, -2), ok
 
-    def groups(self, pos: torch.Tensor, cov: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
+    def groups(self, pos: torch.Tensor, cov: torch.Tensor, ok: torch.Tensor,
+               lists: torch.Tensor | None = None) -> torch.Tensor:
         """Groups of agreeing fixes ``(B, G, S)`` int64: the detection of each pair in the group
         (-1: none), ``G`` groups of ``>= min_pairs`` pairs, padded with all -1 rows.
 
         Anchored greedily, batched over runs: for each pair ``a`` in turn, every unused fix of
         ``a`` takes, from each later pair, the nearest unused fix it agrees with; where two anchors
-        want the same fix the nearer keeps it (the other goes without). A fix is used once.
+        want the same fix the nearer keeps it (the other goes without). A detection is used once.
+
+        ``lists (S,)``: the list each pair's fixes were computed from (None: a list per pair).
+        Where pairs share a list (a receiver's pooled detections, every pair of it a hypothesis
+        for each), every detection is also fixed under the wrong transmitters: those ghost fixes
+        lie on the same receiver ray as the true one, where one anchor fix (long across the ray)
+        often agrees with them. So there a later pair's fix must agree with every member so far
+        and the nearest is the one with the smallest summed distance to them (a fused fix would
+        be tighter still, but the fixes' linearised covariances ignore the ellipses' curvature,
+        hundreds of metres over a fix's length, and it would turn true members away); a group
+        takes a detection under one pair only, and anchored groups that share a detection under
+        different pairs keep the one with more pairs (then the smaller summed distance, then the
+        lower anchor): the others start nothing this scan, their detections stay free for the
+        later anchors.
         """
         B, S, M = ok.shape
+        src = torch.arange(S) if lists is None else lists
+        shared = len(set(src.tolist())) < S
         gamma = gate_threshold(self.gate_probability, 2)
-        free = ok.clone()
+        free = torch.ones(B, int(src.max()) + 1, M, dtype=torch.bool)  # per list: not in an accepted group
         rows = []
         ar = torch.arange(M)
+        dist = {}  # (c, b): squared distances (B, M, M) of pair c's fixes to pair b's
+
+        def d2_of(c: int, b: int) -> torch.Tensor:
+            if (c, b) not in dist:
+                diff = pos[:, c, :, None] - pos[:, b, None, :]  # (B, M, M, 2)
+                both = cov[:, c, :, None] + cov[:, b, None, :]
+                dist[c, b] = (diff.unsqueeze(-2) @ torch.linalg.solve(both, diff.unsqueeze(-1))).squeeze(-1).squeeze(-1)
+            return dist[c, b]
+
         for a in range(S):
+            usable = ok & free[:, src]  # (B, S, M)
             members = torch.full((B, M, S), -1, dtype=torch.int64)
-            members[..., a] = torch.where(free[:, a], ar, torch.full_like(ar, -1))
+            members[..., a] = torch.where(usable[:, a], ar, torch.full_like(ar, -1))
+            spread = torch.zeros(B, M, dtype=pos.dtype)  # summed distance of the members to the group
             for b in range(a + 1, S):
-                diff = pos[:, a, :, None] - pos[:, b, None, :]  # (B, M, M, 2)
-                both = cov[:, a, :, None] + cov[:, b, None, :]
-                d2 = (diff.unsqueeze(-2) @ torch.linalg.solve(both, diff.unsqueeze(-1))).squeeze(-1).squeeze(-1)
-                agree = (d2 <= gamma) & free[:, a, :, None] & free[:, b, None, :]
+                d2 = d2_of(a, b)
+                agree = (d2 <= gamma) & usable[:, a, :, None] & usable[:, b, None, :]
+                if shared:
+                    for c in range(a + 1, b):  # every member so far, not the anchor alone
+                        m_c = members[..., c]
+                        row = d2_of(c, b).gather(1, m_c.clamp(min=0)[..., None].expand(B, M, M))
+                        has_c = (m_c >= 0)[..., None]
+                        agree &= ~has_c | (row <= gamma)
+                        d2 = d2 + torch.where(has_c, row, torch.zeros((), dtype=d2.dtype))
+                    for c in range(a, b):  # a detection of b's list already in the group under another pair
+                        if src[c] == src[b]:
+                            agree &= members[..., c, None] != ar
                 d2 = torch.where(agree, d2, torch.full_like(d2, math.inf))
                 best_d, best = d2.min(-1)  # (B, M): each anchor's nearest agreeing fix of pair b
                 has = torch.isfinite(best_d)
@@ -130,13 +165,15 @@ class FixInitiator:
                     1, best, torch.where(keep, ar.expand(B, M), torch.full_like(best, M)), "amin")
                 keep = keep & (first.gather(1, best) == ar)
                 members[..., b] = torch.where(keep, best, torch.full_like(best, -1))
-            size = (members >= 0).sum(-1)
-            good = size >= self.min_pairs
+                spread = spread + torch.where(keep, best_d, torch.zeros_like(best_d))
+            good = (members >= 0).sum(-1) >= self.min_pairs
+            if shared:
+                good = good & ~_outranked(members, good, spread, src, free.shape[1])
             members = torch.where(good[..., None], members, torch.full_like(members, -1))
             for b in range(a, S):  # mark what the accepted groups used
                 idx = members[..., b]
                 used = torch.zeros(B, M + 1, dtype=torch.bool).scatter(1, torch.where(idx >= 0, idx, M), True)[:, :M]
-                free[:, b] &= ~used
+                free[:, src[b]] &= ~used
             rows.append(members)
         out = torch.cat(rows, 1)  # (B, S*M, S)
         real = (out >= 0).any(-1)
@@ -175,9 +212,44 @@ class FixInitiator:
         return Gaussian(x, P), real
 
     def initiate(self, z: torch.Tensor, unused: torch.Tensor, model: MeasurementModel, n: int,
-                 other_sd: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
+                 other_sd: torch.Tensor, routes: torch.Tensor | None = None) -> tuple[Gaussian, torch.Tensor]:
         """Tentative tracks ``(B, G, n)`` and which are real ``(B, G)`` from the detections
-        ``z (B, S, M, d)`` marked ``unused (B, S, M)``."""
-        pos, cov, ok = self.fixes(z, model, n)
-        groups = self.groups(pos, cov, ok & unused)
-        return self.states(z, groups, pos, cov, model, n, other_sd)
+        ``z (B, L, M, d)`` marked ``unused (B, L, M)``. ``routes (L, S)`` bool: list ``l`` holds
+        pair ``s``'s detections (None: one list per pair, ``L = S``); a receiver's pooled list
+        (a single-frequency network: the illuminator of a detection unknown) is read under
+        every pair ending there, each detection fixed once per illuminator hypothesis, and a
+        track takes a detection under one hypothesis only (:meth:`groups`)."""
+        src = None if routes is None else list_of_pairs(routes)
+        if src is not None and torch.equal(src, torch.arange(len(src))):
+            src = None  # one list per pair
+        zp = z if src is None else z[:, src]
+        pos, cov, ok = self.fixes(zp, model, n)
+        groups = self.groups(pos, cov, ok & (unused if src is None else unused[:, src]), src)
+        return self.states(zp, groups, pos, cov, model, n, other_sd)
+
+
+def list_of_pairs(routes: torch.Tensor) -> torch.Tensor:
+    """``(S,)`` int64: the list of each pair, from ``routes (L, S)`` bool (exactly one list per pair)."""
+    if routes.dim() != 2 or not bool((routes.sum(0) == 1).all()):
+        raise ConfigError(f"routes must name exactly one list per pair; got shape {tuple(routes.shape)} with "
+                          f"{routes.sum(0).tolist()} lists per pair")
+    return routes.to(torch.int64).argmax(0)
+
+
+def _outranked(members: torch.Tensor, good: torch.Tensor, spread: torch.Tensor, src: torch.Tensor,
+               L: int) -> torch.Tensor:
+    """``(B, R)`` bool: group rows ``members (B, R, S)`` (detection per pair, -1 none; ``good``
+    rows compete) that share a detection of some list (pair ``s`` reads list ``src[s]``) with a
+    good row ranked above them: more pairs, then a smaller ``spread``, then a lower row."""
+    B, R, S = members.shape
+    M = R
+    slot = torch.where(members >= 0, src * M + members, L * M)  # the detection's place over all lists
+    used = torch.zeros(B, R, L * M + 1).scatter_(2, slot, 1.0)[..., :L * M] * good[..., None]
+    clash = (used @ used.transpose(1, 2)) > 0  # (B, R, R)
+    size = (members >= 0).sum(-1)
+    r = torch.arange(R)
+    above = ((size[:, :, None] > size[:, None, :])
+             | ((size[:, :, None] == size[:, None, :]) & (spread[:, :, None] < spread[:, None, :]))
+             | ((size[:, :, None] == size[:, None, :]) & (spread[:, :, None] == spread[:, None, :])
+                & (r[:, None] < r[None, :])))  # (B, i, j): row i ranks above row j
+    return (clash & above & ~torch.eye(R, dtype=torch.bool)).any(1)

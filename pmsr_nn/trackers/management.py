@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from ..config import require
+from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
 from .fix_initiator import FixInitiator
@@ -104,8 +105,14 @@ class Management:
             v = getattr(self, name)
             require(0.0 < v < 1.0, f"{name} must be in (0, 1), got {v}")
 
-    def check(self, model: MeasurementModel, what: str) -> None:
-        """One-line refusals of settings that could never confirm a track on ``model``."""
+    def check(self, model: MeasurementModel, what: str, pooled: bool = False) -> None:
+        """One-line refusals of settings that could never confirm a track on ``model`` (``pooled``:
+        from detection lists pooled per receiver, which only the
+        :class:`~.fix_initiator.FixInitiator` reads)."""
+        if pooled and not isinstance(self.initiator, FixInitiator):
+            raise ConfigError(f"{what}: tracks start from lists pooled per receiver (illuminator unknown) only where each "
+                              f"pair measures azimuth (a position fix per illuminator hypothesis); the detections "
+                              f"measure {list(model.components)} (use initiation: oracle)")
         self.initiator.check(model, what)
         require(1 <= self.hit_pairs <= model.n_pairs, f"{what}: hit_pairs ({self.hit_pairs}) must be in [1, "
                                                       f"{model.n_pairs}] (the pairs): a track could never be confirmed")

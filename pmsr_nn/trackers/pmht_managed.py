@@ -14,17 +14,21 @@ import torch
 
 from ..filters.gaussian import Gaussian, predict
 from ..motion import KinematicModel
-from ..simulation.detections import Scans
+from ..simulation.detections import PooledScans, Scans
 from .management import Management, TrackReport, TrackTable, parked_state
 from .pmht import initial_covariances, initial_states, window_starts
 from .pmht_em import em_step, window_evidence
 from .pmht_model import AssociationLists, PMHTProblem, PMHTSettings, check_lists, problem
 
 
-def managed_pmht(scans: Scans, motion: KinematicModel, dt: float, q, model, R: torch.Tensor, settings: PMHTSettings,
-                 management: Management) -> TrackReport:
+def managed_pmht(scans: Scans | PooledScans, motion: KinematicModel, dt: float, q, model, R: torch.Tensor,
+                 settings: PMHTSettings, management: Management) -> TrackReport:
     """PMHT that starts, confirms and deletes its own tracks (:mod:`.management`), on per-pair
-    lists (each detection's illuminator known: the initiators need them).
+    lists (:class:`~pmsr_nn.simulation.detections.Scans`: each detection's illuminator known) or
+    on lists pooled per receiver (:class:`~pmsr_nn.simulation.detections.PooledScans`: a
+    single-frequency network, the illuminator unknown; PMHT-3D's E-step weighs every pair of the
+    receiver, and the :class:`~.fix_initiator.FixInitiator` fixes each unused detection under every
+    illuminator hypothesis, see its ``routes``).
 
     The tracks live in a :class:`~.management.TrackTable` whose Gaussians are the priors at the
     current window's first scan; EM runs on every slot (a free slot explains no detection). After
@@ -52,25 +56,29 @@ def managed_pmht(scans: Scans, motion: KinematicModel, dt: float, q, model, R: t
     (:class:`~.management.TrackReport`, ``(B, K, N, n)``), smoothed: not causal.
     """
     S = getattr(model, "n_pairs", 1)
-    lists = AssociationLists.per_pair(scans)
+    pooled = isinstance(scans, PooledScans)
+    lists = AssociationLists.pooled(scans) if pooled else AssociationLists.per_pair(scans)
     check_lists(lists, None, S, motion.dim_x)
-    management.check(model, "PMHT")
-    B, K = scans.shape[:2]
-    pr = problem(model, motion, dt, q, R, settings, scans.z.dtype, scans.z.device)
+    management.check(model, "PMHT", pooled=pooled)
+    routes = scans.routes if pooled else None
+    B, K = lists.z.shape[:2]
+    pr = problem(model, motion, dt, q, R, settings, lists.z.dtype, lists.z.device)
     starts = window_starts(K, settings)
     parts = [_managed_runs(pr, lists.take(slice(c0, min(B, c0 + settings.chunk_runs))), starts, management,
-                           list(motion.pos_idx)) for c0 in range(0, B, settings.chunk_runs)]
+                           list(motion.pos_idx), routes) for c0 in range(0, B, settings.chunk_runs)]
     N = max(p.x.shape[2] for p in parts)
     cat = lambda name, fill: torch.cat([_pad_slots(getattr(p, name), N, fill) for p in parts], 0)
     return TrackReport(cat("x", math.nan), cat("P", 0.0), cat("exists", False), cat("existence", 0.0)).trimmed()
 
 
 def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], mg: Management,
-                  pos: list[int]) -> TrackReport:
-    """:func:`managed_pmht` on one chunk of ``b`` runs. Each run's EM is re-run only when that run
-    started tracks, and stops on that run's own movement: a run's tracks do not depend on which
-    other runs share its chunk."""
-    b, K, S = lists.z.shape[:3]
+                  pos: list[int], routes: torch.Tensor | None) -> TrackReport:
+    """:func:`managed_pmht` on one chunk of ``b`` runs (``routes (L, S)``: the pooled lists'
+    pairs, None: per-pair lists). Each run's EM is re-run only when that run started tracks, and
+    stops on that run's own movement: a run's tracks do not depend on which other runs share its
+    chunk."""
+    b, K, L = lists.z.shape[:3]
+    S = pr.pairs
     s, model, n, dtype = pr.settings, pr.model, pr.F.shape[0], lists.z.dtype
     table = TrackTable.empty(b, n, parked_state(model, n, dtype))
     report = TrackReport.empty(b, K, n, dtype)
@@ -89,7 +97,7 @@ def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], m
             Pm = initial_covariances(pr, table.g, Pm, shift, W, b, C)
             fresh = _pad_slots(fresh, C, True, 1)
             Pm = _started_covariances(pr, Pm, fresh, torch.zeros_like(born), table.g.P)
-        fit = _WindowFit.empty(X, lists.z.shape[3], S)
+        fit = _WindowFit.empty(X, L, lists.z.shape[3], S)
         redo = torch.ones(b, dtype=torch.bool)  # runs whose EM must run (again) before scan k
         late = torch.zeros(b, C, dtype=torch.bool)  # tracks started at the last committed scan
         for k in range(h):
@@ -114,10 +122,12 @@ def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], m
             table.manage(mg.confirmer, mg.deleter, pos)
             shown = replace(table, g=Gaussian(X[:, k], fit.P[:, k]))  # the smoothed states at this scan
             report.write(a + k, shown, mg.report_existence)
-            unused = win.valid[:, k] & (fit.target_w[:, k] < 0.5)  # (b, S, M): per-pair lists
+            unused = win.valid[:, k] & (fit.target_w[:, k] < 0.5)  # (b, L, M)
             before = table.active
             if bool(unused.any()):
-                table.add(*mg.initiator.initiate(win.z[:, k], unused, model, n, mg.other_sd), mg.initial_existence)
+                where = {} if routes is None else {"routes": routes}
+                table.add(*mg.initiator.initiate(win.z[:, k], unused, model, n, mg.other_sd, **where),
+                          mg.initial_existence)
             C = table.g.x.shape[1]
             late = table.active & ~_pad_slots(before, C, False, 1)
             redo = late.any(-1)
@@ -152,11 +162,12 @@ class _WindowFit:
     target_w: torch.Tensor
 
     @classmethod
-    def empty(cls, X: torch.Tensor, M: int, S: int) -> "_WindowFit":
+    def empty(cls, X: torch.Tensor, L: int, M: int, S: int) -> "_WindowFit":
+        """Nothing fitted yet: ``L`` lists of ``M`` detections, ``S`` pairs."""
         b, W, C, n = X.shape
         z = X.new_zeros
         return cls(X, z(b, W, C, n, n), Gaussian(z(b, C, n), z(b, C, n, n)), z(b, W, C, S), z(b, W, C, S),
-                   z(b, W, S, M))
+                   z(b, W, L, M))
 
     def padded(self, C: int) -> "_WindowFit":
         """Slots up to ``C``; the new slots are free (no weight, no evidence)."""

@@ -1250,6 +1250,19 @@ case("evaluate/two-products-one-stream", "evaluate s.yaml --out out",
      setup=yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: (d.update(detections={"pd": 0.9}),
                                                           d["methods"].append({"name": "J", "kind": "s_msjpda"}))),
      message="random_streams", klass="refusal")
+# a single-frequency network (two transmitters, one frequency): a receiver's detections pooled
+SFN_RECIPE_YAML = RECIPE_YAML + """\
+geometry:
+  transmitters: [{position_m: [0.0, 0.0], carrier_hz: 98.0e+6}, {position_m: [0.0, 12000.0], carrier_hz: 98.0e+6}]
+  receivers: [{baseline_m: 7560.0, bearing_deg: 240.0}, {baseline_m: 8120.0, bearing_deg: 270.0}]
+"""
+case("evaluate/pooled-clutter-odd-count", "evaluate s.yaml --out out",
+     setup=steps(write("sfn.yaml", SFN_RECIPE_YAML), yaml_edit(SCENARIO_YAML, "s.yaml", lambda d: (
+         d.update(recipe="sfn.yaml", random_streams="per_product",
+                  detections={"pd": 0.9, "illuminator_known": False, "clutter": {"per_scan": 3, "model": "fixed"}}),
+         d["methods"].append({"name": "P3", "kind": "pmht_3d", "options": {"initiation": "detections"}})))),
+     message="3 fixed clutter points per receiver list do not split evenly over its 2 pairs", klass="refusal",
+     note="a fixed count per receiver list must split over the receiver's pairs (illuminator_known: false)")
 PMHT_YAML = """\
 kind: multitarget
 name: pmht_tiny
