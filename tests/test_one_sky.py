@@ -31,8 +31,12 @@ def test_sensors_detections_and_lives(setup):
     geometry = setup.geometry
     assert len(geometry.transmitters) == 2 and len(geometry.receivers) == 3 and len(geometry.pairs) == 6
     sc = setup.scenario
-    # as the file states them (Pd inside the 0.8-0.9; clutter in every pair's list)
-    assert sc.detections.pd == 0.85 and sc.detections.clutter.per_scan == 10 and sc.detections.clutter.model == "fixed"
+    # as the file states them (Pd inside the 0.8-0.9; a single-frequency network: 20 clutter
+    # points in each receiver's pooled list, 10 per pair in the per-pair lists the other trackers read)
+    d = sc.detections
+    assert d.pd == 0.85 and d.clutter.per_scan == 20 and d.clutter.model == "fixed" and d.illuminator_known is False
+    sensing = setup.cases[0].sensing
+    assert not sensing.illuminator_known and sensing.pair_clutter().per_scan == 10
     case = setup.cases[0]
     assert len(case.targets) == 8
     births = case.alive.to(int).argmax(0)

@@ -107,9 +107,10 @@ def score(setup: Setup, case: Case, est, truth: Truth, space=None) -> dict[str, 
         out = scoring.point_sums(view, truth, case.scored, pos, vel)
         if est.paired:
             out.update(scoring.swaps(est, truth, pos))
-        out.update(scoring.set_sums(est, truth, pos, *setup.set_metric, sc=sets))
+        mapping = scoring.track_mapping(est, truth, pos, *setup.set_metric)
+        out.update(scoring.set_sums(est, truth, pos, *setup.set_metric, sc=sets, mapping=mapping))
         out.update(scoring.gospa_per_run(sets, case.set_scan_mask))
-        out.update(scoring.track_sums(sets.assignment, est.exists, truth))
+        out.update(scoring.track_sums(mapping, est.exists, truth))
     if setup.loss is not None:
         out.update(scoring.loss_counts(est, setup.loss.successive_scans, setup.loss.gate_range_sd_m))
     if "max_duality_gap" in est.extras:

@@ -52,8 +52,8 @@ DEFINITIONS = {
                "mean into its parts (sum of d^p over assigned pairs, c^p/2 per missed target, c^p/2 per false track), "
                "which add up to 1; gospa_se_m its Monte Carlo standard error (the spread of the runs' mean GOSPA^p, "
                "through the p-th root by the delta method)",
-    "confirmed_tracks_per_target": "reported tracks matched to a target (per-scan OSPA assignment) at some scan of "
-                                   "its life, per target and run",
+    "confirmed_tracks_per_target": "reported tracks mapped to a target (the persistent mapping of "
+                                   "label_switches_per_run) at some scan of its life, per target and run",
     "false_tracks_per_run": "reported tracks never matched to any target",
     "missed_target_fraction": "fraction of (run, target, scan) where the target lives and no track is matched to it",
     "scans_to_first_track": "scans from a target's birth to its first matched track, over the runs that had one",
@@ -65,8 +65,12 @@ DEFINITIONS = {
     "rmse_pos_assigned_per_target_m": "per target: each run's track labels are assigned to targets once (the assignment "
                                       "minimising the summed capped squared distances over the run), then the RMSE of "
                                       "the assigned track, averaged over the target's scans after the warm-up",
-    "label_switches_per_run": "changes, between consecutive scans, of the track assigned to a target by the per-scan "
-                              "OSPA assignment, summed over targets, per run",
+    "label_switches_per_run": "changes, between consecutive scans, of the track mapped to a target, summed over targets, "
+                              "per run; the mapping is CLEAR MOT's (Bernardin & Stiefelhagen 2008): a track stays on "
+                              "the target it was mapped to at the previous scan while both exist within the cut-off c, "
+                              "the others are matched by the per-scan OSPA assignment (track-level figures: confirmed "
+                              "tracks per target, fragmentations, first track and track loss are counted on the same "
+                              "mapping)",
     "swap_probability": "fraction of (run, target) tracks nearer another target's truth than their own at the last scan",
     "loss_probability": "fraction of (run, target) tracks declared lost by the S-MSJPDA paper's rule (dummy most "
                         "probable at every sensor for successive_scans scans in a row, or predicted bistatic-range "

@@ -18,7 +18,10 @@ false parts) per scan, the cardinality error, per-target squared error after the
 assignment of track labels to targets over the run (``assigned_pos``, ``assigned_count``), label
 switches per target, the swaps of the S-MSJPDA study (at the last scan, a track nearer another
 target than its own; paired slots only) and, for trackers that report the flags, the paper's
-track-loss rule. Track-level sums (:func:`track_sums`) come from the same per-scan assignment.
+track-loss rule. Label switches and the track-level sums (:func:`track_sums`) come from the
+persistent (CLEAR MOT) mapping of :func:`track_mapping`: a track stays on its target while it is
+within the cut-off, so two tracks that each follow their own target through a crossing are not
+counted as switching there (the per-scan assignment swaps them wherever that costs a little less).
 
 Estimates whose slots are tracks the tracker started (``paired=False``) enter the point metrics
 through their *matched view* (:func:`matched_view`): at each scan each target's track is the one
@@ -31,8 +34,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..metrics import (SetScores, label_switches, labelled_assignment, matched_tracks, normalised_nees, set_scores,
-                       squared_error, track_loss, track_scores)
+from ..metrics import (SetScores, label_switches, labelled_assignment, matched_tracks, normalised_nees,
+                       persistent_assignment, set_scores, squared_error, track_loss, track_scores)
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
@@ -97,6 +100,16 @@ def per_scan_sets(est: Estimates, truth: Truth, pos: list[int], c: float, p: flo
     return set_scores(est.x[..., pos], est.exists, truth.x[..., pos], truth.alive.expand(B, K, N), c, p)
 
 
+def track_mapping(est: Estimates, truth: Truth, pos: list[int], c: float, p: float) -> torch.Tensor:
+    """``(B, K, M)``: the persistent (CLEAR MOT) mapping of tracks to targets
+    (:func:`~pmsr_nn.metrics.persistent_assignment`) that the track-level figures (tracks per
+    target, label switches, fragmentations, first track, loss) are counted on; the set figures
+    and the matched tracks' errors use each scan's optimal assignment."""
+    B, K, _ = est.exists.shape
+    N = truth.x.shape[2]
+    return persistent_assignment(est.x[..., pos], est.exists, truth.x[..., pos], truth.alive.expand(B, K, N), c, p)
+
+
 def matched_view(est: Estimates, assignment: torch.Tensor, N: int) -> Estimates:
     """Paired estimates ``(B, K, N)`` of unpaired tracks: each target's matched track per scan."""
     x, P, matched = matched_tracks(assignment, est.x, est.P, N)
@@ -130,11 +143,12 @@ def gospa_per_run(sc: SetScores, scored_scans: torch.Tensor) -> dict[str, np.nda
 
 
 def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
-             sc: SetScores | None = None) -> dict[str, np.ndarray]:
+             sc: SetScores | None = None, mapping: torch.Tensor | None = None) -> dict[str, np.ndarray]:
     """Multi-target sums over the runs (module docstring): per scan ``(K,)`` ``ospa``,
     ``gospa_loc``, ``gospa_missed``, ``gospa_false`` (p-th powers, m^p), ``n_est``, ``abs_card``;
-    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)``. ``pos``: position columns;
-    ``sc``: :func:`per_scan_sets` when already computed."""
+    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)`` (on :func:`track_mapping`).
+    ``pos``: position columns; ``sc``: :func:`per_scan_sets` and ``mapping``: :func:`track_mapping`
+    when already computed."""
     n = est.x.shape[-1]
     B, K, M = est.exists.shape
     N = truth.x.shape[2]
@@ -157,7 +171,8 @@ def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
     se = squared_error(x_lab, truth.x, pos)
     out["assigned_pos"] = _masked_sum(se, both)
     out["assigned_count"] = both.sum(0).to(torch.float64).numpy()
-    out["switches"] = label_switches(sc.assignment, t_mask).sum(0).to(torch.float64).numpy()
+    mapping = track_mapping(est, truth, pos, c, p) if mapping is None else mapping
+    out["switches"] = label_switches(mapping, t_mask).sum(0).to(torch.float64).numpy()
     return out
 
 

@@ -15,7 +15,7 @@ from .pointwise import (
     track_loss,
     velocity_columns,
 )
-from .sets import GOSPA, SetScores, cardinality_error, fragmentations, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, set_scores
+from .sets import GOSPA, SetScores, cardinality_error, fragmentations, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, persistent_assignment, set_scores
 from .tracks import TrackScores, matched_errors, matched_tracks, track_scores
 
 __all__ = [
@@ -27,6 +27,7 @@ __all__ = [
     "normalised_nees",
     "track_loss",
     "optimal_assignment",
+    "persistent_assignment",
     "ospa",
     "set_scores",
     "SetScores",

@@ -229,6 +229,41 @@ def labelled_assignment(
     return _solve(reduced, est_mask.any(-2), truth_mask.any(-2), both.any(-3))
 
 
+def persistent_assignment(
+    est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor, c: float, p: float
+) -> torch.Tensor:
+    """``(..., K, M)`` int64: the CLEAR MOT mapping of track slots to targets (Bernardin &
+    Stiefelhagen 2008), scan by scan: a track kept on the target it was matched to at the previous
+    scan while both exist and are nearer than ``c``; the other tracks and targets matched as
+    :func:`optimal_assignment` matches them (the least sum of ``min(d, c)**p``; pairs at
+    ``d >= c`` unassigned).
+
+    ``est (..., K, M, d)``, ``truth (..., K, N, d)`` with their masks (scans on dim -3). Unlike the
+    per-scan optimal assignment, where two targets meet (a crossing, a formation) it does not
+    swap two tracks that each still follow their own target because the swap costs a little
+    less at one scan: what a label switch should count.
+    """
+    _check_cp(c, p)
+    _check_sets(est, est_mask, truth, truth_mask)
+    if est.dim() < 3:
+        raise ValueError(f"est must be (..., K, M, d), got {tuple(est.shape)}")
+    D = _sq_distances(est, est_mask, truth, truth_mask).sqrt()  # (..., K, M, N)
+    lead, K, M, N = D.shape[:-3], D.shape[-3], D.shape[-2], D.shape[-1]
+    out = torch.full((*lead, K, M), -1, dtype=torch.int64, device=D.device)
+    prev = torch.full((*lead, M), -1, dtype=torch.int64, device=D.device)
+    for k in range(K):  # in scan order: each scan's mapping starts from the last one
+        Dk, em, tm = D[..., k, :, :], est_mask[..., k, :], truth_mask[..., k, :]
+        near = em.unsqueeze(-1) & tm.unsqueeze(-2) & (Dk < c)  # (..., M, N)
+        if M == 0 or N == 0:
+            continue  # nothing to match at any scan
+        held = (prev >= 0) & near.gather(-1, prev.clamp(min=0).unsqueeze(-1)).squeeze(-1)
+        taken = ((prev.unsqueeze(-1) == torch.arange(N, device=D.device)) & held.unsqueeze(-1)).any(-2)  # (..., N)
+        rest = _solve(Dk.clamp(max=c) ** p, em & ~held, tm & ~taken, Dk < c)
+        prev = torch.where(held, prev, rest)
+        out[..., k, :] = prev
+    return out
+
+
 def _target_tracks(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
     """``(..., K, N)`` int64: the track slot assigned to each living target at each scan (-1: none)."""
     N = truth_mask.shape[-1]
