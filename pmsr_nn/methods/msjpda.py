@@ -65,18 +65,21 @@ def _estimates(res, alive: torch.Tensor, gap: float | None) -> Estimates:
     return Estimates(res.x, live, res.P, extras)
 
 
-def management(spec, sensing) -> Management:
+def management(spec, sensing, pooled: bool = False) -> Management:
     """The track-management components a method's options describe (``initiation: detections``).
 
     The initiator follows the detection model: azimuth among its components, the
-    :class:`FixInitiator` (``init_pairs`` null: 2 pairs); otherwise the
-    :class:`SphericalInitiator` (range and range-rate or Doppler; ``init_pairs`` null: every
-    pair), whose :meth:`~SphericalInitiator.check` refuses what neither can start tracks from."""
+    :class:`FixInitiator` (``init_pairs`` null: 2 pairs, 3 for a method that reads lists pooled
+    per receiver, ``pooled``: every detection there is fixed under each transmitter, so two
+    pairs agree by chance far more often, and a track started between two drones in formation
+    lives on beside theirs); otherwise the :class:`SphericalInitiator` (range and range-rate or
+    Doppler; ``init_pairs`` null: every pair), whose :meth:`~SphericalInitiator.check` refuses
+    what neither can start tracks from."""
     o = spec.option
     pairs = o("init_pairs")
     velocity_sd, gate = float(o("birth_velocity_sd_mps")), float(o("init_gate_probability"))
     if "azimuth" in sensing.detection_model.components:
-        initiator = FixInitiator(velocity_sd, 2 if pairs is None else int(pairs), gate)
+        initiator = FixInitiator(velocity_sd, (3 if pooled else 2) if pairs is None else int(pairs), gate)
     else:
         initiator = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
     return Management(initiator, Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
@@ -116,7 +119,7 @@ def check_initiation(spec, sensing, pooled: bool = False) -> None:
     if spec.option("initiation") != "detections":
         return
     try:
-        management(spec, sensing).check(sensing.detection_model, "initiation from detections", pooled=pooled)
+        management(spec, sensing, pooled).check(sensing.detection_model, "initiation from detections", pooled=pooled)
     except ConfigError as exc:
         raise ConfigError(f"method {spec.name!r}: {exc}") from None
 
@@ -126,7 +129,8 @@ INITIATIONS = ("oracle", "detections")
 # shared by every kind that offers initiation from detections (with :func:`management` and :func:`check_initiation`)
 MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS),
                       "init_pairs": Option(None, int, 1, 64, nullable=True,
-                                           null="2 with azimuth (fix initiator), else every pair (spherical initiator)"),
+                                           null="2 with azimuth (fix initiator; 3 from lists pooled per receiver), else every pair "
+                                                "(spherical initiator)"),
                       "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
                       "birth_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
                       "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),

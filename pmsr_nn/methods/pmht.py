@@ -65,8 +65,8 @@ def run_pmht(call: MethodCall) -> Estimates:
     m, s = call.models, call.sensing
     if call.spec.option("initiation") == "detections":
         pooled = call.spec.kind == "pmht_3d" and call.product.pooled is not None
-        rep = managed_pmht(call.product.pooled if pooled else call.product.scans, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
-                           settings(call), management(call.spec, s))
+        rep = managed_pmht(call.product.pooled if pooled else call.product.scans, m.motion, m.dt, m.q, s.detection_model,
+                           s.detection_model.R(), settings(call), management(call.spec, s, pooled))
         return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
     res = pmht(lists_of(call), call.product.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
                settings(call))

@@ -15,7 +15,7 @@ import torch
 from ..config import require
 from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
-from ..measurements import MeasurementModel
+from ..measurements import MeasurementModel, wrap_angle
 from .gating import gate_threshold
 from .initiators import velocity_fit
 
@@ -225,7 +225,76 @@ class FixInitiator:
         zp = z if src is None else z[:, src]
         pos, cov, ok = self.fixes(zp, model, n)
         groups = self.groups(pos, cov, ok & (unused if src is None else unused[:, src]), src)
+        if src is not None:
+            groups = self.consistent(groups, zp, pos, cov, model, n)
         return self.states(zp, groups, pos, cov, model, n, other_sd)
+
+    def consistent(self, groups: torch.Tensor, z: torch.Tensor, pos: torch.Tensor, cov: torch.Tensor,
+                   model: MeasurementModel, n: int, iterations: int = 3) -> torch.Tensor:
+        """``groups (B, G, S)`` without the members whose (bistatic range, azimuth) the group's
+        position does not explain: the position that best explains every member (``iterations``
+        Gauss-Newton steps from the fixes' information-weighted mean, weighted by ``R``) must
+        leave a sum of squared normalised residuals within the chi-square gate
+        ``gate_probability`` (``2 k - 2`` degrees of freedom for ``k`` members); otherwise the
+        member with the largest residual leaves and the rest is fitted again. A group left with
+        fewer than ``min_pairs`` members starts nothing.
+
+        Pooled lists need it: two drones 300 m apart in formation give fixes long enough across
+        the ray to agree (:meth:`groups`), and a group of one drone's detections at five pairs and
+        the other's at the sixth is 300 m wrong in one range, ten deviations. ``z (B, S, M, d)``,
+        ``pos``, ``cov``: as :meth:`fixes` gives them."""
+        B, G, S = groups.shape
+        if G == 0:
+            return groups
+        comps = model.components
+        rows = [comps.index("range"), comps.index("azimuth")]
+        sd = torch.tensor([model.noise_std[i] for i in rows], dtype=z.dtype)
+        has = groups >= 0
+        idx = groups.clamp(min=0)
+        take = lambda t: t.gather(2, idx.transpose(1, 2)[(...,) + (None,) * (t.dim() - 3)].expand(
+            B, S, G, *t.shape[3:])).transpose(1, 2)  # (B, S, M, ...) -> (B, G, S, ...)
+        zm, pm, Pm = take(z)[..., rows], take(pos), take(cov)
+        gates = torch.tensor([math.inf] + [gate_threshold(self.gate_probability, 2 * k - 2) for k in range(2, S + 1)],
+                             dtype=z.dtype)  # by member count; one member: nothing to test
+        pi = list(model.pos_idx)
+        pairs = [model.for_pairs([s]) for s in range(S)]
+        eye = torch.eye(2, dtype=z.dtype)
+        for _ in range(S):  # at most one member leaves per round
+            info = torch.where(has[..., None, None], torch.linalg.inv(torch.where(has[..., None, None], Pm, eye)), 0.0)
+            p = torch.linalg.solve(info.sum(2) + eye * 1e-12, (info @ pm.unsqueeze(-1)).sum(2)).squeeze(-1)  # (B, G, 2)
+            for _ in range(iterations):
+                x = z.new_zeros(B, G, n)
+                x[..., pi] = p
+                r, J = _residuals(pairs, x, zm, sd, rows, pi)  # (B, G, S, 2), (B, G, S, 2, 2)
+                w = has[..., None, None].to(z.dtype)
+                A = (w * J.transpose(-1, -2) @ J).sum(2) + eye * 1e-12
+                p = p + torch.linalg.solve(A, (w * J.transpose(-1, -2) @ r.unsqueeze(-1)).sum(2)).squeeze(-1)
+            x = z.new_zeros(B, G, n)
+            x[..., pi] = p
+            e = (_residuals(pairs, x, zm, sd, rows, pi)[0] ** 2).sum(-1)  # (B, G, S)
+            count = has.sum(-1)
+            bad = (torch.where(has, e, 0.0).sum(-1) > gates[(count - 1).clamp(min=0)]) & (count > 1)
+            if not bool(bad.any()):
+                break
+            worst = torch.where(has, e, -math.inf).argmax(-1, keepdim=True)  # (B, G, 1)
+            has = has & ~(bad[..., None] & (torch.arange(S) == worst))
+        has = has & (has.sum(-1, keepdim=True) >= self.min_pairs)
+        return torch.where(has, groups, torch.full_like(groups, -1))
+
+
+def _residuals(pairs: list[MeasurementModel], x: torch.Tensor, z: torch.Tensor, sd: torch.Tensor, rows: list[int],
+               pi: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Normalised residuals ``(B, G, S, 2)`` of (range, azimuth) ``z (B, G, S, 2)`` at states
+    ``x (B, G, n)`` under each pair's model (``pairs[s]``; deviations ``sd (2,)``) and their
+    Jacobians by position ``(B, G, S, 2, 2)``; azimuth residuals wrapped to (-pi, pi]."""
+    r, J = [], []
+    for s, m in enumerate(pairs):
+        h = m.h(x)[..., rows]
+        d = z[..., s, :] - h
+        d = torch.stack([d[..., 0], wrap_angle(d[..., 1])], -1)
+        r.append(d / sd)
+        J.append(m.jacobian(x)[..., rows, :][..., pi] / sd[:, None])
+    return torch.stack(r, 2), torch.stack(J, 2)
 
 
 def list_of_pairs(routes: torch.Tensor) -> torch.Tensor:
