@@ -23,7 +23,8 @@ def test_every_kind_is_listed_with_its_product_description_and_options(capsys):
     assert sorted(blocks) == sorted(kinds)
     for name, k in kinds.items():
         lines = blocks[name].splitlines()
-        assert k.reads in PRODUCTS and lines[0] == f"{name}  (reads {k.reads}: {PRODUCTS[k.reads]})"
+        pooled = "; the lists pooled per receiver where the illuminator is unknown" if k.pooled_lists else ""
+        assert k.reads in PRODUCTS and lines[0] == f"{name}  (reads {k.reads}: {PRODUCTS[k.reads]}{pooled})"
         assert k.description and lines[1].strip() == k.description
         shown = [ln.strip() for ln in lines[2:] if not ln.strip().startswith("needs:")]
         assert shown == [describe_option(n, o) for n, o in k.options.items()]
