@@ -19,7 +19,8 @@ Option ``initiation`` of ``pmht`` and ``pmht_3d`` says how tracks start (as for 
   (:func:`~pmsr_nn.trackers.pmht_managed.managed_pmht`) and returns unpaired tracks, scored as tracks.
   ``pmht_3d`` does so on the lists a single-frequency-network receiver has (pooled, the
   illuminator unknown): each unused detection is fixed under every illuminator hypothesis
-  (:class:`~pmsr_nn.trackers.fix_initiator.FixInitiator`), so the pairs must measure azimuth.
+  (:class:`~pmsr_nn.trackers.fix_initiator.FixInitiator`, 3 pairs by default there), so the
+  pairs must measure azimuth.
 
 The association priors are fixed from the case's Pd and clutter.
 """
