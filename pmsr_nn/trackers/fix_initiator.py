@@ -257,7 +257,6 @@ class FixInitiator:
         gates = torch.tensor([math.inf] + [gate_threshold(self.gate_probability, 2 * k - 2) for k in range(2, S + 1)],
                              dtype=z.dtype)  # by member count; one member: nothing to test
         pi = list(model.pos_idx)
-        pairs = [model.for_pairs([s]) for s in range(S)]
         eye = torch.eye(2, dtype=z.dtype)
         for _ in range(S):  # at most one member leaves per round
             info = torch.where(has[..., None, None], torch.linalg.inv(torch.where(has[..., None, None], Pm, eye)), 0.0)
@@ -265,13 +264,13 @@ class FixInitiator:
             for _ in range(iterations):
                 x = z.new_zeros(B, G, n)
                 x[..., pi] = p
-                r, J = _residuals(pairs, x, zm, sd, rows, pi)  # (B, G, S, 2), (B, G, S, 2, 2)
+                r, J = _residuals(model, x, zm, sd, rows, pi)  # (B, G, S, 2), (B, G, S, 2, 2)
                 w = has[..., None, None].to(z.dtype)
                 A = (w * J.transpose(-1, -2) @ J).sum(2) + eye * 1e-12
                 p = p + torch.linalg.solve(A, (w * J.transpose(-1, -2) @ r.unsqueeze(-1)).sum(2)).squeeze(-1)
             x = z.new_zeros(B, G, n)
             x[..., pi] = p
-            e = (_residuals(pairs, x, zm, sd, rows, pi)[0] ** 2).sum(-1)  # (B, G, S)
+            e = (_residuals(model, x, zm, sd, rows, pi)[0] ** 2).sum(-1)  # (B, G, S)
             count = has.sum(-1)
             bad = (torch.where(has, e, 0.0).sum(-1) > gates[(count - 1).clamp(min=0)]) & (count > 1)
             if not bool(bad.any()):
@@ -282,19 +281,17 @@ class FixInitiator:
         return torch.where(has, groups, torch.full_like(groups, -1))
 
 
-def _residuals(pairs: list[MeasurementModel], x: torch.Tensor, z: torch.Tensor, sd: torch.Tensor, rows: list[int],
+def _residuals(model: MeasurementModel, x: torch.Tensor, z: torch.Tensor, sd: torch.Tensor, rows: list[int],
                pi: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
     """Normalised residuals ``(B, G, S, 2)`` of (range, azimuth) ``z (B, G, S, 2)`` at states
-    ``x (B, G, n)`` under each pair's model (``pairs[s]``; deviations ``sd (2,)``) and their
+    ``x (B, G, n)`` under every pair of ``model`` (pair layout; deviations ``sd (2,)``) and their
     Jacobians by position ``(B, G, S, 2, 2)``; azimuth residuals wrapped to (-pi, pi]."""
-    r, J = [], []
-    for s, m in enumerate(pairs):
-        h = m.h(x)[..., rows]
-        d = z[..., s, :] - h
-        d = torch.stack([d[..., 0], wrap_angle(d[..., 1])], -1)
-        r.append(d / sd)
-        J.append(m.jacobian(x)[..., rows, :][..., pi] / sd[:, None])
-    return torch.stack(r, 2), torch.stack(J, 2)
+    S = model.n_pairs
+    h = model.h(x).unflatten(-1, (S, -1))[..., rows]  # (B, G, S, 2)
+    J = model.jacobian(x).unflatten(-2, (S, -1))[..., rows, :][..., pi]  # (B, G, S, 2, 2)
+    d = z - h
+    d = torch.stack([d[..., 0], wrap_angle(d[..., 1])], -1)
+    return d / sd, J / sd[:, None]
 
 
 def list_of_pairs(routes: torch.Tensor) -> torch.Tensor:
