@@ -154,6 +154,11 @@ RULES = [
          lambda a: _set(_set(a, "--mc-runs", "20"), "--methods", "EKF"), slow=True),
     Rule(r"pmsr evaluate evaluate/(" + "|".join(STUDIES) + r")\.yaml( --mc-runs \d+)? --out runs/\w+", _mc1, slow=True),
     Rule(r"pmsr merge runs/s1 runs/s2 --out runs/eval", setup=SHARDS, slow=True),
+    # a bank (tests/test_block_bank.py checks it in-process): the EKF row on two blocks of 10 runs
+    Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/bank --per-block",
+         lambda a: _set(_set(a, "--mc-runs", "20"), "--methods", "EKF"), slow=True),
+    Rule(r"pmsr merge runs/bank --out runs/eval_banked", slow=True, setup=[tiny_blocks_scenario, [
+        "evaluate", "tiny/drones.yaml", "--out", "runs/bank", "--mc-runs", "2", "--per-block", "--quiet"]]),
     Rule(r"pmsr merge s1 s2 --out s1", refused=True, slow=True,
          setup=[a if callable(a) else [*a[:3], a[3].replace("runs/", ""), *a[4:]] for a in SHARDS]),
     Rule(r"pmsr track --checkpoint runs/smoke/tracker\.pt --input z\.csv --out z\.csv", refused=True,

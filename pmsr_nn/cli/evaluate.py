@@ -28,6 +28,10 @@ def add_evaluate(sub) -> None:
     ev.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
                     help="use this checkpoint for learned method NAME (repeatable)")
     ev.add_argument("--shard", default="1/1", metavar="I/N", help="run the I-th of N slices of the runs (default 1/1: all)")
+    ev.add_argument("--per-block", action="store_true",
+                    help="write each block of runs as soon as it is done, as its own shard folder OUT/block-NNNN; "
+                    "blocks already in OUT are skipped, so the same command continues an interrupted recording; "
+                    "combine with 'pmsr merge OUT'")
     ev.add_argument("--device", default="cpu", help="torch device for the learned trackers (default cpu)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
@@ -44,7 +48,7 @@ def add_merge(sub) -> None:
     mg = sub.add_parser("merge", help="combine the shards of a scenario run",
                         description="Combine the output folders of 'pmsr evaluate --shard I/N' runs (all N of them) "
                         "into the results, report and figures of the whole run.")
-    mg.add_argument("shards", type=Path, nargs="+", help="shard output folders")
+    mg.add_argument("shards", type=Path, nargs="+", help="shard output folders, or block banks of --per-block")
     mg.add_argument("--out", type=Path, required=True, help="output folder")
     mg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     mg.set_defaults(run=cmd_merge)
@@ -132,6 +136,9 @@ def cmd_evaluate(args) -> int:
     if args.executor:
         from ..harness.dispatch import dispatch
 
+        if args.per_block:
+            raise ConfigError("--per-block banks the blocks of one process; the jobs of --executor write whole shards: "
+                              "give one or the other")
         if shard != (1, 1):
             raise ConfigError("--executor runs every shard itself: give --shards N, not --shard I/N")
         if args.methods is not None:
@@ -146,6 +153,9 @@ def cmd_evaluate(args) -> int:
             print(f"\nreport    {args.out / 'report.md'}  ({time.perf_counter() - t0:.1f} s, {args.shards} "
                   f"{args.executor} jobs)")
         return 0
+    if args.per_block and args.overwrite:
+        raise ConfigError("--per-block continues the bank at --out and never replaces it: drop --overwrite (or give a "
+                          "new --out)")
     scenario, checkpoints, runs = args.scenario, checkpoint_overrides(args.checkpoint), args.mc_runs
     if args.methods is not None:
         from ..harness.evaluate import RESULT_COMMANDS, load_any
@@ -155,6 +165,14 @@ def cmd_evaluate(args) -> int:
         check_folder_target(args.out, overwrite=args.overwrite, inputs=[args.scenario], allow=RESULT_COMMANDS)
         sc = load_any(args.scenario, runs, checkpoints)
         scenario, checkpoints, runs = keep_methods(sc, method_names(args.methods, [m.name for m in sc.methods])), None, None
+    if args.per_block:
+        from ..harness.block_bank import evaluate_per_block
+        from ..harness.evaluate import _inputs, load_any
+
+        sc = load_any(scenario, runs, checkpoints)
+        evaluate_per_block(sc, args.out, shard=shard, inputs=_inputs(args.scenario, sc), device=args.device,
+                           progress=not args.quiet)
+        return 0
     res = evaluate(scenario, args.out, mc_runs=runs, checkpoints=checkpoints, shard=shard, device=args.device,
                    progress=not args.quiet, overwrite=args.overwrite)
     if args.quiet:

@@ -2,19 +2,25 @@
 
 Takes what :func:`~.blocks.run_blocks` adds per case, method and block (the sums of
 :mod:`.scoring`, seconds, run 0's estimates); gives them stacked over the blocks, written to and
-read from a shard's ``blocks.npz`` arrays, and shards' sums concatenated in block order (what
+read from a shard's ``blocks.npz`` arrays (:func:`write_shard` writes a shard folder), and shards' sums concatenated in block order (what
 :func:`~.finalise.finalise` reduces). A shard ``I/N`` runs a contiguous slice of the blocks
 (:func:`shard_blocks`).
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from ..environment import environment
 from ..errors import ConfigError
 from . import scoring
+
+SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
+"""``shard.json``'s format: what ``pmsr evaluate --shard`` (and each block of ``--per-block``) writes."""
 
 FRONT_END = "@front_end"
 """Key of a signal chain's sums and examples in :class:`BlockSums` (beside the methods')."""
@@ -114,3 +120,14 @@ class BlockSums:
             for c, per in p.example.items():
                 out.example.setdefault(c, {}).update(per)
         return out
+
+
+def write_shard(folder: Path, bs: BlockSums, shard: tuple[int, int], blocks: list[int], sc,
+                device: str) -> dict:
+    """A shard's ``shard.json`` and ``blocks.npz`` into ``folder`` (an existing, empty folder) for
+    the blocks ``blocks`` of scenario ``sc``; returns shard.json's content."""
+    meta = {"format": SHARD_FORMAT, "shard": list(shard), "blocks": blocks, "scenario": sc.to_dict(),
+            "base_dir": sc.base_dir, "environment": environment(device)}
+    np.savez_compressed(folder / "blocks.npz", **bs.to_arrays())
+    (folder / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
+    return meta

@@ -24,14 +24,14 @@ from ..outputs import atomic_folder, check_folder_target
 from .multitarget import MultiTargetScenario, is_multitarget, multitarget_from_dict
 from .references import reference_table
 from .report import write_report
-from .block_sums import BlockSums, shard_blocks
+from .block_bank import bank_blocks, is_bank
+from .block_sums import SHARD_FORMAT, BlockSums, shard_blocks, write_shard
 from .blocks import run_blocks
 from .finalise import finalise, result_kind
 from .prepared import Setup
 from .runner import prepare
 from .scenario import Scenario, scenario_from_dict
 
-SHARD_FORMAT = "pmsr_nn.evaluation_shard/1"
 
 
 RESULT_COMMANDS = ("evaluate", "merge")
@@ -106,20 +106,24 @@ def _references(sc: AnyScenario) -> tuple[dict | None, dict | None, dict]:
     return table, timing, info
 
 
-def build_results(setup: Setup, bs: BlockSums, device: str) -> dict:
+def build_results(setup: Setup, bs: BlockSums, device: str, shard_commits: list[str] | None = None) -> dict:
     """``results.json``'s content: the scenario, its result kind (:func:`~.finalise.result_kind`),
-    settings, definitions, the paper's reference and every case's figures."""
+    settings, definitions, the paper's reference and every case's figures; ``shard_commits``: the
+    commits the merged shards were run at."""
     sc = setup.scenario
     _, _, ref_info = _references(sc)
+    env = environment(device)
+    if shard_commits is not None:
+        env["shard_commits"] = shard_commits
     return {"scenario": sc.name, "kind": result_kind(setup), "seed": sc.seed, "mc_runs": sc.mc_runs,
-            "environment": environment(device),
+            "environment": env,
             "description": sc.description, "settings": setup.settings, "definitions": setup.definitions,
             "reference": ref_info, "cases": finalise(setup, bs)}
 
 
-def write_outputs(setup: Setup, bs: BlockSums, out: Path, device: str) -> dict:
+def write_outputs(setup: Setup, bs: BlockSums, out: Path, device: str, shard_commits: list[str] | None = None) -> dict:
     """``results.json``, ``report.md`` and figures into ``out`` (an existing, empty folder)."""
-    res = build_results(setup, bs, device)
+    res = build_results(setup, bs, device, shard_commits)
     ref, timing, info = _references(setup.scenario)
     (out / "results.json").write_text(json.dumps(res, indent=1, allow_nan=True) + "\n")
     write_report(res, out, bs.example, setup.geometry, ref, timing, info.get("label", "paper"))
@@ -141,17 +145,17 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
         bs = run_blocks(setup, blocks, progress=progress)
         if shard == (1, 1):
             return write_outputs(setup, bs, tmp, device)
-        meta = {"format": SHARD_FORMAT, "shard": list(shard), "blocks": list(blocks), "scenario": sc.to_dict(),
-                "base_dir": sc.base_dir, "environment": environment(device)}
-        np.savez_compressed(tmp / "blocks.npz", **bs.to_arrays())
-        (tmp / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
-        return meta
+        return write_shard(tmp, bs, shard, list(blocks), sc, device)
 
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:
-    """Combine shard folders of one scenario into the full results in ``out``."""
+    """Combine shard folders of one scenario into the full results in ``out``; a block bank
+    (``evaluate --per-block``) stands for the block folders it holds."""
     shards = [Path(d) for d in shards]
     check_folder_target(out, overwrite=overwrite, inputs=shards, allow=RESULT_COMMANDS)
+    shards = [part for d in shards for part in (bank_blocks(d) if is_bank(d) else [d])]
+    if not shards:
+        raise ConfigError("the block bank(s) given hold no block yet; run 'pmsr evaluate --per-block' first")
     seen: dict[str, Path] = {}
     for d in shards:
         real = str(d.resolve())
@@ -184,9 +188,23 @@ def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool
     merged = BlockSums.concatenate(parts)
     sc = scenario_from_data(first["scenario"], first["base_dir"])
     if merged.blocks != list(range(sc.n_blocks)):
-        raise ConfigError(f"the shards cover blocks {merged.blocks}; the scenario has blocks 0..{sc.n_blocks - 1}, "
-                          "each needed exactly once")
+        missing = sorted(set(range(sc.n_blocks)) - set(merged.blocks))
+        twice = sorted({b for b in merged.blocks if merged.blocks.count(b) > 1})
+        raise ConfigError(f"the shards lack blocks {_ranges(missing) or 'none'} and repeat {_ranges(twice) or 'none'}; "
+                          f"the scenario has blocks 0..{sc.n_blocks - 1}, each needed exactly once")
     setup = prepare(sc, device)
     with atomic_dir(out, overwrite, command="merge", inputs=shards) as tmp:
-        res = write_outputs(setup, merged, tmp, device)
+        res = write_outputs(setup, merged, tmp, device,
+                            shard_commits=sorted({str(m.get("environment", {}).get("commit")) for m in metas}))
     return res
+
+
+def _ranges(blocks: list[int]) -> str:
+    """``[0, 1, 2, 5]`` -> ``"0-2, 5"``."""
+    out, start = [], None
+    for i, b in enumerate(blocks):
+        start = b if start is None else start
+        if i + 1 == len(blocks) or blocks[i + 1] != b + 1:
+            out.append(f"{start}" if start == b else f"{start}-{b}")
+            start = None
+    return ", ".join(out)

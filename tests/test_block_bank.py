@@ -1,0 +1,120 @@
+"""``pmsr evaluate --per-block``: a recording banked block by block, continued after an
+interruption, merged to the unsharded run's figures bit for bit."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from pmsr_nn.cli import main
+from pmsr_nn.errors import ConfigError, OutputError
+from pmsr_nn.harness import evaluate, merge
+from pmsr_nn.harness.block_bank import bank_blocks, block_folder, evaluate_per_block
+from pmsr_nn.harness.evaluate import load_any
+from test_harness import accuracy, tiny
+
+
+def bank(path, out, shard=(1, 1), **over):
+    sc = load_any(path)
+    return evaluate_per_block(sc, out, shard=shard, inputs=[path], progress=False, **over)
+
+
+def snapshot(folder):
+    """Every file under ``folder`` with its size and modification time."""
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in folder.rglob("*") if p.is_file()}
+
+
+def test_a_bank_filled_in_two_sittings_merges_to_the_unsharded_run(tmp_path):
+    path = tiny(tmp_path, block_runs=1)  # 4 blocks of one run
+    whole = evaluate(path, tmp_path / "whole", progress=False)
+    first = bank(path, tmp_path / "bank", shard=(1, 2))
+    assert first["blocks"] == [0, 1] and first["skipped"] == []
+    assert [p.name for p in bank_blocks(tmp_path / "bank")] == ["block-0000", "block-0001"]
+    with pytest.raises(ConfigError, match="lack blocks 2-3 and repeat none"):
+        merge([tmp_path / "bank"], tmp_path / "early")
+    assert not (tmp_path / "early").exists()
+    before = snapshot(tmp_path / "bank")
+    again = bank(path, tmp_path / "bank", shard=(1, 2))  # the same command again: nothing to do
+    assert again["blocks"] == [] and again["skipped"] == [0, 1]
+    assert snapshot(tmp_path / "bank") == before
+    rest = bank(path, tmp_path / "bank")  # the whole run now: only the blocks the bank lacks
+    assert rest["blocks"] == [2, 3] and rest["skipped"] == [0, 1]
+    merged = merge([tmp_path / "bank"], tmp_path / "merged")
+    assert accuracy(merged) == accuracy(whole)  # the same per-block sums, reduced in the same order
+    assert merged["environment"]["shard_commits"] == [str(json.loads(
+        (block_folder(tmp_path / "bank", 0) / "shard.json").read_text())["environment"]["commit"])]
+    # a block folder is what --shard (b+1)/n_blocks writes: bank blocks and shards mix
+    evaluate(path, tmp_path / "s2of2", shard=(2, 2), progress=False)
+    mixed = merge([block_folder(tmp_path / "bank", 0), block_folder(tmp_path / "bank", 1), tmp_path / "s2of2"],
+                  tmp_path / "mixed")
+    assert accuracy(mixed) == accuracy(whole)
+
+
+def test_an_interrupted_block_is_run_again_and_nothing_else(tmp_path):
+    path = tiny(tmp_path, block_runs=1, mc_runs=2)
+    bank(path, tmp_path / "bank")
+    kept = snapshot(block_folder(tmp_path / "bank", 0))
+    with np.load(block_folder(tmp_path / "bank", 1) / "blocks.npz") as f:
+        old = {k: f[k] for k in f.files}
+    # a killed run leaves a hidden temporary and no block folder
+    gone = block_folder(tmp_path / "bank", 1)
+    gone.rename(tmp_path / "bank" / ".block-0001.partial-999999999")
+    assert [p.name for p in bank_blocks(tmp_path / "bank")] == ["block-0000"]
+    res = bank(path, tmp_path / "bank")
+    assert res["blocks"] == [1] and res["skipped"] == [0]
+    assert snapshot(block_folder(tmp_path / "bank", 0)) == kept
+    assert not (tmp_path / "bank" / ".block-0001.partial-999999999").exists()  # its process is gone: ours to remove
+    with np.load(gone / "blocks.npz") as f:
+        assert {k: f[k] for k in f.files}.keys() == old.keys()
+        for k in (k for k in old if not k.startswith("seconds/")):  # timings aside
+            assert np.array_equal(f[k], old[k], equal_nan=True), k  # the same draws: the same sums
+
+
+def test_a_bank_refuses_another_scenario_and_never_replaces_what_is_not_a_block(tmp_path):
+    path = tiny(tmp_path, block_runs=1, mc_runs=2)
+    bank(path, tmp_path / "bank", shard=(1, 2))
+    before = snapshot(tmp_path / "bank")
+    (tmp_path / "other").mkdir()
+    other = tiny(tmp_path / "other", block_runs=1, mc_runs=2, seed=9)
+    with pytest.raises(ConfigError, match="another scenario or other settings"):
+        bank(other, tmp_path / "bank")
+    assert snapshot(tmp_path / "bank") == before
+    junk = block_folder(tmp_path / "bank", 1)
+    junk.mkdir()
+    (junk / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="block-0001 is not a complete block"):
+        bank(path, tmp_path / "bank")
+    assert (junk / "notes.txt").read_text() == "mine"
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    (plain / "data.csv").write_text("1,2\n")
+    with pytest.raises(OutputError, match="files pmsr did not write"):
+        bank(path, plain)
+    assert sorted(os.listdir(plain)) == ["data.csv"]
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--overwrite"], "--per-block continues the bank at --out and never replaces it"),
+    (["--executor", "local"], "--per-block banks the blocks of one process"),
+])
+def test_per_block_option_conflicts_are_one_line_errors(tmp_path, capsys, extra, message):
+    path = tiny(tmp_path, block_runs=1, mc_runs=2)
+    before = sorted(os.listdir(tmp_path))
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet", *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert sorted(os.listdir(tmp_path)) == before
+
+
+def test_the_command_line_reports_each_block_and_merges_the_bank(tmp_path, capsys):
+    path = tiny(tmp_path, block_runs=1, mc_runs=2)
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--shard", "2/2"]) == 0
+    out = capsys.readouterr().out
+    assert f"block 2/2 -> {block_folder(tmp_path / 'bank', 1)}" in out and "1 of 2 block(s)" in out
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block"]) == 0
+    out = capsys.readouterr().out
+    assert "1 of shard 1/1's 2 block(s) already there" in out and "block 1/2 ->" in out and "block 2/2" not in out
+    assert main(["merge", str(tmp_path / "bank"), "--out", str(tmp_path / "merged")]) == 0
+    assert json.loads((tmp_path / "merged" / "results.json").read_text())["mc_runs"] == 2
