@@ -18,6 +18,7 @@ from ..frontend.chain import summarise
 from . import scoring
 from .block_sums import FRONT_END, BlockSums
 from .method_spec import MethodSpec
+from .paired import set_comparisons
 from .prepared import Case, Setup, method_space
 from .seeds import comparisons, summarise_seeds
 
@@ -307,7 +308,7 @@ def case_figures(setup: Setup, bs: BlockSums, case: Case) -> dict:
     scored, alive = case.scored.numpy(), case.alive.numpy()
     N = alive.shape[1]
     b = case.bounds
-    methods, curves, set_curves, run_rmse = {}, {}, {}, {}
+    methods, curves, set_curves, run_rmse, set_runs = {}, {}, {}, {}, {}
     for spec in setup.methods:
         if not case.runs(spec):
             continue
@@ -317,6 +318,8 @@ def case_figures(setup: Setup, bs: BlockSums, case: Case) -> dict:
         methods[spec.name], curves[spec.name], sets, run_rmse[spec.name] = method_row(setup, bs, case, spec)
         if sets is not None:
             set_curves[spec.name] = sets
+            sums = bs.sums[case.name][spec.name]
+            set_runs[spec.name] = {q: sums[q] for q in ("gospa_run", "ospa_run") if q in sums}
     out = {"title": case.title, "steps": case.steps, "targets": case.targets, **case.info, "methods": methods}
     if b is not None:
         out.update({"seed_groups": summarise_seeds(methods), "comparisons": comparisons(methods, run_rmse)})
@@ -333,6 +336,7 @@ def case_figures(setup: Setup, bs: BlockSums, case: Case) -> dict:
         out["curves"] = {"rmse_pos_m": curves}
     if case.multi_target or set_curves:  # also one target seen by trackers that start their own tracks
         out["curves"].update({"set": set_curves, "cardinality_truth": alive.sum(1).tolist()})
+        out["set_comparisons"] = set_comparisons(methods, set_runs, setup.set_metric[1])
     if FRONT_END in bs.sums.get(case.name, {}):
         out["front_end"] = summarise({q: a.sum(0) for q, a in bs.sums[case.name][FRONT_END].items()},
                                      case.sensing.front_end)

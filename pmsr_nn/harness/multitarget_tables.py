@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .paired import comparison_lines
 from .references import paper_seconds
 from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, starts
 from .result_rows import MethodRow
@@ -64,6 +65,7 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
         if gaps:
             lines += ["", "Largest duality gap of the relaxed assignments: "
                       + ", ".join(f"{m} {v:.3g} nats" for m, v in gaps.items()) + "."]
+        lines += comparison_lines(case.set_comparisons)
         if case.pcrb is not None:
             lines += ["", f"PCRB (filtering, per target from its birth, clean streams): {fmt(case.pcrb.pos_m)} m."]
         lines += track_table(rows, results.settings.dt_s, "CLEAR MOT" in results.definitions.get("label_switches_per_run", ""))

@@ -128,6 +128,7 @@ class Case:
     study: StudyCase | None = None
     rd_maps: dict | None = None
     front_end: dict | None = None
+    set_comparisons: dict | None = None  # :func:`~.paired.set_comparisons`
 
     @classmethod
     def from_dict(cls, name: str, c: dict) -> "Case":
@@ -149,7 +150,7 @@ class Case:
                    curves=curves, seed_groups=groups,
                    comparisons=[pick(Comparison, k) for k in c.get("comparisons") or []],
                    study=pick(StudyCase, c) if "pd" in c else None, rd_maps=c.get("rd_maps"),
-                   front_end=c.get("front_end"))
+                   front_end=c.get("front_end"), set_comparisons=c.get("set_comparisons"))
 
 
 @dataclass(frozen=True)
