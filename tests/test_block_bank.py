@@ -118,3 +118,17 @@ def test_the_command_line_reports_each_block_and_merges_the_bank(tmp_path, capsy
     assert "1 of shard 1/1's 2 block(s) already there" in out and "block 1/2 ->" in out and "block 2/2" not in out
     assert main(["merge", str(tmp_path / "bank"), "--out", str(tmp_path / "merged")]) == 0
     assert json.loads((tmp_path / "merged" / "results.json").read_text())["mc_runs"] == 2
+
+
+def test_every_block_records_the_environment_the_process_started_with(tmp_path, monkeypatch):
+    """Commits made while a long bank runs do not change the code it runs: each block names the
+    commit the process started at."""
+    import pmsr_nn.harness.block_bank as block_bank
+
+    calls = []
+    monkeypatch.setattr(block_bank, "environment", lambda device: calls.append(device) or {"commit": f"c{len(calls)}"})
+    path = tiny(tmp_path, block_runs=1, mc_runs=2)
+    bank(path, tmp_path / "bank")
+    assert calls == ["cpu"]
+    for b in (0, 1):
+        assert json.loads((block_folder(tmp_path / "bank", b) / "shard.json").read_text())["environment"] == {"commit": "c1"}

@@ -19,6 +19,7 @@ import json
 import time
 from pathlib import Path
 
+from ..environment import environment
 from ..errors import ConfigError, OutputError
 from ..outputs import (MARKER, atomic_folder, check_target, make_parents, output_kind, write_marker)
 from .block_sums import shard_blocks, write_shard
@@ -98,6 +99,7 @@ def evaluate_per_block(sc, out: Path, *, shard: tuple[int, int], inputs: list[Pa
     blocks = shard_blocks(sc.n_blocks, shard)
     identity = {"scenario": sc.to_dict(), "base_dir": sc.base_dir}
     setup = prepare(sc, device)  # a method that cannot run is refused before the bank is touched
+    env = environment(device)  # the code this process runs: commits made while it works do not change it
     _open_bank(out, identity)
     skipped = [b for b in blocks if _complete(block_folder(out, b), identity)]
     todo = [b for b in blocks if b not in skipped]
@@ -107,7 +109,7 @@ def evaluate_per_block(sc, out: Path, *, shard: tuple[int, int], inputs: list[Pa
         t0 = time.perf_counter()
         with atomic_folder(block_folder(out, b), command="evaluate", inputs=inputs, allow=("evaluate",)) as tmp:
             bs = run_blocks(setup, range(b, b + 1), progress=progress)
-            write_shard(tmp, bs, (b + 1, sc.n_blocks), [b], sc, device)
+            write_shard(tmp, bs, (b + 1, sc.n_blocks), [b], sc, device, env)
         if progress:
             log(f"block {b + 1}/{sc.n_blocks} -> {block_folder(out, b)} ({time.perf_counter() - t0:.0f} s)")
     done = len(bank_blocks(out))

@@ -123,11 +123,12 @@ class BlockSums:
 
 
 def write_shard(folder: Path, bs: BlockSums, shard: tuple[int, int], blocks: list[int], sc,
-                device: str) -> dict:
+                device: str, env: dict | None = None) -> dict:
     """A shard's ``shard.json`` and ``blocks.npz`` into ``folder`` (an existing, empty folder) for
-    the blocks ``blocks`` of scenario ``sc``; returns shard.json's content."""
+    the blocks ``blocks`` of scenario ``sc``; ``env``: the environment to record (default: now's);
+    returns shard.json's content."""
     meta = {"format": SHARD_FORMAT, "shard": list(shard), "blocks": blocks, "scenario": sc.to_dict(),
-            "base_dir": sc.base_dir, "environment": environment(device)}
+            "base_dir": sc.base_dir, "environment": env or environment(device)}
     np.savez_compressed(folder / "blocks.npz", **bs.to_arrays())
     (folder / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
     return meta
