@@ -49,20 +49,27 @@ def test_verdict_needs_more_than_the_stated_number_of_errors():
     assert verdict(-100.0, None) == "tie"  # one run: no error, no claim
 
 
-def test_rows_are_compared_with_the_lowest_gospa_and_the_table_says_so():
+def test_rows_are_compared_with_the_lowest_gospa_of_their_group_and_the_table_says_so():
     runs = {"A": {"gospa_run": np.array([400.0, 900.0, 100.0]), "ospa_run": np.array([10.0, 20.0, 5.0])},
             "B": {"gospa_run": np.array([100.0, 400.0, 25.0]), "ospa_run": np.array([11.0, 21.0, 6.0])},
+            "C": {"gospa_run": np.array([1.0, 4.0, 9.0]), "ospa_run": np.array([1.0, 2.0, 3.0])},
+            "D": {"gospa_run": np.array([4.0, 4.0, 16.0]), "ospa_run": np.array([2.0, 2.0, 4.0])},
             "EKF": {}}  # a row without set figures stays out
-    rows = {"A": {"gospa_m": float(np.sqrt(1400 / 3))}, "B": {"gospa_m": float(np.sqrt(175.0))},
-            "EKF": {"gospa_m": None}}
-    comp = set_comparisons(rows, runs, p=2.0)
-    assert comp["reference"] == "B" and list(comp["rows"]) == ["A"] and comp["runs"] == 3
-    g = comp["rows"]["A"]["gospa_m"]
+    rows = {"A": {"gospa_m": float(np.sqrt(1400 / 3)), "initiation": "detections"},
+            "B": {"gospa_m": float(np.sqrt(175.0)), "initiation": "detections"},
+            "C": {"gospa_m": float(np.sqrt(14 / 3)), "initiation": "association known"},  # lowest of all: not A's reference
+            "D": {"gospa_m": float(np.sqrt(8.0)), "initiation": "oracle"},
+            "EKF": {"gospa_m": None, "initiation": "association known"}}
+    own, handed = set_comparisons(rows, runs, p=2.0)
+    assert own["reference"] == "B" and list(own["rows"]) == ["A"] and own["runs"] == 3
+    assert handed["reference"] == "C" and list(handed["rows"]) == ["D"]
+    g = own["rows"]["A"]["gospa_m"]
     assert g["difference"] == pytest.approx(np.sqrt(1400 / 3) - np.sqrt(175.0), rel=1e-12)
-    o = comp["rows"]["A"]["ospa_m"]
+    o = own["rows"]["A"]["ospa_m"]
     assert o["difference"] == pytest.approx(-1.0, rel=1e-12) and o["se"] == pytest.approx(0.0, abs=1e-12)
     assert o["verdict"] == "ahead"  # lower OSPA in every run by the same metre
-    lines = comparison_lines(comp)
-    assert "minus those of B (the lowest GOSPA), paired over the same 3 runs" in lines[1]
-    assert lines[-1].startswith("| A | +") and lines[-1].count("|") == 6
-    assert set_comparisons({"A": rows["A"]}, {"A": runs["A"]}, 2.0) is None and comparison_lines(None) == []
+    lines = comparison_lines([own, handed])
+    assert any("Rows that start their own tracks: GOSPA and OSPA minus those of B (the lowest GOSPA among them), "
+               "paired over the same 3 runs" in line for line in lines)
+    assert sum(line.startswith("| A | +") for line in lines) == 1 and sum(line.startswith("| D | +") for line in lines) == 1
+    assert set_comparisons({"A": rows["A"], "C": rows["C"]}, runs, 2.0) == [] and comparison_lines([]) == []

@@ -42,41 +42,53 @@ def verdict(difference: float, se: float | None) -> str:
     return "ahead" if difference < 0 else "behind"
 
 
-def set_comparisons(rows: dict, per_run: dict[str, dict[str, np.ndarray]], p: float) -> dict | None:
-    """Each row with per-run set figures against the row of lowest GOSPA: ``{"reference": name,
-    "runs": B, "beyond_se": BEYOND, "rows": {name: {"gospa_m": {"difference", "se", "verdict"},
-    "ospa_m": {...}}}}`` (differences row minus reference, m); None with fewer than two such rows.
-    ``rows``: name -> result row (with ``gospa_m``); ``per_run``: name -> ``gospa_run`` / ``ospa_run``."""
+GROUPS = (("start their own tracks", lambda row: row.get("initiation") == "detections"),
+          ("are handed their targets (own streams, oracle births)", lambda row: row.get("initiation") != "detections"))
+"""How rows are compared: each with the best of those given the same help (a tracker that must find
+its targets is compared with the best such tracker, not with a filter handed each target's stream)."""
+
+
+def set_comparisons(rows: dict, per_run: dict[str, dict[str, np.ndarray]], p: float) -> list[dict]:
+    """Per group of :data:`GROUPS` with at least two rows holding per-run set figures, each row
+    against the group's row of lowest GOSPA: ``{"group": text, "reference": name, "runs": B,
+    "beyond_se": BEYOND, "rows": {name: {"gospa_m": {"difference", "se", "verdict"}, "ospa_m":
+    {...}}}}`` (differences row minus reference, m). ``rows``: name -> result row (with
+    ``gospa_m`` and ``initiation``); ``per_run``: name -> ``gospa_run`` / ``ospa_run`` ``(B,)``."""
     have = [m for m in rows if m in per_run and "gospa_run" in per_run[m] and rows[m].get("gospa_m") is not None]
-    if len(have) < 2:
-        return None
-    ref = min(have, key=lambda m: rows[m]["gospa_m"])
-    out = {}
-    for m in have:
-        if m == ref:
+    out = []
+    for group, member in GROUPS:
+        names = [m for m in have if member(rows[m])]
+        if len(names) < 2:
             continue
-        entry = {}
-        for key, q, power in (("gospa_m", "gospa_run", p), ("ospa_m", "ospa_run", 1.0)):
-            d = paired_difference(per_run[m][q], per_run[ref][q], power)
-            entry[key] = {**d, "verdict": verdict(d["difference"], d["se"])}
-        out[m] = entry
-    return {"reference": ref, "runs": int(len(per_run[ref]["gospa_run"])), "beyond_se": BEYOND, "rows": out}
+        ref = min(names, key=lambda m: rows[m]["gospa_m"])
+        compared = {}
+        for m in names:
+            if m == ref:
+                continue
+            entry = {}
+            for key, q, power in (("gospa_m", "gospa_run", p), ("ospa_m", "ospa_run", 1.0)):
+                d = paired_difference(per_run[m][q], per_run[ref][q], power)
+                entry[key] = {**d, "verdict": verdict(d["difference"], d["se"])}
+            compared[m] = entry
+        out.append({"group": group, "reference": ref, "runs": int(len(per_run[ref]["gospa_run"])),
+                    "beyond_se": BEYOND, "rows": compared})
+    return out
 
 
-def comparison_lines(comp: dict | None) -> list[str]:
-    """The report's table of :func:`set_comparisons` (empty for None)."""
-    if not comp:
-        return []
-    ref = comp["reference"]
-    lines = ["", f"GOSPA and OSPA of each row minus those of {ref} (the lowest GOSPA), paired over the same "
-                 f"{comp['runs']} runs (± s.e. of the paired difference); *behind* / *ahead* only beyond "
-                 f"{comp['beyond_se']:g} s.e., else *tie*:", "",
-             "| method | GOSPA difference (m) | GOSPA | OSPA difference (m) | OSPA |", "|---|---:|---|---:|---|"]
-    for m, e in comp["rows"].items():
-        cells = []
-        for key in ("gospa_m", "ospa_m"):
-            d = e[key]
-            se = "" if d["se"] is None else f" ± {d['se']:.1f}"
-            cells.append(f"{d['difference']:+.1f}{se} | {d['verdict']}")
-        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+def comparison_lines(comps: list[dict] | None) -> list[str]:
+    """The report's tables of :func:`set_comparisons` (empty for none)."""
+    lines = []
+    for comp in comps or []:
+        ref = comp["reference"]
+        lines += ["", f"Rows that {comp['group']}: GOSPA and OSPA minus those of {ref} (the lowest GOSPA among them), "
+                      f"paired over the same {comp['runs']} runs (± s.e. of the paired difference); *behind* / *ahead* "
+                      f"only beyond {comp['beyond_se']:g} s.e., else *tie*:", "",
+                  "| method | GOSPA difference (m) | GOSPA | OSPA difference (m) | OSPA |", "|---|---:|---|---:|---|"]
+        for m, e in comp["rows"].items():
+            cells = []
+            for key in ("gospa_m", "ospa_m"):
+                d = e[key]
+                se = "" if d["se"] is None else f" ± {d['se']:.1f}"
+                cells.append(f"{d['difference']:+.1f}{se} | {d['verdict']}")
+            lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return lines

@@ -128,7 +128,7 @@ class Case:
     study: StudyCase | None = None
     rd_maps: dict | None = None
     front_end: dict | None = None
-    set_comparisons: dict | None = None  # :func:`~.paired.set_comparisons`
+    set_comparisons: list | None = None  # :func:`~.paired.set_comparisons`
 
     @classmethod
     def from_dict(cls, name: str, c: dict) -> "Case":
