@@ -132,3 +132,26 @@ def test_every_block_records_the_environment_the_process_started_with(tmp_path, 
     assert calls == ["cpu"]
     for b in (0, 1):
         assert json.loads((block_folder(tmp_path / "bank", b) / "shard.json").read_text())["environment"] == {"commit": "c1"}
+
+
+def test_a_preview_merges_the_first_runs_and_says_it_is_one(tmp_path, capsys):
+    """``pmsr merge --runs K``: the first K runs of a bank still filling give the figures of the
+    scenario run with K runs, bit for bit, and the results and report say they are a preview."""
+    path = tiny(tmp_path, block_runs=1)  # 4 blocks of one run
+    bank(path, tmp_path / "bank", shard=(1, 2))  # blocks 0, 1
+    evaluate(path, tmp_path / "s4", shard=(4, 4), progress=False)  # block 3: beyond the preview, left out
+    short = evaluate(path, tmp_path / "short", mc_runs=2, progress=False)
+    assert main(["merge", str(tmp_path / "bank"), str(tmp_path / "s4"), "--runs", "2", "--out", str(tmp_path / "p")]) == 0
+    assert "A PREVIEW: the first 2 of the scenario's 4 runs" in capsys.readouterr().out
+    preview = json.loads((tmp_path / "p" / "results.json").read_text())
+    assert accuracy(preview) == accuracy(short) and preview["mc_runs"] == 2
+    assert preview["environment"]["preview_of_runs"] == 4
+    assert "**A preview: the first 2 of the scenario's 4 runs**" in (tmp_path / "p" / "report.md").read_text()
+    with pytest.raises(ConfigError, match="lack blocks 2"):  # the first 3 runs: block 2 is not there yet
+        merge([tmp_path / "bank"], tmp_path / "q", runs=3)
+    evaluate(path, tmp_path / "s1of2", shard=(1, 2), progress=False)  # blocks 0-1 in one shard
+    with pytest.raises(ConfigError, match="holds blocks on both sides of run 1"):
+        merge([tmp_path / "s1of2"], tmp_path / "q", runs=1)
+    with pytest.raises(ConfigError, match=r"--runs must be in 1\.\.4"):
+        merge([tmp_path / "bank"], tmp_path / "q", runs=5)
+    assert not (tmp_path / "q").exists()

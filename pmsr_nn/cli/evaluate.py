@@ -51,6 +51,9 @@ def add_merge(sub) -> None:
     mg.add_argument("shards", type=Path, nargs="+", help="shard output folders, or block banks of --per-block")
     mg.add_argument("--out", type=Path, required=True, help="output folder")
     mg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    mg.add_argument("--runs", type=mc_runs_int, metavar="K",
+                    help="merge only the first K runs (whole blocks; later shards are left out): a preview of a "
+                    "recording still running, marked as one")
     mg.set_defaults(run=cmd_merge)
 
 
@@ -108,6 +111,9 @@ def print_summary(res: dict) -> None:
     fe = [line for line in front_end_tables(res) if line.startswith("|")]
     if fe:
         print("front end: signals -> detections, measured in this run\n" + "\n".join(fe) + "\n")
+    preview = res.get("environment", {}).get("preview_of_runs")
+    if preview:
+        print(f"A PREVIEW: the first {res['mc_runs']} of the scenario's {preview} runs (a recording in progress)\n")
     print(f"position RMSE (m), Eq. 31 averaged after the warm-up; {res['mc_runs']} runs per case\n")
     print("\n".join(summary_table(res, None, "", False)))
     mt = [line for line in multi_target_tables(res, None, "paper") if not line.startswith("![")]
@@ -189,7 +195,7 @@ def cmd_evaluate(args) -> int:
 def cmd_merge(args) -> int:
     from ..harness import merge
 
-    res = merge(args.shards, args.out, overwrite=args.overwrite)
+    res = merge(args.shards, args.out, overwrite=args.overwrite, runs=args.runs)
     print_summary(res)
     print(f"\nreport    {args.out / 'report.md'}")
     return 0

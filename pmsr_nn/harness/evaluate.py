@@ -106,24 +106,22 @@ def _references(sc: AnyScenario) -> tuple[dict | None, dict | None, dict]:
     return table, timing, info
 
 
-def build_results(setup: Setup, bs: BlockSums, device: str, shard_commits: list[str] | None = None) -> dict:
+def build_results(setup: Setup, bs: BlockSums, device: str, merged: dict | None = None) -> dict:
     """``results.json``'s content: the scenario, its result kind (:func:`~.finalise.result_kind`),
-    settings, definitions, the paper's reference and every case's figures; ``shard_commits``: the
-    commits the merged shards were run at."""
+    settings, definitions, the paper's reference and every case's figures; ``merged``: what a merge
+    adds to the environment (the shards' commits, a preview's full run count)."""
     sc = setup.scenario
     _, _, ref_info = _references(sc)
-    env = environment(device)
-    if shard_commits is not None:
-        env["shard_commits"] = shard_commits
+    env = {**environment(device), **(merged or {})}
     return {"scenario": sc.name, "kind": result_kind(setup), "seed": sc.seed, "mc_runs": sc.mc_runs,
             "environment": env,
             "description": sc.description, "settings": setup.settings, "definitions": setup.definitions,
             "reference": ref_info, "cases": finalise(setup, bs)}
 
 
-def write_outputs(setup: Setup, bs: BlockSums, out: Path, device: str, shard_commits: list[str] | None = None) -> dict:
+def write_outputs(setup: Setup, bs: BlockSums, out: Path, device: str, merged: dict | None = None) -> dict:
     """``results.json``, ``report.md`` and figures into ``out`` (an existing, empty folder)."""
-    res = build_results(setup, bs, device, shard_commits)
+    res = build_results(setup, bs, device, merged)
     ref, timing, info = _references(setup.scenario)
     (out / "results.json").write_text(json.dumps(res, indent=1, allow_nan=True) + "\n")
     write_report(res, out, bs.example, setup.geometry, ref, timing, info.get("label", "paper"))
@@ -148,9 +146,12 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
         return write_shard(tmp, bs, shard, list(blocks), sc, device)
 
 
-def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False) -> dict:
+def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False,
+          runs: int | None = None) -> dict:
     """Combine shard folders of one scenario into the full results in ``out``; a block bank
-    (``evaluate --per-block``) stands for the block folders it holds."""
+    (``evaluate --per-block``) stands for the block folders it holds. ``runs``: merge only the
+    first ``runs`` runs (whole blocks; shards of later blocks are left out), a preview of a
+    recording still running, marked as one in the results and report."""
     shards = [Path(d) for d in shards]
     check_folder_target(out, overwrite=overwrite, inputs=shards, allow=RESULT_COMMANDS)
     shards = [part for d in shards for part in (bank_blocks(d) if is_bank(d) else [d])]
@@ -185,8 +186,13 @@ def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool
     for d, m in zip(shards, metas):
         if m["scenario"] != first["scenario"]:
             raise ConfigError(f"{d} comes from another scenario or settings than {shards[0]}")
-    merged = BlockSums.concatenate(parts)
     sc = scenario_from_data(first["scenario"], first["base_dir"])
+    extra = {"shard_commits": sorted({str(m.get("environment", {}).get("commit")) for m in metas})}
+    if runs is not None:
+        parts = _first_runs(sc, runs, shards, parts)
+        extra["preview_of_runs"] = sc.mc_runs
+        sc = sc.with_mc_runs(runs)
+    merged = BlockSums.concatenate(parts)
     if merged.blocks != list(range(sc.n_blocks)):
         missing = sorted(set(range(sc.n_blocks)) - set(merged.blocks))
         twice = sorted({b for b in merged.blocks if merged.blocks.count(b) > 1})
@@ -194,9 +200,26 @@ def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool
                           f"the scenario has blocks 0..{sc.n_blocks - 1}, each needed exactly once")
     setup = prepare(sc, device)
     with atomic_dir(out, overwrite, command="merge", inputs=shards) as tmp:
-        res = write_outputs(setup, merged, tmp, device,
-                            shard_commits=sorted({str(m.get("environment", {}).get("commit")) for m in metas}))
+        res = write_outputs(setup, merged, tmp, device, extra)
     return res
+
+
+def _first_runs(sc: AnyScenario, runs: int, shards: list[Path], parts: list[BlockSums]) -> list[BlockSums]:
+    """The sums of the shards that hold the blocks of the first ``runs`` runs of ``sc``."""
+    if not 1 <= runs <= sc.mc_runs:
+        raise ConfigError(f"--runs must be in 1..{sc.mc_runs} (the scenario's runs), got {runs}")
+    if runs % sc.block_runs and runs != sc.mc_runs:
+        raise ConfigError(f"--runs {runs}: a preview takes whole blocks of {sc.block_runs} runs")
+    n = sc.with_mc_runs(runs).n_blocks
+    keep = []
+    for d, p in zip(shards, parts):
+        inside = [b < n for b in p.blocks]
+        if any(inside) and not all(inside):
+            raise ConfigError(f"--runs {runs}: shard {d} holds blocks on both sides of run {runs}; give a number of "
+                              "runs at a shard's edge")
+        if all(inside):
+            keep.append(p)
+    return keep
 
 
 def _ranges(blocks: list[int]) -> str:

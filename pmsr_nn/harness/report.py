@@ -113,6 +113,9 @@ def write_report(res: Results | dict, out: Path, examples: dict, geometry, ref: 
         figures.append(plot_sweep(results, out / f"sweep_{sweep}.png"))
     env = results.environment
     lines = [f"# {results.scenario}: {results.mc_runs} Monte Carlo runs per case, seed {results.seed}", ""]
+    if env.get("preview_of_runs"):  # pmsr merge --runs: the first runs of a recording still running
+        lines += [f"**A preview: the first {results.mc_runs} of the scenario's {env['preview_of_runs']} runs**, merged "
+                  "from the shards of a recording in progress; every figure and error below is of these runs.", ""]
     if results.description:
         lines += [results.description.strip(), ""]
     lines += setting_lines(results)
