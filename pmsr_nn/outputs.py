@@ -50,7 +50,8 @@ def _resolved(path: Path) -> Path:
     return Path(os.path.abspath(Path(path).expanduser()))
 
 
-def _process_alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (this one included; another user's counts as alive)."""
     if pid == os.getpid():
         return True
     try:
@@ -253,7 +254,7 @@ def clean_stale(out: Path) -> list[Path]:
         return removed
     for p in parent.iterdir():
         m = _PARTIAL.match(p.name)
-        if not m or m["name"] != out.name or _process_alive(int(m["pid"])):
+        if not m or m["name"] != out.name or process_alive(int(m["pid"])):
             continue
         # A folder proves it is ours by its marker; a file cannot, so a stale temporary file stays.
         if p.is_dir() and not p.is_symlink() and ((p / PARTIAL_MARKER).exists() or is_ours(p)):

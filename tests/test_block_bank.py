@@ -155,3 +155,62 @@ def test_a_preview_merges_the_first_runs_and_says_it_is_one(tmp_path, capsys):
     with pytest.raises(ConfigError, match=r"--runs must be in 1\.\.4"):
         merge([tmp_path / "bank"], tmp_path / "q", runs=5)
     assert not (tmp_path / "q").exists()
+
+
+def test_a_block_a_live_process_holds_is_passed_over_and_a_dead_ones_claim_is_taken(tmp_path):
+    path = tiny(tmp_path, block_runs=1, mc_runs=3)
+    bank(path, tmp_path / "bank", shard=(1, 3))  # opens the bank with block 0
+    (tmp_path / "bank" / ".block-0001.claim").write_text(f"{os.getpid()}\n")  # a live process runs block 1
+    (tmp_path / "bank" / ".block-0002.claim").write_text("999999999\n")  # a process that is gone held block 2
+    res = bank(path, tmp_path / "bank")
+    assert res["skipped"] == [0] and res["others"] == [1] and res["blocks"] == [2]
+    assert [p.name for p in bank_blocks(tmp_path / "bank")] == ["block-0000", "block-0002"]
+    assert (tmp_path / "bank" / ".block-0001.claim").exists()  # not ours: left alone
+    assert not (tmp_path / "bank" / ".block-0002.claim").exists()  # ours once taken over: released when done
+    assert not list((tmp_path / "bank").glob(".block-*.claim-*"))
+
+
+def test_two_processes_fill_one_bank_and_run_every_block_once(tmp_path):
+    import subprocess
+    import sys
+
+    path = tiny(tmp_path, block_runs=1, mc_runs=6)
+    cmd = [sys.executable, "-m", "pmsr_nn.cli", "evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+             for _ in range(2)]
+    outs = [p.communicate(timeout=600)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0]
+    ran = [line.split()[1] for out in outs for line in out.splitlines() if line.startswith("block ")]
+    assert sorted(ran) == [f"{b}/6" for b in range(1, 7)]  # each block run by exactly one of the two
+    assert len(bank_blocks(tmp_path / "bank")) == 6 and not list((tmp_path / "bank").glob(".block-*"))
+    whole = evaluate(path, tmp_path / "whole", progress=False)
+    assert accuracy(merge([tmp_path / "bank"], tmp_path / "merged")) == accuracy(whole)
+
+
+def test_a_shards_blocks_filed_into_a_bank_merge_as_if_the_bank_had_run_them(tmp_path):
+    """Blocks of 2, 2 and 1 runs: shard 2/2 holds the last two; filed into a bank (split per block)
+    beside block 0 run by the bank, they merge to the unsharded figures bit for bit."""
+    from pmsr_nn.harness.block_bank import file_shard
+    from pmsr_nn.harness.block_sums import BlockSums, read_shard
+
+    path = tiny(tmp_path, block_runs=2, mc_runs=5)
+    evaluate(path, tmp_path / "s2", shard=(2, 2), progress=False)
+    _, bs = read_shard(tmp_path / "s2")
+    back = BlockSums.concatenate(bs.split([2, 1]))
+    for c, per in bs.sums.items():
+        for m, qs in per.items():
+            for q, a in qs.items():
+                assert np.array_equal(back.sums[c][m][q], a, equal_nan=True), (c, m, q)
+            assert np.array_equal(back.seconds[c][m], bs.seconds[c][m])
+    assert file_shard(tmp_path / "s2", tmp_path / "bank") == [1, 2]
+    assert file_shard(tmp_path / "s2", tmp_path / "bank") == []  # already there: left as they are
+    meta = json.loads((block_folder(tmp_path / "bank", 2) / "shard.json").read_text())
+    assert meta["shard"] == [3, 3] and meta["blocks"] == [2] and meta["environment"]["filed_from"] == str(tmp_path / "s2")
+    assert bank(path, tmp_path / "bank")["blocks"] == [0]
+    whole = evaluate(path, tmp_path / "whole", progress=False)
+    assert accuracy(merge([tmp_path / "bank"], tmp_path / "merged")) == accuracy(whole)
+    with pytest.raises(ConfigError, match="another scenario or other settings"):
+        (tmp_path / "o").mkdir()
+        evaluate(tiny(tmp_path / "o", block_runs=2, mc_runs=5, seed=8), tmp_path / "t2", shard=(2, 2), progress=False)
+        file_shard(tmp_path / "t2", tmp_path / "bank")

@@ -30,8 +30,9 @@ def add_evaluate(sub) -> None:
     ev.add_argument("--shard", default="1/1", metavar="I/N", help="run the I-th of N slices of the runs (default 1/1: all)")
     ev.add_argument("--per-block", action="store_true",
                     help="write each block of runs as soon as it is done, as its own shard folder OUT/block-NNNN; "
-                    "blocks already in OUT are skipped, so the same command continues an interrupted recording; "
-                    "combine with 'pmsr merge OUT'")
+                    "blocks already in OUT (or being run by another process) are skipped, so the same command "
+                    "continues an interrupted recording and several processes can fill one bank; combine with "
+                    "'pmsr merge OUT'")
     ev.add_argument("--device", default="cpu", help="torch device for the learned trackers (default cpu)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")

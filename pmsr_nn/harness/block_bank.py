@@ -6,7 +6,10 @@ after another in one process (one untimed warm-up), and each is written, as soon
 as the one-block shard folder ``OUT/block-NNNN`` (``shard.json`` + ``blocks.npz``, exactly what
 ``--shard (b+1)/n_blocks`` writes, atomically). Blocks already in ``OUT`` are skipped, so the same
 command continues an interrupted recording; ``pmsr merge OUT`` (with any other shard folders
-covering the rest) gives the whole run's figures, bit for bit, timings aside.
+covering the rest) gives the whole run's figures, bit for bit, timings aside. Several processes
+may fill one bank at once (one per core, the same command): each claims a block before running
+it (``.block-NNNN.claim``, holding its PID) and passes over blocks a live process holds; the claim
+of a process that is gone is taken over.
 
 ``OUT/bank.json`` names the scenario (its settings and folder) the bank holds blocks of: a
 command with another scenario or other settings is refused before anything runs, and a block
@@ -16,13 +19,14 @@ folder that is not a complete shard of the bank's scenario is reported, never re
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
 from ..environment import environment
 from ..errors import ConfigError, OutputError
-from ..outputs import (MARKER, atomic_folder, check_target, make_parents, output_kind, write_marker)
-from .block_sums import shard_blocks, write_shard
+from ..outputs import MARKER, atomic_folder, check_target, make_parents, output_kind, process_alive, write_marker
+from .block_sums import read_shard, shard_blocks, write_shard
 from .blocks import run_blocks
 from .runner import prepare
 
@@ -69,8 +73,36 @@ def _open_bank(out: Path, identity: dict) -> None:
         return
     make_parents(out)
     out.mkdir(exist_ok=True)
-    (out / BANK_FILE).write_text(json.dumps({"format": BANK_FORMAT, **identity}, indent=1) + "\n", encoding="utf-8")
+    # renamed into place, then marked: a process starting beside this one sees no bank or a whole one
+    tmp = out / f".{BANK_FILE}.{os.getpid()}"
+    tmp.write_text(json.dumps({"format": BANK_FORMAT, **identity}, indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, out / BANK_FILE)
     write_marker(out, "evaluate", per_block=True)  # lists no contents: the bank grows block by block
+
+
+def _claim(bank: Path, block: int) -> Path | None:
+    """Claim ``block`` for this process (a hidden ``.block-NNNN.claim`` holding its PID, created
+    whole by a hard link, so two processes never both hold it); a claim of a process that is gone
+    is taken over. Returns the claim's path, or None when a live process holds the block."""
+    claim = Path(bank) / f".block-{block:04d}.claim"
+    mine = Path(bank) / f".block-{block:04d}.claim-{os.getpid()}"
+    mine.write_text(f"{os.getpid()}\n", encoding="utf-8")
+    try:
+        for _ in range(2):
+            try:
+                os.link(mine, claim)
+                return claim
+            except FileExistsError:
+                try:
+                    holder = int(claim.read_text(encoding="utf-8").strip())
+                except (OSError, ValueError):
+                    holder = 0
+                if holder and process_alive(holder):
+                    return None
+                claim.unlink(missing_ok=True)  # its process is gone (killed, or the session ended)
+        return None
+    finally:
+        mine.unlink(missing_ok=True)
 
 
 def _complete(folder: Path, identity: dict) -> bool:
@@ -102,17 +134,54 @@ def evaluate_per_block(sc, out: Path, *, shard: tuple[int, int], inputs: list[Pa
     env = environment(device)  # the code this process runs: commits made while it works do not change it
     _open_bank(out, identity)
     skipped = [b for b in blocks if _complete(block_folder(out, b), identity)]
-    todo = [b for b in blocks if b not in skipped]
     if progress and skipped:
         log(f"bank {out}: {len(skipped)} of shard {shard[0]}/{shard[1]}'s {len(blocks)} block(s) already there")
-    for b in todo:
-        t0 = time.perf_counter()
-        with atomic_folder(block_folder(out, b), command="evaluate", inputs=inputs, allow=("evaluate",)) as tmp:
-            bs = run_blocks(setup, range(b, b + 1), progress=progress)
-            write_shard(tmp, bs, (b + 1, sc.n_blocks), [b], sc, device, env)
+    ran, others = [], []
+    for b in (b for b in blocks if b not in skipped):
+        claim = _claim(out, b)
+        if claim is None:  # another process is running it
+            others.append(b)
+            continue
+        try:
+            if _complete(block_folder(out, b), identity):  # finished by another process since the look above
+                skipped.append(b)
+                continue
+            t0 = time.perf_counter()
+            with atomic_folder(block_folder(out, b), command="evaluate", inputs=inputs, allow=("evaluate",)) as tmp:
+                bs = run_blocks(setup, range(b, b + 1), progress=progress)
+                write_shard(tmp, bs, (b + 1, sc.n_blocks), [b], identity, env)
+            ran.append(b)
+        finally:
+            claim.unlink(missing_ok=True)
         if progress:
             log(f"block {b + 1}/{sc.n_blocks} -> {block_folder(out, b)} ({time.perf_counter() - t0:.0f} s)")
     done = len(bank_blocks(out))
     if progress:
-        log(f"bank {out}: {done} of {sc.n_blocks} block(s); 'pmsr merge {out}' once all are there")
-    return {"blocks": todo, "skipped": skipped, "bank": str(out), "banked": done, "n_blocks": sc.n_blocks}
+        busy = f"; {len(others)} being run by other processes" if others else ""
+        log(f"bank {out}: {done} of {sc.n_blocks} block(s){busy}; 'pmsr merge {out}' once all are there")
+    return {"blocks": ran, "skipped": skipped, "others": others, "bank": str(out), "banked": done,
+            "n_blocks": sc.n_blocks}
+
+
+def file_shard(shard: Path, bank: Path) -> list[int]:
+    """File the blocks of shard folder ``shard`` (``pmsr evaluate --shard``) into bank ``bank`` as
+    one-block folders, as if the bank had run them (the sums, timings and the shard's environment
+    unchanged; ``environment.filed_from`` names the shard); blocks the bank holds already are left
+    as they are. The bank is made if it does not exist. Returns the blocks filed."""
+    meta, bs = read_shard(Path(shard))
+    identity = {"scenario": meta["scenario"], "base_dir": meta["base_dir"]}
+    runs, per_block = int(meta["scenario"]["mc_runs"]), int(meta["scenario"]["block_runs"])
+    n_blocks = -(-runs // per_block)
+    bank = Path(bank)
+    check_target(bank, inputs=[shard])
+    _open_bank(bank, identity)
+    filed = []
+    counts = [min(runs, (b + 1) * per_block) - b * per_block for b in bs.blocks]
+    for b, part in zip(bs.blocks, bs.split(counts)):
+        if _complete(block_folder(bank, b), identity):
+            continue
+        env = {**meta.get("environment", {}), "filed_from": str(shard)}
+        with atomic_folder(block_folder(bank, b), command="evaluate", inputs=[shard], allow=("evaluate",)) as tmp:
+            write_shard(tmp, part, (b + 1, n_blocks), [b], identity, env)
+        filed.append(b)
+    return filed

@@ -2,7 +2,7 @@
 
 Takes what :func:`~.blocks.run_blocks` adds per case, method and block (the sums of
 :mod:`.scoring`, seconds, run 0's estimates); gives them stacked over the blocks, written to and
-read from a shard's ``blocks.npz`` arrays (:func:`write_shard` writes a shard folder), and shards' sums concatenated in block order (what
+read from a shard's ``blocks.npz`` arrays (:func:`write_shard` and :func:`read_shard`: a shard folder), and shards' sums concatenated in block order (what
 :func:`~.finalise.finalise` reduces). A shard ``I/N`` runs a contiguous slice of the blocks
 (:func:`shard_blocks`).
 """
@@ -10,12 +10,12 @@ read from a shard's ``blocks.npz`` arrays (:func:`write_shard` writes a shard fo
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..environment import environment
 from ..errors import ConfigError
 from . import scoring
 
@@ -104,6 +104,24 @@ class BlockSums:
                 getattr(bs, kind).setdefault(c, {})[m] = np.asarray(arrays[key])
         return bs
 
+    def split(self, runs: list[int]) -> list["BlockSums"]:
+        """One :class:`BlockSums` per block of this (stacked) one, ``runs[i]`` the runs of block
+        ``i`` (the per-run quantities' rows); :meth:`concatenate` of the parts gives it back. Run
+        0's examples go with block 0."""
+        if len(runs) != len(self.blocks):
+            raise ValueError(f"{len(runs)} run counts for {len(self.blocks)} blocks")
+        starts = np.concatenate([[0], np.cumsum(runs)])
+        parts = []
+        for i, b in enumerate(self.blocks):
+            part = BlockSums([b], example=self.example if b == 0 else {})
+            for c, per in self.sums.items():
+                for m, qs in per.items():
+                    part.sums.setdefault(c, {})[m] = {q: a[starts[i]:starts[i + 1]] if q in scoring.PER_RUN else a[i:i + 1]
+                                                      for q, a in qs.items()}
+                    part.seconds.setdefault(c, {})[m] = self.seconds[c][m][i:i + 1]
+            parts.append(part)
+        return parts
+
     @classmethod
     def concatenate(cls, parts: list["BlockSums"]) -> "BlockSums":
         """Shards (each :meth:`stacked`) in block order into one."""
@@ -122,13 +140,35 @@ class BlockSums:
         return out
 
 
-def write_shard(folder: Path, bs: BlockSums, shard: tuple[int, int], blocks: list[int], sc,
-                device: str, env: dict | None = None) -> dict:
+def write_shard(folder: Path, bs: BlockSums, shard: tuple[int, int], blocks: list[int], identity: dict,
+                env: dict) -> dict:
     """A shard's ``shard.json`` and ``blocks.npz`` into ``folder`` (an existing, empty folder) for
-    the blocks ``blocks`` of scenario ``sc``; ``env``: the environment to record (default: now's);
-    returns shard.json's content."""
-    meta = {"format": SHARD_FORMAT, "shard": list(shard), "blocks": blocks, "scenario": sc.to_dict(),
-            "base_dir": sc.base_dir, "environment": env or environment(device)}
+    the blocks ``blocks``; ``identity``: the scenario's ``{"scenario": to_dict(), "base_dir": ...}``,
+    ``env``: the environment to record. Returns shard.json's content."""
+    meta = {"format": SHARD_FORMAT, "shard": list(shard), "blocks": blocks, **identity, "environment": env}
     np.savez_compressed(folder / "blocks.npz", **bs.to_arrays())
     (folder / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
     return meta
+
+
+def read_shard(folder: Path) -> tuple[dict, BlockSums]:
+    """A shard folder's ``shard.json`` content and its sums, with a one-line :class:`ConfigError`
+    for a folder that is not a readable shard."""
+    d = Path(folder)
+    if not d.is_dir():
+        raise ConfigError(f"{d} is not a folder; give the shard folders 'pmsr evaluate --shard' wrote")
+    try:
+        meta = json.loads((d / "shard.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        raise ConfigError(f"{d} is not a shard folder of 'pmsr evaluate --shard' (no readable shard.json)") from None
+    if not isinstance(meta, dict) or meta.get("format") != SHARD_FORMAT:
+        raise ConfigError(f"{d}/shard.json is not a {SHARD_FORMAT} file")
+    if not isinstance(meta.get("scenario"), dict) or not isinstance(meta.get("base_dir"), str):
+        raise ConfigError(f"{d}/shard.json lacks its scenario (corrupted?)")
+    try:
+        with np.load(d / "blocks.npz", allow_pickle=False) as f:
+            bs = BlockSums.from_arrays({k: f[k] for k in f.files})
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError, IndexError) as exc:
+        first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+        raise ConfigError(f"{d}/blocks.npz is missing or corrupted ({first_line})") from None
+    return meta, bs

@@ -12,10 +12,7 @@ temporary name and renamed when complete (a failure or a signal leaves nothing b
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
-
-import numpy as np
 
 from ..environment import environment
 from ..config import load_yaml
@@ -25,7 +22,7 @@ from .multitarget import MultiTargetScenario, is_multitarget, multitarget_from_d
 from .references import reference_table
 from .report import write_report
 from .block_bank import bank_blocks, is_bank
-from .block_sums import SHARD_FORMAT, BlockSums, shard_blocks, write_shard
+from .block_sums import BlockSums, read_shard, shard_blocks, write_shard
 from .blocks import run_blocks
 from .finalise import finalise, result_kind
 from .prepared import Setup
@@ -143,7 +140,8 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
         bs = run_blocks(setup, blocks, progress=progress)
         if shard == (1, 1):
             return write_outputs(setup, bs, tmp, device)
-        return write_shard(tmp, bs, shard, list(blocks), sc, device)
+        return write_shard(tmp, bs, shard, list(blocks), {"scenario": sc.to_dict(), "base_dir": sc.base_dir},
+                           environment(device))
 
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False,
@@ -165,23 +163,9 @@ def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool
         seen[real] = d
     metas, parts = [], []
     for d in shards:
-        if not d.is_dir():
-            raise ConfigError(f"{d} is not a folder; give the shard folders 'pmsr evaluate --shard' wrote")
-        try:
-            meta = json.loads((d / "shard.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            raise ConfigError(f"{d} is not a shard folder of 'pmsr evaluate --shard' (no readable shard.json)") from None
-        if not isinstance(meta, dict) or meta.get("format") != SHARD_FORMAT:
-            raise ConfigError(f"{d}/shard.json is not a {SHARD_FORMAT} file")
-        if not isinstance(meta.get("scenario"), dict) or not isinstance(meta.get("base_dir"), str):
-            raise ConfigError(f"{d}/shard.json lacks its scenario (corrupted?)")
-        try:
-            with np.load(d / "blocks.npz", allow_pickle=False) as f:
-                parts.append(BlockSums.from_arrays({k: f[k] for k in f.files}))
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError, IndexError) as exc:
-            first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
-            raise ConfigError(f"{d}/blocks.npz is missing or corrupted ({first_line})") from None
+        meta, bs = read_shard(d)
         metas.append(meta)
+        parts.append(bs)
     first = metas[0]
     for d, m in zip(shards, metas):
         if m["scenario"] != first["scenario"]:
