@@ -124,8 +124,10 @@ def _complete(folder: Path, identity: dict) -> bool:
 
 def evaluate_per_block(sc, out: Path, *, shard: tuple[int, int], inputs: list[Path], device: str = "cpu",
                        progress: bool = True, log=print) -> dict:
-    """Run the blocks of ``shard`` of scenario ``sc`` (loaded) that bank ``out`` lacks, each written
-    when done; returns ``{"blocks": [...run], "skipped": [...], "bank": str(out)}``."""
+    """Run the blocks of ``shard`` of scenario ``sc`` (loaded) that bank ``out`` lacks and no live
+    process holds, each written when done; returns the blocks it ran (``blocks``), found done
+    (``skipped``) and left to other processes (``others``), the bank's path and how many blocks of
+    ``n_blocks`` it holds now (``banked``)."""
     out = Path(out)
     check_target(out, inputs=inputs)
     blocks = shard_blocks(sc.n_blocks, shard)
