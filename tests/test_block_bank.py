@@ -158,12 +158,14 @@ def test_a_preview_merges_the_first_runs_and_says_it_is_one(tmp_path, capsys):
 
 
 def test_a_block_a_live_process_holds_is_passed_over_and_a_dead_ones_claim_is_taken(tmp_path):
-    path = tiny(tmp_path, block_runs=1, mc_runs=3)
-    bank(path, tmp_path / "bank", shard=(1, 3))  # opens the bank with block 0
+    path = tiny(tmp_path, block_runs=1, mc_runs=4)
+    bank(path, tmp_path / "bank", shard=(1, 4))  # opens the bank with block 0
     (tmp_path / "bank" / ".block-0001.claim").write_text(f"{os.getpid()}\n")  # a live process runs block 1
     (tmp_path / "bank" / ".block-0002.claim").write_text("999999999\n")  # a process that is gone held block 2
+    (tmp_path / "bank" / ".block-0003.claim").write_text("my notes\n")  # not a claim of ours: never removed
     res = bank(path, tmp_path / "bank")
-    assert res["skipped"] == [0] and res["others"] == [1] and res["blocks"] == [2]
+    assert res["skipped"] == [0] and res["others"] == [1, 3] and res["blocks"] == [2]
+    assert (tmp_path / "bank" / ".block-0003.claim").read_text() == "my notes\n"
     assert [p.name for p in bank_blocks(tmp_path / "bank")] == ["block-0000", "block-0002"]
     assert (tmp_path / "bank" / ".block-0001.claim").exists()  # not ours: left alone
     assert not (tmp_path / "bank" / ".block-0002.claim").exists()  # ours once taken over: released when done

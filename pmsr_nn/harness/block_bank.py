@@ -80,26 +80,38 @@ def _open_bank(out: Path, identity: dict) -> None:
     write_marker(out, "evaluate", per_block=True)  # lists no contents: the bank grows block by block
 
 
+def _holder(claim: Path) -> int | None:
+    """The PID a claim file holds (None: gone, or not a claim this package wrote: a PID alone)."""
+    try:
+        text = claim.read_text(encoding="utf-8")
+    except OSError:
+        return None
+    return int(text) if text.strip().isdigit() and text == f"{int(text)}\n" else None
+
+
 def _claim(bank: Path, block: int) -> Path | None:
     """Claim ``block`` for this process (a hidden ``.block-NNNN.claim`` holding its PID, created
     whole by a hard link, so two processes never both hold it); a claim of a process that is gone
     is taken over. Returns the claim's path, or None when a live process holds the block."""
     claim = Path(bank) / f".block-{block:04d}.claim"
     mine = Path(bank) / f".block-{block:04d}.claim-{os.getpid()}"
-    mine.write_text(f"{os.getpid()}\n", encoding="utf-8")
+    try:
+        with open(mine, "x", encoding="utf-8") as f:  # never over a file someone else put there
+            f.write(f"{os.getpid()}\n")
+    except FileExistsError:
+        if _holder(mine) != os.getpid():  # left by an earlier process with this PID is ours; anything else is not
+            return None
     try:
         for _ in range(2):
             try:
                 os.link(mine, claim)
                 return claim
             except FileExistsError:
-                try:
-                    holder = int(claim.read_text(encoding="utf-8").strip())
-                except (OSError, ValueError):
-                    holder = 0
-                if holder and process_alive(holder):
+                holder = _holder(claim)
+                if holder is None or process_alive(holder):  # live, or not a claim of ours: never removed
                     return None
-                claim.unlink(missing_ok=True)  # its process is gone (killed, or the session ended)
+                if _holder(claim) == holder:  # still the dead process's (not one just taken over by another)
+                    claim.unlink(missing_ok=True)  # its process is gone (killed, or the session ended)
         return None
     finally:
         mine.unlink(missing_ok=True)

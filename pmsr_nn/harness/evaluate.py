@@ -30,7 +30,6 @@ from .runner import prepare
 from .scenario import Scenario, scenario_from_dict
 
 
-
 RESULT_COMMANDS = ("evaluate", "merge")
 """Output folders an ``evaluate`` or ``merge --overwrite`` may replace."""
 
