@@ -3,6 +3,7 @@ interruption, merged to the unsharded run's figures bit for bit."""
 
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from pmsr_nn.errors import ConfigError, OutputError
 from pmsr_nn.harness import evaluate, merge
 from pmsr_nn.harness.block_bank import bank_blocks, block_folder, evaluate_per_block
 from pmsr_nn.harness.evaluate import load_any
-from test_harness import accuracy, tiny
+from test_harness import ROOT, accuracy, tiny
 
 
 def bank(path, out, shard=(1, 1), **over):
@@ -216,3 +217,39 @@ def test_a_shards_blocks_filed_into_a_bank_merge_as_if_the_bank_had_run_them(tmp
         (tmp_path / "o").mkdir()
         evaluate(tiny(tmp_path / "o", block_runs=2, mc_runs=5, seed=8), tmp_path / "t2", shard=(2, 2), progress=False)
         file_shard(tmp_path / "t2", tmp_path / "bank")
+
+
+def test_a_bank_beside_its_scenario_merges_and_continues_from_a_copy_at_another_path(tmp_path):
+    """A bank committed with its scenario (and a checkpoint the scenario names relative to its own
+    folder) records that folder relative to itself: a clone at another path continues and merges it."""
+    repo = tmp_path / "repo"
+    (repo / "models").mkdir(parents=True)
+    shutil.copy(ROOT / "models/released/mdfnn.pt", repo / "models" / "mdfnn.pt")
+    path = tiny(repo, block_runs=1, mc_runs=2, methods=[
+        {"name": "EKF", "kind": "ekf"}, {"name": "MDFNN", "kind": "learned", "checkpoint": "models/mdfnn.pt"}])
+    whole = evaluate(path, tmp_path / "whole", progress=False)
+    bank(path, repo / "results" / "bank", shard=(1, 2))
+    assert json.loads((repo / "results" / "bank" / "bank.json").read_text())["base_dir"] == "../.."
+    assert json.loads((block_folder(repo / "results" / "bank", 0) / "shard.json").read_text())["base_dir"] == "../../.."
+    clone = tmp_path / "elsewhere" / "clone"
+    shutil.copytree(repo, clone)
+    shutil.rmtree(repo)  # the first checkout is gone
+    res = bank(clone / "tiny.yaml", clone / "results" / "bank")
+    assert res["blocks"] == [1] and res["skipped"] == [0]
+    merged = accuracy(merge([clone / "results" / "bank"], tmp_path / "merged"))
+    for c in merged:  # the checkpoint is named where the clone holds it; all else as the first checkout's run
+        assert merged[c]["methods"]["MDFNN"].pop("checkpoint") == str((clone / "models" / "mdfnn.pt").resolve())
+        whole["cases"][c]["methods"]["MDFNN"].pop("checkpoint")
+    assert merged == accuracy(whole)
+
+
+def test_a_bank_that_records_its_scenario_folder_absolute_still_continues_and_merges(tmp_path):
+    """Banks of earlier releases name the scenario's folder by its absolute path: read as it is."""
+    path = tiny(tmp_path, block_runs=1, mc_runs=2, methods=[{"name": "EKF", "kind": "ekf"}])
+    whole = evaluate(path, tmp_path / "whole", progress=False)
+    bank(path, tmp_path / "bank", shard=(1, 2))
+    for f in [tmp_path / "bank" / "bank.json", block_folder(tmp_path / "bank", 0) / "shard.json"]:
+        meta = json.loads(f.read_text())
+        f.write_text(json.dumps({**meta, "base_dir": str(tmp_path.resolve())}))
+    assert bank(path, tmp_path / "bank")["skipped"] == [0]
+    assert accuracy(merge([tmp_path / "bank"], tmp_path / "merged")) == accuracy(whole)

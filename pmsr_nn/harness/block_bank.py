@@ -26,7 +26,7 @@ from pathlib import Path
 from ..environment import environment
 from ..errors import ConfigError, OutputError
 from ..outputs import MARKER, atomic_folder, check_target, make_parents, output_kind, process_alive, write_marker
-from .block_sums import read_shard, shard_blocks, write_shard
+from .block_sums import portable_base, read_shard, resolved_base, shard_blocks, write_shard
 from .blocks import run_blocks
 from .runner import prepare
 
@@ -66,8 +66,7 @@ def _open_bank(out: Path, identity: dict) -> None:
             what = f"the output of 'pmsr {kind}'" if kind else "files pmsr did not write"
             raise OutputError(f"--out {out} holds {what}, not blocks of 'pmsr evaluate --per-block'; choose another "
                               "path")
-        held = json.loads((out / BANK_FILE).read_text(encoding="utf-8"))
-        if {k: held.get(k) for k in identity} != identity:
+        if _identity(json.loads((out / BANK_FILE).read_text(encoding="utf-8")), out) != identity:
             raise ConfigError(f"--out {out} holds blocks of another scenario or other settings; give another --out "
                               "(or the same scenario file and options as the bank's first command)")
         return
@@ -75,9 +74,18 @@ def _open_bank(out: Path, identity: dict) -> None:
     out.mkdir(exist_ok=True)
     # renamed into place, then marked: a process starting beside this one sees no bank or a whole one
     tmp = out / f".{BANK_FILE}.{os.getpid()}"
-    tmp.write_text(json.dumps({"format": BANK_FORMAT, **identity}, indent=1) + "\n", encoding="utf-8")
+    held = {"format": BANK_FORMAT, **identity, "base_dir": portable_base(identity["base_dir"], out)}
+    tmp.write_text(json.dumps(held, indent=1) + "\n", encoding="utf-8")
     os.replace(tmp, out / BANK_FILE)
     write_marker(out, "evaluate", per_block=True)  # lists no contents: the bank grows block by block
+
+
+def _identity(meta: dict, folder: Path) -> dict:
+    """The scenario and absolute scenario folder that metadata ``meta`` read from ``folder``
+    (``bank.json`` or a block's ``shard.json``) names; a relative folder is resolved against
+    ``folder``, so a bank committed with its scenario works from a clone at any path."""
+    base = meta.get("base_dir")
+    return {"scenario": meta.get("scenario"), "base_dir": resolved_base(base, folder) if isinstance(base, str) else None}
 
 
 def _holder(claim: Path) -> int | None:
@@ -124,9 +132,9 @@ def _complete(folder: Path, identity: dict) -> bool:
         return False
     try:
         meta = json.loads((folder / "shard.json").read_text(encoding="utf-8"))
-        ok = (meta["scenario"] == identity["scenario"] and meta["base_dir"] == identity["base_dir"]
-              and (folder / "blocks.npz").is_file() and (folder / MARKER).is_file())
-    except (OSError, ValueError, KeyError, TypeError):
+        ok = (_identity(meta, folder) == identity and (folder / "blocks.npz").is_file()
+              and (folder / MARKER).is_file())
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         ok = False
     if not ok:
         raise OutputError(f"{folder} is not a complete block of this bank's scenario (no readable shard.json, "

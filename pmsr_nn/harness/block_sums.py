@@ -10,6 +10,7 @@ read from a shard's ``blocks.npz`` arrays (:func:`write_shard` and :func:`read_s
 from __future__ import annotations
 
 import json
+import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -140,11 +141,27 @@ class BlockSums:
         return out
 
 
+def portable_base(base_dir: str, folder: Path) -> str:
+    """A scenario's folder ``base_dir`` (absolute) as a folder's metadata records it: relative to
+    ``folder`` (POSIX), so a repository that holds both, cloned to any path, still finds it."""
+    return Path(os.path.relpath(Path(base_dir).resolve(), Path(folder).resolve())).as_posix()
+
+
+def resolved_base(base_dir: str, folder: Path) -> str:
+    """The absolute scenario folder a ``base_dir`` recorded in ``folder``'s metadata names: relative
+    ones (:func:`portable_base`) are resolved against ``folder``; absolute ones (shards of earlier
+    releases) are taken as they are."""
+    p = Path(base_dir)
+    return str(p if p.is_absolute() else (Path(folder).resolve() / p).resolve())
+
+
 def write_shard(folder: Path, bs: BlockSums, shard: tuple[int, int], blocks: list[int], identity: dict,
                 env: dict) -> dict:
     """A shard's ``shard.json`` and ``blocks.npz`` into ``folder`` (an existing, empty folder) for
-    the blocks ``blocks``; ``identity``: the scenario's ``{"scenario": to_dict(), "base_dir": ...}``,
-    ``env``: the environment to record. Returns shard.json's content."""
+    the blocks ``blocks``; ``identity``: the scenario's ``{"scenario": to_dict(), "base_dir": ...}``
+    (its folder is recorded relative to ``folder``), ``env``: the environment to record. Returns
+    shard.json's content."""
+    identity = {**identity, "base_dir": portable_base(identity["base_dir"], folder)}
     meta = {"format": SHARD_FORMAT, "shard": list(shard), "blocks": blocks, **identity, "environment": env}
     np.savez_compressed(folder / "blocks.npz", **bs.to_arrays())
     (folder / "shard.json").write_text(json.dumps(meta, indent=1) + "\n")
@@ -152,8 +169,8 @@ def write_shard(folder: Path, bs: BlockSums, shard: tuple[int, int], blocks: lis
 
 
 def read_shard(folder: Path) -> tuple[dict, BlockSums]:
-    """A shard folder's ``shard.json`` content and its sums, with a one-line :class:`ConfigError`
-    for a folder that is not a readable shard."""
+    """A shard folder's ``shard.json`` content (``base_dir`` resolved to an absolute path) and its
+    sums, with a one-line :class:`ConfigError` for a folder that is not a readable shard."""
     d = Path(folder)
     if not d.is_dir():
         raise ConfigError(f"{d} is not a folder; give the shard folders 'pmsr evaluate --shard' wrote")
@@ -165,6 +182,7 @@ def read_shard(folder: Path) -> tuple[dict, BlockSums]:
         raise ConfigError(f"{d}/shard.json is not a {SHARD_FORMAT} file")
     if not isinstance(meta.get("scenario"), dict) or not isinstance(meta.get("base_dir"), str):
         raise ConfigError(f"{d}/shard.json lacks its scenario (corrupted?)")
+    meta["base_dir"] = resolved_base(meta["base_dir"], d)
     try:
         with np.load(d / "blocks.npz", allow_pickle=False) as f:
             bs = BlockSums.from_arrays({k: f[k] for k in f.files})
