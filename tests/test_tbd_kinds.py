@@ -269,6 +269,7 @@ def test_pmsr_evaluate_writes_the_remote_sensing_figures(tmp_path):
     assert "tbd.detected_frame_rate" in res["definitions"] and res["settings"]["set_metrics"] == {"c_m": 1000.0, "p": 1.0}
     report = (out / "report.md").read_text()
     assert "| m1 | 1x1 |" in report and "| 46.7 | 36.86 | 51.9 |" in report  # ours beside the paper's row
+    assert "| m5 | own, from rd_maps |" in report  # the tracks table names what map rows start tracks from
     for fig in ("detected", "tbd_rms", "snr", "subarea", "existence", "ospa", "maps"):
         assert (out / f"c_{fig}.png").stat().st_size > 10_000, fig
         assert f"c_{fig}.png" in report

@@ -60,7 +60,8 @@ DEFINITIONS = {
     "track_loss_probability": "fraction of (run, target) whose matched tracks ended while the target still lived",
     "fragmentations_per_run": "interruptions of a target's matched coverage that resumed later, per run",
     "initiation": "how a row's tracks start: association known (each target's own stream), oracle (handed each "
-                  "target's birth: truth plus a prior draw) or detections (the tracker's own initiator)",
+                  "target's birth: truth plus a prior draw) or detections (the tracker's own initiator, from "
+                  "detections or, for the track-before-detect rows, range-Doppler maps)",
     "cardinality_mean_abs_error": "mean over runs and scans after the warm-up of |number of tracks - number of targets|",
     "rmse_pos_assigned_per_target_m": "per target: each run's track labels are assigned to targets once (the assignment "
                                       "minimising the summed capped squared distances over the run), then the RMSE of "

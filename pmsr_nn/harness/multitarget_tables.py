@@ -8,7 +8,7 @@ import numpy as np
 
 from .paired import comparison_lines
 from .references import paper_seconds
-from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, starts
+from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, start_label, starts
 from .result_rows import MethodRow
 from .results import Case, Results
 
@@ -68,7 +68,8 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
         lines += comparison_lines(case.set_comparisons)
         if case.pcrb is not None:
             lines += ["", f"PCRB (filtering, per target from its birth, clean streams): {fmt(case.pcrb.pos_m)} m."]
-        lines += track_table(rows, results.settings.dt_s, "CLEAR MOT" in results.definitions.get("label_switches_per_run", ""))
+        lines += track_table(rows, results.settings.dt_s, "CLEAR MOT" in results.definitions.get("label_switches_per_run", ""),
+                             {m: results.settings.methods[m].reads for m in rows if m in results.settings.methods})
         lines += ["", f"![OSPA, cardinality and RMSE vs time]({name}_set_metrics.png)", ""]
     return lines
 
@@ -84,10 +85,11 @@ def space_note(res: Results | dict) -> list[str]:
             "\"Rows scored in a bistatic plane\" below.)", ""]
 
 
-def track_table(rows: dict[str, MethodRow], dt: float, persistent: bool = False) -> list[str]:
+def track_table(rows: dict[str, MethodRow], dt: float, persistent: bool = False,
+                reads: dict[str, str | None] | None = None) -> list[str]:
     """Track-level figures of every row (``dt`` the scan interval in s; ``persistent``: counted on
     the persistent mapping of tracks to targets, else, in records made before it, on each scan's
-    OSPA assignment)."""
+    OSPA assignment; ``reads``: the product each row reads, named where a row starts its own tracks)."""
     have = {m: r for m, r in rows.items() if r.tracks is not None}
     if not have:
         return []
@@ -101,7 +103,7 @@ def track_table(rows: dict[str, MethodRow], dt: float, persistent: bool = False)
     for m, r in have.items():
         t = r.tracks
         first = t.scans_to_first_track
-        lines.append(f"| {m} | {r.initiation or '-'} | {fmt(t.confirmed_tracks_per_target, 2)} | "
+        lines.append(f"| {m} | {start_label(r, (reads or {}).get(m))} | {fmt(t.confirmed_tracks_per_target, 2)} | "
                      f"{fmt(t.false_tracks_per_run, 2)} | {fmt(t.missed_target_fraction, 4)} | "
                      f"{fmt(None if first is None else first * dt, 2)} | {fmt(t.track_loss_probability, 3)} | "
                      f"{fmt(t.fragmentations_per_run, 2)} |")

@@ -46,6 +46,14 @@ def starts(row: MethodRow) -> str:
     return {"oracle": " (oracle births)", "association known": " (association known)"}.get(row.initiation, "")
 
 
+def start_label(row: MethodRow, reads: str | None) -> str:
+    """A row's ``initiation`` as a table cell: a row with its own initiator says what it starts
+    tracks from (``reads``: detections, or range-Doppler maps), not only that it starts them."""
+    if row.initiation == "detections" and reads:
+        return f"own, from {reads}"
+    return row.initiation or "-"
+
+
 SWEEP_LABELS = {"pd": "detection probability Pd", "clutter_per_scan": "clutter points per sensor per scan",
                 "spacing_m": "spacing of the formation (m)"}
 """Axis and column labels of a multi-target study's swept quantity."""
