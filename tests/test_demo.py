@@ -114,7 +114,7 @@ def test_the_demo_console_prints_the_reports_flags_one_line_each(tmp_path):
     first = lines.index(warnings[0])
     assert lines[first - 2].startswith("| PCRB | truth | association known |")  # under the last table
     assert lines[first + 2].startswith("reports")
-    assert any(line.startswith("| S-MSJPDA | detections | detections | 52.0 | 120.0 | 150.0 ± 13.2 |")
+    assert any(line.startswith("| S-MSJPDA | detections | own | 52.0 | 120.0 | 150.0 ± 13.2 |")
                for line in lines)  # GOSPA with its standard error
     res["cases"]["c"]["methods"]["EKF"]["below_bound"] = False
     del res["one_sky"]["cases"]["c"]["methods"]["S-MSJPDA"]["diverged_runs"]

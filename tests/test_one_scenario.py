@@ -173,3 +173,10 @@ def test_the_report_shows_every_method_and_the_set_metrics(tmp_path):
     row = res["cases"]["c"]["methods"]["S-MSJPDA"]
     shares = sum(row[f"gospa_{p}_share"] for p in ("localisation", "missed", "false"))
     assert shares == pytest.approx(1.0)
+    # every row in one table: its cells are the results' figures
+    table = report.split("Every row in one table (2 runs;", 1)[1].split("\n\n", 2)[1].splitlines()
+    line = next(r for r in table if r.startswith("| S-MSJPDA |")).split(" | ")
+    assert line[2] == f"{row['gospa_m']:.1f} ± {row['gospa_se_m']:.1f}"
+    assert line[4] == f"{row['ospa_m']:.1f} ± {row['ospa_se_m']:.1f}"
+    assert line[6] == f"{row['confirmed_tracks_per_target']:.2f}"
+    assert len(table) == 2 + len(res["cases"]["c"]["methods"])

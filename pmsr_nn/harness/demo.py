@@ -243,7 +243,7 @@ def demo_summary(res: dict, out: Path) -> list[str]:
     for m, r in case.methods.items():  # a bound's row has no tracks: "-"
         s, t = r.sets, r.tracks
         reads = sky.settings.methods[m].reads
-        lines.append(f"| {m} | {'-' if reads is None else reads} | {start_label(r, reads)} | "
+        lines.append(f"| {m} | {'-' if reads is None else reads} | {start_label(r, None)} | "
                      f"{fmt_se(r.rmse_pos_m, r.rmse_pos_se_m, 1)} | {fmt_se(s and s.ospa_m, s and s.ospa_se_m, 1)} | "
                      f"{fmt_se(s and s.gospa_m, s and s.gospa_se_m, 1)} | "
                      f"{fmt(t and t.confirmed_tracks_per_target, 2)} | "

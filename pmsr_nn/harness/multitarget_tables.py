@@ -36,7 +36,7 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
             continue
         key = case.study.reference_key if case.study else None
         paper = timing is not None and key is not None
-        lines += [case_heading(name, case), "",
+        lines += [case_heading(name, case), *overview_table(results, case), "",
                   "| method | reads | pos RMSE (m) | pos RMSE, all scans (m) | per target (m) | per target, assigned (m) | "
                   "OSPA (m) | GOSPA (m) ± s.e.: % localisation / missed / false | mean abs. cardinality error | label switches / run | "
                   "swap prob. | loss prob. | s / run |" + (f" {label}: s / run |" if paper else ""),
@@ -52,9 +52,7 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
             assigned = " / ".join("-" if v is None else f"{v:.0f}" for v in s.rmse_pos_assigned_per_target_m)
             split = (f"{fmt_se(s.gospa_m, s.gospa_se_m, 1)}: " + " / ".join(
                 f"{100 * share:.0f}" for share in (s.gospa_localisation_share, s.gospa_missed_share, s.gospa_false_share)))
-            how = results.settings.methods[m]
-            reads = "-" if how.reads is None else how.reads + (f", {how.lists}" if how.lists else "")
-            line = (f"| {m} | {reads}{starts(r)}{space_mark(r)} | {rmse} | "
+            line = (f"| {m} | {_reads(results, m, r)} | {rmse} | "
                     f"{fmt(r.rmse_pos_all_scans_m, 1)} | {per} | {assigned} | {fmt_se(s.ospa_m, s.ospa_se_m, 1)} | "
                     f"{split} | {fmt(s.cardinality_mean_abs_error, 3)} | {fmt(s.label_switches_per_run, 2)} | "
                     f"{fmt(r.swap_probability, 3)} | {fmt(r.loss_probability, 3)} | {fmt(r.seconds_per_run, 3)} |")
@@ -83,6 +81,42 @@ def space_note(res: Results | dict) -> list[str]:
             "their position RMSE, OSPA and GOSPA are on bistatic range alone (one axis, m), their velocity figures on "
             "range-rate. Compare them with each other, not with Cartesian rows.** (`space` in results.json; the section "
             "\"Rows scored in a bistatic plane\" below.)", ""]
+
+
+def _reads(results: Results, m: str, r: MethodRow) -> str:
+    """What a row reads (and its lists), and how its tracks start where it is not its own initiator."""
+    how = results.settings.methods.get(m)
+    reads = "-" if how is None or how.reads is None else how.reads + (f", {how.lists}" if how.lists else "")
+    return f"{reads}{starts(r)}{space_mark(r)}"
+
+
+def overview_table(results: Results, case: Case) -> list[str]:
+    """Every row of a case whose rows keep tracks in one table: GOSPA and its parts, OSPA, the
+    matched tracks' position RMSE (each ± its standard error over the runs), confirmed and false
+    tracks, track loss, label switches, time to the first track and run time. Empty where no row
+    reports tracks (the tables below hold the rest)."""
+    rows = case.methods
+    if not any(r.tracks is not None for r in rows.values()):
+        return []
+    dt = results.settings.dt_s
+    lines = ["", f"Every row in one table ({results.mc_runs} runs; ± the standard error over the runs; the tables "
+             "below break each column down):", "",
+             "| method | reads | GOSPA (m) ± s.e. | % localisation / missed / false | OSPA (m) ± s.e. | "
+             "pos RMSE, matched (m) ± s.e. | confirmed tracks / target | false tracks / run | track loss prob. | "
+             "label switches / run | first track after birth (s) | s / run |",
+             "|---|---|" + "---:|" + "---|" + "---:|" * 8]
+    for m, r in rows.items():
+        s, t = r.sets, r.tracks
+        parts = "-" if s is None else " / ".join(f"{100 * v:.0f}" for v in (
+            s.gospa_localisation_share, s.gospa_missed_share, s.gospa_false_share))
+        first = None if t is None or t.scans_to_first_track is None else t.scans_to_first_track * dt
+        reads = f"{r.bound.which} bound{starts(r)}" if s is None and r.bound is not None else _reads(results, m, r)
+        lines.append(f"| {m} | {reads} | {fmt_se(s and s.gospa_m, s and s.gospa_se_m, 1)} | {parts} | "
+                     f"{fmt_se(s and s.ospa_m, s and s.ospa_se_m, 1)} | {fmt_se(r.rmse_pos_m, r.rmse_pos_se_m, 1)} | "
+                     f"{fmt(t and t.confirmed_tracks_per_target, 2)} | {fmt(t and t.false_tracks_per_run, 2)} | "
+                     f"{fmt(t and t.track_loss_probability, 2)} | {fmt(s and s.label_switches_per_run, 2)} | "
+                     f"{fmt(first, 2)} | {fmt(r.seconds_per_run, 1)} |")
+    return lines
 
 
 def track_table(rows: dict[str, MethodRow], dt: float, persistent: bool = False,

@@ -47,10 +47,11 @@ def starts(row: MethodRow) -> str:
 
 
 def start_label(row: MethodRow, reads: str | None) -> str:
-    """A row's ``initiation`` as a table cell: a row with its own initiator says what it starts
-    tracks from (``reads``: detections, or range-Doppler maps), not only that it starts them."""
-    if row.initiation == "detections" and reads:
-        return f"own, from {reads}"
+    """A row's ``initiation`` as a table cell: ``own`` for a row with its own initiator, with what
+    it starts tracks from where the table has no column for it (``reads``: detections, or
+    range-Doppler maps), so that a map row never reads as starting from detections."""
+    if row.initiation == "detections":
+        return "own" + (f", from {reads}" if reads else "")
     return row.initiation or "-"
 
 
