@@ -463,3 +463,29 @@ def test_an_inconsistent_combined_innovation_gets_the_models_gain_alone():
     corr.start(1, 1)
     assert bool((_one_detection_step(corr, 1, 1.9) != 0).all())  # NIS 10.8: the learned part acts
     assert bool((_one_detection_step(corr, 1, 2.0) == 0).all())  # NIS 12.0: it does not
+
+
+def test_pmsr_train_of_the_hybrid_prints_a_line_per_validation_and_writes_the_tracker(tmp_path, capsys):
+    """A tiny `pmsr train` of the hybrid: one line per validation (step, loss and the best so far,
+    the validation RMSE), the summary, and a checkpoint that loads."""
+    from pathlib import Path
+
+    from pmsr_nn.cli import main
+
+    recipe = Path(__file__).resolve().parents[1] / "datasets" / "fitee2023_ca.yaml"
+    cfg = tmp_path / "g.yaml"
+    cfg.write_text(f"kind: jpda_gain\nrecipe: {recipe}\nthreads: 1\nscenes: {{window: 8, targets: [1, 2]}}\n"
+                   "optim: {steps: 2, val_every: 1, val_scenes: 2, batch_size: 2}\n")
+    assert main(["train", str(cfg), "--out", str(tmp_path / "run")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    steps = [line for line in lines if line.startswith("step ")]
+    assert [s.split()[1] for s in steps] == ["1/2", "2/2"], lines
+    for s in steps:
+        loss, best = float(s.split("validation loss ")[1].split()[0]), float(s.split("(best ")[1].split(")")[0])
+        assert best <= loss and "position RMSE" in s
+    summary = next(line for line in lines if line.startswith("trained   2 steps"))
+    # the checkpoint keeps the step of lowest validation loss (with validation at every step too)
+    best = float(summary.split("best validation loss ")[1].split()[0])
+    printed = min(float(s.split("validation loss ")[1].split()[0]) for s in steps)  # 4 significant digits
+    assert best == pytest.approx(printed, rel=5e-4)
+    assert load_gain_checkpoint(tmp_path / "run" / "tracker.pt").net is not None

@@ -190,7 +190,7 @@ def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> 
     module = make_module(cfg, problem)
     o = cfg.optim
     trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, cfg.optim.val_batches, o.gradient_clip_val,
-                                            o.max_time_minutes)
+                                            o.max_time_minutes, progress=progress)
     meta = gain_metadata(problem.model.geometry.to_dict(), list(problem.model.components), list(problem.noise_std),
                          problem.dt, module.net, problem.prior_sd.tolist(), seed=cfg.seed, steps=int(trainer.global_step),
                          config=to_dict(cfg))

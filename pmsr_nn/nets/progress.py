@@ -121,3 +121,39 @@ class EpochProgress(Callback):
         if self._bar is not None:
             self._bar.close()
             self._bar = None
+
+
+class StepProgress(Callback):
+    """One line per validation of a run trained by steps on scenes drawn on the fly
+    (:func:`~pmsr_nn.nets.scene_data.fit_on_the_fly`): the step, the validation loss and the best
+    so far, the validation figures the module logs (position RMSE, GOSPA), the time since the
+    start and an estimate of the time left (mean step time x steps left, capped by
+    ``max_time_minutes``); rank 0 only."""
+
+    FIGURES = (("val/pos_rmse_m", "position RMSE {:.1f} m"), ("val/gospa_m", "GOSPA {:.1f} m"))
+
+    def __init__(self, steps: int, max_time_minutes: float | None = None, monitor: str = "val/loss"):
+        self.steps, self.monitor = steps, monitor
+        self.max_seconds = None if max_time_minutes is None else 60.0 * max_time_minutes
+        self.best = None
+        self._t_start = None
+
+    def on_train_start(self, trainer, pl_module):
+        self._t_start = time.perf_counter()
+
+    def on_validation_end(self, trainer, pl_module):
+        m = trainer.callback_metrics
+        if trainer.sanity_checking or not trainer.is_global_zero or self.monitor not in m or self._t_start is None:
+            return
+        loss = float(m[self.monitor])
+        self.best = loss if self.best is None else min(self.best, loss)
+        step = int(trainer.global_step)
+        elapsed = time.perf_counter() - self._t_start
+        left = elapsed / max(step, 1) * max(self.steps - step, 0)
+        if self.max_seconds is not None:
+            left = min(left, max(self.max_seconds - elapsed, 0.0))
+        figures = [fmt.format(float(m[key])) for key, fmt in self.FIGURES if key in m]
+        print(f"step {step:>{len(str(self.steps))}}/{self.steps}   validation loss {loss:.4g} (best {self.best:.4g})"
+              + "".join(f"   {f}" for f in figures) + f"   {_duration(elapsed)}"
+              + (f"   ~{_duration(left)} left" if left > 0 else ""), flush=True)
+

@@ -132,24 +132,30 @@ def start_run(out: Path, cfg, recipe: str) -> None:
 
 
 def fit_on_the_fly(module, out: Path, steps: int, val_every: int, val_batches: int, clip: float,
-                   max_time_minutes: float | None, accelerator: str = "cpu", monitor: str = "val/loss"):
+                   max_time_minutes: float | None, accelerator: str = "cpu", monitor: str = "val/loss",
+                   progress: bool = False):
     """Fit a Lightning ``module`` whose ``training_step(i)`` draws batch ``i`` itself (step indices
     in, no dataset) and whose ``validation_step(j)`` reads fixed batch ``j``: TensorBoard in
     ``out/tb``, the best (lowest ``monitor``) and last checkpoints in ``out/checkpoints``; the best
-    weights are loaded back into ``module``. Returns ``(trainer, checkpoint callback, fit seconds)``."""
+    weights are loaded back into ``module``; ``progress``: a line per validation
+    (:class:`~.progress.StepProgress`). Returns ``(trainer, checkpoint callback, fit seconds)``."""
     import time
 
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import ModelCheckpoint
     from lightning.pytorch.loggers import TensorBoardLogger
 
-    from .progress import quiet_lightning
+    from .progress import StepProgress, quiet_lightning
 
-    ckpt = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor=monitor, mode="min", save_last=True)
+    # after every validation, also where val_every is 1 (Lightning reads a check interval of 1 as "once an epoch" and
+    # would otherwise keep only the epoch's end: the best step lost)
+    ckpt = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor=monitor, mode="min", save_last=True,
+                           save_on_train_epoch_end=False)
     with quiet_lightning(True):
         trainer = pl.Trainer(max_steps=steps, max_epochs=1, val_check_interval=min(val_every, steps),
                              accelerator=accelerator, devices=1, logger=TensorBoardLogger(out, name="tb", version=""),
-                             callbacks=[ckpt], gradient_clip_val=clip, enable_progress_bar=False,
+                             callbacks=[ckpt, *([StepProgress(steps, max_time_minutes, monitor)] if progress else [])],
+                             gradient_clip_val=clip, enable_progress_bar=False,
                              enable_model_summary=False, num_sanity_val_steps=0,
                              max_time=None if max_time_minutes is None else {"minutes": max_time_minutes})
         t0 = time.perf_counter()

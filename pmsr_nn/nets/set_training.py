@@ -181,7 +181,7 @@ def train_set(cfg: SetTrainConfig, out: str | Path, progress: bool = True) -> di
         start_from(module.net, cfg.init, sampler)
     o = cfg.optim
     trainer, ckpt, seconds = fit_on_the_fly(module, out, o.steps, o.val_every, o.val_batches,
-                                            o.gradient_clip_val, o.max_time_minutes, cfg.accelerator)
+                                            o.gradient_clip_val, o.max_time_minutes, cfg.accelerator, progress=progress)
     meta = set_metadata(cfg.model, sampler.model, sampler.dt, sampler.motion.dim_x, seed=cfg.seed,
                         steps=int(trainer.global_step), config=to_dict(cfg), device=str(trainer.strategy.root_device))
     save_set_checkpoint(out / "tracker.pt", meta, module.net.cpu())
