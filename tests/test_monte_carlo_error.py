@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pmsr_nn.harness.finalise import _rmse_se, _se
+from pmsr_nn.harness.finalise import _median_root, _rmse_se, _se
 
 
 def test_the_rmse_standard_error_is_the_spread_of_repeated_experiments():
@@ -32,3 +32,11 @@ def test_the_standard_errors_need_two_runs_and_skip_runs_without_a_value():
     # the RMSE form: rmse * se(MSE) / (2 mean MSE), by hand for per-run MSEs 1, 4 (one target)
     assert _rmse_se(np.array([[1.0], [4.0]]), 5**0.5 / 2**0.5) == pytest.approx(
         (2.5**0.5) * (np.std([1.0, 4.0], ddof=1) / 2**0.5) / (2 * 2.5), rel=1e-12)
+
+
+def test_the_median_runs_gospa_is_the_root_of_the_median_run_and_ignores_one_lost_run():
+    """Each run's GOSPA^p mean; p = 2: runs of 40, 50, 60 m and one at 300 m (tracks lost)."""
+    per_run = np.array([40.0, 50.0, 60.0, 300.0, np.nan]) ** 2  # the NaN: a run without a value
+    assert _median_root(per_run, 2.0) == pytest.approx(55.0)  # the median of the runs' GOSPA: (50 + 60) / 2
+    assert _median_root(per_run[:3], 2.0) == pytest.approx(50.0)
+    assert _median_root(np.array([np.nan]), 2.0) is None and _median_root(None, 2.0) is None

@@ -51,7 +51,9 @@ DEFINITIONS = {
                "warm-up of GOSPA^p; gospa_localisation_share, gospa_missed_share and gospa_false_share split that "
                "mean into its parts (sum of d^p over assigned pairs, c^p/2 per missed target, c^p/2 per false track), "
                "which add up to 1; gospa_se_m its Monte Carlo standard error (the spread of the runs' mean GOSPA^p, "
-               "through the p-th root by the delta method)",
+               "through the p-th root by the delta method); gospa_median_run_m the median over runs of each run's "
+               "GOSPA (the p-th root of its mean GOSPA^p over those scans): a few runs that lose their tracks move "
+               "the mean, not the median",
     "confirmed_tracks_per_target": "reported tracks mapped to a target (the persistent mapping of "
                                    "label_switches_per_run) at some scan of its life, per target and run",
     "false_tracks_per_run": "reported tracks never matched to any target",

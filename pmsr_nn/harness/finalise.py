@@ -68,6 +68,14 @@ def _rmse_se(mse: np.ndarray, rmse: float) -> float | None:
     return None if se is None or mean <= 0 else rmse * se / (2.0 * mean)
 
 
+def _median_root(per_run: np.ndarray | None, p: float) -> float | None:
+    """The median over runs of each run's GOSPA (the p-th root of its mean GOSPA^p over the
+    scored scans): a run that loses its tracks moves the mean, not this."""
+    if per_run is None or not np.isfinite(per_run).any():
+        return None
+    return float(np.nanmedian(np.where(np.isfinite(per_run), per_run, np.nan) ** (1 / p)))
+
+
 def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarray | None = None) -> tuple[dict, dict]:
     """Multi-target figures of one method: the row's fields and its per-scan curves; ``scans (K,)``:
     the scans the set figures average over (default: where some target is scored)."""
@@ -83,6 +91,7 @@ def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarra
     total = float(gp[k].mean())
     row = {"ospa_m": float(ospa_c[k].mean()), "gospa_m": total ** (1 / p),
            "gospa_se_m": _root_se(s.get("gospa_run"), total, p), "ospa_se_m": _se(s.get("ospa_run")),
+           "gospa_median_run_m": _median_root(s.get("gospa_run"), p),
            "gospa_localisation_share": float((s["gospa_loc"][k] / B).mean() / total) if total > 0 else 0.0,
            "gospa_missed_share": float((s["gospa_missed"][k] / B).mean() / total) if total > 0 else 0.0,
            "gospa_false_share": float((s["gospa_false"][k] / B).mean() / total) if total > 0 else 0.0,

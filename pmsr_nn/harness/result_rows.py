@@ -67,6 +67,7 @@ class SetFigures:
     label_switches_per_target: list | None = None
     ospa_se_m: float | None = None
     gospa_se_m: float | None = None
+    gospa_median_run_m: float | None = None
 
 
 @dataclass(frozen=True)
