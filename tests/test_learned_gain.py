@@ -6,6 +6,7 @@ innovation; the training scenes; the checkpoint and its refusals."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,6 +26,7 @@ from pmsr_nn.trackers.learned_gain import GainCorrection, pda_marginals
 from pmsr_nn.trackers.management import Confirmer, Deleter, FixInitiator, Management
 from pmsr_nn.trackers.msjpda import JPDASettings, managed_msjpda, msjpda
 
+ROOT = Path(__file__).resolve().parents[1]
 NOISE = (30.0, 2.0, math.radians(3.0))
 S_Z = torch.tensor(NOISE, dtype=torch.float64)
 S_X = torch.tensor([100.0, 5.0, 0.1] * 2, dtype=torch.float64)
@@ -468,11 +470,9 @@ def test_an_inconsistent_combined_innovation_gets_the_models_gain_alone():
 def test_pmsr_train_of_the_hybrid_prints_a_line_per_validation_and_writes_the_tracker(tmp_path, capsys):
     """A tiny `pmsr train` of the hybrid: one line per validation (step, loss and the best so far,
     the validation RMSE), the summary, and a checkpoint that loads."""
-    from pathlib import Path
-
     from pmsr_nn.cli import main
 
-    recipe = Path(__file__).resolve().parents[1] / "datasets" / "fitee2023_ca.yaml"
+    recipe = ROOT / "datasets" / "fitee2023_ca.yaml"
     cfg = tmp_path / "g.yaml"
     cfg.write_text(f"kind: jpda_gain\nrecipe: {recipe}\nthreads: 1\nscenes: {{window: 8, targets: [1, 2]}}\n"
                    "optim: {steps: 2, val_every: 1, val_scenes: 2, batch_size: 2}\n")
@@ -489,3 +489,79 @@ def test_pmsr_train_of_the_hybrid_prints_a_line_per_validation_and_writes_the_tr
     printed = min(float(s.split("validation loss ")[1].split()[0]) for s in steps)  # 4 significant digits
     assert best == pytest.approx(printed, rel=5e-4)
     assert load_gain_checkpoint(tmp_path / "run" / "tracker.pt").net is not None
+
+
+def test_the_default_management_is_the_method_kinds_default_options():
+    """`Management.defaults` (what managed training starts tracks with) is what a row with
+    `initiation: detections` and no other option gets, for either initiator."""
+    from types import SimpleNamespace
+
+    from pmsr_nn.methods.msjpda import MANAGEMENT_OPTIONS
+    from pmsr_nn.methods.msjpda import management as of_options
+
+    spec = SimpleNamespace(option=lambda name: MANAGEMENT_OPTIONS[name].default)
+    for components in (("range", "range_rate", "azimuth"), ("range", "range_rate")):
+        m = model(components, NOISE[:len(components)])
+        assert Management.defaults(m, S_X) == of_options(spec, SimpleNamespace(detection_model=m, prior_sd=S_X))
+
+
+def test_the_managed_training_loss_is_gospa_with_p_1_and_pulls_each_track_to_its_target():
+    """Per scan: GOSPA (p = 1, cut-off c) by brute force over the track-to-target matchings, its
+    gradient a unit vector from each assigned track towards its target (none for a track beyond
+    c), and GOSPA^2 (p = 2) as the metric module gives it."""
+    import itertools
+
+    from pmsr_nn.metrics.sets import gospa
+    from pmsr_nn.nets.jpda_training import GainTrainConfig, Problem
+
+    cfg = GainTrainConfig(kind="jpda_gain", recipe=str(ROOT / "datasets" / "fitee2023_ca.yaml"), tracking="managed")
+    problem = Problem(cfg)
+    c, k0 = cfg.optim.loss_cutoff_m, cfg.optim.skip_scans
+    g = torch.Generator().manual_seed(5)
+    B, K, N, T = 2, k0 + 3, 3, 4
+    truth = torch.randn(B, K, N, 6, generator=g, dtype=torch.float64) * 300.0
+    truth[1, :, 2] = math.nan  # a target not alive in run 1
+    x = truth[:, :, [0, 1, 2, 0]].clone() + torch.randn(B, K, T, 6, generator=g, dtype=torch.float64) * 150.0
+    x[0, :, 3] = math.nan  # a slot without a track (in run 1 a second track near target 0, and none in slot 2)
+    exists = torch.isfinite(x[..., 0])
+    x[1, :, 1, [0, 3]] += 2000.0  # beyond the cut-off: a false track and a missed target
+    x = x.requires_grad_()
+    g1, g2 = problem.set_errors(x, exists, truth)
+    pos = [0, 3]
+    for b in range(B):
+        for k in range(K - k0):
+            est = [x[b, k0 + k, t, pos].detach() for t in range(T) if exists[b, k0 + k, t]]
+            tgt = [truth[b, k0 + k, n, pos] for n in range(N) if torch.isfinite(truth[b, k0 + k, n, 0])]
+            best = min(sum(min(float((est[i] - tgt[j]).norm()), c) for i, j in zip(perm_e, perm_t))
+                       + c / 2 * (len(est) - len(perm_e) + len(tgt) - len(perm_t))
+                       for r in range(min(len(est), len(tgt)) + 1)
+                       for perm_e in itertools.permutations(range(len(est)), r)
+                       for perm_t in itertools.combinations(range(len(tgt)), r))
+            assert float(g1[b, k].detach()) == pytest.approx(best, rel=1e-9)
+    e0 = torch.where(exists[..., None], x.detach(), torch.zeros(()))[:, k0:][..., pos]
+    ref = gospa(e0, exists[:, k0:], torch.nan_to_num(truth[:, k0:][..., pos]), torch.isfinite(truth[:, k0:, :, 0]), c, 2.0)
+    assert torch.allclose(g2, ref.total ** 2, rtol=1e-12)
+    g1.sum().backward()
+    grad = x.grad[..., pos]
+    norms = grad.norm(dim=-1)[:, k0:]
+    assert torch.allclose(norms[0, :, :3], torch.ones(K - k0, 3, dtype=torch.float64), atol=1e-9)  # every track assigned
+    assert float(norms[1, :, 1].abs().max()) == 0.0  # beyond the cut-off: no pull
+    assert float(x.grad[:, :k0].abs().max()) == 0.0  # scans before skip_scans are not scored
+
+
+def test_pmsr_train_of_the_hybrid_starting_its_own_tracks(tmp_path, capsys):
+    """`tracking: managed`: the tracker starts its own tracks in training and validation; the
+    console says so and reports GOSPA, and the plain S-MSJPDA's GOSPA on the same scenes."""
+    from pmsr_nn.cli import main
+
+    cfg = tmp_path / "g.yaml"
+    cfg.write_text(f"kind: jpda_gain\nrecipe: {ROOT / 'datasets' / 'fitee2023_ca.yaml'}\nthreads: 1\ntracking: managed\n"
+                   "scenes: {window: 12, targets: [2, 2], clutter_per_scan: [5, 10]}\n"
+                   "optim: {steps: 2, val_every: 1, val_scenes: 2, batch_size: 2}\n")
+    assert main(["train", str(cfg), "--out", str(tmp_path / "run")]) == 0
+    out = capsys.readouterr().out
+    assert "S-MSJPDA alone on the validation scenes (managed tracking)" in out and "GOSPA" in out
+    steps = [line for line in out.splitlines() if line.startswith("step ")]
+    assert len(steps) == 2 and all("GOSPA" in s for s in steps)
+    meta = load_gain_checkpoint(tmp_path / "run" / "tracker.pt").meta
+    assert meta["training"]["config"]["tracking"] == "managed"

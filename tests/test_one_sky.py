@@ -71,3 +71,22 @@ def test_every_family_is_a_row(setup):
     for m in setup.methods:  # the released networks were trained for these sensors
         if m.kind == "learned":
             assert setup.resources[m.name].meta["dim_z"] == 18
+
+
+def test_the_hybrid_companion_is_one_sky_but_for_its_rows():
+    """``evaluate/one_sky_hybrid.yaml`` puts the hybrid tracker on one_sky's draws: every setting
+    but the name, the description and the rows is one_sky.yaml's (the draws do not depend on
+    those), its S-MSJPDA row is one_sky's, and its learned rows were trained for these sensors."""
+    import yaml
+
+    from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
+
+    main, hybrid = (yaml.safe_load((ROOT / "evaluate" / f).read_text()) for f in ("one_sky.yaml", "one_sky_hybrid.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(hybrid) == rest(main)
+    assert hybrid["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
+    learned = hybrid["methods"][1:]
+    assert [m["kind"] for m in learned] == ["jpda_learned_gain"] * 3
+    for m in learned:
+        meta = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta
+        assert len(meta["geometry"]["transmitters"]) == 2 and len(meta["geometry"]["receivers"]) == 3

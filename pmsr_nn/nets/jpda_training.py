@@ -1,17 +1,31 @@
 """``pmsr train`` for the hybrid tracker on detections (a config with ``kind: jpda_gain``).
 
 The learned gain correction of :mod:`pmsr_nn.trackers.learned_gain` is trained inside the tracker
-it serves: S-MSJPDA with JPDA association, its tracks handed their targets' starts (the oracle
-initiator: training teaches the gain, not the track management), on scenes drawn on the fly
+it serves, S-MSJPDA with JPDA association, on scenes drawn on the fly
 (:func:`pmsr_nn.simulation.scenes.draw_scenes`: formations, crossings, independent tracks) with
 detections from the package's simulator at a Pd and clutter count drawn per batch from the
 config's ranges. No dataset on disk: step ``i`` draws from the seed ``(seed, i)``, so a run is
 reproducible and never reads the same scene twice; validation reads fixed scenes of its own seed.
 
-Loss: the Huber loss of each track's position error in units of ``loss_scale_m`` (quadratic
-below ``huber_delta`` of them, linear beyond: a track the association lost does not drown the
-rest), from scan ``skip_scans`` on. The association weights are constants (no gradient runs
-through Murty's assignment); gradients run through the gain, the UKF moments and the means.
+``tracking`` says how the tracks start in training:
+
+* ``oracle`` (the default): each target's track is handed its start (truth plus a prior draw),
+  so training teaches the gain, not the track management. Loss: the Huber loss of each track's
+  position error in units of ``loss_scale_m`` (quadratic below ``huber_delta`` of them, linear
+  beyond: a track the association lost does not drown the rest), from scan ``skip_scans`` on.
+* ``managed``: the tracker starts, confirms and deletes its own tracks (the method kinds' default
+  management, :meth:`~pmsr_nn.trackers.management.Management.defaults`), as the rows with
+  ``initiation: detections`` run it, so training meets the tracks initiation makes: a track
+  started on a wrong combination of a formation's detections (a ghost) that the association then
+  keeps. Loss: each scan's GOSPA with ``p = 1`` and cut-off ``loss_cutoff_m`` between the
+  reported tracks and the targets, in units of ``loss_scale_m``: the assignment is a constant
+  (:func:`~pmsr_nn.metrics.sets.optimal_assignment`), the distances of the assigned pairs carry
+  the gradient (a track is pulled to the target it is assigned to), missed targets and false
+  tracks cost ``c / 2`` each (no gradient). Validation also logs GOSPA with ``p = 2``
+  (``val/gospa_m``).
+
+The association weights are constants (no gradient runs through Murty's assignment); gradients
+run through the gain, the UKF moments and the means.
 
 Run folder: ``config.yaml``, ``tb/`` (TensorBoard), ``checkpoints/last.ckpt`` and ``best.ckpt``
 (Lightning's, read with ``weights_only``), ``tracker.pt`` (the best weights as a
@@ -21,7 +35,6 @@ Run folder: ``config.yaml``, ``tb/`` (TensorBoard), ``checkpoints/last.ckpt`` an
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,11 +61,16 @@ class GainOptimConfig(FlyOptimConfig):
     loss_scale_m: float = 30.0
     huber_delta: float = 3.0
     skip_scans: int = 3
+    loss_cutoff_m: float = 500.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        require(self.loss_scale_m > 0 and self.huber_delta > 0 and self.skip_scans >= 0, "optim: loss_scale_m and "
-                "huber_delta must be positive, skip_scans >= 0")
+        require(self.loss_scale_m > 0 and self.huber_delta > 0 and self.skip_scans >= 0 and self.loss_cutoff_m > 0,
+                "optim: loss_scale_m, huber_delta and loss_cutoff_m must be positive, skip_scans >= 0")
+
+
+TRACKING = ("oracle", "managed")
+"""How the tracks start in training (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +84,7 @@ class GainTrainConfig:
     threads: int | None = None
     m_best: int = 10
     gate_probability: float = 0.999
+    tracking: str = "oracle"
     scenes: SceneConfig = SceneConfig()
     model: GainModelConfig = GainModelConfig()
     optim: GainOptimConfig = GainOptimConfig()
@@ -74,6 +93,9 @@ class GainTrainConfig:
         require(self.kind == "jpda_gain", f"kind must be jpda_gain, got {self.kind!r}")
         require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
         require(self.threads is None or self.threads >= 1, f"threads must be at least 1, got {self.threads}")
+        require(self.tracking in TRACKING, f"tracking must be one of {', '.join(TRACKING)}, got {self.tracking!r}")
+        require(self.tracking != "managed" or self.scenes.window > self.optim.skip_scans,
+                f"scenes.window ({self.scenes.window}) must be longer than optim.skip_scans ({self.optim.skip_scans})")
 
 
 def load_gain_config(path, overrides=()) -> GainTrainConfig:
@@ -111,19 +133,52 @@ class Problem:
                                 self.cfg.gate_probability)
         return scans, prior, truth, settings
 
-    def track(self, net, scans, prior, settings):
-        """Tracks ``(B, K, N, n)`` of the hybrid (``net`` None: plain S-MSJPDA)."""
+    def _correction(self, net):
         from ..trackers.learned_gain import GainCorrection
+
+        return None if net is None else GainCorrection(net, torch.tensor(self.noise_std, dtype=torch.float64),
+                                                       self.prior_sd)
+
+    def track(self, net, scans, prior, settings):
+        """Tracks ``(B, K, N, n)`` of the hybrid handed its targets' starts (``net`` None: plain S-MSJPDA)."""
         from ..trackers.msjpda import msjpda
 
-        corr = None if net is None else GainCorrection(net, torch.tensor(self.noise_std, dtype=torch.float64),
-                                                       self.prior_sd)
         return msjpda(scans, prior, self.motion, self.dt, self.q, self.model, self.model.R(), settings, "sequential",
-                      correction=corr).x
+                      correction=self._correction(net)).x
+
+    def track_managed(self, net, scans, settings):
+        """The reported tracks of the hybrid starting its own tracks (``net`` None: plain S-MSJPDA):
+        ``(x (B, K, T, n), exists (B, K, T))``."""
+        from ..trackers.management import Management
+        from ..trackers.msjpda import managed_msjpda
+
+        rep = managed_msjpda(scans, self.motion, self.dt, self.q, self.model, self.model.R(), settings, "sequential",
+                             Management.defaults(self.model, self.prior_sd), correction=self._correction(net))
+        return rep.x, rep.exists
 
     def position_error(self, x: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
         pos = list(self.motion.pos_idx)
         return (x[..., pos] - truth[..., pos]).norm(dim=-1)[:, self.cfg.optim.skip_scans:]  # (B, K', N)
+
+    def set_errors(self, x: torch.Tensor, exists: torch.Tensor, truth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per run and scan from ``skip_scans`` on: GOSPA with ``p = 1`` (its assigned distances
+        carry the gradient) and, without gradient, GOSPA^2 (``p = 2``), both with cut-off
+        ``loss_cutoff_m``; ``(B, K')`` each (m, m^2)."""
+        from ..metrics.sets import gospa, optimal_assignment
+
+        pos, k0, c = list(self.motion.pos_idx), self.cfg.optim.skip_scans, self.cfg.optim.loss_cutoff_m
+        est, ex, tr = x[:, k0:][..., pos], exists[:, k0:], truth[:, k0:][..., pos]
+        est = torch.where(ex[..., None], est, torch.zeros((), dtype=est.dtype))  # NaN outside a track's life
+        alive = torch.isfinite(tr).all(-1)
+        tr = torch.nan_to_num(tr)
+        assign = optimal_assignment(est.detach(), ex, tr, alive, c, 1.0)  # (B, K', T): a target per track, -1 none
+        hit = assign >= 0
+        target = tr.gather(2, assign.clamp(min=0)[..., None].expand(*assign.shape, len(pos)))
+        d = ((est - target).square().sum(-1) + 1e-12).sqrt()  # the epsilon keeps the gradient finite at 0
+        n = hit.sum(-1)
+        g1 = torch.where(hit, d, torch.zeros((), dtype=d.dtype)).sum(-1) + c / 2 * (alive.sum(-1) + ex.sum(-1) - 2 * n)
+        g2 = gospa(est.detach(), ex, tr, alive, c, 2.0).total ** 2
+        return g1, g2
 
 
 def _loss(err: torch.Tensor, o: GainOptimConfig) -> torch.Tensor:
@@ -142,16 +197,13 @@ def make_module(cfg: GainTrainConfig, problem: Problem):
                                cfg.model.hidden, cfg.model.gain_scale)
 
         def training_step(self, step, _):
-            scans, prior, truth, settings = problem.draw((cfg.seed, int(step)), cfg.optim.batch_size)
-            loss = _loss(problem.position_error(problem.track(self.net, scans, prior, settings), truth), cfg.optim)
+            loss = batch_figures(cfg, problem, self.net, (cfg.seed, int(step)))["loss"]
             self.log("train/loss", loss, prog_bar=False, batch_size=cfg.optim.batch_size)
             return loss
 
         def validation_step(self, i, _):
-            scans, prior, truth, settings = problem.draw((cfg.seed, 1_000_000, int(i)), cfg.optim.batch_size)
-            err = problem.position_error(problem.track(self.net, scans, prior, settings), truth)
-            self.log("val/loss", _loss(err, cfg.optim), batch_size=cfg.optim.batch_size)
-            self.log("val/pos_rmse_m", err.square().mean().sqrt(), batch_size=cfg.optim.batch_size)
+            for k, v in batch_figures(cfg, problem, self.net, (cfg.seed, 1_000_000, int(i))).items():
+                self.log(f"val/{k}", v, batch_size=cfg.optim.batch_size)
 
         def configure_optimizers(self):
             return torch.optim.Adam(self.net.parameters(), lr=cfg.optim.lr)
@@ -159,15 +211,26 @@ def make_module(cfg: GainTrainConfig, problem: Problem):
     return GainModule()
 
 
+def batch_figures(cfg: GainTrainConfig, problem: Problem, net, step: tuple[int, ...]) -> dict[str, torch.Tensor]:
+    """The loss and the figures of one batch (``net`` None: plain S-MSJPDA): ``loss`` (with its
+    gradient), and ``pos_rmse_m`` (oracle tracking) or ``gospa_m`` (managed: root of the mean
+    GOSPA^2 over runs and scans)."""
+    scans, prior, truth, settings = problem.draw(step, cfg.optim.batch_size)
+    if cfg.tracking == "managed":
+        g1, g2 = problem.set_errors(*problem.track_managed(net, scans, settings), truth)
+        loss = g1.mean() / cfg.optim.loss_scale_m
+        if net is not None and not loss.requires_grad:  # no track in any run: nothing to pull, a zero gradient
+            loss = loss + 0.0 * sum(p.sum() for p in net.parameters())
+        return {"loss": loss, "gospa_m": g2.mean().sqrt()}
+    err = problem.position_error(problem.track(net, scans, prior, settings), truth)
+    return {"loss": _loss(err, cfg.optim), "pos_rmse_m": err.square().mean().sqrt()}
+
+
 def baseline_validation(cfg: GainTrainConfig, problem: Problem) -> dict:
-    """The plain S-MSJPDA's loss and RMSE on the validation scenes (what training must beat)."""
-    losses, sq, count = [], 0.0, 0
-    for i in range(cfg.optim.val_batches):
-        scans, prior, truth, settings = problem.draw((cfg.seed, 1_000_000, i), cfg.optim.batch_size)
-        err = problem.position_error(problem.track(None, scans, prior, settings), truth)
-        losses.append(float(_loss(err, cfg.optim)))
-        sq, count = sq + float(err.square().sum()), count + err.numel()
-    return {"loss": sum(losses) / len(losses), "pos_rmse_m": math.sqrt(sq / count)}
+    """The plain S-MSJPDA's loss and figure on the validation scenes (what training must beat):
+    the means over the validation batches, as Lightning logs the trained network's."""
+    rows = [batch_figures(cfg, problem, None, (cfg.seed, 1_000_000, i)) for i in range(cfg.optim.val_batches)]
+    return {k: sum(float(r[k]) for r in rows) / len(rows) for k in rows[0]}
 
 
 def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> dict:
@@ -184,7 +247,8 @@ def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> 
     problem = Problem(cfg)
     base = baseline_validation(cfg, problem)
     if progress:
-        print(f"S-MSJPDA alone on the validation scenes: loss {base['loss']:.4f}, position RMSE {base['pos_rmse_m']:.2f} m",
+        figure = (f"GOSPA {base['gospa_m']:.1f} m" if "gospa_m" in base else f"position RMSE {base['pos_rmse_m']:.2f} m")
+        print(f"S-MSJPDA alone on the validation scenes ({cfg.tracking} tracking): loss {base['loss']:.4f}, {figure}",
               flush=True)
     pl.seed_everything(cfg.seed, verbose=False)
     module = make_module(cfg, problem)

@@ -105,6 +105,14 @@ class Management:
             v = getattr(self, name)
             require(0.0 < v < 1.0, f"{name} must be in (0, 1), got {v}")
 
+    @classmethod
+    def defaults(cls, model: MeasurementModel, other_sd: torch.Tensor) -> "Management":
+        """The management the method kinds' options give by default (``initiation: detections``
+        with no other option): the fix initiator where the detections measure azimuth, else the
+        spherical one, each with its defaults, 2-of-3 confirmation, deletion after 2 misses."""
+        initiator = FixInitiator() if "azimuth" in model.components else SphericalInitiator()
+        return cls(initiator, Confirmer(), Deleter(), other_sd)
+
     def check(self, model: MeasurementModel, what: str, pooled: bool = False) -> None:
         """One-line refusals of settings that could never confirm a track on ``model`` (``pooled``:
         from detection lists pooled per receiver, which only the

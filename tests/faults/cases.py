@@ -868,6 +868,8 @@ case("train/jpda-gain-pd-out-of-range", "train g.yaml scenes.pd=[0.5,1.5] --out 
      message="scenes.pd must lie in (0, 1]", klass="refusal")
 case("train/jpda-gain-unknown-key", "train g.yaml optim.stepz=3 --out run3", setup=GAIN, message="unknown key 'stepz'",
      klass="refusal")
+case("train/jpda-gain-tracking-unknown", "train g.yaml tracking=magic --out run3", setup=GAIN,
+     message="tracking must be one of oracle, managed", klass="refusal")
 case("train/jpda-gain-recipe-missing", "train g.yaml recipe=nope.yaml --out run3", setup=GAIN, message="nope.yaml",
      klass="refusal")
 case("train/jpda-gain-out-user", "train g.yaml --out user", setup=GAIN,
