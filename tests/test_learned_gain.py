@@ -505,16 +505,20 @@ def test_the_default_management_is_the_method_kinds_default_options():
         assert Management.defaults(m, S_X) == of_options(spec, SimpleNamespace(detection_model=m, prior_sd=S_X))
 
 
-def test_the_managed_training_loss_is_gospa_with_p_1_and_pulls_each_track_to_its_target():
-    """Per scan: GOSPA (p = 1, cut-off c) by brute force over the track-to-target matchings, its
-    gradient a unit vector from each assigned track towards its target (none for a track beyond
-    c), and GOSPA^2 (p = 2) as the metric module gives it."""
+@pytest.mark.parametrize("p", [1.0, 2.0])
+def test_the_managed_training_loss_is_gospa_and_pulls_each_track_to_its_target(p):
+    """Per scan: GOSPA^p (cut-off c) by brute force over the track-to-target matchings, its
+    gradient ``p d^(p-1)`` times the unit vector from each assigned track towards its target (none
+    for a track beyond c), and GOSPA^2 (p = 2) as the metric module gives it."""
     import itertools
 
     from pmsr_nn.metrics.sets import gospa
     from pmsr_nn.nets.jpda_training import GainTrainConfig, Problem
 
-    cfg = GainTrainConfig(kind="jpda_gain", recipe=str(ROOT / "datasets" / "fitee2023_ca.yaml"), tracking="managed")
+    from pmsr_nn.nets.jpda_training import GainOptimConfig
+
+    cfg = GainTrainConfig(kind="jpda_gain", recipe=str(ROOT / "datasets" / "fitee2023_ca.yaml"), tracking="managed",
+                          optim=GainOptimConfig(loss_order=p))
     problem = Problem(cfg)
     c, k0 = cfg.optim.loss_cutoff_m, cfg.optim.skip_scans
     g = torch.Generator().manual_seed(5)
@@ -532,8 +536,8 @@ def test_the_managed_training_loss_is_gospa_with_p_1_and_pulls_each_track_to_its
         for k in range(K - k0):
             est = [x[b, k0 + k, t, pos].detach() for t in range(T) if exists[b, k0 + k, t]]
             tgt = [truth[b, k0 + k, n, pos] for n in range(N) if torch.isfinite(truth[b, k0 + k, n, 0])]
-            best = min(sum(min(float((est[i] - tgt[j]).norm()), c) for i, j in zip(perm_e, perm_t))
-                       + c / 2 * (len(est) - len(perm_e) + len(tgt) - len(perm_t))
+            best = min(sum(min(float((est[i] - tgt[j]).norm()), c) ** p for i, j in zip(perm_e, perm_t))
+                       + c ** p / 2 * (len(est) - len(perm_e) + len(tgt) - len(perm_t))
                        for r in range(min(len(est), len(tgt)) + 1)
                        for perm_e in itertools.permutations(range(len(est)), r)
                        for perm_t in itertools.combinations(range(len(tgt)), r))
@@ -544,7 +548,8 @@ def test_the_managed_training_loss_is_gospa_with_p_1_and_pulls_each_track_to_its
     g1.sum().backward()
     grad = x.grad[..., pos]
     norms = grad.norm(dim=-1)[:, k0:]
-    assert torch.allclose(norms[0, :, :3], torch.ones(K - k0, 3, dtype=torch.float64), atol=1e-9)  # every track assigned
+    d = (x.detach()[:, k0:, :3][..., pos] - truth[:, k0:, :3][..., pos]).norm(dim=-1)  # run 0: each track on its own target
+    assert torch.allclose(norms[0, :, :3], p * d[0] ** (p - 1), rtol=1e-9)  # every track assigned
     assert float(norms[1, :, 1].abs().max()) == 0.0  # beyond the cut-off: no pull
     assert float(x.grad[:, :k0].abs().max()) == 0.0  # scans before skip_scans are not scored
 
