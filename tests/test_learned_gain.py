@@ -570,3 +570,23 @@ def test_pmsr_train_of_the_hybrid_starting_its_own_tracks(tmp_path, capsys):
     assert len(steps) == 2 and all("GOSPA" in s for s in steps)
     meta = load_gain_checkpoint(tmp_path / "run" / "tracker.pt").meta
     assert meta["training"]["config"]["tracking"] == "managed"
+
+
+def test_a_correction_on_confirmed_tracks_only_leaves_tentative_tracks_to_the_model():
+    """`confirmed_only`: the correction sees only the confirmed tracks (none at the scan after the
+    first tracks start, as tentative tracks), the tracks it reaches being the ones the report
+    holds; without it every active track is corrected from its first update on."""
+    seen = {False: [], True: []}
+
+    class Spy(GainCorrection):
+        def step(self, pair, w, nu, gate, mom, active):
+            seen[self.confirmed_only].append(int(active.sum()))
+            return super().step(pair, w, nu, gate, mom, active)
+
+    truth, m, scans, s = scene()
+    for only in (False, True):
+        managed_msjpda(scans, MOTION, 1.0, 0.01, m, m.R(), s, "sequential", management(),
+                       correction=Spy(GainNet(3, 3, 6), S_Z, S_X, confirmed_only=only))
+    first = next(i for i, n in enumerate(seen[False]) if n > 0)  # the first sensor step with a track
+    assert seen[True][first] == 0 and max(seen[True]) > 0
+    assert all(a <= b for a, b in zip(seen[True], seen[False]))

@@ -7,7 +7,9 @@ Everything but the gain is S-MSJPDA's, options included: the JPDA settings, and 
 management). ``association: pda`` treats each track on its own (no joint events; faster, but
 tracks that share detections coalesce). ``memory``: ``training_window`` (default) clears a
 track's learned memory every training window's worth of scans (the checkpoint's
-``scenes.window``: the memory never runs longer than in training), ``unbounded`` never.
+``scenes.window``: the memory never runs longer than in training), ``unbounded`` never. A
+checkpoint trained with ``learned_on: confirmed`` corrects the confirmed tracks only (tentative
+ones run on the model's gain), as in its training.
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ def run_learned_gain(call: MethodCall) -> Estimates:
         window * s.detection_model.n_pairs
     p = call.spec.option("consistency_probability")
     consistency = None if p is None else gate_threshold(float(p), len(s.detection_model.components))
-    corr = GainCorrection(ck.net, ck.s_z, ck.s_x, horizon, consistency)
+    training = ck.meta.get("training", {}).get("config", {})
+    corr = GainCorrection(ck.net, ck.s_z, ck.s_x, horizon, consistency, training.get("learned_on") == "confirmed")
     assoc = call.spec.option("association")
     R = s.detection_model.R()
     import torch

@@ -75,6 +75,11 @@ class GainOptimConfig(FlyOptimConfig):
 TRACKING = ("oracle", "managed")
 """How the tracks start in training (module docstring)."""
 
+LEARNED_ON = ("all", "confirmed")
+"""Which of a managed tracker's tracks the learned gain corrects (``confirmed``: tentative tracks
+are confirmed or dropped by the model's gain alone); kind ``jpda_learned_gain`` reads it from the
+checkpoint."""
+
 
 @dataclass(frozen=True)
 class GainTrainConfig:
@@ -88,6 +93,7 @@ class GainTrainConfig:
     m_best: int = 10
     gate_probability: float = 0.999
     tracking: str = "oracle"
+    learned_on: str = "all"
     scenes: SceneConfig = SceneConfig()
     model: GainModelConfig = GainModelConfig()
     optim: GainOptimConfig = GainOptimConfig()
@@ -97,6 +103,8 @@ class GainTrainConfig:
         require(self.seed >= 0, f"seed must be non-negative, got {self.seed}")
         require(self.threads is None or self.threads >= 1, f"threads must be at least 1, got {self.threads}")
         require(self.tracking in TRACKING, f"tracking must be one of {', '.join(TRACKING)}, got {self.tracking!r}")
+        require(self.learned_on in LEARNED_ON, f"learned_on must be one of {', '.join(LEARNED_ON)}, got "
+                                               f"{self.learned_on!r}")
         require(self.tracking != "managed" or self.scenes.window > self.optim.skip_scans,
                 f"scenes.window ({self.scenes.window}) must be longer than optim.skip_scans ({self.optim.skip_scans})")
 
@@ -140,7 +148,7 @@ class Problem:
         from ..trackers.learned_gain import GainCorrection
 
         return None if net is None else GainCorrection(net, torch.tensor(self.noise_std, dtype=torch.float64),
-                                                       self.prior_sd)
+                                                       self.prior_sd, confirmed_only=self.cfg.learned_on == "confirmed")
 
     def track(self, net, scans, prior, settings):
         """Tracks ``(B, K, N, n)`` of the hybrid handed its targets' starts (``net`` None: plain S-MSJPDA)."""

@@ -109,11 +109,16 @@ class GainCorrection:
     ``consistency``: where the combined innovation's ``nu_c^T S^-1 nu_c`` exceeds it, the step uses
     the model's gain alone (no learned part): the covariance that gates and weighs the detections
     is the model's, and a learned mean that has drifted from what it describes must be pulled
-    back by the gain it was derived with (None: never)."""
+    back by the gain it was derived with (None: never).
+
+    ``confirmed_only``: a tracker that manages its tracks applies the correction to its confirmed
+    tracks only (tentative tracks are confirmed or dropped by the model's gain alone, so the
+    learned part cannot keep a track on clutter alive into confirmation)."""
 
     def __init__(self, net: GainNetwork, s_z: torch.Tensor, s_x: torch.Tensor, horizon: int | None = None,
-                 consistency: float | None = None):
+                 consistency: float | None = None, confirmed_only: bool = False):
         self.net, self.s_z, self.s_x, self.horizon, self.consistency = net, s_z, s_x, horizon, consistency
+        self.confirmed_only = confirmed_only
         self.memory: torch.Tensor | None = None
         self.age: torch.Tensor | None = None
 

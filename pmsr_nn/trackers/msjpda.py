@@ -123,8 +123,8 @@ def _jpda_marginals(gated: np.ndarray, log_lik: np.ndarray, s: JPDASettings) -> 
 
 def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
                  s: JPDASettings, gamma: float, active: torch.Tensor | None = None,
-                 association: Association = "jpda", correction: GainCorrection | None = None, pair: int = 0
-                 ) -> tuple[Gaussian, np.ndarray, torch.Tensor, np.ndarray, torch.Tensor]:
+                 association: Association = "jpda", correction: GainCorrection | None = None, pair: int = 0,
+                 learned: torch.Tensor | None = None) -> tuple[Gaussian, np.ndarray, torch.Tensor, np.ndarray, torch.Tensor]:
     """One sensor's detections ``z (B, M, d)`` update tracks ``g`` ``(B, T, n)`` (Eqs. 15-21);
     a track outside ``active (B, T)`` gates nothing (it is only predicted). Returns the
     posterior, whether no detection was the likeliest association ``(B, T)``, the predicted
@@ -134,8 +134,8 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     ``association``: ``jpda`` (the paper's m-best joint events) or ``pda`` (each track on its
     own, :func:`~.learned_gain.pda_marginals`). ``correction`` (the hybrid tracker of
     :mod:`.learned_gain`) adds its learned gain correction times the combined innovation of
-    sensor ``pair`` to the posterior mean; the association weights are constants to it (no
-    gradient)."""
+    sensor ``pair`` to the posterior mean, on the tracks ``learned (B, T)`` (default: ``active``);
+    the association weights are constants to it (no gradient)."""
     mom = unscented_moments(g, sub, R)
     nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, T, M, d), NaN for padding
     # gaussian_log_likelihood's algebra with one triangular solve per track for all M detections
@@ -161,7 +161,7 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
     out = pda_collapse(g, mom, L, e, gate, w)
     if correction is not None:
-        out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active), out.P)
+        out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active if learned is None else learned), out.P)
     return out, dummy, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / s.clutter_density
 
 
@@ -390,6 +390,7 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
             table.free(~table.active)  # keep free slots parked
             table.predict_existence(management.survival)
         act = table.active
+        learned = table.confirmed if correction is not None and correction.confirmed_only else None
         used = np.zeros((B, N, M), dtype=bool)
         pd_pg = settings.pd * settings.gate_probability
         if architecture == "sequential":
@@ -397,7 +398,7 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
             for j in range(N):
                 table.g, missed, _, gated, ratio = _sensor_step(table.g, scans.z[:, k, j], scans.valid[:, k, j], subs[j],
                                                                 R[rows[j]][:, rows[j]], settings, gamma, act,
-                                                                association, correction, j)
+                                                                association, correction, j, learned)
                 detected += torch.from_numpy(~missed) & act
                 used[:, j] = gated.any(1)
                 table.update_existence(ratio, pd_pg)
