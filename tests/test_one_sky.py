@@ -90,3 +90,21 @@ def test_the_hybrid_companion_is_one_sky_but_for_its_rows():
     for m in learned:
         meta = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta
         assert len(meta["geometry"]["transmitters"]) == 2 and len(meta["geometry"]["receivers"]) == 3
+
+
+def test_the_managed_hybrid_companion_is_dense_crossing_but_for_its_rows():
+    """``evaluate/dense_crossing_managed.yaml``: dense_crossing's draws (every setting but the
+    name, the description and the rows is dense_crossing.yaml's), its S-MSJPDA row, and hybrid
+    rows whose checkpoints were trained starting their own tracks, correcting confirmed tracks."""
+    import yaml
+
+    from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
+
+    main, managed = (yaml.safe_load((ROOT / "evaluate" / f).read_text())
+                     for f in ("dense_crossing.yaml", "dense_crossing_managed.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(managed) == rest(main)
+    assert managed["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
+    for m in managed["methods"][1:]:
+        config = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta["training"]["config"]
+        assert (config["tracking"], config["learned_on"], config["optim"]["loss_order"]) == ("managed", "confirmed", 2.0)
