@@ -247,7 +247,7 @@ def test_initiation_from_detections_is_scored_as_tracks_in_the_report(tmp_path):
     assert rows["S-MSJPDA"]["scans_to_first_track"] == 0.0
     report = (tmp_path / "out" / "report.md").read_text()
     assert "S-MSJPDA | detections (oracle births) |" in report
-    assert "| S-MSJPDA (initiates) | detections | 1.00 | 0.00 |" in report
+    assert "| S-MSJPDA (initiates) | own, from detections | 1.00 | 0.00 |" in report
 
 
 @pytest.mark.parametrize("options, message", [

@@ -116,7 +116,7 @@ def overview_table(results: Results, case: Case) -> list[str]:
                      f"{fmt_se(s and s.ospa_m, s and s.ospa_se_m, 1)} | {fmt_se(r.rmse_pos_m, r.rmse_pos_se_m, 1)} | "
                      f"{fmt(t and t.confirmed_tracks_per_target, 2)} | {fmt(t and t.false_tracks_per_run, 2)} | "
                      f"{fmt(t and t.track_loss_probability, 2)} | {fmt(s and s.label_switches_per_run, 2)} | "
-                     f"{fmt(first, 2)} | {fmt(r.seconds_per_run, 1)} |")
+                     f"{fmt(first, 2)} | {fmt(r.seconds_per_run, 3)} |")
     return lines
 
 
