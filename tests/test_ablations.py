@@ -1,20 +1,16 @@
 """The training ablation scripts (sequence size, filter order, DFNN vs MDFNN) on a tiny budget."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from script_loader import load_script
+
 TINY = ["--epochs", "1", "--batches", "2", "--tracks", "12", "--mc-runs", "2", "--hidden", "16", "12", "16"]
 
 
 def script(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "evaluate" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(f"evaluate/{name}.py")
 
 
 @pytest.mark.slow  # trains and evaluates two networks

@@ -4,27 +4,19 @@ beside its target."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
 from pmsr_nn.harness import evaluate
-from test_one_scenario import ROOT, two_drones
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("formation_ghosts", ROOT / "evaluate" / "formation_ghosts.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from script_loader import load_script
+from test_one_scenario import two_drones
 
 
 def test_the_per_run_gospa_is_the_reports(tmp_path):
     path = two_drones(tmp_path, methods=[{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}}],
                       mc_runs=4, block_runs=2)
     row = evaluate(path, tmp_path / "out", progress=False)["cases"]["c"]["methods"]["S"]
-    r = _script().run_figures(path, None, None, 2)["S"]
+    r = load_script("evaluate/formation_ghosts.py").run_figures(path, None, None, 2)["S"]
     assert r["gospa_m"].shape == (4,) and r["nearest_m"].shape == (4, 2)
     assert np.sqrt(np.mean(r["gospa_m"] ** 2)) == pytest.approx(row["gospa_m"], rel=1e-9)
     assert np.median(r["gospa_m"]) == pytest.approx(row["gospa_median_run_m"], rel=1e-9)

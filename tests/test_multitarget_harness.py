@@ -150,12 +150,9 @@ def test_done_when_command(tmp_path):
 
 
 def _worst_runs_module():
-    import importlib.util
+    from script_loader import load_script
 
-    spec = importlib.util.spec_from_file_location("msjpda_worst_runs", ROOT / "evaluate" / "msjpda_worst_runs.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("evaluate/msjpda_worst_runs.py")
 
 
 def test_per_run_errors_use_the_harness_draws(tmp_path):
