@@ -24,7 +24,8 @@ from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import ClutterSpec, Scans, simulate_scans
 from pmsr_nn.trackers.learned_gain import GainCorrection, pda_marginals
 from pmsr_nn.trackers.management import Confirmer, Deleter, FixInitiator, Management
-from pmsr_nn.trackers.msjpda import JPDASettings, managed_msjpda, msjpda
+from pmsr_nn.trackers.msjpda import JPDASettings, msjpda
+from pmsr_nn.trackers.msjpda_managed import managed_msjpda
 
 ROOT = Path(__file__).resolve().parents[1]
 NOISE = (30.0, 2.0, math.radians(3.0))
@@ -496,10 +497,10 @@ def test_the_default_management_is_the_method_kinds_default_options():
     `initiation: detections` and no other option gets, for either initiator."""
     from types import SimpleNamespace
 
-    from pmsr_nn.methods.msjpda import MANAGEMENT_OPTIONS
+    from pmsr_nn.methods.msjpda import OPTIONS
     from pmsr_nn.methods.msjpda import management as of_options
 
-    spec = SimpleNamespace(option=lambda name: MANAGEMENT_OPTIONS[name].default)
+    spec = SimpleNamespace(kind="s_msjpda", option=lambda name: OPTIONS[name].default)
     for components in (("range", "range_rate", "azimuth"), ("range", "range_rate")):
         m = model(components, NOISE[:len(components)])
         assert Management.defaults(m, S_X) == of_options(spec, SimpleNamespace(detection_model=m, prior_sd=S_X))

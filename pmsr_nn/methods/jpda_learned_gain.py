@@ -9,7 +9,10 @@ tracks that share detections coalesce). ``memory``: ``training_window`` (default
 track's learned memory every training window's worth of scans (the checkpoint's
 ``scenes.window``: the memory never runs longer than in training), ``unbounded`` never. A
 checkpoint trained with ``learned_on: confirmed`` corrects the confirmed tracks only (tentative
-ones run on the model's gain), as in its training.
+ones run on the model's gain), as in its training. ``bias_window`` (with ``initiation:
+detections``) adds S-MSJPDA's innovation bias test (:mod:`pmsr_nn.trackers.innovation_bias`);
+``bias_action: learn`` makes the learned correction act on the tracks it flags only (the rest
+run on the model's gain), ``delete`` deletes them as S-MSJPDA does.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from ..errors import ConfigError
 from ..trackers.base import Estimates
 from ..trackers.gating import gate_threshold
 from ..trackers.learned_gain import GainCorrection
-from ..trackers.msjpda import managed_msjpda, msjpda
+from ..trackers.msjpda import msjpda
+from ..trackers.msjpda_managed import managed_msjpda
 from . import MethodCall, MethodKind, Option, register
 from .msjpda import OPTIONS, check_initiation, management, settings
 
@@ -68,6 +72,7 @@ def run_learned_gain(call: MethodCall) -> Estimates:
 register(MethodKind("jpda_learned_gain", "detections", run_learned_gain,
                     {**OPTIONS, "association": Option("jpda", str, choices=("jpda", "pda")),
                      "memory": Option("training_window", str, choices=("training_window", "unbounded")),
+                     "bias_action": Option("delete", str, choices=("delete", "learn")),
                      "consistency_probability": Option(0.99, float, 0.5, 1.0 - 1e-12, nullable=True,
                                                        null="the learned gain acts at every step")},
                     needs_checkpoint=True, load=_load, check_sensing=check_initiation,

@@ -32,10 +32,11 @@ from ..errors import ConfigError
 from ..trackers.base import Estimates
 from ..trackers.fix_initiator import FixInitiator
 from ..trackers.spherical_initiator import SphericalInitiator
-from ..trackers.management import Confirmer, Deleter, Management
+from ..trackers.management import BiasTest, Confirmer, Deleter, Management
 from ..trackers.jpda import M_BEST_SEARCHES, floored_clutter_density
-from ..trackers.msjpda import JPDASettings, managed_msjpda, msjpda, true_assignment_ukf
-from . import MethodCall, MethodKind, Option, register
+from ..trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
+from ..trackers.msjpda_managed import managed_msjpda
+from . import MethodCall, MethodKind, Option, method_kind, register
 
 ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
 
@@ -65,6 +66,16 @@ def _estimates(res, alive: torch.Tensor, gap: float | None) -> Estimates:
     return Estimates(res.x, live, res.P, extras)
 
 
+def bias_test(spec) -> BiasTest | None:
+    """The innovation bias test a JPDA row's options ask for (``bias_window`` null: none)."""
+    options = method_kind(spec.kind).options
+    if "bias_window" not in options or spec.option("bias_window") is None:
+        return None
+    action = spec.option("bias_action") if "bias_action" in options else "delete"
+    return BiasTest(float(spec.option("bias_window")), float(spec.option("bias_probability")), action,
+                    int(spec.option("bias_burn_in")))
+
+
 def management(spec, sensing, pooled: bool = False) -> Management:
     """The track-management components a method's options describe (``initiation: detections``).
 
@@ -84,7 +95,7 @@ def management(spec, sensing, pooled: bool = False) -> Management:
         initiator = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
     return Management(initiator, Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
                       sensing.prior_sd, int(o("hit_pairs")), float(o("survival")), float(o("initial_existence")),
-                      float(o("report_existence")))
+                      float(o("report_existence")), bias_test(spec))
 
 
 def run_msjpda(call: MethodCall) -> Estimates:
@@ -116,6 +127,10 @@ def check_initiation(spec, sensing, pooled: bool = False) -> None:
     """Track management that could never confirm a track, or detections neither initiator can
     start tracks from (``initiation: detections`` only; see :func:`management`; ``pooled``: the
     method reads lists pooled per receiver)."""
+    if bias_test(spec) is not None and (spec.option("initiation") != "detections" or spec.kind == "p_msjpda"):
+        raise ConfigError(f"method {spec.name!r}: the innovation bias test (bias_window) acts on the tracks a sequential "
+                          f"tracker starts itself: set initiation: detections on s_msjpda or jpda_learned_gain, or "
+                          f"bias_window: null")
     if spec.option("initiation") != "detections":
         return
     try:
@@ -140,7 +155,11 @@ MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS),
 OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
            # P-MSJPDA's (N+1)-D events (S-MSJPDA's 2-D events are always exact)
            "relaxation_iterations": Option(20, int, 1, 10_000),
-           "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS}
+           "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS,
+           # the innovation bias test (trackers/innovation_bias.py): S-MSJPDA from detections only
+           "bias_window": Option(None, float, 1.0, 1e4, nullable=True, null="no innovation bias test"),
+           "bias_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+           "bias_burn_in": Option(10, int, 0, 10_000)}
 register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
                     description="sequential multi-sensor JPDA (Lyu & Wang, IEEE Access 2019), pair by pair; "
                                 "initiation: oracle (handed the births) or detections (starts its own tracks)"))

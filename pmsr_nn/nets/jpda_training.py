@@ -161,7 +161,7 @@ class Problem:
         """The reported tracks of the hybrid starting its own tracks (``net`` None: plain S-MSJPDA):
         ``(x (B, K, T, n), exists (B, K, T))``."""
         from ..trackers.management import Management
-        from ..trackers.msjpda import managed_msjpda
+        from ..trackers.msjpda_managed import managed_msjpda
 
         rep = managed_msjpda(scans, self.motion, self.dt, self.q, self.model, self.model.R(), settings, "sequential",
                              Management.defaults(self.model, self.prior_sd), correction=self._correction(net))

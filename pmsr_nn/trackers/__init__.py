@@ -5,7 +5,9 @@
 * :mod:`.gating`: chi-square gates and Gaussian association likelihoods;
 * :mod:`.clustering`: tracks that compete for detections;
 * :mod:`.jpda`: association probabilities from ranked events;
-* :mod:`.msjpda`: S-MSJPDA, P-MSJPDA and the true-assignment reference tracker.
+* :mod:`.msjpda`: S-MSJPDA, P-MSJPDA and the true-assignment reference tracker;
+* :mod:`.msjpda_managed`: S-/P-MSJPDA starting, confirming and deleting their own tracks
+  (:mod:`.management`), with the innovation bias test of :mod:`.innovation_bias`.
 """
 
 from .assignment import SDSolution, m_best_sd, sd_assign

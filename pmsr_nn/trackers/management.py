@@ -36,10 +36,11 @@ from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
 from .fix_initiator import FixInitiator
+from .innovation_bias import BiasTest
 from .spherical_initiator import SphericalInitiator
 
-__all__ = ["FREE", "TENTATIVE", "CONFIRMED", "Confirmer", "Deleter", "FixInitiator", "SphericalInitiator", "Management",
-           "TrackTable", "TrackReport", "parked_state"]
+__all__ = ["FREE", "TENTATIVE", "CONFIRMED", "BiasTest", "Confirmer", "Deleter", "FixInitiator", "SphericalInitiator",
+           "Management", "TrackTable", "TrackReport", "parked_state"]
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
 
@@ -89,7 +90,8 @@ class Management:
     prior), and the existence model: ``survival`` probability per scan, ``initial_existence`` of a
     new track and ``report_existence``, the existence a confirmed track needs to be reported at a
     scan (a track that missed at every pair drops below it at once; see
-    :meth:`TrackTable.update_existence`)."""
+    :meth:`TrackTable.update_existence`); ``bias``, the innovation bias test of a tracker that
+    keeps its tracks' whitened innovations (:mod:`.innovation_bias`; None: none)."""
 
     initiator: FixInitiator | SphericalInitiator
     confirmer: Confirmer
@@ -99,6 +101,7 @@ class Management:
     survival: float = 0.99
     initial_existence: float = 0.5
     report_existence: float = 0.5
+    bias: BiasTest | None = None
 
     def __post_init__(self) -> None:
         for name in ("survival", "initial_existence", "report_existence"):
@@ -142,7 +145,9 @@ class TrackTable:
     :data:`CONFIRMED`; ``hits (B, C)`` hits so far (the initiation scan counts) and ``age (B, C)``
     scans since initiation; ``misses (B, C)`` scans in a row without a detection at any pair;
     ``track_id (B, C)`` the reported id of a confirmed track (-1 before), ``next_id (B,)``;
-    ``existence (B, C)`` the probability that the track is a target (IPDA).
+    ``existence (B, C)`` the probability that the track is a target (IPDA); ``bias_mean (B, C, S,
+    d)`` the exponentially weighted means of its whitened innovations per pair (None until a
+    tracker with an innovation bias test folds one in, :meth:`update_bias`).
     A free slot holds a parked state (far, unit covariance) so batched filter steps stay finite.
     """
 
@@ -155,6 +160,7 @@ class TrackTable:
     next_id: torch.Tensor
     park: torch.Tensor
     existence: torch.Tensor
+    bias_mean: torch.Tensor | None = None
 
     @classmethod
     def empty(cls, B: int, n: int, park: torch.Tensor, capacity: int = 8) -> "TrackTable":
@@ -182,10 +188,33 @@ class TrackTable:
         self.g = Gaussian(torch.cat([self.g.x, more.g.x], 1), torch.cat([self.g.P, more.g.P], 1))
         for name in ("status", "hits", "age", "misses", "track_id", "existence"):
             setattr(self, name, torch.cat([getattr(self, name), getattr(more, name)], 1))
+        if self.bias_mean is not None:
+            self.bias_mean = torch.cat([self.bias_mean, self.bias_mean.new_zeros(B, extra, *self.bias_mean.shape[2:])], 1)
+
+    def _clear_bias(self, where: torch.Tensor) -> None:
+        if self.bias_mean is not None:
+            self.bias_mean = torch.where(where[..., None, None], torch.zeros((), dtype=self.bias_mean.dtype), self.bias_mean)
+
+    def update_bias(self, test: BiasTest, pair: int, n_pairs: int, e: torch.Tensor) -> None:
+        """Fold pair ``pair``'s whitened combined innovations ``e (B, C, d)`` of the active tracks
+        past the test's burn-in (:attr:`age` counts the updates before this scan's) into
+        :attr:`bias_mean` (``n_pairs`` pairs)."""
+        if self.bias_mean is None:
+            B, C, d = e.shape
+            self.bias_mean = e.new_zeros(B, C, n_pairs, d)
+        self.bias_mean = test.update(self.bias_mean, pair, e, self.active & (self.age >= test.burn_in))
+
+    def biased(self, test: BiasTest) -> torch.Tensor:
+        """``(B, C)``: the confirmed tracks the bias test flags (their innovations have a mean;
+        ``age`` counts their updates, the first ``burn_in`` of which the test skips)."""
+        if self.bias_mean is None:
+            return torch.zeros_like(self.confirmed)
+        return self.confirmed & test.flags(self.bias_mean, (self.age - test.burn_in).clamp(min=0))
 
     def free(self, where: torch.Tensor) -> None:
         """Delete the tracks at ``where (B, C)``: their slots are parked and free again."""
         self.status = torch.where(where, FREE, self.status)
+        self._clear_bias(where)
         self.existence = torch.where(where, 0.0, self.existence)
         self.track_id = torch.where(where, -1, self.track_id)
         self.g = Gaussian(torch.where(where[..., None], self.park, self.g.x),
@@ -214,8 +243,9 @@ class TrackTable:
         self.hits = torch.where(act & (detected_pairs >= hit_pairs), self.hits + 1, self.hits)
         self.misses = torch.where(act & (detected_pairs == 0), self.misses + 1, torch.where(act, 0, self.misses))
 
-    def manage(self, confirmer: Confirmer, deleter: Deleter, pos_idx: list[int]) -> None:
-        """Confirm, then delete (see the module docstring)."""
+    def manage(self, confirmer: Confirmer, deleter: Deleter, pos_idx: list[int], bias: BiasTest | None = None) -> None:
+        """Confirm, then delete (see the module docstring); with ``bias`` whose action is
+        ``delete``, a confirmed track it flags (:meth:`biased`) is deleted too."""
         tent = self.status == TENTATIVE
         new = tent & confirmer.confirms(self.hits)
         rank = new.to(torch.int64).cumsum(1) - 1
@@ -228,6 +258,8 @@ class TrackTable:
         if math.isfinite(deleter.max_position_sd_m):
             Pp = self.g.P[..., pos_idx, :][..., pos_idx]
             drop |= conf & (torch.linalg.eigvalsh(Pp)[..., -1] > deleter.max_position_sd_m**2)
+        if bias is not None and bias.action == "delete":
+            drop |= self.biased(bias)
         self.free(drop)
 
     def add(self, g: Gaussian, real: torch.Tensor, initial_existence: float = 0.5) -> None:
@@ -257,6 +289,7 @@ class TrackTable:
             setattr(self, name, torch.where(filled, value, getattr(self, name)))
         self.existence = torch.where(filled, initial_existence, self.existence)
         self.track_id = torch.where(filled, -1, self.track_id)
+        self._clear_bias(filled)
 
 
 @dataclass

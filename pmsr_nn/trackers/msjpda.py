@@ -48,7 +48,6 @@ from ..motion import KinematicModel
 from ..simulation.detections import Scans, check_model_for_detections
 from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood
-from .management import Management, TrackReport, TrackTable, parked_state
 from .mixture import collapse, expand_moments, pda_collapse
 from .learned_gain import Association, GainCorrection, pda_marginals
 from .jpda import M_BEST_SEARCHES, batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
@@ -124,12 +123,15 @@ def _jpda_marginals(gated: np.ndarray, log_lik: np.ndarray, s: JPDASettings) -> 
 def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
                  s: JPDASettings, gamma: float, active: torch.Tensor | None = None,
                  association: Association = "jpda", correction: GainCorrection | None = None, pair: int = 0,
-                 learned: torch.Tensor | None = None) -> tuple[Gaussian, np.ndarray, torch.Tensor, np.ndarray, torch.Tensor]:
+                 learned: torch.Tensor | None = None
+                 ) -> tuple[Gaussian, np.ndarray, torch.Tensor, np.ndarray, torch.Tensor, torch.Tensor]:
     """One sensor's detections ``z (B, M, d)`` update tracks ``g`` ``(B, T, n)`` (Eqs. 15-21);
     a track outside ``active (B, T)`` gates nothing (it is only predicted). Returns the
     posterior, whether no detection was the likeliest association ``(B, T)``, the predicted
-    range deviation ``(B, T)``, the gates ``(B, T, M)`` and the summed likelihood ratio of the
-    gated detections to clutter ``(B, T)`` (what a track's existence is updated with).
+    range deviation ``(B, T)``, the gates ``(B, T, M)``, the summed likelihood ratio of the
+    gated detections to clutter ``(B, T)`` (what a track's existence is updated with) and the
+    whitened combined innovation ``L^-1 sum_i alpha_i nu_i`` ``(B, T, d)`` (the innovation bias
+    test's, :mod:`.innovation_bias`).
 
     ``association``: ``jpda`` (the paper's m-best joint events) or ``pda`` (each track on its
     own, :func:`~.learned_gain.pda_marginals`). ``correction`` (the hybrid tracker of
@@ -162,7 +164,8 @@ def _sensor_step(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measure
     out = pda_collapse(g, mom, L, e, gate, w)
     if correction is not None:
         out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active if learned is None else learned), out.P)
-    return out, dummy, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / s.clutter_density
+    e_c = (w[..., :M, None] * torch.where(gate[..., None], e, torch.zeros((), dtype=e.dtype))).sum(-2)
+    return out, dummy, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / s.clutter_density, e_c
 
 
 def _wrap(nu: torch.Tensor, model: MeasurementModel) -> torch.Tensor:
@@ -340,7 +343,7 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
         if architecture == "sequential":
             flags, sds = [], []
             for j in range(N):
-                g, f, sd, _, _ = _sensor_step(g, scans.z[:, k, j], scans.valid[:, k, j], subs[j], R[rows[j]][:, rows[j]],
+                g, f, sd, _, _, _ = _sensor_step(g, scans.z[:, k, j], scans.valid[:, k, j], subs[j], R[rows[j]][:, rows[j]],
                                               settings, gamma, act, association, correction, j)
                 flags.append(f)
                 sds.append(sd)
@@ -352,73 +355,6 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
             worst_gap = max(worst_gap, gap)
         x[:, k], P[:, k] = g.x, g.P
     return MultiTargetResult(x, P, torch.from_numpy(dummy), gate_sd, worst_gap)
-
-
-def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
-                   settings: JPDASettings, architecture: Literal["sequential", "parallel"],
-                   management: Management, association: Association = "jpda",
-                   correction: GainCorrection | None = None) -> TrackReport:
-    """S-/P-MSJPDA that start, confirm and delete their own tracks (:mod:`.management`).
-
-    Every scan: predict the table's tracks, associate and update them as :func:`msjpda` does
-    (tentative and confirmed tracks alike) and update their existence probabilities (IPDA:
-    each pair's gated detections against clutter), count at how many pairs each was detected,
-    confirm and delete, then start tentative tracks from the detections no track gated. Step 0
-    has no prediction. Returns the confirmed tracks as reported at each scan (those whose
-    existence is at least the management's ``report_existence``).
-
-    ``association`` and ``correction`` (sequential only): see :func:`_sensor_step`; a slot's
-    learned memory is cleared when its track is deleted.
-    """
-    check_scans(scans, model)
-    _check_variant(architecture, association, correction)
-    B, K, N, M = scans.shape
-    management.check(model, f"{architecture} MSJPDA")
-    n, dtype = motion.dim_x, scans.z.dtype
-    gamma = gate_threshold(settings.gate_probability, len(model.components))
-    F, Q = motion.F(dt, dtype), motion.Q(dt, q, dtype)
-    subs = [model.for_pairs([k]) for k in range(N)]
-    rows = [model.rows_for_pairs([k]) for k in range(N)]
-    table = TrackTable.empty(B, n, parked_state(model, n, dtype))
-    report = TrackReport.empty(B, K, n, dtype)
-    pos = list(motion.pos_idx)
-    if correction is not None:
-        correction.start(B, table.g.x.shape[1])
-    for k in range(K):
-        if k > 0:
-            table.g = predict(table.g, F, Q)
-            table.free(~table.active)  # keep free slots parked
-            table.predict_existence(management.survival)
-        act = table.active
-        learned = table.confirmed if correction is not None and correction.confirmed_only else None
-        used = np.zeros((B, N, M), dtype=bool)
-        pd_pg = settings.pd * settings.gate_probability
-        if architecture == "sequential":
-            detected = torch.zeros(act.shape, dtype=torch.int64)
-            for j in range(N):
-                table.g, missed, _, gated, ratio = _sensor_step(table.g, scans.z[:, k, j], scans.valid[:, k, j], subs[j],
-                                                                R[rows[j]][:, rows[j]], settings, gamma, act,
-                                                                association, correction, j, learned)
-                detected += torch.from_numpy(~missed) & act
-                used[:, j] = gated.any(1)
-                table.update_existence(ratio, pd_pg)
-        else:
-            table.g, _, _, _, gated, det, ratio = _joint_step(table.g, scans.z[:, k], scans.valid[:, k], model, R,
-                                                              settings, gamma, act)
-            detected = torch.from_numpy(det)
-            used = gated.any(1)
-            for j in range(N):
-                table.update_existence(ratio[..., j], pd_pg)
-        table.record(detected, management.hit_pairs)
-        table.manage(management.confirmer, management.deleter, pos)
-        if correction is not None:
-            correction.forget(~table.active)
-        unused = scans.valid[:, k] & ~torch.from_numpy(used)
-        if bool(unused.any()):
-            table.add(*management.initiator.initiate(scans.z[:, k], unused, model, n, management.other_sd),
-                      management.initial_existence)
-        report.write(k, table, management.report_existence)
-    return report.trimmed()
 
 
 def true_assignment_ukf(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: float,

@@ -1312,6 +1312,11 @@ case("evaluate/p-msjpda-unknown-m-best-search", "evaluate p.yaml --out out",
      setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"].append({"name": "PJ", "kind": "p_msjpda",
                                                                         "options": {"m_best_search": "murty"}})),
      message="option m_best_search must be one of branch_and_bound, relaxation", klass="refusal")
+case("evaluate/s-msjpda-bias-test-on-handed-tracks", "evaluate p.yaml --out out",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"].append({"name": "SJ", "kind": "s_msjpda",
+                                                                        "options": {"bias_window": 20}})),
+     message="the innovation bias test (bias_window) acts on the tracks a sequential tracker starts itself",
+     klass="refusal")
 FM_YAML = """\
 kind: multitarget
 name: fm_tiny
