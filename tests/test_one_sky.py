@@ -108,3 +108,23 @@ def test_the_managed_hybrid_companion_is_dense_crossing_but_for_its_rows():
     for m in managed["methods"][1:]:
         config = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta["training"]["config"]
         assert (config["tracking"], config["learned_on"], config["optim"]["loss_order"]) == ("managed", "confirmed", 2.0)
+
+
+def test_the_ghost_companion_is_dense_crossing_but_for_its_rows():
+    """``evaluate/dense_crossing_ghosts.yaml``: dense_crossing's draws, its S-MSJPDA row, and every
+    other row the same tracker family with the innovation bias test; the rows whose learned part
+    acts on flagged tracks only hold the gains trained starting their own tracks."""
+    import yaml
+
+    from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
+
+    main, ghosts = (yaml.safe_load((ROOT / "evaluate" / f).read_text())
+                    for f in ("dense_crossing.yaml", "dense_crossing_ghosts.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(ghosts) == rest(main)
+    assert ghosts["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
+    for m in ghosts["methods"][1:]:
+        assert m["kind"] in ("s_msjpda", "jpda_learned_gain") and m["options"]["bias_window"] == 20
+        if m["options"].get("bias_action") == "learn":
+            config = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta["training"]["config"]
+            assert config["tracking"] == "managed"
