@@ -92,39 +92,38 @@ def test_the_hybrid_companion_is_one_sky_but_for_its_rows():
         assert len(meta["geometry"]["transmitters"]) == 2 and len(meta["geometry"]["receivers"]) == 3
 
 
-def test_the_managed_hybrid_companion_is_dense_crossing_but_for_its_rows():
-    """``evaluate/dense_crossing_managed.yaml``: dense_crossing's draws (every setting but the
-    name, the description and the rows is dense_crossing.yaml's), its S-MSJPDA row, and hybrid
-    rows whose checkpoints were trained starting their own tracks, correcting confirmed tracks."""
+def dense_crossing_companion(name: str) -> list[dict]:
+    """The rows after the first of ``evaluate/<name>``, having checked that it is dense_crossing's
+    draws (every setting but the name, the description and the rows is dense_crossing.yaml's)
+    and that its first row is dense_crossing's S-MSJPDA."""
     import yaml
 
+    main, other = (yaml.safe_load((ROOT / "evaluate" / f).read_text()) for f in ("dense_crossing.yaml", name))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(other) == rest(main)
+    assert other["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
+    return other["methods"][1:]
+
+
+def training_config(row: dict) -> dict:
     from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
 
-    main, managed = (yaml.safe_load((ROOT / "evaluate" / f).read_text())
-                     for f in ("dense_crossing.yaml", "dense_crossing_managed.yaml"))
-    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
-    assert rest(managed) == rest(main)
-    assert managed["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
-    for m in managed["methods"][1:]:
-        config = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta["training"]["config"]
+    return load_gain_checkpoint(ROOT / "evaluate" / row["checkpoint"]).meta["training"]["config"]
+
+
+def test_the_managed_hybrid_companion_is_dense_crossing_but_for_its_rows():
+    """``evaluate/dense_crossing_managed.yaml``: hybrid rows whose checkpoints were trained
+    starting their own tracks, correcting confirmed tracks."""
+    for m in dense_crossing_companion("dense_crossing_managed.yaml"):
+        config = training_config(m)
         assert (config["tracking"], config["learned_on"], config["optim"]["loss_order"]) == ("managed", "confirmed", 2.0)
 
 
 def test_the_ghost_companion_is_dense_crossing_but_for_its_rows():
-    """``evaluate/dense_crossing_ghosts.yaml``: dense_crossing's draws, its S-MSJPDA row, and every
-    other row the same tracker family with the innovation bias test; the rows whose learned part
-    acts on flagged tracks only hold the gains trained starting their own tracks."""
-    import yaml
-
-    from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
-
-    main, ghosts = (yaml.safe_load((ROOT / "evaluate" / f).read_text())
-                    for f in ("dense_crossing.yaml", "dense_crossing_ghosts.yaml"))
-    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
-    assert rest(ghosts) == rest(main)
-    assert ghosts["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
-    for m in ghosts["methods"][1:]:
+    """``evaluate/dense_crossing_ghosts.yaml``: every row after S-MSJPDA the same tracker family
+    with the innovation bias test; the rows whose learned part acts on flagged tracks only hold
+    the gains trained starting their own tracks."""
+    for m in dense_crossing_companion("dense_crossing_ghosts.yaml"):
         assert m["kind"] in ("s_msjpda", "jpda_learned_gain") and m["options"]["bias_window"] == 20
         if m["options"].get("bias_action") == "learn":
-            config = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta["training"]["config"]
-            assert config["tracking"] == "managed"
+            assert training_config(m)["tracking"] == "managed"
