@@ -13,7 +13,9 @@ Option ``initiation`` says how S-/P-MSJPDA's tracks start:
   position; fixes of ``init_pairs`` pairs that agree start a track); with range and range-rate
   (or Doppler) but no azimuth, the spherical initiator (every combination of one detection per
   pair, at 3 or 4 pairs that share one transmitter or one receiver, whose joint fit of ranges
-  and rates passes the gate).
+  and rates passes the gate). S-MSJPDA from detections can add the innovation bias test
+  (``bias_window``, ``bias_probability``, ``bias_burn_in``; :mod:`pmsr_nn.trackers.innovation_bias`),
+  which deletes a confirmed track whose innovations keep a mean (a formation's ghost).
 
 P-MSJPDA ranks its (N+1)-D events by ``m_best_search``: ``branch_and_bound`` (the default, exact;
 :mod:`pmsr_nn.trackers.assignment_bnb`) or ``relaxation`` (the paper's Lagrangian relaxation,
