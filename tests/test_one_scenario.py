@@ -180,3 +180,8 @@ def test_the_report_shows_every_method_and_the_set_metrics(tmp_path):
     assert line[3] == f"{row['gospa_median_run_m']:.1f}" and line[5] == f"{row['ospa_m']:.1f} ± {row['ospa_se_m']:.1f}"
     assert line[7] == f"{row['confirmed_tracks_per_target']:.2f}"
     assert len(table) == 2 + len(res["cases"]["c"]["methods"])
+    # each run's GOSPA: the quartiles, the 90 % point and the worst of the two runs
+    spread = report.split("Each run's GOSPA (m) over the 2 runs", 1)[1].split("\n\n", 2)[1].splitlines()
+    cells = next(r for r in spread if r.startswith("| S-MSJPDA |")).strip(" |").split(" | ")[1:]
+    assert cells == [f"{v:.1f}" for v in row["gospa_run_quantiles_m"]] and len(cells) == 5
+    assert row["gospa_run_quantiles_m"][1] == pytest.approx(row["gospa_median_run_m"], rel=1e-12)

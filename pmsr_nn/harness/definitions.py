@@ -53,7 +53,9 @@ DEFINITIONS = {
                "which add up to 1; gospa_se_m its Monte Carlo standard error (the spread of the runs' mean GOSPA^p, "
                "through the p-th root by the delta method); gospa_median_run_m the median over runs of each run's "
                "GOSPA (the p-th root of its mean GOSPA^p over those scans): a few runs that lose their tracks move "
-               "the mean, not the median",
+               "the mean, not the median; gospa_run_quantiles_m each run's GOSPA at the 25 %, 50 %, 75 % and 90 % points "
+               "and the largest over the runs (linear interpolation between order statistics): how many runs the "
+               "mean's cost comes from",
     "confirmed_tracks_per_target": "reported tracks mapped to a target (the persistent mapping of "
                                    "label_switches_per_run) at some scan of its life, per target and run",
     "false_tracks_per_run": "reported tracks never matched to any target",

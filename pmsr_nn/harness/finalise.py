@@ -20,6 +20,7 @@ from .block_sums import FRONT_END, BlockSums
 from .method_spec import MethodSpec
 from .paired import set_comparisons
 from .prepared import Case, Setup, method_space
+from .result_rows import RUN_QUANTILES
 from .seeds import comparisons, summarise_seeds
 
 RESULT_KINDS = ("designed", "sampled")
@@ -76,6 +77,17 @@ def _median_root(per_run: np.ndarray | None, p: float) -> float | None:
     return float(np.nanmedian(np.where(np.isfinite(per_run), per_run, np.nan) ** (1 / p)))
 
 
+def _run_quantiles(per_run: np.ndarray | None, p: float) -> list[float] | None:
+    """Each run's GOSPA (the p-th root of its mean GOSPA^p over the scored scans) at the
+    :data:`RUN_QUANTILES` over the runs (linear interpolation between order statistics): where a
+    few runs hold a false track for hundreds of scans, the mean says how much they cost and these
+    say how many runs they are. None with fewer than two runs holding a finite value."""
+    if per_run is None or np.isfinite(per_run).sum() < 2:
+        return None
+    roots = per_run[np.isfinite(per_run)] ** (1 / p)
+    return [float(v) for v in np.quantile(roots, RUN_QUANTILES)]
+
+
 def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarray | None = None) -> tuple[dict, dict]:
     """Multi-target figures of one method: the row's fields and its per-scan curves; ``scans (K,)``:
     the scans the set figures average over (default: where some target is scored)."""
@@ -92,6 +104,7 @@ def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarra
     row = {"ospa_m": float(ospa_c[k].mean()), "gospa_m": total ** (1 / p),
            "gospa_se_m": _root_se(s.get("gospa_run"), total, p), "ospa_se_m": _se(s.get("ospa_run")),
            "gospa_median_run_m": _median_root(s.get("gospa_run"), p),
+           "gospa_run_quantiles_m": _run_quantiles(s.get("gospa_run"), p),
            "gospa_localisation_share": float((s["gospa_loc"][k] / B).mean() / total) if total > 0 else 0.0,
            "gospa_missed_share": float((s["gospa_missed"][k] / B).mean() / total) if total > 0 else 0.0,
            "gospa_false_share": float((s["gospa_false"][k] / B).mean() / total) if total > 0 else 0.0,

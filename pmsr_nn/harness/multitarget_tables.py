@@ -9,7 +9,7 @@ import numpy as np
 from .paired import comparison_lines
 from .references import paper_seconds
 from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, start_label, starts
-from .result_rows import MethodRow
+from .result_rows import RUN_QUANTILES, MethodRow
 from .results import Case, Results
 
 
@@ -64,6 +64,7 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
             lines += ["", "Largest duality gap of the relaxed assignments: "
                       + ", ".join(f"{m} {v:.3g} nats" for m, v in gaps.items()) + "."]
         lines += comparison_lines(case.set_comparisons)
+        lines += run_spread_table(rows, results.mc_runs)
         if case.pcrb is not None:
             lines += ["", f"PCRB (filtering, per target from its birth, clean streams): {fmt(case.pcrb.pos_m)} m."]
         lines += track_table(rows, results.settings.dt_s, "CLEAR MOT" in results.definitions.get("label_switches_per_run", ""),
@@ -117,6 +118,21 @@ def overview_table(results: Results, case: Case) -> list[str]:
                      f"{fmt(t and t.confirmed_tracks_per_target, 2)} | {fmt(t and t.false_tracks_per_run, 2)} | "
                      f"{fmt(t and t.track_loss_probability, 2)} | {fmt(s and s.label_switches_per_run, 2)} | "
                      f"{fmt(first, 2)} | {fmt(r.seconds_per_run, 3)} |")
+    return lines
+
+
+def run_spread_table(rows: dict[str, MethodRow], runs: int) -> list[str]:
+    """Each run's GOSPA over the ``runs`` runs at :data:`.result_rows.RUN_QUANTILES`, per row that
+    holds them (empty for none): a mean far above the median comes from a few runs, and this says
+    how few."""
+    have = {m: r.sets.gospa_run_quantiles_m for m, r in rows.items()
+            if r.sets is not None and r.sets.gospa_run_quantiles_m is not None}
+    if not have:
+        return []
+    head = " | ".join("worst" if q == 1.0 else f"{100 * q:g} %" for q in RUN_QUANTILES)
+    lines = ["", f"Each run's GOSPA (m) over the {runs} runs (the p-th root of the run's mean GOSPA^p; linear "
+                 "interpolation between the runs):", "", f"| method | {head} |", "|---|" + "---:|" * len(RUN_QUANTILES)]
+    lines += [f"| {m} | " + " | ".join(f"{v:.1f}" for v in q) + " |" for m, q in have.items()]
     return lines
 
 

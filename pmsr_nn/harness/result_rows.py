@@ -52,6 +52,11 @@ class MemoryBound:
     below: bool
 
 
+RUN_QUANTILES = (0.25, 0.5, 0.75, 0.9, 1.0)
+"""Where over the runs ``SetFigures.gospa_run_quantiles_m`` reads each run's GOSPA: the quartiles,
+the 90 % point and the worst run."""
+
+
 @dataclass(frozen=True)
 class SetFigures:
     """Multi-target figures of a row that reports tracks (m; shares of GOSPA^p add up to 1)."""
@@ -68,6 +73,7 @@ class SetFigures:
     ospa_se_m: float | None = None
     gospa_se_m: float | None = None
     gospa_median_run_m: float | None = None
+    gospa_run_quantiles_m: list | None = None  # at RUN_QUANTILES
 
 
 @dataclass(frozen=True)
