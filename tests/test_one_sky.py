@@ -77,32 +77,30 @@ def test_the_hybrid_companion_is_one_sky_but_for_its_rows():
     """``evaluate/one_sky_hybrid.yaml`` puts the hybrid tracker on one_sky's draws: every setting
     but the name, the description and the rows is one_sky.yaml's (the draws do not depend on
     those), its S-MSJPDA row is one_sky's, and its learned rows were trained for these sensors."""
-    import yaml
-
     from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
 
-    main, hybrid = (yaml.safe_load((ROOT / "evaluate" / f).read_text()) for f in ("one_sky.yaml", "one_sky_hybrid.yaml"))
-    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
-    assert rest(hybrid) == rest(main)
-    assert hybrid["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
-    learned = hybrid["methods"][1:]
+    learned = companion_rows("one_sky.yaml", "one_sky_hybrid.yaml")
     assert [m["kind"] for m in learned] == ["jpda_learned_gain"] * 3
     for m in learned:
         meta = load_gain_checkpoint(ROOT / "evaluate" / m["checkpoint"]).meta
         assert len(meta["geometry"]["transmitters"]) == 2 and len(meta["geometry"]["receivers"]) == 3
 
 
-def dense_crossing_companion(name: str) -> list[dict]:
-    """The rows after the first of ``evaluate/<name>``, having checked that it is dense_crossing's
-    draws (every setting but the name, the description and the rows is dense_crossing.yaml's)
-    and that its first row is dense_crossing's S-MSJPDA."""
+def companion_rows(main: str, name: str) -> list[dict]:
+    """The rows after the first of ``evaluate/<name>``, having checked that it is ``evaluate/<main>``'s
+    draws (every setting but the name, the description and the rows is the main scenario's: the
+    draws do not depend on those) and that its first row is the main scenario's S-MSJPDA."""
     import yaml
 
-    main, other = (yaml.safe_load((ROOT / "evaluate" / f).read_text()) for f in ("dense_crossing.yaml", name))
+    ours, other = (yaml.safe_load((ROOT / "evaluate" / f).read_text()) for f in (main, name))
     rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
-    assert rest(other) == rest(main)
-    assert other["methods"][0] == next(m for m in main["methods"] if m["name"] == "S-MSJPDA")
+    assert rest(other) == rest(ours)
+    assert other["methods"][0] == next(m for m in ours["methods"] if m["name"] == "S-MSJPDA")
     return other["methods"][1:]
+
+
+def dense_crossing_companion(name: str) -> list[dict]:
+    return companion_rows("dense_crossing.yaml", name)
 
 
 def training_config(row: dict) -> dict:
@@ -127,3 +125,10 @@ def test_the_ghost_companion_is_dense_crossing_but_for_its_rows():
         assert m["kind"] in ("s_msjpda", "jpda_learned_gain") and m["options"]["bias_window"] == 20
         if m["options"].get("bias_action") == "learn":
             assert training_config(m)["tracking"] == "managed"
+
+
+def test_the_ghost_companion_of_one_sky_is_one_sky_but_for_its_rows():
+    """``evaluate/one_sky_ghosts.yaml``: one_sky's draws, S-MSJPDA and the same tracker with the
+    innovation bias test as its only rows."""
+    (row,) = companion_rows("one_sky.yaml", "one_sky_ghosts.yaml")
+    assert row["kind"] == "s_msjpda" and row["options"] == {"initiation": "detections", "bias_window": 20}
