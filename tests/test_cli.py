@@ -282,3 +282,26 @@ def test_evaluate_methods_refuses_a_name_that_is_not_a_row(tmp_path, capsys, nam
     rc = main(["evaluate", str(scenario), "--out", str(tmp_path / "sub" / "out"), "--methods", names])
     assert rc == 2 and capsys.readouterr().err == message
     assert [p.name for p in tmp_path.iterdir()] == ["tiny.yaml"]  # not even the parent folder
+
+
+def test_evaluate_seed_draws_the_runs_of_that_seed(tmp_path, capsys):
+    """``--seed N`` runs the scenario as if its file said ``seed: N`` (the same figures, bit for
+    bit, and N recorded), draws other runs than the file's seed, and reaches ``--methods`` too."""
+    scenario = tmp_path / "tiny.yaml"
+    scenario.write_text(TINY_SCENARIO)
+    (tmp_path / "tiny4.yaml").write_text(TINY_SCENARIO.replace("seed: 3", "seed: 4"))
+    assert main(["evaluate", str(scenario), "--out", str(tmp_path / "s3"), "--quiet"]) == 0
+    assert main(["evaluate", str(scenario), "--out", str(tmp_path / "s4"), "--quiet", "--seed", "4"]) == 0
+    assert main(["evaluate", str(tmp_path / "tiny4.yaml"), "--out", str(tmp_path / "file4"), "--quiet"]) == 0
+    assert main(["evaluate", str(scenario), "--out", str(tmp_path / "ukf4"), "--quiet", "--seed", "4",
+                 "--methods", "UKF"]) == 0
+    assert rows(tmp_path / "s4") == rows(tmp_path / "file4") != rows(tmp_path / "s3")
+    assert rows(tmp_path / "ukf4") == {c: {"UKF": m["UKF"]} for c, m in rows(tmp_path / "s4").items()}
+    assert json.loads((tmp_path / "s4" / "results.json").read_text())["seed"] == 4
+    assert capsys.readouterr().err == ""
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", str(scenario), "--out", str(tmp_path / "bad"), "--seed", "-1"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == "pmsr: error: argument --seed: expected a non-negative integer, got '-1' (see 'pmsr evaluate --help')\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -148,6 +148,9 @@ RULES = [
     # ... with your own network: that row alone, on one run
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval --mc-runs 20 "
          r"--checkpoint MDFNN=runs/mdfnn/tracker\.pt", lambda a: _set(_mc1(a), "--methods", "MDFNN"), setup=[MDFNN]),
+    # ... on another seed's draws: the EKF row on one run
+    Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval_seed1 --seed 1",
+         lambda a: _set(_mc1(a), "--methods", "EKF")),
     # ... sharded: the EKF row on two blocks of 10 runs, one per shard
     # (shards and their merge are checked in-process in tests/test_harness.py: these three run in the slow tier)
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/s([12]) --shard \1/2",

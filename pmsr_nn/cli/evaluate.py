@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from ..errors import ConfigError, PmsrError
-from .common import mc_runs_int
+from .common import mc_runs_int, nonneg_int
 
 
 def add_evaluate(sub) -> None:
@@ -22,6 +22,9 @@ def add_evaluate(sub) -> None:
     ev.add_argument("scenario", type=Path, help="scenario YAML, e.g. evaluate/fitee2023_three_trajectories.yaml")
     ev.add_argument("--out", type=Path, required=True, help="output folder (new or empty unless --overwrite)")
     ev.add_argument("--mc-runs", type=mc_runs_int, help="Monte Carlo runs per case (overrides the scenario's)")
+    ev.add_argument("--seed", type=nonneg_int, help="draw the truth and measurements from this seed (overrides the "
+                    "scenario's 'seed:'; recorded in results.json): other runs of the same scenario, e.g. to choose "
+                    "a setting on draws that are not the recorded ones")
     ev.add_argument("--methods", metavar="NAME[,NAME...]",
                     help="run only these rows: names from the scenario's 'methods:' list, comma-separated (a case "
                          "that names its own methods keeps those of them that are given)")
@@ -152,7 +155,7 @@ def cmd_evaluate(args) -> int:
             raise ConfigError("--methods does not reach the jobs of --executor: run each shard with --shard I/N "
                               "--methods ... and combine them with 'pmsr merge'")
         res = dispatch(args.scenario, args.out, shards=args.shards, executor=args.executor, mc_runs=args.mc_runs,
-                       checkpoints=checkpoint_overrides(args.checkpoint), device=args.device,
+                       checkpoints=checkpoint_overrides(args.checkpoint), device=args.device, seed=args.seed,
                        overwrite=args.overwrite, partition=args.partition, timeout_min=args.timeout_min,
                        progress=not args.quiet)
         if not args.quiet:
@@ -170,18 +173,18 @@ def cmd_evaluate(args) -> int:
 
         # the scenario file is an input even when evaluate() is handed the loaded scenario
         check_folder_target(args.out, overwrite=args.overwrite, inputs=[args.scenario], allow=RESULT_COMMANDS)
-        sc = load_any(args.scenario, runs, checkpoints)
+        sc = load_any(args.scenario, runs, checkpoints, args.seed)
         scenario, checkpoints, runs = keep_methods(sc, method_names(args.methods, [m.name for m in sc.methods])), None, None
     if args.per_block:
         from ..harness.block_bank import evaluate_per_block
         from ..harness.evaluate import _inputs, load_any
 
-        sc = load_any(scenario, runs, checkpoints)
+        sc = load_any(scenario, runs, checkpoints, args.seed)
         evaluate_per_block(sc, args.out, shard=shard, inputs=_inputs(args.scenario, sc), device=args.device,
                            progress=not args.quiet)
         return 0
     res = evaluate(scenario, args.out, mc_runs=runs, checkpoints=checkpoints, shard=shard, device=args.device,
-                   progress=not args.quiet, overwrite=args.overwrite)
+                   progress=not args.quiet, overwrite=args.overwrite, seed=args.seed)
     if args.quiet:
         return 0
     if shard != (1, 1):

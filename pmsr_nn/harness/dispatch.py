@@ -34,18 +34,19 @@ def _submitit():
 
 
 def run_shard(scenario: str, out: str, shard: tuple[int, int], mc_runs: int | None, checkpoints: dict | None,
-              device: str) -> str:
+              device: str, seed: int | None = None) -> str:
     """One job: shard ``shard`` of ``scenario`` into ``out`` (what ``pmsr evaluate --shard`` does)."""
     from .evaluate import evaluate
 
     evaluate(Path(scenario), Path(out), mc_runs=mc_runs, checkpoints=checkpoints, shard=tuple(shard), device=device,
-             progress=False)
+             progress=False, seed=seed)
     return out
 
 
 def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "local", mc_runs: int | None = None,
              checkpoints: dict[str, str] | None = None, device: str = "cpu", overwrite: bool = False,
-             partition: str | None = None, timeout_min: int = 60, progress: bool = True) -> dict:
+             partition: str | None = None, timeout_min: int = 60, progress: bool = True,
+             seed: int | None = None) -> dict:
     """Run ``scenario`` as ``shards`` jobs on ``executor`` and merge them into ``out``; returns
     results.json's content. ``partition`` and ``timeout_min`` (per shard) are SLURM's."""
     from .evaluate import RESULT_COMMANDS, _inputs, load_any, merge
@@ -57,7 +58,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
     out = Path(out)
     scenario = Path(scenario)
     check_folder_target(out, overwrite=overwrite, inputs=[scenario], allow=RESULT_COMMANDS)
-    sc = load_any(scenario, mc_runs, checkpoints)
+    sc = load_any(scenario, mc_runs, checkpoints, seed)
     if not 1 <= shards <= sc.n_blocks:
         raise ConfigError(f"--shards must be in 1..{sc.n_blocks} (the scenario's blocks of runs), got {shards}")
     if not isinstance(timeout_min, int) or timeout_min < 1:
@@ -83,7 +84,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
         folders = [str(work / f"shard{i}") for i in range(1, shards + 1)]
         jobs = engine.map_array(run_shard, [str(scenario.resolve())] * shards, folders,
                                 [(i, shards) for i in range(1, shards + 1)], [mc_runs] * shards,
-                                [checkpoints] * shards, [device] * shards)
+                                [checkpoints] * shards, [device] * shards, [seed] * shards)
         if progress:
             print(f"submitted {shards} shard job(s) to {executor}: {', '.join(str(j.job_id) for j in jobs)}")
         for i, job in enumerate(jobs, start=1):

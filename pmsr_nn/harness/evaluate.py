@@ -68,15 +68,16 @@ def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> A
 
 
 def load_any(scenario: AnyScenario | str | Path, mc_runs: int | None = None,
-             checkpoints: dict[str, str] | None = None) -> AnyScenario:
-    """The scenario (loaded from its YAML file if a path), with ``--mc-runs`` and ``--checkpoint`` applied."""
+             checkpoints: dict[str, str] | None = None, seed: int | None = None) -> AnyScenario:
+    """The scenario (loaded from its YAML file if a path), with ``--mc-runs``, ``--seed`` and
+    ``--checkpoint`` applied."""
     if isinstance(scenario, (Scenario, *STUDIES)):
         sc = scenario
     else:
         sc = scenario_from_data(load_yaml(Path(scenario)), Path(scenario).parent, where=str(scenario))
     if checkpoints and isinstance(sc, STUDIES):
         raise ConfigError("a multi-target study has no learned methods: --checkpoint does not apply")
-    sc = sc.with_mc_runs(mc_runs)
+    sc = sc.with_mc_runs(mc_runs).with_seed(seed)
     return sc.with_checkpoints(checkpoints) if checkpoints else sc
 
 
@@ -126,10 +127,11 @@ def write_outputs(setup: Setup, bs: BlockSums, out: Path, device: str, merged: d
 
 def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | None = None,
              checkpoints: dict[str, str] | None = None, shard: tuple[int, int] = (1, 1), device: str = "cpu",
-             progress: bool = True, overwrite: bool = False) -> dict:
-    """Run a scenario (or one shard) into ``out``; returns results.json's content (or shard.json's)."""
+             progress: bool = True, overwrite: bool = False, seed: int | None = None) -> dict:
+    """Run a scenario (or one shard) into ``out``; returns results.json's content (or shard.json's).
+    ``seed`` replaces the scenario's seed (other draws of the same scenario)."""
     check_folder_target(out, overwrite=overwrite, inputs=_inputs(scenario, None), allow=RESULT_COMMANDS)
-    sc = load_any(scenario, mc_runs, checkpoints)
+    sc = load_any(scenario, mc_runs, checkpoints, seed)
     inputs = _inputs(scenario, sc)
     check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
     blocks = shard_blocks(sc.n_blocks, shard)

@@ -141,6 +141,15 @@ class StudyFile:
         object.__setattr__(new, "base_dir", self.base_dir)
         return new
 
+    def with_seed(self, seed: int | None):
+        """The same study drawn from ``seed`` (``--seed``; ``None``: unchanged): other truth and
+        measurement draws, the same everything else."""
+        if seed is None:
+            return self
+        new = dataclasses.replace(self, seed=seed)
+        object.__setattr__(new, "base_dir", self.base_dir)
+        return new
+
 
 @dataclass(frozen=True)
 class Scenario(StudyFile):
@@ -239,6 +248,11 @@ class Scenario(StudyFile):
         if mc_runs is None:
             return self
         return self.replace(mc_runs=mc_runs)
+
+    def with_seed(self, seed: int | None) -> "Scenario":
+        if seed is None:
+            return self
+        return self.replace(seed=seed)
 
     def with_checkpoints(self, checkpoints: dict[str, str]) -> "Scenario":
         """Swap the checkpoint of named learned methods (``--checkpoint NAME=PATH``); the new
