@@ -10,7 +10,14 @@ detections can be explained by a permuted assignment (two members' bistatic rang
 some pairs), a consistent solution of the range equations that a 3-degree azimuth cannot rule
 out, and a track started there stays there.
 
+Each run's false-track cost (the c^p/2 GOSPA charges for reported tracks no living target is
+assigned to) is split three ways, as shares of the run's GOSPA^p: a track that *outlived* its
+target (assigned to a target at an earlier scan of its life, that target now dead), a track
+*beside* a living target (within the cut-off of one, but another track holds it: a duplicate or
+a ghost) and a track *far* from every living target (started on clutter, or drifted away).
+
     python evaluate/formation_ghosts.py evaluate/dense_crossing.yaml --methods S-MSJPDA --blocks 2
+    python evaluate/formation_ghosts.py evaluate/one_sky.yaml --methods S-MSJPDA --only-blocks 0-24
 """
 
 from __future__ import annotations
@@ -26,12 +33,41 @@ from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness.blocks import call_method, draw_block
 from pmsr_nn.harness.evaluate import load_any
 from pmsr_nn.harness.runner import prepare
-from pmsr_nn.metrics.sets import gospa
+from pmsr_nn.metrics.sets import gospa, set_scores
+
+FALSE_KINDS = ("outlived", "beside", "far")
+"""How a false track's GOSPA charge is classed (:func:`false_kinds`)."""
 
 
-def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks: int) -> dict[str, dict]:
-    """Per row: ``gospa_m (R,)`` each run's GOSPA and ``nearest_m (R, N)`` each target's median
-    distance to the nearest reported track over its scored scans (inf: never a track)."""
+def false_kinds(ex: torch.Tensor, exists: torch.Tensor, tx: torch.Tensor, alive: torch.Tensor, c: float,
+                p: float) -> torch.Tensor:
+    """``(B, K, 3)``: per run and scan, the GOSPA^p charged for false tracks (c^p/2 each), split
+    into :data:`FALSE_KINDS`. ``ex (B, K, T, 2)`` track positions, ``exists (B, K, T)``, ``tx (B,
+    K, N, 2)`` target positions, ``alive (B, K, N)``; a track slot that stops existing forgets its
+    target (slots are reused)."""
+    sc = set_scores(ex, exists, tx, alive, c, p)
+    d = torch.cdist(ex, tx)  # (B, K, T, N)
+    a = sc.assignment
+    held = (a >= 0) & (d.gather(-1, a.clamp(min=0)[..., None])[..., 0] < c)  # within c: not charged as false
+    false = exists & ~held
+    near = (torch.where(alive[:, :, None, :], d, torch.full((), float("inf"), dtype=d.dtype)) < c).any(-1)
+    B, K, T = exists.shape
+    last = torch.full((B, T), -1, dtype=torch.long)  # the target a slot's track was last held on
+    out = torch.zeros(B, K, 3, dtype=ex.dtype)
+    for k in range(K):
+        last = torch.where(exists[:, k], last, torch.full_like(last, -1))
+        dead = (last >= 0) & ~alive[:, k].gather(1, last.clamp(min=0))
+        kind = torch.where(dead, 0, torch.where(near[:, k], 1, 2))  # outlived / beside / far
+        out[:, k] = torch.nn.functional.one_hot(kind, 3).to(ex.dtype).mul(false[:, k, :, None]).sum(1) * c**p / 2
+        last = torch.where(held[:, k], a[:, k], last)
+    return out
+
+
+def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks: int | list[int]) -> dict[str, dict]:
+    """Per row: ``gospa_m (R,)`` each run's GOSPA, ``nearest_m (R, N)`` each target's median
+    distance to the nearest reported track over its scored scans (inf: never a track) and
+    ``false_shares (R, 3)`` the shares of each run's GOSPA^p charged for false tracks of each of
+    :data:`FALSE_KINDS`. ``blocks``: the first so many blocks, or a list of block indices."""
     sc = load_any(path, None, None)
     if methods:
         sc = keep_methods(sc, method_names(methods, [m.name for m in sc.methods]))
@@ -39,16 +75,17 @@ def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks:
     ci = names.index(case) if case in names else 0
     if case is not None and case not in names:
         raise ConfigError(f"no case {case!r} in {path} (cases: {', '.join(names)})")
-    if not 1 <= blocks <= sc.n_blocks:
-        raise ConfigError(f"--blocks must be 1..{sc.n_blocks}, got {blocks}")
+    chosen = list(range(blocks)) if isinstance(blocks, int) else list(blocks)
+    if not chosen or not all(0 <= b < sc.n_blocks for b in chosen):
+        raise ConfigError(f"blocks must lie in 0..{sc.n_blocks - 1} (the first 1..{sc.n_blocks}), got {blocks}")
     setup = prepare(sc)
     c, p = sc.set_metrics.c_m, sc.set_metrics.p
     pos = list(setup.models.motion.pos_idx)
     cs = setup.cases[ci]
     scored, scans = cs.scored, cs.set_scan_mask
-    out = {m.name: {"gospa_m": [], "nearest_m": []} for m in setup.methods}
+    out = {m.name: {"gospa_m": [], "nearest_m": [], "false_shares": []} for m in setup.methods}
     with torch.no_grad():
-        for block in range(blocks):
+        for block in chosen:
             truth, products = draw_block(setup, ci, block)
             tx = truth.x[..., pos]  # (B, K, N, 2)
             for m in setup.methods:
@@ -56,7 +93,10 @@ def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks:
                 ex = est.x[..., pos]  # (B, K, T, 2)
                 exists = est.exists & torch.isfinite(ex).all(-1)
                 g = gospa(torch.nan_to_num(ex), exists, torch.nan_to_num(tx), truth.alive.expand(tx.shape[:3]), c, p)
-                out[m.name]["gospa_m"].append((g.total[:, scans] ** p).mean(1) ** (1 / p))
+                run_p = (g.total[:, scans] ** p).sum(1)  # (B,) the run's GOSPA^p over the scored scans
+                out[m.name]["gospa_m"].append((run_p / int(scans.sum())) ** (1 / p))
+                parts = false_kinds(torch.nan_to_num(ex), exists, torch.nan_to_num(tx), truth.alive.expand(tx.shape[:3]), c, p)
+                out[m.name]["false_shares"].append(parts[:, scans].sum(1) / run_p.clamp(min=1e-300)[:, None])
                 d = torch.cdist(torch.nan_to_num(tx, nan=1e12), torch.nan_to_num(ex, nan=-1e12))  # (B, K, N, T)
                 d = torch.where(exists[:, :, None, :], d, torch.full((), float("inf"), dtype=d.dtype)).amin(-1)
                 d = torch.where(scored, d, torch.full((), float("nan"), dtype=d.dtype))
@@ -70,22 +110,35 @@ def main() -> None:
     ap.add_argument("--methods", help="rows to run (comma-separated names; default all)")
     ap.add_argument("--case", help="case name (default the first)")
     ap.add_argument("--blocks", type=int, default=1, help="first blocks of the case to draw (default 1)")
+    ap.add_argument("--only-blocks", help="these blocks instead (e.g. 0-24 or 3,7,12: a block of one run is that run)")
     ap.add_argument("--near", type=float, default=100.0, help="a nearest track this far or farther is beside its "
                                                                "target, not on it (m; default 100)")
     a = ap.parse_args()
-    res = run_figures(a.scenario, a.methods, a.case, a.blocks)
+    blocks = a.blocks
+    if a.only_blocks:
+        blocks = [i for part in a.only_blocks.split(",") for i in (
+            range(int(part.split("-")[0]), int(part.split("-")[1]) + 1) if "-" in part else [int(part)])]
+    res = run_figures(a.scenario, a.methods, a.case, blocks)
+    sc = load_any(a.scenario, None, None)
+    run_ids = [i for b in (range(blocks) if isinstance(blocks, int) else blocks) for i in sc.block_runs_range(b)]
     for name, r in res.items():
         g, near = r["gospa_m"], r["nearest_m"]
         ghost = (near >= a.near) & np.isfinite(near)
         print(f"\n{name}: GOSPA over {len(g)} runs: mean {np.sqrt(np.mean(g ** 2)):.1f} m (root of the mean square), "
               f"median run {np.median(g):.1f} m; runs with a target held beside it ({a.near:g} m or more): "
               f"{int(ghost.any(1).sum())}")
-        print("| run | GOSPA (m) | per target: median distance to the nearest track (m) |")
-        print("|---:|---:|---|")
+        shares = r["false_shares"]
+        weights = g ** 2 / np.sum(g ** 2)  # each run's share of the mean GOSPA^p (p = 2)
+        print("share of the mean GOSPA^2 charged for false tracks: " + ", ".join(
+            f"{kind} {100 * float(weights @ shares[:, i]):.0f} %" for i, kind in enumerate(FALSE_KINDS)))
+        print(f"| run | GOSPA (m) | % of the run's GOSPA^2 false: {' / '.join(FALSE_KINDS)} | "
+              "per target: median distance to the nearest track (m) |")
+        print("|---:|---:|---|---|")
         for i in range(len(g)):
             cells = " / ".join("-" if not np.isfinite(v) else f"{v:.0f}" + ("*" if ghost[i, t] else "")
                                for t, v in enumerate(near[i]))
-            print(f"| {i} | {g[i]:.1f} | {cells} |")
+            kinds = " / ".join(f"{100 * v:.0f}" for v in shares[i])
+            print(f"| {run_ids[i]} | {g[i]:.1f} | {kinds} | {cells} |")
 
 
 if __name__ == "__main__":

@@ -25,3 +25,29 @@ def test_the_per_run_gospa_is_the_reports(tmp_path):
     assert row["gospa_run_quantiles_m"] == pytest.approx(np.quantile(r["gospa_m"], RUN_QUANTILES), rel=1e-9)
     assert row["gospa_run_quantiles_m"][-1] == pytest.approx(r["gospa_m"].max(), rel=1e-9)
     assert np.all(r["nearest_m"] < 100.0)  # two drones far apart in light clutter: every track on its drone
+    # a list of blocks re-draws those blocks: block 1 alone is runs 2 and 3 of the whole
+    second = load_script("evaluate/formation_ghosts.py").run_figures(path, None, None, [1])["S"]
+    assert second["gospa_m"] == pytest.approx(r["gospa_m"][2:], rel=1e-12)
+    assert r["false_shares"].shape == (4, 3) and np.all(r["false_shares"] >= 0)
+    assert np.all(r["false_shares"].sum(1) <= 1 + 1e-12)
+
+
+def test_false_tracks_are_classed_outlived_beside_or_far():
+    """Target 0 lives scans 0-1, target 1 all three; track 0 holds target 0 and stays after it
+    dies (outlived at scan 2), track 1 holds target 1, track 2 appears beside target 1 at scan 1
+    (a duplicate) and 2 km from everything at scan 2 (far). Each class is charged c^p/2 at its
+    scans, and the classes add up to GOSPA's own false charge."""
+    import torch
+
+    from pmsr_nn.metrics.sets import gospa
+
+    c, p = 100.0, 2.0
+    tx = torch.tensor([[0.0, 0.0], [1000.0, 0.0]]).expand(1, 3, 2, 2)
+    alive = torch.tensor([[[True, True], [True, True], [False, True]]])
+    ex = torch.tensor([[[1.0, 0.0], [1001.0, 0.0], [0.0, 0.0]], [[1.0, 0.0], [1001.0, 0.0], [1030.0, 0.0]],
+                       [[1.0, 0.0], [1001.0, 0.0], [3000.0, 0.0]]])[None]
+    exists = torch.tensor([[[True, True, False], [True, True, True], [True, True, True]]])
+    parts = load_script("evaluate/formation_ghosts.py").false_kinds(ex, exists, tx, alive, c, p)[0]
+    half = c**p / 2
+    assert parts.tolist() == [[0.0, 0.0, 0.0], [0.0, half, 0.0], [half, 0.0, half]]
+    assert parts.sum(-1).tolist() == gospa(ex, exists, tx, alive, c, p).false[0].tolist()
