@@ -40,34 +40,39 @@ FALSE_KINDS = ("outlived", "beside", "far")
 
 
 def false_kinds(ex: torch.Tensor, exists: torch.Tensor, tx: torch.Tensor, alive: torch.Tensor, c: float,
-                p: float) -> torch.Tensor:
+                p: float) -> tuple[torch.Tensor, torch.Tensor]:
     """``(B, K, 3)``: per run and scan, the GOSPA^p charged for false tracks (c^p/2 each), split
-    into :data:`FALSE_KINDS`. ``ex (B, K, T, 2)`` track positions, ``exists (B, K, T)``, ``tx (B,
-    K, N, 2)`` target positions, ``alive (B, K, N)``; a track slot that stops existing forgets its
-    target (slots are reused)."""
+    into :data:`FALSE_KINDS`; and ``(B, K, T)`` the distance of each track charged as *beside* to
+    the nearest living target (NaN elsewhere). ``ex (B, K, T, 2)`` track positions, ``exists (B,
+    K, T)``, ``tx (B, K, N, 2)`` target positions, ``alive (B, K, N)``; a track slot that stops
+    existing forgets its target (slots are reused)."""
     sc = set_scores(ex, exists, tx, alive, c, p)
     d = torch.cdist(ex, tx)  # (B, K, T, N)
     a = sc.assignment
     held = (a >= 0) & (d.gather(-1, a.clamp(min=0)[..., None])[..., 0] < c)  # within c: not charged as false
     false = exists & ~held
-    near = (torch.where(alive[:, :, None, :], d, torch.full((), float("inf"), dtype=d.dtype)) < c).any(-1)
+    nearest = torch.where(alive[:, :, None, :], d, torch.full((), float("inf"), dtype=d.dtype)).amin(-1)  # (B, K, T)
+    near = nearest < c
     B, K, T = exists.shape
     last = torch.full((B, T), -1, dtype=torch.long)  # the target a slot's track was last held on
     out = torch.zeros(B, K, 3, dtype=ex.dtype)
+    beside = torch.full_like(nearest, float("nan"))
     for k in range(K):
         last = torch.where(exists[:, k], last, torch.full_like(last, -1))
         dead = (last >= 0) & ~alive[:, k].gather(1, last.clamp(min=0))
         kind = torch.where(dead, 0, torch.where(near[:, k], 1, 2))  # outlived / beside / far
         out[:, k] = torch.nn.functional.one_hot(kind, 3).to(ex.dtype).mul(false[:, k, :, None]).sum(1) * c**p / 2
+        beside[:, k] = torch.where(false[:, k] & (kind == 1), nearest[:, k], beside[:, k])
         last = torch.where(held[:, k], a[:, k], last)
-    return out
+    return out, beside
 
 
 def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks: int | list[int]) -> dict[str, dict]:
     """Per row: ``gospa_m (R,)`` each run's GOSPA, ``nearest_m (R, N)`` each target's median
     distance to the nearest reported track over its scored scans (inf: never a track) and
     ``false_shares (R, 3)`` the shares of each run's GOSPA^p charged for false tracks of each of
-    :data:`FALSE_KINDS`. ``blocks``: the first so many blocks, or a list of block indices."""
+    :data:`FALSE_KINDS`, ``beside_m (R,)`` the median distance of the run's *beside* charges to
+    the nearest living target (NaN: none). ``blocks``: the first so many blocks, or a list of block indices."""
     sc = load_any(path, None, None)
     if methods:
         sc = keep_methods(sc, method_names(methods, [m.name for m in sc.methods]))
@@ -83,7 +88,7 @@ def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks:
     pos = list(setup.models.motion.pos_idx)
     cs = setup.cases[ci]
     scored, scans = cs.scored, cs.set_scan_mask
-    out = {m.name: {"gospa_m": [], "nearest_m": [], "false_shares": []} for m in setup.methods}
+    out = {m.name: {"gospa_m": [], "nearest_m": [], "false_shares": [], "beside_m": []} for m in setup.methods}
     with torch.no_grad():
         for block in chosen:
             truth, products = draw_block(setup, ci, block)
@@ -95,8 +100,10 @@ def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks:
                 g = gospa(torch.nan_to_num(ex), exists, torch.nan_to_num(tx), truth.alive.expand(tx.shape[:3]), c, p)
                 run_p = (g.total[:, scans] ** p).sum(1)  # (B,) the run's GOSPA^p over the scored scans
                 out[m.name]["gospa_m"].append((run_p / int(scans.sum())) ** (1 / p))
-                parts = false_kinds(torch.nan_to_num(ex), exists, torch.nan_to_num(tx), truth.alive.expand(tx.shape[:3]), c, p)
+                parts, beside = false_kinds(torch.nan_to_num(ex), exists, torch.nan_to_num(tx),
+                                            truth.alive.expand(tx.shape[:3]), c, p)
                 out[m.name]["false_shares"].append(parts[:, scans].sum(1) / run_p.clamp(min=1e-300)[:, None])
+                out[m.name]["beside_m"].append(torch.nanmedian(beside[:, scans].flatten(1), 1).values)
                 d = torch.cdist(torch.nan_to_num(tx, nan=1e12), torch.nan_to_num(ex, nan=-1e12))  # (B, K, N, T)
                 d = torch.where(exists[:, :, None, :], d, torch.full((), float("inf"), dtype=d.dtype)).amin(-1)
                 d = torch.where(scored, d, torch.full((), float("nan"), dtype=d.dtype))
@@ -131,14 +138,15 @@ def main() -> None:
         weights = g ** 2 / np.sum(g ** 2)  # each run's share of the mean GOSPA^p (p = 2)
         print("share of the mean GOSPA^2 charged for false tracks: " + ", ".join(
             f"{kind} {100 * float(weights @ shares[:, i]):.0f} %" for i, kind in enumerate(FALSE_KINDS)))
-        print(f"| run | GOSPA (m) | % of the run's GOSPA^2 false: {' / '.join(FALSE_KINDS)} | "
-              "per target: median distance to the nearest track (m) |")
-        print("|---:|---:|---|---|")
+        print(f"| run | GOSPA (m) | % of the run's GOSPA^2 false: {' / '.join(FALSE_KINDS)} | beside: median distance "
+              "to the nearest target (m) | per target: median distance to the nearest track (m) |")
+        print("|---:|---:|---|---:|---|")
         for i in range(len(g)):
             cells = " / ".join("-" if not np.isfinite(v) else f"{v:.0f}" + ("*" if ghost[i, t] else "")
                                for t, v in enumerate(near[i]))
             kinds = " / ".join(f"{100 * v:.0f}" for v in shares[i])
-            print(f"| {run_ids[i]} | {g[i]:.1f} | {kinds} | {cells} |")
+            far = r["beside_m"][i]
+            print(f"| {run_ids[i]} | {g[i]:.1f} | {kinds} | {'-' if np.isnan(far) else f'{far:.0f}'} | {cells} |")
 
 
 if __name__ == "__main__":

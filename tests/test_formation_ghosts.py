@@ -29,7 +29,7 @@ def test_the_per_run_gospa_is_the_reports(tmp_path):
     second = load_script("evaluate/formation_ghosts.py").run_figures(path, None, None, [1])["S"]
     assert second["gospa_m"] == pytest.approx(r["gospa_m"][2:], rel=1e-12)
     assert r["false_shares"].shape == (4, 3) and np.all(r["false_shares"] >= 0)
-    assert np.all(r["false_shares"].sum(1) <= 1 + 1e-12)
+    assert np.all(r["false_shares"].sum(1) <= 1 + 1e-12) and r["beside_m"].shape == (4,)
 
 
 def test_false_tracks_are_classed_outlived_beside_or_far():
@@ -47,7 +47,9 @@ def test_false_tracks_are_classed_outlived_beside_or_far():
     ex = torch.tensor([[[1.0, 0.0], [1001.0, 0.0], [0.0, 0.0]], [[1.0, 0.0], [1001.0, 0.0], [1030.0, 0.0]],
                        [[1.0, 0.0], [1001.0, 0.0], [3000.0, 0.0]]])[None]
     exists = torch.tensor([[[True, True, False], [True, True, True], [True, True, True]]])
-    parts = load_script("evaluate/formation_ghosts.py").false_kinds(ex, exists, tx, alive, c, p)[0]
+    parts, beside = load_script("evaluate/formation_ghosts.py").false_kinds(ex, exists, tx, alive, c, p)
+    parts, beside = parts[0], beside[0]
     half = c**p / 2
     assert parts.tolist() == [[0.0, 0.0, 0.0], [0.0, half, 0.0], [half, 0.0, half]]
     assert parts.sum(-1).tolist() == gospa(ex, exists, tx, alive, c, p).false[0].tolist()
+    assert beside[1, 2].item() == 30.0 and int(beside.isfinite().sum()) == 1  # the duplicate, 30 m from target 1
