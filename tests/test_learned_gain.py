@@ -22,7 +22,8 @@ from pmsr_nn.nets.jpda_gain import (GainNet, check_gain_compatible, gain_metadat
                                     save_gain_checkpoint)
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import ClutterSpec, Scans, simulate_scans
-from pmsr_nn.trackers.learned_gain import GainCorrection, pda_marginals
+from pmsr_nn.trackers.jpda_associators import pda_marginals
+from pmsr_nn.trackers.learned_gain import GainCorrection
 from pmsr_nn.trackers.management import Confirmer, Deleter, FixInitiator, Management
 from pmsr_nn.trackers.msjpda import JPDASettings, msjpda
 from pmsr_nn.trackers.msjpda_managed import managed_msjpda

@@ -5,9 +5,14 @@
 * :mod:`.gating`: chi-square gates and Gaussian association likelihoods;
 * :mod:`.clustering`: tracks that compete for detections;
 * :mod:`.jpda`: association probabilities from ranked events;
-* :mod:`.msjpda`: S-MSJPDA, P-MSJPDA and the true-assignment reference tracker;
-* :mod:`.msjpda_managed`: S-/P-MSJPDA starting, confirming and deleting their own tracks
-  (:mod:`.management`), with the innovation bias test of :mod:`.innovation_bias`.
+* :mod:`.roles`: the roles a tracker is assembled from (associator, track management) and
+  what they hand each other; :mod:`.loop`: the one tracker loop that runs an assembly;
+* :mod:`.jpda_associators`: the S-MSJPDA and P-MSJPDA associators;
+* :mod:`.handed_births`: the management of a tracker handed its targets' births;
+  :mod:`.own_tracks`: of one that starts, confirms and deletes its own (:mod:`.management`);
+* :mod:`.msjpda`: S-MSJPDA, P-MSJPDA handed the births, and the true-assignment reference tracker;
+* :mod:`.msjpda_managed`: S-/P-MSJPDA starting, confirming and deleting their own tracks,
+  with the innovation bias test of :mod:`.innovation_bias`.
 """
 
 from .assignment import SDSolution, m_best_sd, sd_assign

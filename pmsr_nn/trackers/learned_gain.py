@@ -19,34 +19,16 @@ Its output layer starts at zero, so an untrained network *is* S-MSJPDA; the cova
 model's mixture covariance (it gates and weighs the next scan's detections), so the learned part
 moves the estimate only.
 
-This module holds the part the tracker loop needs (``pda_marginals``, :class:`GainCorrection`);
-the network is :class:`pmsr_nn.nets.jpda_gain.GainNet`.
+This module holds the part the tracker loop needs (:class:`GainCorrection`, the learned part of
+the updater: a :class:`~.roles.MeanCorrection` of :class:`~.jpda_associators.SequentialJPDA`);
+the network is :class:`pmsr_nn.nets.jpda_gain.GainNet`. The classical trackers never import it.
 """
 
 from __future__ import annotations
 
-import math
-from typing import Literal, Protocol
+from typing import Protocol
 
 import torch
-
-from .jpda import miss_cost
-
-Association = Literal["jpda", "pda"]
-
-
-def pda_marginals(log_lik: torch.Tensor, gated: torch.Tensor, pd: float, density: float) -> torch.Tensor:
-    """Association probabilities of each track on its own (PDA, no competition between tracks).
-
-    ``log_lik (..., M)`` ``log N(z_i; z_hat, S)``, ``gated (..., M)`` bool. A gated detection
-    weighs ``Pd N_i / lambda``, the miss ``1 - Pd`` (the costs of :mod:`.jpda`, so with one track
-    and fewer gated detections than the JPDA's ``m_best`` both agree). Returns ``alpha (..., M + 1)``,
-    the last column the miss. Batched over every axis: no loop, differentiable in nothing (the
-    weights are constants to a learned gain).
-    """
-    det = torch.where(gated, log_lik + math.log(pd) - math.log(density), torch.tensor(-math.inf, dtype=log_lik.dtype))
-    miss = torch.full((*log_lik.shape[:-1], 1), -miss_cost(pd), dtype=log_lik.dtype)
-    return torch.softmax(torch.cat([det, miss], -1), -1)
 
 
 class GainNetwork(Protocol):

@@ -27,7 +27,7 @@ state dimension, ``d`` measurement components per pair.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import torch
 

@@ -1,0 +1,44 @@
+"""The one tracker loop: every multi-target tracker that keeps tracks scan by scan runs here.
+
+A tracker is an assembly of an :class:`~.roles.Associator` (the association and update, its
+updater inside) and a :class:`~.roles.TrackManagement` (the tracks, their existence,
+confirmation, deletion, initiation and report); this loop runs them over the scans, batched over
+runs and track slots::
+
+    for each scan k:
+        predict the tracks (k > 0) -> the management's births, parking and existence prediction
+        associate and update       -> AssociationStep
+        the management: existence update, confirm, delete, initiate, report
+
+Step 0 has no prediction (the convention of :mod:`pmsr_nn.filters.kalman`). Shapes: ``B`` runs,
+``K`` scans, ``S`` pairs, ``M`` detections per list.
+"""
+
+from __future__ import annotations
+
+from ..filters.gaussian import predict
+from ..motion import KinematicModel
+from ..simulation.detections import Scans
+from .roles import Associator, TrackManagement
+
+
+def run_tracker(scans: Scans, motion: KinematicModel, dt: float, q, associator: Associator,
+                management: TrackManagement):
+    """Run ``associator`` and ``management`` over ``scans`` (``B`` runs, ``K`` scans) with the
+    CV/CA prediction of ``motion`` over ``dt`` and process noise ``q``; returns
+    ``management.result()``."""
+    B, K = scans.shape[:2]
+    management.begin(B, K)
+    dtype = management.g.x.dtype
+    F, Q = motion.F(dt, dtype), motion.Q(dt, q, dtype)
+    correction = associator.correction
+    if correction is not None:
+        correction.start(B, management.g.x.shape[1])
+    for k in range(K):
+        if k > 0:
+            management.g = predict(management.g, F, Q)
+            management.predicted(k)
+        z, valid = scans.z[:, k], scans.valid[:, k]
+        step = associator.associate(management.g, z, valid, management.associating(k), management.learned(correction))
+        management.updated(k, step, z, valid, correction)
+    return management.result()

@@ -1,0 +1,84 @@
+"""A tracker that starts, confirms and deletes its own tracks: the :class:`~.roles.TrackManagement`
+of :func:`~.loop.run_tracker` built from the components of :mod:`.management`.
+
+Every scan, around the association: the tracks' existence is predicted (``survival``), free
+slots are parked; after the association each pair's IPDA existence update (Musicki, Evans &
+Stankovic 1994) with that pair's likelihood ratio, the innovation bias test's means where the
+management has one, hits and misses, M-of-N confirmation and deletion, and tentative tracks from
+the detections no track gated (the management's initiator). The confirmed tracks whose existence
+is at least ``report_existence`` are reported (:class:`~.management.TrackReport`).
+
+Shapes: ``B`` runs, ``K`` scans, ``C`` track slots, ``S`` pairs, ``M`` detections per list, ``n``
+state dimension.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..filters.gaussian import Gaussian
+from ..measurements import MeasurementModel
+from .management import Management, TrackReport, TrackTable, parked_state
+from .roles import AssociationStep, MeanCorrection
+
+
+class OwnTracks:
+    """Tracks started from the detections (module docstring): ``management`` the components,
+    ``model`` the detections' measurement model, ``n`` the state dimension, ``detection_probability``
+    what a pair's existence update takes as ``Pd Pg`` (the detection probability times the gate
+    probability; ``Pd`` alone where no gate is applied)."""
+
+    def __init__(self, management: Management, model: MeasurementModel, n: int, detection_probability: float,
+                 dtype=torch.float64):
+        self.mg, self.model, self.n, self.pd_pg, self.dtype = management, model, n, detection_probability, dtype
+        self.pos = list(model.pos_idx)
+
+    def begin(self, B: int, K: int) -> None:
+        self.table = TrackTable.empty(B, self.n, parked_state(self.model, self.n, self.dtype))
+        self.report = TrackReport.empty(B, K, self.n, self.dtype)
+
+    @property
+    def g(self) -> Gaussian:
+        return self.table.g
+
+    @g.setter
+    def g(self, value: Gaussian) -> None:
+        self.table.g = value
+
+    def predicted(self, k: int) -> None:
+        self.table.free(~self.table.active)  # keep free slots parked
+        self.table.predict_existence(self.mg.survival)
+
+    def associating(self, k: int) -> torch.Tensor:
+        return self.table.active
+
+    def learned(self, correction: MeanCorrection | None) -> torch.Tensor | None:
+        """Where a learned correction acts this scan (None: every active track): the tracks the
+        bias test flagged with action ``learn``, else the confirmed ones for a correction trained
+        on them only."""
+        if correction is None:
+            return None
+        if self.mg.bias is not None and self.mg.bias.action == "learn":
+            return self.table.biased(self.mg.bias)
+        return self.table.confirmed if correction.confirmed_only else None
+
+    def updated(self, k: int, step: AssociationStep, z: torch.Tensor, valid: torch.Tensor,
+                correction: MeanCorrection | None) -> None:
+        table, mg = self.table, self.mg
+        table.g = step.posterior
+        S = step.ratio.shape[-1]
+        for j in range(S):
+            table.update_existence(step.ratio[..., j], self.pd_pg)
+            if mg.bias is not None:
+                table.update_bias(mg.bias, j, S, step.whitened[:, :, j])
+        table.record(step.detected, mg.hit_pairs)
+        table.manage(mg.confirmer, mg.deleter, self.pos, mg.bias)
+        if correction is not None:
+            correction.forget(~table.active)
+        unused = valid & ~step.explained
+        if bool(unused.any()):
+            table.add(*mg.initiator.initiate(z, unused, self.model, self.n, mg.other_sd), mg.initial_existence)
+        self.report.write(k, table, mg.report_existence)
+
+    def result(self) -> TrackReport:
+        return self.report.trimmed()
