@@ -499,7 +499,7 @@ def test_the_default_management_is_the_method_kinds_default_options():
     from types import SimpleNamespace
 
     from pmsr_nn.methods.msjpda import OPTIONS
-    from pmsr_nn.methods.msjpda import management as of_options
+    from pmsr_nn.methods.track_management import management as of_options
 
     spec = SimpleNamespace(kind="s_msjpda", option=lambda name: OPTIONS[name].default)
     for components in (("range", "range_rate", "azimuth"), ("range", "range_rate")):

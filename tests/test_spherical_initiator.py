@@ -319,7 +319,7 @@ def access_study(tmp_path: Path, methods, **over) -> Path:
 
 
 def test_the_access_study_now_passes_the_checks_and_picks_the_spherical_initiator(tmp_path):
-    from pmsr_nn.methods.msjpda import management
+    from pmsr_nn.methods.track_management import management
 
     path = access_study(tmp_path, [{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}}],
                         mc_runs=1, block_runs=1)

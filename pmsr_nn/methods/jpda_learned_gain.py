@@ -24,7 +24,8 @@ from ..trackers.learned_gain import GainCorrection
 from ..trackers.msjpda import msjpda
 from ..trackers.msjpda_managed import managed_msjpda
 from . import MethodCall, MethodKind, Option, register
-from .msjpda import OPTIONS, check_initiation, management, settings
+from .msjpda import OPTIONS, settings
+from .track_management import check_initiation, management
 
 
 def _load(spec, context):

@@ -37,7 +37,7 @@ from ..trackers.pmht import pmht
 from ..trackers.pmht_managed import managed_pmht
 from ..trackers.pmht_model import E_STEPS, AssociationLists, PMHTSettings
 from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, register
-from .msjpda import MANAGEMENT_OPTIONS, check_initiation, management
+from .track_management import MANAGEMENT_OPTIONS, check_initiation, management
 
 
 def settings(call: MethodCall) -> PMHTSettings:

@@ -57,7 +57,7 @@ import torch
 from ..errors import ConfigError
 from ..trackers.base import Estimates
 from . import MethodCall, MethodKind, Option, register
-from .msjpda import clutter_density
+from .track_management import clutter_density
 
 TRACKERS = ("jpda", "gnn")
 

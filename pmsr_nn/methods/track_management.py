@@ -1,0 +1,111 @@
+"""Track management as method options: what every kind that starts its own tracks shares (not a
+method kind itself).
+
+A kind that offers ``initiation: oracle | detections`` (S-/P-MSJPDA, PMHT, the hybrid) adds
+:data:`MANAGEMENT_OPTIONS` to its options; a kind that always starts its own tracks adds
+:data:`OWN_TRACK_OPTIONS` (the same without ``initiation``). Both read their components with
+:func:`management` and refuse what could never confirm a track with :func:`check_initiation`
+(give it as the kind's ``check_sensing``). The components are :mod:`pmsr_nn.trackers.management`'s.
+
+Options:
+
+* ``initiation``: ``oracle`` (handed each target's birth: a reference row) or ``detections``;
+* the initiator: ``init_pairs``, ``init_gate_probability``, ``birth_velocity_sd_mps``. It follows
+  what the detections measure: with azimuth, the fix initiator (each pair's (range, azimuth)
+  fixes a position; fixes of ``init_pairs`` pairs that agree start a track); without, the
+  spherical initiator (every combination of one detection per pair whose joint fit of ranges and
+  rates passes the gate);
+* M-of-N confirmation ``confirm_m`` / ``confirm_n``, a hit at ``hit_pairs`` pairs, deletion after
+  ``delete_misses`` misses;
+* existence: ``survival``, ``initial_existence``, ``report_existence``;
+* the innovation bias test (:data:`BIAS_OPTIONS`: ``bias_window`` null for none).
+"""
+
+from __future__ import annotations
+
+from ..errors import ConfigError
+from ..trackers.fix_initiator import FixInitiator
+from ..trackers.jpda import floored_clutter_density
+from ..trackers.management import BiasTest, Confirmer, Deleter, Management
+from ..trackers.spherical_initiator import SphericalInitiator
+from . import Option, method_kind
+
+INITIATIONS = ("oracle", "detections")
+
+OWN_TRACK_OPTIONS = {"init_pairs": Option(None, int, 1, 64, nullable=True,
+                                          null="2 with azimuth (fix initiator; 3 from lists pooled per receiver), else "
+                                               "every pair (spherical initiator)"),
+                     "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+                     "birth_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
+                     "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),
+                     "hit_pairs": Option(2, int, 1, 64), "delete_misses": Option(2, int, 0, 10_000),
+                     "survival": Option(0.99, float, 1e-6, 1.0), "initial_existence": Option(0.5, float, 1e-6, 1.0),
+                     "report_existence": Option(0.5, float, 0.0, 1.0)}
+"""The management options of a kind that always starts its own tracks."""
+
+MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS), **OWN_TRACK_OPTIONS}
+"""How tracks start and, with ``initiation: detections``, the track management."""
+
+BIAS_OPTIONS = {"bias_window": Option(None, float, 1.0, 1e4, nullable=True, null="no innovation bias test"),
+                "bias_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+                "bias_burn_in": Option(10, int, 0, 10_000)}
+"""The innovation bias test (:mod:`pmsr_nn.trackers.innovation_bias`), for sequential trackers."""
+
+
+def clutter_density(sensing) -> float:
+    """Expected clutter per unit of one pair's measurement space (a ``SensorSetup``), floored:
+    a tracker needs a positive clutter density even where none was simulated."""
+    return floored_clutter_density(sensing.pair_clutter(), sensing.detection_model.components)
+
+
+def starts_own_tracks(spec) -> bool:
+    """Whether the row starts its own tracks: ``initiation: detections``, or a kind without an
+    ``initiation`` option."""
+    return "initiation" not in method_kind(spec.kind).options or spec.option("initiation") == "detections"
+
+
+def bias_test(spec) -> BiasTest | None:
+    """The innovation bias test a row's options ask for (``bias_window`` null or absent: none)."""
+    options = method_kind(spec.kind).options
+    if "bias_window" not in options or spec.option("bias_window") is None:
+        return None
+    action = spec.option("bias_action") if "bias_action" in options else "delete"
+    return BiasTest(float(spec.option("bias_window")), float(spec.option("bias_probability")), action,
+                    int(spec.option("bias_burn_in")))
+
+
+def management(spec, sensing, pooled: bool = False) -> Management:
+    """The track-management components a row's options describe (module docstring).
+
+    ``init_pairs`` null: 2 pairs for the :class:`FixInitiator`, 3 for a row that reads lists
+    pooled per receiver (``pooled``: every detection there is fixed under each transmitter, so
+    two pairs agree by chance far more often, and a track started between two drones in
+    formation lives on beside theirs); every pair for the :class:`SphericalInitiator`, whose
+    :meth:`~SphericalInitiator.check` refuses what neither can start tracks from."""
+    o = spec.option
+    pairs = o("init_pairs")
+    velocity_sd, gate = float(o("birth_velocity_sd_mps")), float(o("init_gate_probability"))
+    if "azimuth" in sensing.detection_model.components:
+        initiator = FixInitiator(velocity_sd, (3 if pooled else 2) if pairs is None else int(pairs), gate)
+    else:
+        initiator = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
+    return Management(initiator, Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
+                      sensing.prior_sd, int(o("hit_pairs")), float(o("survival")), float(o("initial_existence")),
+                      float(o("report_existence")), bias_test(spec))
+
+
+def check_initiation(spec, sensing, pooled: bool = False) -> None:
+    """Refuses, in one line naming the row, track management that could never confirm a track,
+    detections no initiator can start tracks from, and an innovation bias test on a row that
+    does not start its own tracks or on P-MSJPDA (``pooled``: the row reads lists pooled per
+    receiver). A kind's ``check_sensing``."""
+    if bias_test(spec) is not None and (not starts_own_tracks(spec) or spec.kind == "p_msjpda"):
+        raise ConfigError(f"method {spec.name!r}: the innovation bias test (bias_window) acts on the tracks a sequential "
+                          f"tracker starts itself: set initiation: detections on s_msjpda or jpda_learned_gain, or "
+                          f"bias_window: null")
+    if not starts_own_tracks(spec):
+        return
+    try:
+        management(spec, sensing, pooled).check(sensing.detection_model, "initiation from detections", pooled=pooled)
+    except ConfigError as exc:
+        raise ConfigError(f"method {spec.name!r}: {exc}") from None
