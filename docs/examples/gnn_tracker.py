@@ -25,13 +25,11 @@ from pmsr_nn.trackers.gating import gate_threshold, gaussian_log_likelihood
 from pmsr_nn.trackers.jpda import miss_cost
 from pmsr_nn.trackers.loop import run_tracker
 from pmsr_nn.trackers.own_tracks import OwnTracks
-from pmsr_nn.trackers.roles import AssociationStep
+from pmsr_nn.trackers.roles import Associator, AssociationStep
 
 
-class GNNAssociator:
+class GNNAssociator(Associator):
     """The :class:`~pmsr_nn.trackers.roles.Associator` of a GNN tracker (module docstring)."""
-
-    correction = None  # no learned part
 
     def __init__(self, model, R: torch.Tensor, pd: float, density: float, gate_probability: float = 0.999):
         rows = [model.rows_for_pairs([s]) for s in range(model.n_pairs)]
@@ -61,7 +59,7 @@ class GNNAssociator:
             ratios.append(torch.where(gate, log_lik.exp(), 0.0).sum(-1) / self.density)
             sds.append(mom.S[..., 0, 0].sqrt())
         hit = torch.stack(hits, -1)
-        return AssociationStep(g, hit.sum(-1), ~hit.any(-1), torch.stack(gates, 2), torch.stack(ratios, -1),
+        return AssociationStep(g, hit.sum(-1), torch.stack(ratios, -1), torch.stack(gates, 2).any(1), ~hit.any(-1),
                                torch.stack(sds, -1).amax(-1))
 
 

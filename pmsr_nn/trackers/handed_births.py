@@ -52,6 +52,8 @@ class HandedBirths:
     scan). A slot outside its target's life is only predicted (its estimates there mean nothing);
     at the first active scan it restarts from its prior."""
 
+    started = None  # no track starts from the detections
+
     def __init__(self, prior: Gaussian, active: torch.Tensor | None = None):
         self.prior, self.active_in = prior, active
 

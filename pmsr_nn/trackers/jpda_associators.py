@@ -32,7 +32,7 @@ from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood
 from .jpda import batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
 from .mixture import collapse, expand_moments, pda_collapse
-from .roles import AssociationStep, MeanCorrection
+from .roles import Associator, AssociationStep, MeanCorrection
 
 Association = Literal["jpda", "pda"]
 
@@ -107,7 +107,7 @@ def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measurem
     return PairUpdate(out, miss, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / clutter_density, e_c)
 
 
-class SequentialJPDA:
+class SequentialJPDA(Associator):
     """S-MSJPDA's associator: :func:`pair_update` pair by pair (module docstring).
 
     ``model`` the detections' measurement model, ``R (S d, S d)`` block-diagonal over pairs,
@@ -135,8 +135,9 @@ class SequentialJPDA:
             hit = torch.from_numpy(~step.miss_likeliest)
             detected += hit if associating is None else hit & associating
         return AssociationStep(
-            g, detected, torch.from_numpy(np.logical_and.reduce([st.miss_likeliest for st in steps])),
-            torch.from_numpy(np.stack([st.gated for st in steps], 2)), torch.stack([st.ratio for st in steps], -1),
+            g, detected, torch.stack([st.ratio for st in steps], -1),
+            torch.from_numpy(np.stack([st.gated.any(1) for st in steps], 1)),
+            torch.from_numpy(np.logical_and.reduce([st.miss_likeliest for st in steps])),
             torch.stack([st.range_sd_m for st in steps], -1).amax(-1), torch.stack([st.whitened for st in steps], 2))
 
 
@@ -165,7 +166,7 @@ def _pattern_inverses(S: torch.Tensor, n_pairs: int, d: int) -> tuple[np.ndarray
     return inv.numpy(), half_logdet.numpy()
 
 
-class ParallelJPDA:
+class ParallelJPDA(Associator):
     """P-MSJPDA's associator: every pair's detections update the tracks jointly (module docstring).
     ``model``, ``R`` and ``settings`` as :class:`SequentialJPDA`'s; no learned correction."""
 
@@ -204,8 +205,8 @@ class ParallelJPDA:
         range_sd = mom.S.diagonal(dim1=-2, dim2=-1)[..., 0::d].sqrt().amax(-1)
         ratio = torch.where(torch.from_numpy(gated), block_log_lik.exp(), torch.zeros((), dtype=d2.dtype)).sum(-1)
         return AssociationStep(collapse(torch.from_numpy(Wc), post.x, post.P), torch.from_numpy(detected),
-                               torch.from_numpy(miss), torch.from_numpy(gated), ratio / s.clutter_density, range_sd,
-                               None, gap)
+                               ratio / s.clutter_density, torch.from_numpy(gated.any(1)), torch.from_numpy(miss),
+                               range_sd, None, gap)
 
     def _candidates(self, gated: np.ndarray, zn: np.ndarray, zhat_n: np.ndarray, S_joint: torch.Tensor):
         """Per run and track, the candidate measurements ``(L, S d)`` and their marginal weights

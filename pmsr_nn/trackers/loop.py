@@ -8,7 +8,8 @@ runs and track slots::
     for each scan k:
         predict the tracks (k > 0) -> the management's births, parking and existence prediction
         associate and update       -> AssociationStep
-        the management: existence update, confirm, delete, initiate, report
+        the management: existence update, confirm, delete, report, initiate
+        the associator hears of the tracks started
 
 Step 0 has no prediction (the convention of :mod:`pmsr_nn.filters.kalman`). Shapes: ``B`` runs,
 ``K`` scans, ``S`` pairs, ``M`` detections per list.
@@ -16,18 +17,18 @@ Step 0 has no prediction (the convention of :mod:`pmsr_nn.filters.kalman`). Shap
 
 from __future__ import annotations
 
-from ..filters.gaussian import predict
 from ..motion import KinematicModel
 from ..simulation.detections import Scans
+from .pmht_model import AssociationLists
 from .roles import Associator, TrackManagement
 
 
-def run_tracker(scans: Scans, motion: KinematicModel, dt: float, q, associator: Associator,
+def run_tracker(scans: Scans | AssociationLists, motion: KinematicModel, dt: float, q, associator: Associator,
                 management: TrackManagement):
-    """Run ``associator`` and ``management`` over ``scans`` (``B`` runs, ``K`` scans) with the
-    CV/CA prediction of ``motion`` over ``dt`` and process noise ``q``; returns
-    ``management.result()``."""
-    B, K = scans.shape[:2]
+    """Run ``associator`` and ``management`` over ``scans`` (``z (B, K, L, M, d)`` and ``valid
+    (B, K, L, M)``: per-pair lists, or PMHT's association lists) with the CV/CA prediction of
+    ``motion`` over ``dt`` and process noise ``q``; returns ``management.result()``."""
+    B, K = scans.z.shape[:2]
     management.begin(B, K)
     dtype = management.g.x.dtype
     F, Q = motion.F(dt, dtype), motion.Q(dt, q, dtype)
@@ -36,9 +37,10 @@ def run_tracker(scans: Scans, motion: KinematicModel, dt: float, q, associator: 
         correction.start(B, management.g.x.shape[1])
     for k in range(K):
         if k > 0:
-            management.g = predict(management.g, F, Q)
+            management.g = associator.predict(management.g, k, F, Q)
             management.predicted(k)
         z, valid = scans.z[:, k], scans.valid[:, k]
         step = associator.associate(management.g, z, valid, management.associating(k), management.learned(correction))
         management.updated(k, step, z, valid, correction)
+        associator.tracks_started(management.started, management.g)
     return management.result()

@@ -5,14 +5,17 @@ Every scan, around the association: the tracks' existence is predicted (``surviv
 slots are parked; after the association each pair's IPDA existence update (Musicki, Evans &
 Stankovic 1994) with that pair's likelihood ratio, the innovation bias test's means where the
 management has one, hits and misses, M-of-N confirmation and deletion, and tentative tracks from
-the detections no track gated (the management's initiator). The confirmed tracks whose existence
-is at least ``report_existence`` are reported (:class:`~.management.TrackReport`).
+the detections no track explains (the management's initiator). The confirmed tracks whose
+existence is at least ``report_existence`` are reported (:class:`~.management.TrackReport`),
+with the states the associator reports (a smoother's smoothed states) where it gives them.
 
 Shapes: ``B`` runs, ``K`` scans, ``C`` track slots, ``S`` pairs, ``M`` detections per list, ``n``
 state dimension.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import torch
 
@@ -29,9 +32,11 @@ class OwnTracks:
     probability; ``Pd`` alone where no gate is applied)."""
 
     def __init__(self, management: Management, model: MeasurementModel, n: int, detection_probability: float,
-                 dtype=torch.float64):
+                 dtype=torch.float64, **initiate):
         self.mg, self.model, self.n, self.pd_pg, self.dtype = management, model, n, detection_probability, dtype
         self.pos = list(model.pos_idx)
+        self.initiate = initiate  # what the initiator reads besides the detections (routes of pooled lists)
+        self.started = None
 
     def begin(self, B: int, K: int) -> None:
         self.table = TrackTable.empty(B, self.n, parked_state(self.model, self.n, self.dtype))
@@ -75,10 +80,16 @@ class OwnTracks:
         table.manage(mg.confirmer, mg.deleter, self.pos, mg.bias)
         if correction is not None:
             correction.forget(~table.active)
+        # new tracks are tentative, so reporting before or after starting them is the same
+        self.report.write(k, table if step.reported is None else replace(table, g=step.reported), mg.report_existence)
         unused = valid & ~step.explained
+        self.started = None
         if bool(unused.any()):
-            table.add(*mg.initiator.initiate(z, unused, self.model, self.n, mg.other_sd), mg.initial_existence)
-        self.report.write(k, table, mg.report_existence)
+            before = table.active
+            table.add(*mg.initiator.initiate(z, unused, self.model, self.n, mg.other_sd, **self.initiate),
+                      mg.initial_existence)
+            C = table.active.shape[1]
+            self.started = table.active & ~torch.cat([before, before.new_zeros(before.shape[0], C - before.shape[1])], 1)
 
     def result(self) -> TrackReport:
         return self.report.trimmed()

@@ -1,5 +1,6 @@
-"""PMHT that starts, confirms and deletes its own tracks (:func:`managed_pmht`): the tracks of
-:mod:`.management` in PMHT's sliding window (:mod:`.pmht`).
+"""PMHT that starts, confirms and deletes its own tracks (:func:`managed_pmht`): PMHT's sliding
+window EM (:mod:`.pmht`) as the associator of the one tracker loop, with the own-track
+management of :mod:`.own_tracks`.
 
 Shapes: ``B`` runs (``b`` in a chunk), ``K`` scans, ``W`` scans of a window, ``C`` track slots,
 ``S`` pairs, ``M`` detections per list, ``n`` state dimension.
@@ -8,32 +9,34 @@ Shapes: ``B`` runs (``b`` in a chunk), ``K`` scans, ``W`` scans of a window, ``C
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import torch
 
 from ..filters.gaussian import Gaussian, predict
 from ..motion import KinematicModel
 from ..simulation.detections import PooledScans, Scans
-from .management import Management, TrackReport, TrackTable, parked_state
+from .loop import run_tracker
+from .management import Management, TrackReport
+from .own_tracks import OwnTracks
 from .pmht import initial_covariances, initial_states, window_starts
 from .pmht_em import em_step, window_evidence
 from .pmht_model import AssociationLists, PMHTProblem, PMHTSettings, check_lists, problem
+from .roles import Associator, AssociationStep
 
 
 def managed_pmht(scans: Scans | PooledScans, motion: KinematicModel, dt: float, q, model, R: torch.Tensor,
                  settings: PMHTSettings, management: Management) -> TrackReport:
-    """PMHT that starts, confirms and deletes its own tracks (:mod:`.management`), on per-pair
-    lists (:class:`~pmsr_nn.simulation.detections.Scans`: each detection's illuminator known) or
-    on lists pooled per receiver (:class:`~pmsr_nn.simulation.detections.PooledScans`: a
-    single-frequency network, the illuminator unknown; PMHT-3D's E-step weighs every pair of the
-    receiver, and the :class:`~.fix_initiator.FixInitiator` fixes each unused detection under every
-    illuminator hypothesis, see its ``routes``).
+    """PMHT that starts, confirms and deletes its own tracks, on per-pair lists
+    (:class:`~pmsr_nn.simulation.detections.Scans`: each detection's illuminator known) or on lists
+    pooled per receiver (:class:`~pmsr_nn.simulation.detections.PooledScans`: a single-frequency
+    network, the illuminator unknown; PMHT-3D's E-step weighs every pair of the receiver, and the
+    :class:`~.fix_initiator.FixInitiator` fixes each unused detection under every illuminator
+    hypothesis, see its ``routes``).
 
-    The tracks live in a :class:`~.management.TrackTable` whose Gaussians are the priors at the
-    current window's first scan; EM runs on every slot (a free slot explains no detection). After
-    EM on a window, each scan the window commits (hands on: the scans before the next window's
-    first), in order:
+    An assembly on the one tracker loop: :class:`PMHTWindows` (the window EM as the associator)
+    with :class:`~.own_tracks.OwnTracks`, chunk by chunk of ``settings.chunk_runs`` runs. Each
+    scan a window commits (hands on: the scans before the next window's first), in order:
 
     1. existence: predicted by ``survival``, then each pair's IPDA update with the ratio of
        :func:`~.pmht_em.window_evidence` (no gate: ``Pd Pg = Pd``);
@@ -44,109 +47,124 @@ def managed_pmht(scans: Scans | PooledScans, motion: KinematicModel, dt: float, 
     4. the detections whose total weight on the tracks is < 0.5 (explained mostly by clutter)
        start tentative tracks (the management's initiator, :mod:`.initiators`).
 
-    A track started at scan ``k`` of the window takes part in it from ``k`` on: it explains no
-    detection before ``k`` and its filter is the initiator's Gaussian at ``k`` (see
-    :func:`~.pmht_em.em_step`). So that it explains its own later detections in the window (and starts no
-    second track from them, and can be confirmed at ``k + 1``), EM is run again on the window
-    with the new tracks and the committed scans go on from ``k + 1``; a track started at the last
-    committed scan is only predicted into the next window. With ``e_step = "marginal"`` EM weighs
-    each detection under the track's spread as in :func:`~.pmht.pmht`: the covariances start as
-    the previous window's smoothed ones on the overlap, and a new track's as its initiator's
-    covariance predicted from the scan it starts at. Returns the reported confirmed tracks
-    (:class:`~.management.TrackReport`, ``(B, K, N, n)``), smoothed: not causal.
+    Returns the reported confirmed tracks (:class:`~.management.TrackReport`, ``(B, K, N, n)``),
+    smoothed: not causal.
     """
     S = getattr(model, "n_pairs", 1)
     pooled = isinstance(scans, PooledScans)
     lists = AssociationLists.pooled(scans) if pooled else AssociationLists.per_pair(scans)
     check_lists(lists, None, S, motion.dim_x)
     management.check(model, "PMHT", pooled=pooled)
-    routes = scans.routes if pooled else None
+    initiate = {"routes": scans.routes} if pooled else {}
     B, K = lists.z.shape[:2]
     pr = problem(model, motion, dt, q, R, settings, lists.z.dtype, lists.z.device)
     starts = window_starts(K, settings)
-    parts = [_managed_runs(pr, lists.take(slice(c0, min(B, c0 + settings.chunk_runs))), starts, management,
-                           list(motion.pos_idx), routes) for c0 in range(0, B, settings.chunk_runs)]
+    parts = []
+    for c0 in range(0, B, settings.chunk_runs):
+        chunk = lists.take(slice(c0, min(B, c0 + settings.chunk_runs)))
+        tracks = OwnTracks(management, model, motion.dim_x, settings.pd, lists.z.dtype, **initiate)
+        parts.append(run_tracker(chunk, motion, dt, q, PMHTWindows(pr, chunk, starts, list(motion.pos_idx)), tracks))
     N = max(p.x.shape[2] for p in parts)
     cat = lambda name, fill: torch.cat([_pad_slots(getattr(p, name), N, fill) for p in parts], 0)
     return TrackReport(cat("x", math.nan), cat("P", 0.0), cat("exists", False), cat("existence", 0.0)).trimmed()
 
 
-def _managed_runs(pr: PMHTProblem, lists: AssociationLists, starts: list[int], mg: Management,
-                  pos: list[int], routes: torch.Tensor | None) -> TrackReport:
-    """:func:`managed_pmht` on one chunk of ``b`` runs (``routes (L, S)``: the pooled lists'
-    pairs, None: per-pair lists). Each run's EM is re-run only when that run started tracks, and
-    stops on that run's own movement: a run's tracks do not depend on which other runs share its
-    chunk."""
-    b, K, L = lists.z.shape[:3]
-    S = pr.pairs
-    s, model, n, dtype = pr.settings, pr.model, pr.F.shape[0], lists.z.dtype
-    table = TrackTable.empty(b, n, parked_state(model, n, dtype))
-    report = TrackReport.empty(b, K, n, dtype)
-    X = Pm = None
-    marginal = s.e_step == "marginal"
-    fresh = torch.ones(b, 0, dtype=torch.bool)  # slots without smoothed covariances from the last window
-    for i, a in enumerate(starts):
-        W = min(s.window, K - a)
-        h = (starts[i + 1] if i + 1 < len(starts) else K) - a  # scans this window commits
-        win = lists.take(slice(None), slice(a, a + W))
-        C = table.g.x.shape[1]
-        shift = a - starts[i - 1] if i else 0
-        X = initial_states(pr, table.g, X, shift, W, b, C)
-        born = torch.full((b, C), -1, dtype=torch.int64)  # scan of the window a track started at (-1: before)
-        if marginal:
-            Pm = initial_covariances(pr, table.g, Pm, shift, W, b, C)
-            fresh = _pad_slots(fresh, C, True, 1)
-            Pm = _started_covariances(pr, Pm, fresh, torch.zeros_like(born), table.g.P)
-        fit = _WindowFit.empty(X, L, lists.z.shape[3], S)
-        redo = torch.ones(b, dtype=torch.bool)  # runs whose EM must run (again) before scan k
-        late = torch.zeros(b, C, dtype=torch.bool)  # tracks started at the last committed scan
-        for k in range(h):
-            if bool(redo.any()):
-                C = table.g.x.shape[1]
-                born = torch.where(table.active, born, -1)
-                alive = table.active[:, None, :] & (born[:, None, :] <= torch.arange(W)[None, :, None])
-                # table.g: the prior at the window's first scan of a track that was there, the
-                # initiator's Gaussian of one started inside it (the smoother's start at its scan)
-                rows = redo.nonzero()[:, 0]
-                fit = fit.padded(C).put(rows, _window_em(pr, X[rows], Gaussian(table.g.x[rows], table.g.P[rows]),
-                                                         win.take(rows), h, alive[rows], born[rows], pos,
-                                                         None if Pm is None else Pm[rows]))
-                X = fit.X
-                if marginal:
-                    Pm = fit.P.clone()
-            if a + k > 0:
-                table.predict_existence(mg.survival)
-            for j in range(S):
-                table.update_existence(fit.ratio[:, k, :, j], s.pd)
-            table.record((fit.pair_w[:, k] >= 0.5).sum(-1), mg.hit_pairs)
-            table.manage(mg.confirmer, mg.deleter, pos)
-            shown = replace(table, g=Gaussian(X[:, k], fit.P[:, k]))  # the smoothed states at this scan
-            report.write(a + k, shown, mg.report_existence)
-            unused = win.valid[:, k] & (fit.target_w[:, k] < 0.5)  # (b, L, M)
-            before = table.active
-            if bool(unused.any()):
-                where = {} if routes is None else {"routes": routes}
-                table.add(*mg.initiator.initiate(win.z[:, k], unused, model, n, mg.other_sd, **where),
-                          mg.initial_existence)
-            C = table.g.x.shape[1]
-            late = table.active & ~_pad_slots(before, C, False, 1)
-            redo = late.any(-1)
-            if bool(redo.any()):
-                born = torch.where(late, k, _pad_slots(born, C, -1, 1))
-                X = _started_rows(pr, _pad_slots(X, C, 0.0), late, born, table.g.x)
-                if marginal:
-                    Pm = _started_covariances(pr, _pad_slots(Pm, C, 0.0), late, born, table.g.P)
+class PMHTWindows(Associator):
+    """PMHT's sliding-window EM as the associator of :func:`~.loop.run_tracker` (``b`` runs of
+    ``lists``, window starts ``starts``, ``pos`` the position entries of the state).
+
+    The tracks' Gaussians are the priors at the current window's first scan; EM runs on every slot
+    (a free slot explains no detection), and each run's EM is re-run only when that run started
+    tracks, stopping on that run's own movement: a run's tracks do not depend on which other runs
+    share its chunk. :meth:`predict` leaves the tracks alone but at a window's first scan, where it
+    hands on the last EM's forward prediction (a track started at the last committed scan, after
+    that EM, is predicted from its initiator). A track started at scan ``k`` of a window takes part
+    in it from ``k`` on: it explains no detection before ``k`` and its filter is the initiator's
+    Gaussian at ``k`` (see :func:`~.pmht_em.em_step`); so that it explains its own later
+    detections in the window (and starts no second track from them, and can be confirmed at
+    ``k + 1``), EM is run again on the window with the new tracks. With ``e_step = "marginal"`` EM
+    weighs each detection under the track's spread as in :func:`~.pmht.pmht`: the covariances
+    start as the previous window's smoothed ones on the overlap, and a new track's as its
+    initiator's covariance predicted from the scan it starts at."""
+
+    def __init__(self, pr: PMHTProblem, lists: AssociationLists, starts: list[int], pos: list[int]):
+        self.pr, self.lists, self.starts, self.pos = pr, lists, starts, pos
+        self.marginal = pr.settings.e_step == "marginal"
+        b = lists.z.shape[0]
+        self.X = self.Pm = None
+        self.fresh = torch.ones(b, 0, dtype=torch.bool)  # slots without smoothed covariances from the last window
+        self.window, self.k = -1, -1
+        self.late = torch.zeros(b, 0, dtype=torch.bool)  # tracks started at the last committed scan
+
+    def predict(self, g: Gaussian, k: int, F: torch.Tensor, Q: torch.Tensor) -> Gaussian:
+        if k not in self.starts:
+            return g
         # hand on: the last EM's forward prediction at the next window's first scan; a track
         # started at the last committed scan (after that EM) predicted from its initiator
-        fit = fit.padded(table.g.x.shape[1])
-        step = predict(table.g, pr.F, pr.Q)
-        table.g = Gaussian(torch.where(late[..., None], step.x, fit.handed.x),
-                           torch.where(late[..., None, None], step.P, fit.handed.P))
-        table.free(~table.active)  # keep free slots parked
-        if marginal:  # the smoothed covariances the next window starts from; late tracks have none
-            Pm = fit.P
-            fresh = late.clone()
-    return report
+        fit = self.fit.padded(g.x.shape[1])
+        step = predict(g, self.pr.F, self.pr.Q)
+        late = _pad_slots(self.late, g.x.shape[1], False, 1)
+        if self.marginal:  # the smoothed covariances the next window starts from; late tracks have none
+            self.Pm, self.fresh = fit.P, late.clone()
+        return Gaussian(torch.where(late[..., None], step.x, fit.handed.x),
+                        torch.where(late[..., None, None], step.P, fit.handed.P))
+
+    def _open(self, g: Gaussian) -> None:
+        """Window ``self.window`` from its first scan: EM's starting states and covariances."""
+        pr, i = self.pr, self.window
+        a = self.starts[i]
+        K = self.lists.z.shape[1]
+        b, C = g.x.shape[:2]
+        self.W = min(pr.settings.window, K - a)
+        self.h = (self.starts[i + 1] if i + 1 < len(self.starts) else K) - a  # scans this window commits
+        self.win = self.lists.take(slice(None), slice(a, a + self.W))
+        shift = a - self.starts[i - 1] if i else 0
+        self.X = initial_states(pr, g, self.X, shift, self.W, b, C)
+        self.born = torch.full((b, C), -1, dtype=torch.int64)  # scan of the window a track started at (-1: before)
+        if self.marginal:
+            Pm = initial_covariances(pr, g, self.Pm, shift, self.W, b, C)
+            self.fresh = _pad_slots(self.fresh, C, True, 1)
+            self.Pm = _started_covariances(pr, Pm, self.fresh, torch.zeros_like(self.born), g.P)
+        self.fit = _WindowFit.empty(self.X, self.lists.z.shape[2], self.lists.z.shape[3], pr.pairs)
+        self.redo = torch.ones(b, dtype=torch.bool)  # runs whose EM must run (again) before this scan
+        self.late = torch.zeros(b, C, dtype=torch.bool)
+
+    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
+                  learned: torch.Tensor | None = None) -> AssociationStep:
+        """Scan ``k`` of the window: EM (again) for the runs that need it, then that scan's
+        evidence. ``associating`` is every active slot (own tracks)."""
+        self.k += 1
+        if self.window + 1 < len(self.starts) and self.k == self.starts[self.window + 1]:
+            self.window += 1
+            self._open(g)
+        kk = self.k - self.starts[self.window]
+        if bool(self.redo.any()):
+            C = g.x.shape[1]
+            self.born = torch.where(associating, self.born, -1)
+            alive = associating[:, None, :] & (self.born[:, None, :] <= torch.arange(self.W)[None, :, None])
+            # g: the prior at the window's first scan of a track that was there, the initiator's
+            # Gaussian of one started inside it (the smoother's start at its scan)
+            rows = self.redo.nonzero()[:, 0]
+            self.fit = self.fit.padded(C).put(rows, _window_em(
+                self.pr, self.X[rows], Gaussian(g.x[rows], g.P[rows]), self.win.take(rows), self.h, alive[rows],
+                self.born[rows], self.pos, None if self.Pm is None else self.Pm[rows]))
+            self.X = self.fit.X
+            if self.marginal:
+                self.Pm = self.fit.P.clone()
+        fit = self.fit
+        return AssociationStep(g, (fit.pair_w[:, kk] >= 0.5).sum(-1), fit.ratio[:, kk], ~(fit.target_w[:, kk] < 0.5),
+                               reported=Gaussian(self.X[:, kk], fit.P[:, kk]))
+
+    def tracks_started(self, started: torch.Tensor | None, g: Gaussian) -> None:
+        C = g.x.shape[1]
+        self.late = torch.zeros(g.x.shape[:2], dtype=torch.bool) if started is None else started
+        self.redo = self.late.any(-1)
+        if bool(self.redo.any()):
+            kk = self.k - self.starts[self.window]
+            self.born = torch.where(self.late, kk, _pad_slots(self.born, C, -1, 1))
+            self.X = _started_rows(self.pr, _pad_slots(self.X, C, 0.0), self.late, self.born, g.x)
+            if self.marginal:
+                self.Pm = _started_covariances(self.pr, _pad_slots(self.Pm, C, 0.0), self.late, self.born, g.P)
 
 
 @dataclass

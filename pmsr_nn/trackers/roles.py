@@ -27,7 +27,7 @@ from typing import Protocol
 
 import torch
 
-from ..filters.gaussian import Gaussian
+from ..filters.gaussian import Gaussian, predict
 
 
 @dataclass
@@ -35,28 +35,28 @@ class AssociationStep:
     """What one scan's association and update give each track slot.
 
     ``posterior`` the updated tracks ``(B, C, n)``; ``detected (B, C)`` at how many pairs the
-    likeliest association was a detection; ``miss_likeliest (B, C)`` no detection was the
-    likeliest association at any pair (the loss rule of Lyu & Wang); ``gated (B, C, S, M)`` the
-    detections inside each track's gate; ``ratio (B, C, S)`` each pair's summed likelihood of
-    the gated detections over the clutter density (the IPDA existence update's); ``whitened
-    (B, C, S, d)`` each pair's whitened combined innovation ``L^-1 sum_i alpha_i nu_i`` (None
-    where the associator does not form one: the innovation bias test's); ``range_sd_m (B, C)``
-    the largest predicted bistatic-range deviation over the pairs (R included); ``duality_gap``
-    the largest Lagrangian-relaxation duality gap met (nats; 0 for exact events)."""
+    likeliest association was a detection; ``ratio (B, C, S)`` each pair's summed likelihood of
+    the associated detections over the clutter density (the IPDA existence update's); ``explained
+    (B, L, M)`` the detections of each of the scan's ``L`` lists that a track explains (they start
+    no new track; ``L = S`` for per-pair lists).
+
+    Where the associator forms them: ``miss_likeliest (B, C)`` no detection was the likeliest
+    association at any pair (the loss rule of Lyu & Wang); ``range_sd_m (B, C)`` the largest
+    predicted bistatic-range deviation over the pairs (R included); ``whitened (B, C, S, d)`` each
+    pair's whitened combined innovation ``L^-1 sum_i alpha_i nu_i`` (the innovation bias test's);
+    ``duality_gap`` the largest Lagrangian-relaxation duality gap met (nats; 0 for exact events);
+    ``reported`` the tracks to report at this scan where they are not the posterior (a smoother's
+    smoothed states)."""
 
     posterior: Gaussian
     detected: torch.Tensor
-    miss_likeliest: torch.Tensor
-    gated: torch.Tensor
     ratio: torch.Tensor
-    range_sd_m: torch.Tensor
+    explained: torch.Tensor
+    miss_likeliest: torch.Tensor | None = None
+    range_sd_m: torch.Tensor | None = None
     whitened: torch.Tensor | None = None
     duality_gap: float = 0.0
-
-    @property
-    def explained(self) -> torch.Tensor:
-        """``(B, S, M)``: the detections some track gated (they start no new track)."""
-        return self.gated.any(1)
+    reported: Gaussian | None = None
 
 
 class MeanCorrection(Protocol):
@@ -74,16 +74,27 @@ class MeanCorrection(Protocol):
     def forget(self, where: torch.Tensor) -> None: ...
 
 
-class Associator(Protocol):
-    """Associates one scan's detections ``z (B, S, M, d)`` (``valid (B, S, M)``) with the tracks
-    ``g (B, C, n)`` and updates them. Only the slots ``associating (B, C)`` gate detections
-    (None: every slot); a learned correction acts on ``learned (B, C)`` (None: the associating
-    slots)."""
+class Associator:
+    """The association and update of one scan (a base: subclasses write :meth:`associate`).
 
-    correction: MeanCorrection | None
+    :meth:`predict` takes the tracks to scan ``k`` (the motion model's ``F``, ``Q``; a windowed
+    smoother overrides it), :meth:`associate` associates that scan's detections ``z (B, L, M, d)``
+    (``valid (B, L, M)``) with the tracks ``g (B, C, n)`` and updates them: only the slots
+    ``associating (B, C)`` gate detections (None: every slot); a learned correction acts on
+    ``learned (B, C)`` (None: the associating slots). :meth:`tracks_started` hears of the tracks
+    the management started at the scan (``started (B, C)``, their Gaussians in ``g``)."""
+
+    correction: MeanCorrection | None = None
+
+    def predict(self, g: Gaussian, k: int, F: torch.Tensor, Q: torch.Tensor) -> Gaussian:
+        return predict(g, F, Q)
 
     def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
-                  learned: torch.Tensor | None = None) -> AssociationStep: ...
+                  learned: torch.Tensor | None = None) -> AssociationStep:
+        raise NotImplementedError
+
+    def tracks_started(self, started: torch.Tensor | None, g: Gaussian) -> None:
+        """Nothing to do for an associator that keeps no state of its own per track."""
 
 
 class TrackManagement(Protocol):
@@ -91,9 +102,11 @@ class TrackManagement(Protocol):
 
     :meth:`begin` once, then every scan ``k``: :meth:`predicted` after the loop's prediction of
     :attr:`g` (``k > 0``), :meth:`associating` and :meth:`learned` before the association,
-    :meth:`updated` after it; :meth:`result` at the end."""
+    :meth:`updated` after it, which sets :attr:`started` (the slots ``(B, C)`` it started tracks
+    in, None: none); :meth:`result` at the end."""
 
     g: Gaussian
+    started: torch.Tensor | None
 
     def begin(self, B: int, K: int) -> None: ...
 
