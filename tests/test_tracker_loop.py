@@ -110,3 +110,16 @@ def test_the_gnn_kind_runs_through_evaluate(gnn, tmp_path):
     # (c / 2^(1/p) per missed target and scan: 212 m with c = 300 m, p = 2, whatever the count)
     assert row["gospa_m"] < 0.5 * 300.0 / math.sqrt(2.0)
     assert yaml.safe_load(path.read_text())["methods"][0]["kind"] == "gnn_example"
+
+
+def test_the_classical_trackers_import_no_learned_part():
+    """trackers/ is classical but for the learned gain it hosts: no other module of it imports
+    that module or anything of nets/ (the loop sees a learned part only as a MeanCorrection)."""
+    from test_structure import PACKAGE, ROOT, import_graph
+
+    graph = import_graph(ROOT, PACKAGE)
+    assert "pmsr_nn.trackers.msjpda" in graph and "pmsr_nn.trackers.loop" in graph["pmsr_nn.trackers.msjpda"]
+    learned = {m for m in graph if m.startswith("pmsr_nn.nets")} | {"pmsr_nn.trackers.learned_gain"}
+    offenders = {m: sorted(set(edges) & learned) for m, edges in graph.items()
+                 if m.startswith("pmsr_nn.trackers") and m != "pmsr_nn.trackers.learned_gain" and set(edges) & learned}
+    assert not offenders, offenders

@@ -40,13 +40,13 @@ class Estimates:
     existence: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
-        B, K, N, n = self.x.shape
-        if tuple(self.exists.shape) != (B, K, N):
-            raise ValueError(f"exists must be (B, K, N) = {(B, K, N)}, got {tuple(self.exists.shape)}")
-        if self.P is not None and tuple(self.P.shape) != (B, K, N, n, n):
-            raise ValueError(f"P must be (B, K, N, n, n) = {(B, K, N, n, n)}, got {tuple(self.P.shape)}")
-        if self.existence is not None and tuple(self.existence.shape) != (B, K, N):
-            raise ValueError(f"existence must be (B, K, M) = {(B, K, N)}, got {tuple(self.existence.shape)}")
+        B, K, M, n = self.x.shape
+        if tuple(self.exists.shape) != (B, K, M):
+            raise ValueError(f"exists must be (B, K, M) = {(B, K, M)}, got {tuple(self.exists.shape)}")
+        if self.P is not None and tuple(self.P.shape) != (B, K, M, n, n):
+            raise ValueError(f"P must be (B, K, M, n, n) = {(B, K, M, n, n)}, got {tuple(self.P.shape)}")
+        if self.existence is not None and tuple(self.existence.shape) != (B, K, M):
+            raise ValueError(f"existence must be (B, K, M) = {(B, K, M)}, got {tuple(self.existence.shape)}")
 
     @property
     def labels(self) -> torch.Tensor:

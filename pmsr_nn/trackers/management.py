@@ -1,14 +1,16 @@
 """Track management shared by the multi-target trackers: tracks that start, confirm and end.
 
-A tracker that manages its own tracks keeps them in a :class:`TrackTable` (a padded table of
-``C`` slots per run, batched over runs) and, at every scan, after its association and update:
+The components of :class:`~.own_tracks.OwnTracks`, the management of a tracker that starts its
+own tracks on the one tracker loop (:mod:`.loop`): the tracks live in a :class:`TrackTable` (a
+padded table of ``C`` slots per run, batched over runs) and, at every scan, after the
+association and update, the table:
 
 1. tells the table which tracks were *hit* (detected at ``>= hit_pairs`` pairs) and which were
    *missed* (detected at none): :meth:`TrackTable.record`;
 2. applies the :class:`Confirmer` (M-of-N over a tentative track's first ``n`` scans) and the
    :class:`Deleter` (consecutive misses of a confirmed track, covariance growth):
    :meth:`TrackTable.manage`;
-3. starts tentative tracks from the detections no track gated, with an initiator of
+3. starts tentative tracks from the detections no track explains, with an initiator of
    :mod:`.initiators` (:class:`~.fix_initiator.FixInitiator` where each pair measures azimuth, a
    multi-pair position fix; :class:`~.spherical_initiator.SphericalInitiator` from range and range-rate or
    Doppler only, combinations of one detection per pair whose joint fit passes a chi-square gate):
@@ -17,8 +19,9 @@ A tracker that manages its own tracks keeps them in a :class:`TrackTable` (a pad
    slots are track ids (numbered in order of confirmation, per run; never reused).
 
 The *oracle initiator* (each target's track started at its birth from the truth plus a prior
-draw, one slot per target) is no component here: it is the ``initiation: oracle`` option of the
-method kinds, kept as a reference row and named so in every report.
+draw, one slot per target) is the other management, :class:`~.handed_births.HandedBirths`: the
+``initiation: oracle`` option of the method kinds, kept as a reference row and named so in every
+report.
 
 Shapes: ``B`` runs, ``C`` table slots, ``S`` pairs (sensors), ``M`` detections per list, ``n``
 state dimension, ``d`` measurement components per pair.
