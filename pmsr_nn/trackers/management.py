@@ -40,6 +40,7 @@ from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
 from .fix_initiator import FixInitiator
 from .innovation_bias import BiasTest
+from .roles import Initiator
 from .spherical_initiator import SphericalInitiator
 
 __all__ = ["FREE", "TENTATIVE", "CONFIRMED", "BiasTest", "Confirmer", "Deleter", "FixInitiator", "SphericalInitiator",
@@ -96,7 +97,7 @@ class Management:
     :meth:`TrackTable.update_existence`); ``bias``, the innovation bias test of a tracker that
     keeps its tracks' whitened innovations (:mod:`.innovation_bias`; None: none)."""
 
-    initiator: FixInitiator | SphericalInitiator
+    initiator: Initiator
     confirmer: Confirmer
     deleter: Deleter
     other_sd: torch.Tensor

@@ -11,8 +11,8 @@ runs and track slots):
   :class:`MeanCorrection` where a hybrid has one) associates one scan's detections with the
   tracks and updates them: :class:`AssociationStep`;
 * a :class:`TrackManagement` holds the tracks and, around the association, predicts their
-  existence, confirms and deletes them and starts new ones (its initiator, confirmer and deleter
-  are components of :mod:`.management`); handing a tracker its targets' births is one such
+  existence, confirms and deletes them and starts new ones (its :class:`Initiator`, confirmer and
+  deleter are components of :mod:`.management`); handing a tracker its targets' births is one such
   management (:class:`~.handed_births.HandedBirths`), starting its own tracks another
   (:class:`~.own_tracks.OwnTracks`).
 
@@ -95,6 +95,21 @@ class Associator:
 
     def tracks_started(self, started: torch.Tensor | None, g: Gaussian) -> None:
         """Nothing to do for an associator that keeps no state of its own per track."""
+
+
+class Initiator(Protocol):
+    """Starts tentative tracks from the detections no track explains (:mod:`.initiators`:
+    :class:`~.fix_initiator.FixInitiator`, :class:`~.spherical_initiator.SphericalInitiator`).
+
+    :meth:`check` refuses, in one line, a measurement model it can not start tracks from;
+    :meth:`initiate` gives tracks ``(B, G, n)`` and which are real ``(B, G)`` from ``z (B, L, M, d)``
+    where ``unused (B, L, M)`` (``other_sd (n,)`` the deviations of the state entries it does not
+    fix; keywords: what else it reads, e.g. the ``routes`` of lists pooled per receiver)."""
+
+    def check(self, model, what: str) -> None: ...
+
+    def initiate(self, z: torch.Tensor, unused: torch.Tensor, model, n: int, other_sd: torch.Tensor,
+                 **where) -> tuple[Gaussian, torch.Tensor]: ...
 
 
 class TrackManagement(Protocol):
