@@ -140,7 +140,24 @@ def test_bad_multitarget_inputs_are_clear(tmp_path):
     with pytest.raises(ConfigError, match="case 'nominal': detections: .*pd must be in"):
         evaluate(_small(tmp_path, cases=[{"name": "nominal", "formation": {"count": 2}, "detections": {"pd": 1.5}}]),
                  tmp_path / "o6", progress=False)
+    with pytest.raises(ConfigError, match="a recipe or a world section, not both"):
+        evaluate(_small(tmp_path, recipe="x.yaml"), tmp_path / "o7", progress=False)
+    with pytest.raises(ConfigError, match="detections.components has doppler: give noise.doppler_hz"):
+        evaluate(_small(tmp_path, noise={"range_m": 1000.0}), tmp_path / "o8", progress=False)
     assert not any(tmp_path.glob("o*"))  # nothing half-written
+
+
+def test_a_recipe_scenario_refuses_the_targets_of_a_world(tmp_path):
+    """A formation (or a case's detections override) belongs to a world section: without one, one line."""
+    from pmsr_nn.harness.scenario import scenario_from_dict
+
+    data = load_yaml(ROOT / "evaluate" / "fitee2023_three_trajectories.yaml")
+    data["cases"][0] = {**data["cases"][0], "detections": {"pd": 0.5}}
+    with pytest.raises(ConfigError, match="are cases of a world section"):
+        scenario_from_dict(data, ROOT / "evaluate")
+    data["cases"][0] = {"name": "f", "formation": {"count": 2}}
+    with pytest.raises(ConfigError, match="are cases of a world section"):
+        scenario_from_dict(data, ROOT / "evaluate")
 
 
 def test_a_retired_multitarget_file_is_refused_in_one_line(tmp_path, capsys):

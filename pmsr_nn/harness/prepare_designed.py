@@ -339,8 +339,8 @@ def _jpda_options(m) -> dict:
 def describe_world(sc: Scenario, model: MeasurementModel) -> dict:
     """A world scenario's settings recorded beside the figures (``results.json``'s ``settings``)."""
     w, d, g = sc.world, sc.detections, model.geometry
-    noise = {"range_m": sc.noise.range_m, **{f"{c}_{'hz' if c == 'doppler' else 'mps'}": v
-                                              for c, v in zip(d.components[1:], sc.noise.of(d.components)[1:])}}
+    names = {"range": "range_m", "doppler": "doppler_hz", "range_rate": "range_rate_mps", "azimuth": "azimuth_deg"}
+    noise = {names[c]: getattr(sc.noise, names[c]) for c in d.components}  # the deviations of what is measured
     out = {"dt_s": w.motion.dt_s, "q": w.motion.q, "scans": w.scans, "state_dim": 2 * w.dimensions,
            "noise": noise, "pd": d.pd, "components": list(d.components), "clutter": to_dict(d.clutter),
            "clutter_volume_m_hz": d.clutter.volume, "prior": to_dict(w.prior),

@@ -288,8 +288,7 @@ class Scenario(StudyFile):
                                                                f"{method_kind(m.kind).reads}; a world scenario runs "
                                                                "trackers of detections")
         require(self.warmup_steps < w.scans, f"warmup_steps {self.warmup_steps} must be below world.scans ({w.scans})")
-        missing = [n for n, v in (("range", self.noise.range_m), ("doppler", self.noise.doppler_hz)) if v is None]
-        require("doppler" not in self.detections.components or not missing,
+        require("doppler" not in self.detections.components or self.noise.doppler_hz is not None,
                 "detections.components has doppler: give noise.doppler_hz")
         for c in self.cases:
             require(c.in_world, f"case {c.name!r}: a world case gives its targets as formation, states or aircraft")
