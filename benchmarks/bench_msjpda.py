@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.config import load_yaml  # noqa: E402
-from pmsr_nn.harness.multitarget import multitarget_from_dict  # noqa: E402
+from pmsr_nn.harness.scenario import scenario_from_dict  # noqa: E402
 from pmsr_nn.harness.blocks import call_method, draw_block  # noqa: E402
 from pmsr_nn.harness.runner import prepare  # noqa: E402
 
@@ -52,7 +52,7 @@ def main() -> None:
         ap.error("need 1 <= --serial-runs <= --runs, --repeats >= 1 and --block >= 1")
     data = load_yaml(SCENARIO)
     data.update(mc_runs=args.runs, block_runs=args.runs)
-    sc = multitarget_from_dict(data, SCENARIO.parent)
+    sc = scenario_from_dict(data, SCENARIO.parent)
     setup = prepare(sc)
     case = setup.cases[0]
     det = draw_block(setup, 0, 0)[1]["detections"]  # the nominal case, all runs in one draw

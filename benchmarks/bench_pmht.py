@@ -48,7 +48,7 @@ from run_info import write_figures  # noqa: E402
 from pmsr_nn.config import load_yaml  # noqa: E402
 from pmsr_nn.errors import ConfigError  # noqa: E402
 from pmsr_nn.filters import Gaussian  # noqa: E402
-from pmsr_nn.harness.multitarget import multitarget_from_dict  # noqa: E402
+from pmsr_nn.harness.scenario import scenario_from_dict  # noqa: E402
 from pmsr_nn.harness.blocks import draw_block  # noqa: E402
 from pmsr_nn.harness.runner import prepare  # noqa: E402
 from pmsr_nn.methods.pmht import settings as method_settings  # noqa: E402
@@ -77,7 +77,7 @@ def _sync(device: str) -> None:
 def ours(args) -> tuple[dict, object]:
     data = load_yaml(SCENARIO)
     data.update(mc_runs=args.runs, block_runs=args.runs)
-    sc = multitarget_from_dict(data, SCENARIO.parent)
+    sc = scenario_from_dict(data, SCENARIO.parent)
     setup = prepare(sc)
     case = setup.cases[0]
     det = draw_block(setup, 0, 0)[1]["detections"]
@@ -113,7 +113,7 @@ def ours(args) -> tuple[dict, object]:
         _sync(args.device)
         batched = (clock() - t0) / args.runs
         err = (res.x.cpu() - case.truth.x)[..., list(m.motion.pos_idx)].norm(dim=-1)
-        rmse = float(err[:, sc.converged_from_scan:].pow(2).mean((0, 2)).sqrt().mean())
+        rmse = float(err[:, sc.warmup_steps:].pow(2).mean((0, 2)).sqrt().mean())
         out["methods"][spec.name] = {"serial_s_per_run_vs_em": serial, "paper_s_per_run_vs_em": PAPER_TABLE3[spec.name],
                                      "batched_s_per_run_6em": batched, "rmse_pos_m": rmse}
         print(f"{spec.name:8s} serial s/run vs EM 4..8: " + ", ".join(f"{serial[i]:.2f}" for i in range(4, 9))
@@ -122,7 +122,7 @@ def ours(args) -> tuple[dict, object]:
     if args.memory_runs:
         spec = next(s for s in setup.methods if s.kind == "pmht_3d")
         data.update(mc_runs=args.memory_runs, block_runs=args.memory_runs)
-        big = prepare(multitarget_from_dict(data, SCENARIO.parent))
+        big = prepare(scenario_from_dict(data, SCENARIO.parent))
         det = draw_block(big, 0, 0)[1]["detections"]
         base = dataclasses.replace(method_settings(MethodCall(spec, det, case.alive, m, sensing)),
                                    chunk_runs=args.chunk_runs)

@@ -82,11 +82,10 @@ def measure(spec: FrontEndSpec, snr_db: float, lo: float, hi: float, cpis: int, 
 def study(scenario: Path, runs: int, seed: int) -> dict:
     """Range errors by kind of detection of the scenario's own front end, lobe fit and centroid."""
     from pmsr_nn.frontend import chain
-    from pmsr_nn.harness.multitarget import multitarget_from_dict
-    from pmsr_nn.harness.prepare_multitarget import prepare_multitarget
+    from pmsr_nn.harness.runner import prepare
+    from pmsr_nn.harness.scenario import load_scenario
 
-    sc = multitarget_from_dict(yaml.safe_load(scenario.read_text()), base_dir=scenario.parent)
-    case = next(c for c in prepare_multitarget(sc).cases if c.sensing.front_end is not None)
+    case = next(c for c in prepare(load_scenario(scenario)).cases if c.sensing.front_end is not None)
     truth = case.truth.draw(runs, torch.Generator().manual_seed(seed))
     out = {}
     for name in ("lobe fit", "centroid"):
@@ -117,7 +116,8 @@ def main() -> None:
     ap.add_argument("--study-seed", type=int, default=1000)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
-    spec = from_dict(FrontEndSpec, yaml.safe_load(args.scenario.read_text())["front_end"], where="front_end")
+    spec = from_dict(FrontEndSpec, yaml.safe_load(args.scenario.read_text())["detections"]["front_end"],
+                     where="detections.front_end")
     U = spec.range_bins
     g = torch.Generator().manual_seed(args.seed)
     out = {"scenario": os.path.relpath(args.scenario), "seed": args.seed, "map": list(spec.map_shape),

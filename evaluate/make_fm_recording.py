@@ -21,10 +21,9 @@ import numpy as np
 import torch
 
 from pmsr_nn import SPEED_OF_LIGHT
-from pmsr_nn.config import load_yaml
 from pmsr_nn.frontend.chain import true_cells
 from pmsr_nn.frontend.fm_signals import echo_snr_db, simulate_cpi
-from pmsr_nn.harness.multitarget import multitarget_from_dict
+from pmsr_nn.harness.scenario import load_scenario
 from pmsr_nn.harness.runner import prepare
 from pmsr_nn.rng import seeded_generator
 
@@ -40,9 +39,9 @@ def main() -> None:
     args = ap.parse_args()
     if args.out.exists():
         raise SystemExit(f"make_fm_recording: {args.out} exists; give a new file")
-    sc = multitarget_from_dict(load_yaml(args.scenario), args.scenario.parent)
-    if sc.front_end is None:
-        raise SystemExit(f"make_fm_recording: {args.scenario} has no front_end block")
+    sc = load_scenario(args.scenario)
+    if sc.detections is None or sc.detections.front_end is None:
+        raise SystemExit(f"make_fm_recording: {args.scenario} has no detections.front_end block")
     setup = prepare(sc)
     case = setup.cases[0]
     model = case.sensing.detection_model
@@ -51,7 +50,7 @@ def main() -> None:
     s = args.pair
     r, doppler, r_tx, r_rx = (v[0, :, :, s] for v in true_cells(model, truth.x[:, : args.cpis]))  # (K, T)
     baseline = model.geometry.baselines_m()[s]
-    spec = sc.front_end.signal
+    spec = sc.detections.front_end.signal
     excess = r - baseline
     alive = case.alive[: args.cpis]
     cpi = simulate_cpi(spec, excess / SPEED_OF_LIGHT, doppler, echo_snr_db(spec, r_tx, r_rx), alive, g)

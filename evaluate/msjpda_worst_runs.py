@@ -4,7 +4,7 @@ A converged RMSE over 100 runs can be moved by a handful of runs. This re-draws 
 ``--blocks`` blocks of one case (the same draws as ``pmsr evaluate``), runs every method of the
 scenario on them, and prints each method's RMSE over those runs, its median per-run RMSE, and the
 runs where ``--worse`` exceeds ``--than`` most, with the per-target RMSE (scans
-``converged_from_scan`` onwards) of every method.
+``warmup_steps`` onwards) of every method.
 
     python evaluate/msjpda_worst_runs.py evaluate/access2019_msjpda_pd.yaml --case pd_0.95 --blocks 3
     python evaluate/msjpda_worst_runs.py evaluate/access2019_msjpda_pd.yaml --case pd_0.95 --blocks 3 \\
@@ -20,26 +20,28 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pmsr_nn.config import load_yaml
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.multitarget import multitarget_from_dict
 from pmsr_nn.harness.blocks import call_method, draw_block
 from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.methods import method_kind
 from pmsr_nn.metrics import squared_error
 
 
 def per_run_errors(path: Path, case: str, blocks: int, iterations: int | None = None) -> dict[str, np.ndarray]:
     """Per method, the per-run, per-target converged position RMSE ``(runs, T)`` in m."""
-    sc = multitarget_from_dict(load_yaml(path), path.parent, where=str(path))
-    if iterations is not None:
-        sc = dataclasses.replace(sc, tracker=dataclasses.replace(sc.tracker, relaxation_iterations=iterations))
+    sc = load_scenario(path)
+    if iterations is not None:  # every method with relaxation iterations runs that many
+        sc = sc.replace(methods=tuple(dataclasses.replace(m, options={**m.options, "relaxation_iterations": iterations})
+                                      if "relaxation_iterations" in method_kind(m.kind).options else m
+                                      for m in sc.methods))
     names = [c.name for c in sc.cases]
     if case not in names:
         raise ConfigError(f"no case {case!r} in {path} (cases: {', '.join(names)})")
     if not 1 <= blocks <= sc.n_blocks:
         raise ConfigError(f"--blocks must be 1..{sc.n_blocks}, got {blocks}")
     setup = prepare(sc)
-    ci, pos, k0 = names.index(case), list(setup.models.motion.pos_idx), sc.converged_from_scan
+    ci, pos, k0 = names.index(case), list(setup.models.motion.pos_idx), sc.warmup_steps
     out: dict[str, list] = {m.name: [] for m in setup.methods}
     with torch.no_grad():
         for block in range(blocks):

@@ -82,7 +82,8 @@ def test_bound_rows_beside_multi_target_rows(tmp_path):
 
 def test_the_catalogue_lists_it_and_a_multi_target_study_refuses_it(tmp_path, capsys):
     assert method_kind("pcrb").bound and "pcrb  (reads truth" in "\n".join(catalogue(["pcrb"]))
-    study = {"kind": "multitarget", "name": "mt", "mc_runs": 1, "scans": 5, "cases": [{"name": "c"}],
+    study = {"name": "mt", "mc_runs": 1, "world": {"scans": 5, "geometry": {}}, "noise": {"doppler_hz": 1.0},
+             "detections": {"components": ["range", "doppler"]}, "cases": [{"name": "c", "formation": {}}],
              "methods": [{"name": "bound", "kind": "pcrb"}]}
     path = tmp_path / "mt.yaml"
     path.write_text(yaml.safe_dump(study))

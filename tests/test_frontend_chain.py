@@ -110,31 +110,36 @@ def test_bad_front_end_settings_are_refused_in_one_line():
 
 
 TINY = """\
-kind: multitarget
 name: fm_tiny
 mc_runs: 2
 block_runs: 2
-scans: 6
-geometry:
-  transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 100.0e+6}, {position_m: [-5000.0, 9000.0], carrier_hz: 95.0e+6}]
-  receivers: [{position_m: [0.0, 0.0]}]
-initial_states: [{position_m: [10000.0, 10000.0], velocity_mps: [60.0, 80.0]}]
+world:
+  scans: 6
+  geometry:
+    transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 100.0e+6}, {position_m: [-5000.0, 9000.0], carrier_hz: 95.0e+6}]
+    receivers: [{position_m: [0.0, 0.0]}]
+  motion: {dt_s: 1.0, q: 0.1}
+  prior: {position_m: 200.0, velocity_mps: 10.0}
 noise: {range_m: 1500.0, doppler_hz: 1.5}
-motion: {dt_s: 1.0, q: 0.1}
-prior: {position_m: 200.0, velocity_mps: 10.0}
-pd: 0.9
-clutter: {per_scan: 1, model: poisson, range_m: [0.0, 60000.0], doppler_hz: [-120.0, 120.0]}
-front_end:
-  signal: {sample_rate_hz: 64000.0, cpi_s: 0.25, audio_bandwidth_hz: 4000.0, deviation_hz: 5000.0,
-           multipath_delay_samples: [1.0], multipath_cnr_db: [40.0], echo_snr_db: -10.0, echo_range_law: false}
-  max_range_m: 40000.0
-  max_doppler_hz: 120.0
-  batch_len: 250
-  cancellation: {range_bins: 4}
-  cfar: {guard: [1, 1], train: [4, 2], pfa: 1.0e-3}
-  example_scans: [2]
-converged_from_scan: 1
-cases: [{name: signals}, {name: model, signals: false}]
+detections:
+  pd: 0.9
+  components: [range, doppler]
+  clutter: {per_scan: 1, model: poisson, range_m: [0.0, 60000.0], doppler_hz: [-120.0, 120.0]}
+  front_end:
+    signal: {sample_rate_hz: 64000.0, cpi_s: 0.25, audio_bandwidth_hz: 4000.0, deviation_hz: 5000.0,
+             multipath_delay_samples: [1.0], multipath_cnr_db: [40.0], echo_snr_db: -10.0, echo_range_law: false}
+    max_range_m: 40000.0
+    max_doppler_hz: 120.0
+    batch_len: 250
+    cancellation: {range_bins: 4}
+    cfar: {guard: [1, 1], train: [4, 2], pfa: 1.0e-3}
+    example_scans: [2]
+loss: {}
+warmup_steps: 1
+divergence_m: null
+cases:
+  - {name: signals, states: &one [{position_m: [10000.0, 10000.0], velocity_mps: [60.0, 80.0]}]}
+  - {name: model, states: *one, detections: {front_end: null}}
 methods: [{name: J, kind: s_msjpda}, {name: T, kind: true_assignment}]
 """
 

@@ -1,4 +1,4 @@
-"""Multi-target scenarios through `pmsr evaluate` (pmsr_nn.harness.multitarget)."""
+"""Multi-target scenarios (a scenario with a world section, pmsr_nn.harness.world) through `pmsr evaluate`."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import yaml
 from pmsr_nn.config import load_yaml
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness import evaluate
-from pmsr_nn.harness.multitarget import multitarget_from_dict
-from pmsr_nn.harness.prepare_multitarget import prepare_multitarget
 from pmsr_nn.harness.references import reference_table
+from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ["access2019_msjpda.yaml", "access2019_msjpda_pd.yaml", "access2019_msjpda_clutter.yaml",
@@ -26,9 +26,12 @@ SCENARIOS = ["access2019_msjpda.yaml", "access2019_msjpda_pd.yaml", "access2019_
 
 def _small(tmp_path: Path, **over) -> Path:
     data = load_yaml(ROOT / "evaluate" / "access2019_msjpda.yaml")
-    data.update(mc_runs=3, block_runs=2, scans=6, converged_from_scan=2,
-                targets={**data["targets"], "count": 2}, clutter={**data["clutter"], "per_scan": 5})
-    data["cases"] = [{"name": "nominal", "reference_key": "0.8"}, {"name": "close", "spacing_m": 500.0}]
+    data.update(mc_runs=3, block_runs=2, warmup_steps=2)
+    data["world"]["scans"] = 6
+    data["detections"]["clutter"]["per_scan"] = 5
+    two = {**data["cases"][0]["formation"], "count": 2}
+    data["cases"] = [{"name": "nominal", "reference_key": "0.8", "formation": two},
+                     {"name": "close", "formation": {**two, "spacing_m": 500.0}}]
     data["reference"]["file"] = str(ROOT / "evaluate" / "reference" / "paper_tables.json")
     data.update(over)
     p = tmp_path / "small.yaml"
@@ -75,10 +78,13 @@ def test_same_seed_same_figures_and_blocks_independent_of_mc_runs(tmp_path):
 
 
 def test_sweep_report_has_the_sweep_table(tmp_path):
-    p = _small(tmp_path, sweep="pd", cases=[{"name": "pd_0.6", "pd": 0.6, "reference_key": "0.6"},
-                                           {"name": "pd_0.9", "pd": 0.9, "reference_key": "0.9"}])
+    two = {"count": 2, "centre_m": [-25000.0, -20000.0], "velocity_mps": [200.0, 244.1], "spacing_m": 2000.0}
+    p = _small(tmp_path, sweep="pd", cases=[{"name": "pd_0.6", "detections": {"pd": 0.6}, "reference_key": "0.6",
+                                             "formation": two},
+                                            {"name": "pd_0.9", "detections": {"pd": 0.9}, "reference_key": "0.9",
+                                             "formation": two}])
     data = yaml.safe_load(p.read_text())
-    data["methods"].insert(2, {"name": "P-MSJPDA m=3", "kind": "p_msjpda", "m_best": 3})
+    data["methods"].insert(2, {"name": "P-MSJPDA m=3", "kind": "p_msjpda", "options": {"m_best": 3}})
     p.write_text(yaml.safe_dump(data))
     res = evaluate(p, tmp_path / "out", progress=False)
     report = (tmp_path / "out" / "report.md").read_text()
@@ -99,9 +105,8 @@ def test_sweep_report_has_the_sweep_table(tmp_path):
 
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_recorded_scenarios_load_and_name_paper_keys(name):
-    path = ROOT / "evaluate" / name
-    sc = multitarget_from_dict(load_yaml(path), path.parent)
-    prepare_multitarget(sc)  # geometry and flights are valid
+    sc = load_scenario(ROOT / "evaluate" / name)
+    setup = prepare(sc)  # geometry and flights are valid
     if sc.reference is None:  # an ablation of ours: no paper table, so no case may name a key
         assert all(c.reference_key is None for c in sc.cases)
     else:
@@ -109,7 +114,12 @@ def test_recorded_scenarios_load_and_name_paper_keys(name):
         for c in sc.cases:
             if c.reference_key is not None:
                 assert c.reference_key in node["S-MSJPDA"]
-    assert sc.mc_runs == 100 and sc.scans == 50 and sc.targets.count == 4
+    assert sc.mc_runs == 100 and sc.world.scans == 50 and all(c.formation.count == 4 for c in sc.cases)
+    # each case's sweep setting reaches the case that runs: the recorded Pd and clutter are the detections'
+    for c, case in zip(sc.cases, setup.cases):
+        d = sc.case_detections(c)
+        assert (case.sensing.pd, case.sensing.clutter.per_scan) == (d.pd, d.clutter.per_scan)
+        assert case.info["spacing_m"] == c.formation.spacing_m
 
 
 def test_bad_multitarget_inputs_are_clear(tmp_path):
@@ -121,8 +131,46 @@ def test_bad_multitarget_inputs_are_clear(tmp_path):
     with pytest.raises(ConfigError, match="unknown key"):
         evaluate(_small(tmp_path, clutterr=3), tmp_path / "o3", progress=False)
     with pytest.raises(ConfigError, match="within 1 km of a sensor"):
-        evaluate(_small(tmp_path, targets={"count": 2, "centre_m": [-200.0, -300.0]}), tmp_path / "o4", progress=False)
+        near = {"name": "near", "formation": {"count": 2, "centre_m": [-200.0, -300.0]}}
+        evaluate(_small(tmp_path, cases=[near]), tmp_path / "o4", progress=False)
+    with pytest.raises(ConfigError, match="a world case gives its targets"):
+        evaluate(_small(tmp_path, cases=[{"name": "inline", "start_range_m": 5000.0, "start_bearing_deg": 10.0,
+                                          "speed_mps": 10.0, "heading_deg": 0.0, "segments": [{"duration_s": 5.0}]}]),
+                 tmp_path / "o5", progress=False)
+    with pytest.raises(ConfigError, match="case 'nominal': detections: .*pd must be in"):
+        evaluate(_small(tmp_path, cases=[{"name": "nominal", "formation": {"count": 2}, "detections": {"pd": 1.5}}]),
+                 tmp_path / "o6", progress=False)
+    with pytest.raises(ConfigError, match="a recipe or a world section, not both"):
+        evaluate(_small(tmp_path, recipe="x.yaml"), tmp_path / "o7", progress=False)
+    with pytest.raises(ConfigError, match="detections.components has doppler: give noise.doppler_hz"):
+        evaluate(_small(tmp_path, noise={"range_m": 1000.0}), tmp_path / "o8", progress=False)
     assert not any(tmp_path.glob("o*"))  # nothing half-written
+
+
+def test_a_recipe_scenario_refuses_the_targets_of_a_world(tmp_path):
+    """A formation (or a case's detections override) belongs to a world section: without one, one line."""
+    from pmsr_nn.harness.scenario import scenario_from_dict
+
+    data = load_yaml(ROOT / "evaluate" / "fitee2023_three_trajectories.yaml")
+    data["cases"][0] = {**data["cases"][0], "detections": {"pd": 0.5}}
+    with pytest.raises(ConfigError, match="are cases of a world section"):
+        scenario_from_dict(data, ROOT / "evaluate")
+    data["cases"][0] = {"name": "f", "formation": {"count": 2}}
+    with pytest.raises(ConfigError, match="are cases of a world section"):
+        scenario_from_dict(data, ROOT / "evaluate")
+
+
+def test_a_retired_multitarget_file_is_refused_in_one_line(tmp_path, capsys):
+    """A YAML that still says kind: multitarget: one line saying how to write it now, exit 2, nothing written."""
+    from pmsr_nn.cli import main
+
+    p = tmp_path / "old.yaml"
+    p.write_text((ROOT / "tests" / "data" / "legacy" / "msjpda_subset.yaml").read_text().replace(
+        "name: msjpda_subset", "kind: multitarget\nname: msjpda_subset"))
+    assert main(["evaluate", str(p), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "retired" in err[0] and "world section" in err[0]
+    assert not (tmp_path / "out").exists()
 
 
 def test_cli_evaluate_runs_a_multitarget_scenario(tmp_path, capsys):
@@ -162,7 +210,7 @@ def test_per_run_errors_use_the_harness_draws(tmp_path):
     assert set(err) == {"S-MSJPDA", "P-MSJPDA", "P-MSJPDA relaxation", "P-MSJPDA m=100", "true assignment"}
     assert all(e.shape == (3, 2) and np.isfinite(e).all() for e in err.values())  # 3 runs in blocks of 2, 2 targets
     # the same draws as `pmsr evaluate`: the mean squared error over runs gives its converged RMSE
-    # when every scan from converged_from_scan on is averaged with the same weight
+    # when every scan from warmup_steps on is averaged with the same weight
     res = evaluate(p, tmp_path / "out", progress=False)
     per_scan = np.array(res["cases"]["nominal"]["curves"]["rmse_pos_m"]["S-MSJPDA"])  # (T, K)
     assert np.allclose((err["S-MSJPDA"] ** 2).mean(0), (per_scan[:, 2:] ** 2).mean(1), rtol=1e-9)

@@ -293,32 +293,40 @@ def test_an_aircraft_flies_its_legs_climbs_and_is_sampled_as_cv_states():
 
 
 TINY = """\
-kind: multitarget
 name: phd_tiny
 mc_runs: 2
 block_runs: 1
-scans: 40
-dimensions: 3
-motion: {dt_s: 1.0}
-converged_from_scan: 0
-geometry:
-  transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 106.0e6}]
-  receivers: [{position_m: [0.0, 0.0]}]
+world:
+  scans: 40
+  dimensions: 3
+  motion: {dt_s: 1.0}
+  geometry:
+    transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 106.0e6}]
+    receivers: [{position_m: [0.0, 0.0]}]
+  max_range_m: 48000.0
+warmup_steps: 0
+divergence_m: null
+loss: {}
 noise: {range_m: 30.0, range_rate_mps: 4.5}
-pd: 0.9
-clutter: {per_scan: 10, model: poisson, range_m: [6500.0, 48000.0], range_rate_mps: [-500.0, 500.0]}
-max_range_m: 48000.0
+detections:
+  pd: 0.9
+  components: [range, range_rate]
+  clutter: {per_scan: 10, model: poisson, range_m: [6500.0, 48000.0], range_rate_mps: [-500.0, 500.0]}
 set_metrics: {c_m: 1000.0, p: 2.0}
 methods:
   - {name: phd, kind: smc_phd_pair, options: &phd {particles_per_target: 200, particles_per_birth: 50, labelling: none}}
   - {name: kf, kind: known_association_kf_pair}
   - {name: g, kind: smc_phd_pair, options: {<<: *phd, labelling: gtda}}
   - {name: h, kind: smc_phd_pair, options: {<<: *phd, labelling: hungarian}}
-cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]
-aircraft:
-  - {name: over, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0, legs: [{duration_s: 40}]}
-  - {name: turn, start_m: [-9000.0, 9000.0], altitude_m: 800.0, speed_mps: 80.0, heading_deg: 90.0, birth_s: 10.0,
-     legs: [{duration_s: 30, across_mps2: 2.0}]}
+cases:
+  - name: base
+    aircraft: &aircraft
+      - {name: over, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0,
+         legs: [{duration_s: 40}]}
+      - {name: turn, start_m: [-9000.0, 9000.0], altitude_m: 800.0, speed_mps: 80.0, heading_deg: 90.0, birth_s: 10.0,
+         legs: [{duration_s: 30, across_mps2: 2.0}]}
+  - {name: noisy, aircraft: *aircraft, detections: {clutter: {per_scan: 5}}}
+  - {name: pd1, aircraft: *aircraft, detections: {pd: 1.0}}
 """
 
 
@@ -433,8 +441,7 @@ def test_an_estimate_offset_by_d_in_range_scores_d_below_the_cut_off_and_c_above
 def test_shards_of_a_phd_scenario_merge_to_the_unsharded_results(tmp_path):
     from pmsr_nn.harness.evaluate import evaluate, merge
 
-    text = TINY.replace("cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
-                        "cases: [{name: base}]").replace("scans: 40", "scans: 25")
+    text = TINY[: TINY.index("  - {name: noisy")].replace("scans: 40", "scans: 25")  # case base only
     (tmp_path / "s.yaml").write_text(text)
     full = evaluate(tmp_path / "s.yaml", tmp_path / "full", progress=False)
     evaluate(tmp_path / "s.yaml", tmp_path / "a", shard=(1, 2), progress=False)
@@ -479,11 +486,12 @@ REFUSALS = [
                                               "{name: kf, kind: known_association_kf_pair, options: {pair: 3}}"),
      "method 'kf' (kind known_association_kf_pair): pair 3 is out of range: the detections have 1 transmitter-receiver "
      "pair(s), 0..0; set option pair to one of them"),
-    ("pooled detections", lambda t: t.replace("max_range_m: 48000.0", "max_range_m: 48000.0\nilluminator_known: false"),
+    ("pooled detections", lambda t: t.replace("  pd: 0.9", "  pd: 0.9\n  illuminator_known: false"),
      "method 'phd' (kind smc_phd_pair) reads one pair's detection list; here the detections are pooled per receiver"),
     ("unknown labelling", lambda t: t.replace("labelling: hungarian}", "labelling: jpda}"),
      "method 'h': option labelling must be one of gtda, hungarian, none"),
     ("a study file", lambda t: "kind: phd\n" + t.split("\n", 1)[1], "'kind: phd' study files are gone"),
+    ("a retired schema", lambda t: "kind: multitarget\n" + t, "'kind: multitarget' scenarios are retired"),
 ]
 
 
@@ -532,12 +540,11 @@ def test_a_case_can_take_its_detections_from_the_fm_front_end(tmp_path):
     from pmsr_nn.cli import main
 
     text = TINY.replace("scans: 40", "scans: 4").replace("mc_runs: 2\nblock_runs: 1", "mc_runs: 2\nblock_runs: 2")
-    text = text.replace("cases: [{name: base}, {name: noisy, clutter_per_scan: 5}, {name: pd1, pd: 1.0}]",
-                        "cases: [{name: sig, signals: true}]\n"
-                        "front_end: {signal: {sample_rate_hz: 320000.0, cpi_s: 1.0}, max_range_m: 48000.0}")
+    text = text.replace("  - name: base", "  - name: sig").replace(
+        "  pd: 0.9", "  pd: 0.9\n  front_end: {signal: {sample_rate_hz: 320000.0, cpi_s: 1.0}, max_range_m: 48000.0}")
     text = text.replace("noise: {range_m: 30.0, range_rate_mps: 4.5}", "noise: {range_m: 200.0, range_rate_mps: 0.3}")
     text = text.replace("  - {name: kf, kind: known_association_kf_pair}\n", "")
-    text = text[: text.index("  - {name: turn")]  # one aircraft, seen from the first scan
+    text = text[: text.index("      - {name: turn")]  # one aircraft, seen from the first scan
     (tmp_path / "s.yaml").write_text(text)
     assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     case = json.loads((tmp_path / "out" / "results.json").read_text())["cases"]["sig"]

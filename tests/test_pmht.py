@@ -287,21 +287,23 @@ def test_a_pmht_study_runs_through_the_harness(tmp_path):
     from pmsr_nn.harness import evaluate
 
     root = Path(__file__).resolve().parents[1]
-    sc = {"kind": "multitarget", "name": "pmht_small", "mc_runs": 2, "block_runs": 2, "scans": 30, "dimensions": 3,
-          "geometry": {"transmitters": [{"position_m": [29434.0, -34761.0, 293.0], "carrier_hz": 500.0e6},
-                                        {"position_m": [12845.0, -106922.0, 293.0], "carrier_hz": 500.0e6}],
-                       "receivers": [{"position_m": [0.0, 0.0, 0.0]}]},
-          "initial_states": [{"position_m": X0[i, 0::2].tolist(), "velocity_mps": X0[i, 1::2].tolist()} for i in range(2)],
+    sc = {"name": "pmht_small", "mc_runs": 2, "block_runs": 2,
+          "world": {"scans": 30, "dimensions": 3,
+                    "geometry": {"transmitters": [{"position_m": [29434.0, -34761.0, 293.0], "carrier_hz": 500.0e6},
+                                                  {"position_m": [12845.0, -106922.0, 293.0], "carrier_hz": 500.0e6}],
+                                 "receivers": [{"position_m": [0.0, 0.0, 0.0]}]},
+                    "motion": {"dt_s": 1.0, "q": 5.0, "model": "cv_continuous", "vertical_q": 0.05, "truth": "straight"},
+                    "prior": {"position_m": 50.0, "velocity_mps": 3.0, "altitude_m": 50.0, "vertical_mps": 1.0}},
           "noise": {"range_m": 50.0, "doppler_hz": 20.0},
-          "motion": {"dt_s": 1.0, "q": 5.0, "model": "cv_continuous", "vertical_q": 0.05, "truth": "straight"},
-          "prior": {"position_m": 50.0, "velocity_mps": 3.0, "altitude_m": 50.0, "vertical_mps": 1.0},
-          "pd": 0.9, "clutter": {"per_scan": 6, "model": "poisson", "range_m": [40000.0, 260000.0],
-                                 "doppler_hz": [-1000.0, 1000.0]},
-          "illuminator_known": False, "converged_from_scan": 5,
+          "detections": {"pd": 0.9, "components": ["range", "doppler"], "illuminator_known": False,
+                         "clutter": {"per_scan": 6, "model": "poisson", "range_m": [40000.0, 260000.0],
+                                     "doppler_hz": [-1000.0, 1000.0]}},
+          "warmup_steps": 5, "divergence_m": None, "loss": {},
           "reference": {"file": str(root / "evaluate" / "reference" / "paper_tables.json"),
                         "velocity_rmse": "jeit2021_pmht3d.table2_velocity_rmse_mps",
                         "anees": "jeit2021_pmht3d.table4_anees", "methods": {"PMHT-3D": "proposed"}},
-          "cases": [{"name": "c"}],
+          "cases": [{"name": "c", "states": [{"position_m": X0[i, 0::2].tolist(), "velocity_mps": X0[i, 1::2].tolist()}
+                                             for i in range(2)]}],
           "methods": [{"name": "PMHT-3D", "kind": "pmht_3d", "options": {"window": 8, "overlap": 3}},
                       {"name": "PMHT", "kind": "pmht", "options": {"window": 8, "overlap": 3}},
                       {"name": "TA", "kind": "true_assignment_smoother"}]}
@@ -444,16 +446,18 @@ def test_initiation_from_detections_the_receiver_can_not_fix_is_refused(tmp_path
     Doppler: PMHT-3D starts tracks from pooled lists only by fixing each detection under every
     illuminator hypothesis, which needs azimuth (the spherical initiator reads per-pair lists, which
     the receiver does not have), and neither kind can fix positions without azimuth."""
-    sc = {"kind": "multitarget", "name": "pmht_small", "mc_runs": 1, "block_runs": 1, "scans": 20, "dimensions": 3,
-          "geometry": {"transmitters": [{"position_m": [29434.0, -34761.0, 293.0], "carrier_hz": 500.0e6}],
-                       "receivers": [{"position_m": [0.0, 0.0, 0.0]}]},
-          "initial_states": [{"position_m": X0[0, 0::2].tolist(), "velocity_mps": X0[0, 1::2].tolist()}],
+    sc = {"name": "pmht_small", "mc_runs": 1, "block_runs": 1,
+          "world": {"scans": 20, "dimensions": 3,
+                    "geometry": {"transmitters": [{"position_m": [29434.0, -34761.0, 293.0], "carrier_hz": 500.0e6}],
+                                 "receivers": [{"position_m": [0.0, 0.0, 0.0]}]},
+                    "motion": {"dt_s": 1.0, "q": 5.0, "model": "cv_continuous", "vertical_q": 0.05, "truth": "straight"},
+                    "prior": {"position_m": 50.0, "velocity_mps": 3.0, "altitude_m": 50.0, "vertical_mps": 1.0}},
           "noise": {"range_m": 50.0, "doppler_hz": 20.0},
-          "motion": {"dt_s": 1.0, "q": 5.0, "model": "cv_continuous", "vertical_q": 0.05, "truth": "straight"},
-          "prior": {"position_m": 50.0, "velocity_mps": 3.0, "altitude_m": 50.0, "vertical_mps": 1.0},
-          "pd": 0.9, "clutter": {"per_scan": 6, "model": "poisson", "range_m": [40000.0, 260000.0],
-                                 "doppler_hz": [-1000.0, 1000.0]},
-          "illuminator_known": False, "cases": [{"name": "c"}],
+          "detections": {"pd": 0.9, "components": ["range", "doppler"], "illuminator_known": False,
+                         "clutter": {"per_scan": 6, "model": "poisson", "range_m": [40000.0, 260000.0],
+                                     "doppler_hz": [-1000.0, 1000.0]}},
+          "warmup_steps": 10, "divergence_m": None, "loss": {},
+          "cases": [{"name": "c", "states": [{"position_m": X0[0, 0::2].tolist(), "velocity_mps": X0[0, 1::2].tolist()}]}],
           "methods": [{"name": "P", "kind": kind, "options": {"window": 8, "overlap": 3, "initiation": "detections"}}]}
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(sc))
     assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out")]) == 2

@@ -4,6 +4,7 @@ one-line refusals; the report's flags and cells with their Monte Carlo error."""
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import pytest
 
@@ -12,6 +13,8 @@ from pmsr_nn.harness.flags import flag_paragraphs, warning_lines
 from pmsr_nn.harness.method_tables import summary_table
 from pmsr_nn.harness.multitarget_tables import multi_target_tables
 from pmsr_nn.harness.results import Results
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def designed_row(rmse=10.9, bound=12.34, ratio=0.80, se=0.05, below=True, floor=8.0, ratio0=1.9, se0=0.1,
@@ -66,10 +69,34 @@ def test_the_kind_is_read_and_inferred_for_older_files_in_one_place():
     assert Results.from_dict(res).kind == "designed"  # no key: a PCRB in every case
     assert Results.from_dict({**res, "kind": "sampled"}).kind == "sampled"  # the key wins
     old = sampled()
-    r = Results.from_dict(old)  # the older key named the schema, not the kind
-    assert (r.kind, r.schema) == ("sampled", "multitarget")
-    new = {**old, "kind": "sampled"}  # as finalise writes it now: the schema from its settings
-    assert Results.from_dict(new).schema == "multitarget" and Results.from_dict(res).schema == "scenario"
+    assert Results.from_dict(old).kind == "sampled"  # the older key named the retired schema, not the kind
+    assert Results.from_dict({**old, "kind": "sampled"}).kind == "sampled"  # as finalise writes it now
+
+
+def test_a_results_file_of_the_retired_multitarget_schema_still_renders(tmp_path):
+    """evaluate/results/access2019_msjpda/results.json was written by a ``kind: multitarget`` study
+    (its settings: a tracker section, converged_from_scan, no components): the report renders
+    from it, its paragraph quoting that file's settings and its tables that file's figures."""
+    import json
+
+    import numpy as np
+    from types import SimpleNamespace
+
+    from pmsr_nn.harness.report import write_report
+
+    res = json.loads((ROOT / "evaluate" / "results" / "access2019_msjpda" / "results.json").read_text())
+    assert "tracker" in res["settings"] and "components" not in res["settings"]  # the retired schema's settings
+    examples = {c: {"truth": np.zeros((v["steps"], len(v["targets"]), 2)) + np.arange(v["steps"])[:, None, None]}
+                for c, v in res["cases"].items()}
+    files = write_report(res, tmp_path, examples, SimpleNamespace(transmitters=[], receivers=[]), None, None)
+    report = (tmp_path / "report.md").read_text()
+    st = res["settings"]
+    assert (f"{st['scans']} scans of {st['dt_s']} s, 2-D." in report
+            and f"gate probability {st['tracker']['gate_probability']}," in report
+            and f"Loss rule: {st['loss']['successive_scans']} scans dummy-most-probable" in report)
+    row = res["cases"]["nominal"]["methods"]["S-MSJPDA"]
+    assert f"| S-MSJPDA | {row['rmse_pos_m']:.2f} ± {row['rmse_pos_se_m']:.2f} |" in report
+    assert {f.name for f in files} >= {"report.md", "nominal_rmse.png", "trajectories.png"}
 
 
 def test_bad_results_are_refused_in_one_line():

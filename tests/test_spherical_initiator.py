@@ -336,12 +336,15 @@ def test_s_msjpda_from_detections_confirms_one_track_per_target(tmp_path):
     scans: both targets are fixed at scan 0 from their three detections and confirmed at
     scan 1 (2 of 3, hits at >= 2 pairs); nothing else."""
     path = access_study(tmp_path, [{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}}],
-                        mc_runs=2, block_runs=2, scans=8, converged_from_scan=2, pd=1.0,
-                        targets={"count": 2, "centre_m": [-25000.0, -20000.0], "velocity_mps": [200.0, 244.1],
-                                 "spacing_m": 10000.0},
-                        clutter={"per_scan": 0, "model": "fixed", "range_m": [0.0, 150000.0],
-                                 "doppler_hz": [-250.0, 250.0]},
-                        cases=[{"name": "c"}])
+                        mc_runs=2, block_runs=2, warmup_steps=2,
+                        detections={"pd": 1.0, "components": ["range", "doppler"],
+                                    "clutter": {"per_scan": 0, "model": "fixed", "range_m": [0.0, 150000.0],
+                                                "doppler_hz": [-250.0, 250.0]}},
+                        cases=[{"name": "c", "formation": {"count": 2, "centre_m": [-25000.0, -20000.0],
+                                                           "velocity_mps": [200.0, 244.1], "spacing_m": 10000.0}}])
+    data = yaml.safe_load(path.read_text())
+    data["world"]["scans"] = 8
+    path.write_text(yaml.safe_dump(data))
     setup = prepare(load_any(path))
     case = setup.cases[0]
     truth, products = draw_block(setup, 0, 0)

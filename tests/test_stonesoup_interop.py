@@ -24,8 +24,8 @@ import yaml
 from pmsr_nn.config import load_yaml
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness import evaluate
-from pmsr_nn.harness.multitarget import multitarget_from_dict
-from pmsr_nn.harness.prepare_multitarget import prepare_multitarget
+from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.scenario import load_scenario
 from pmsr_nn.harness.method_spec import MethodSpec
 from pmsr_nn.methods import method_kind
 
@@ -36,8 +36,11 @@ TOL = 1e-8
 def _small_mt(tmp_path: Path, methods: list[dict], **over) -> Path:
     """evaluate/stonesoup_jpda.yaml cut to 2 runs of 6 scans, 2 targets, 5 clutter points."""
     data = load_yaml(ROOT / "evaluate" / "stonesoup_jpda.yaml")
-    data.update(mc_runs=2, block_runs=2, scans=6, converged_from_scan=2, methods=methods,
-                targets={**data["targets"], "count": 2}, clutter={**data["clutter"], "per_scan": 5})
+    data.update(mc_runs=2, block_runs=2, warmup_steps=2, methods=methods)
+    data["world"]["scans"] = 6
+    data["detections"]["clutter"]["per_scan"] = 5
+    for case in data["cases"]:
+        case["formation"] = {**case["formation"], "count": 2}
     data["reference"]["file"] = str(ROOT / "evaluate" / "reference" / "paper_tables.json")
     data.update(over)
     p = tmp_path / "ss.yaml"
@@ -120,8 +123,7 @@ def _stream_models():
 
 def _mt_models():
     """The multi-target model (CV, range / Doppler, pair layout) of evaluate/stonesoup_jpda.yaml."""
-    sc = multitarget_from_dict(load_yaml(ROOT / "evaluate" / "stonesoup_jpda.yaml"), ROOT / "evaluate")
-    setup = prepare_multitarget(sc)
+    setup = prepare(load_scenario(ROOT / "evaluate" / "stonesoup_jpda.yaml"))
     return setup.models.motion, setup.cases[0].sensing.detection_model
 
 
@@ -544,14 +546,12 @@ def test_harness_scores_the_tracks_stone_soup_started(tmp_path):
 def test_initiation_from_detections_needs_range_and_azimuth(tmp_path):
     """Range-Doppler detections (no azimuth) fix no position: a one-line refusal."""
     pytest.importorskip("stonesoup")
-    from pmsr_nn.harness.multitarget import multitarget_from_dict
     from pmsr_nn.harness.blocks import call_method, draw_block
-    from pmsr_nn.harness.runner import prepare
 
     path = _small_mt(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {"initiation": "detections"}}])
     refusal = "starts tracks from a pair's bistatic range \\(or delay\\) and azimuth"
     with pytest.raises(ConfigError, match=refusal) as exc:
-        setup = prepare(multitarget_from_dict(load_yaml(path), tmp_path))
+        setup = prepare(load_scenario(path))
         _, products = draw_block(setup, 0, 0)
         call_method(setup, setup.methods[0], setup.cases[0], products, (0, 0, 0))
     assert "\n" not in str(exc.value) and "'SS'" in str(exc.value)

@@ -276,7 +276,7 @@ def test_initiation_from_range_and_doppler_at_pairs_that_share_no_sensor_is_refu
     data = yaml.safe_load((root / "evaluate" / "access2019_msjpda.yaml").read_text())
     data["methods"] = [{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}}]
     data["mc_runs"], data["block_runs"] = 1, 1
-    data["geometry"]["receivers"].append({"position_m": [5000.0, 5000.0]})
+    data["world"]["geometry"]["receivers"].append({"position_m": [5000.0, 5000.0]})
     if "reference" in data:
         data["reference"]["file"] = str((root / "evaluate" / data["reference"].get("file", "reference/paper_tables.json")))
     path = tmp_path / "a.yaml"

@@ -11,7 +11,7 @@ def add_front_end(sub) -> None:
         "front-end", help="run the FM front end on recorded I/Q samples",
         description="Cancellation, 2D-CCF, OS-CFAR and centroiding of every CPI of an HDF5 recording (complex "
         "datasets 'ref' and 'surv', attribute sample_rate_hz) with the settings of a front_end YAML (or a scenario "
-        "with a front_end block); write OUT/maps.h5 and OUT/detections.csv.")
+        "with a detections.front_end block); write OUT/maps.h5 and OUT/detections.csv.")
     fe.add_argument("recording", type=Path, help="HDF5 file with 'ref' and 'surv' (samples,) or (cpis, samples)")
     fe.add_argument("--settings", type=Path, required=True, help="front_end YAML, e.g. evaluate/fm_front_end.yaml")
     fe.add_argument("--out", type=Path, required=True, help="output folder (new or empty unless --overwrite)")

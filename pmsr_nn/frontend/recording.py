@@ -28,9 +28,12 @@ RECORDING_COMMANDS = ("front-end",)
 
 
 def load_front_end_spec(path: Path) -> FrontEndSpec:
-    """A :class:`FrontEndSpec` from YAML: the file itself, or its ``front_end:`` block (a scenario)."""
+    """A :class:`FrontEndSpec` from YAML: the file itself, or a scenario's ``detections.front_end:``
+    block (or a ``front_end:`` block at the top)."""
     data = load_yaml(Path(path))
-    if isinstance(data, dict) and "front_end" in data:
+    if isinstance(data, dict) and isinstance(data.get("detections"), dict) and "front_end" in data["detections"]:
+        data = data["detections"]["front_end"]
+    elif isinstance(data, dict) and "front_end" in data:
         data = data["front_end"]
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected the front end's settings (a mapping), got {type(data).__name__}")

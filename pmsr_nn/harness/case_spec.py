@@ -1,10 +1,14 @@
-"""A designed scenario's cases (schema): fixed true flights, given by their start and segments.
+"""A designed scenario's cases (schema): fixed true flights, given by their start and segments,
+or the targets of the scenario's own world.
 
 Takes plain YAML data (through :func:`~pmsr_nn.config.from_dict`); gives frozen, checked specs:
 a :class:`CaseSpec` is one inline flight (the papers' cases) or several :class:`TargetSpec` with
 their own births and deaths, each a start and :class:`SegmentSpec` stretches of constant
-along-track / cross-track acceleration. Times in s, distances in m, speeds in m/s, angles in
-degrees (bearing and heading clockwise from north). :mod:`.trajectories` flies them.
+along-track / cross-track acceleration; in a scenario with a ``world`` section (:mod:`.world`) a
+case's targets are a formation, listed CV states or designed aircraft instead, and the case may
+override the detections section (Pd, clutter, signals) and the initiation prior. Times in s,
+distances in m, speeds in m/s, angles in degrees (bearing and heading clockwise from north).
+:mod:`.trajectories` flies the designed flights.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ import math
 from dataclasses import dataclass, field
 
 from ..config import require
+from ..simulation.aircraft import AircraftSpec
+from .world import FormationSpec, PriorSpec, TargetStateSpec
 
 MAX_CASE_DURATION_S = 100_000.0
 """Longest trajectory of a case (about 28 h): every run holds every step of it in memory."""
@@ -92,7 +98,11 @@ class TargetSpec:
 class CaseSpec:
     """One case: a single designed flight given inline (start, speed, heading, segments: the
     papers' cases), or ``targets``, several :class:`TargetSpec` with their own births and deaths;
-    ``title`` names it in the report."""
+    ``title`` names it in the report. In a world scenario the targets are ``formation``, listed
+    ``states`` or designed ``aircraft`` (one of them); ``detections`` overrides keys of the
+    scenario's detections section (e.g. ``{pd: 0.6}``, ``{clutter: {per_scan: 100}}``,
+    ``{front_end: null}``: detections from the statistical model), ``prior`` the world's
+    initiation prior; ``reference_key`` is the case's key in the paper's tables."""
 
     name: str
     start_range_m: float | None = None
@@ -105,13 +115,29 @@ class CaseSpec:
     end_s: float | None = None
     methods: tuple[str, ...] = ()
     rd_maps: dict = field(default_factory=dict)
+    formation: FormationSpec | None = None
+    states: tuple[TargetStateSpec, ...] = ()
+    aircraft: tuple[AircraftSpec, ...] = ()
+    detections: dict = field(default_factory=dict)
+    prior: PriorSpec | None = None
+    reference_key: str | None = None
 
     def __post_init__(self) -> None:
         require(bool(self.name), "a case needs a name")
         dup = sorted({n for n in self.methods if self.methods.count(n) > 1})
         require(not dup, f"case {self.name!r}: methods lists {dup} more than once")
         inline = [k for k in FLIGHT_FIELDS if getattr(self, k) is not None]
-        if self.targets:
+        world = [k for k in ("formation", "states", "aircraft") if getattr(self, k)]
+        if world:
+            require(len(world) == 1 and not inline and not self.segments and not self.targets,
+                    f"case {self.name!r}: give its targets one way (formation, states, aircraft, targets or one "
+                    f"inline flight), got {', '.join(world + inline + (['targets'] if self.targets else []))}")
+            names = [a.name for a in self.aircraft]
+            dup = sorted({n for n in names if names.count(n) > 1})
+            require(not dup, f"case {self.name!r}: duplicate aircraft name(s) {dup}")
+            require(self.end_s is None, f"case {self.name!r}: end_s is for designed flights (a world case lasts "
+                                        "world.scans)")
+        elif self.targets:
             require(not inline and not self.segments, f"case {self.name!r}: give either targets or one inline flight "
                                                       f"({', '.join(FLIGHT_FIELDS)}, segments), not both")
             names = [t.name for t in self.targets]
@@ -126,6 +152,11 @@ class CaseSpec:
             last = max(t.end_s for t in self.flights())
             require(math.isfinite(self.end_s) and self.end_s >= last,
                     f"case {self.name!r}: end_s {self.end_s:g} s is before its last target ends ({last:g} s)")
+
+    @property
+    def in_world(self) -> bool:
+        """Whether the case's targets live in the scenario's world (formation, states, aircraft)."""
+        return bool(self.formation or self.states or self.aircraft)
 
     def flights(self) -> tuple[TargetSpec, ...]:
         """The case's targets (an inline flight is one target named like the case, born at 0)."""

@@ -3,7 +3,7 @@
 Takes the kinds of figures a study has (designed flights or not, rows scored in a measurement
 space, SMC-PHD rows, track-before-detect rows); gives the text that defines each figure, keyed
 like the rows' fields: :func:`designed_definitions` for a designed scenario,
-:func:`multitarget_definitions` for a multi-target study. Only text: no figure is computed here.
+:func:`world_definitions` for a scenario with a ``world`` section (a multi-target study). Only text: no figure is computed here.
 """
 
 from __future__ import annotations
@@ -91,9 +91,9 @@ MT_LEFT_OUT = ("rmse_pos_pooled_m", "pcrb", "bound", "memory_bound_pos_m", "pcrb
 
 MT_DEFINITIONS = {
     "rmse_pos_m": "Eq. 22 of the S-MSJPDA paper per target and scan (root of the mean over runs of the squared "
-                  "position error), averaged over targets and over scans converged_from_scan..K-1",
+                  "position error), averaged over targets and over scans warmup_steps..K-1",
     "rmse_pos_all_scans_m": "the paper's position accuracy: the same, averaged over all scans",
-    "anees": "mean over runs, targets and scans >= converged_from_scan of the NEES / 4",
+    "anees": "mean over runs, targets and scans >= warmup_steps of the NEES / 4",
 }
 """A multi-target study's own definitions of the figures it shares with a designed scenario."""
 
@@ -106,7 +106,7 @@ SPACE_DEFINITIONS = {
     "rmse_vel_pooled_mps": "root mean square range-rate error pooled over the (run, scan, target) entries where the "
                            "per-scan OSPA assignment matches a track to a target (inside the cut-off); "
                            "rmse_pos_pooled_m is the same for the range",
-    "ospa_m / gospa_m / cardinality_mean_abs_error (averaging)": "averaged over every scan from converged_from_scan "
+    "ospa_m / gospa_m / cardinality_mean_abs_error (averaging)": "averaged over every scan from warmup_steps "
                                                                   "on, also scans where no target lives (an estimate "
                                                                   "there is false)",
     "label_switches_per_target / fragmentations_per_target": "per target: label switches and fragmentations (as "
@@ -135,7 +135,7 @@ PHD_DEFINITIONS = {
 STRAIGHT_PCRB = ("per-trajectory posterior Cramer-Rao bound of each target's straight flight under the trackers' "
                  "motion model and q, the measurement deviations and the initiation prior P0, on clean "
                  "(association-known) measurements of every pair; averaged like rmse_pos_m")
-"""The PCRB of a multi-target study whose targets fly straight lines (``motion.truth: straight``)."""
+"""The PCRB of a multi-target study whose targets fly straight lines (``world.motion.truth: straight``)."""
 
 
 def designed_definitions(rd_maps: bool) -> dict:
@@ -148,7 +148,7 @@ def designed_definitions(rd_maps: bool) -> dict:
     return {**DEFINITIONS, **TBD_DEFINITIONS}
 
 
-def multitarget_definitions(kinds, straight: bool, n: int) -> dict:
+def world_definitions(kinds, straight: bool, n: int) -> dict:
     """The definitions of a multi-target study whose methods are of ``kinds`` (the registered
     :class:`~pmsr_nn.methods.MethodKind` of each); ``straight``: every run flies the same straight
     lines (a PCRB per case); ``n``: the state dimension (the ANEES divides the NEES by it)."""

@@ -18,7 +18,6 @@ from ..environment import environment
 from ..config import load_yaml
 from ..errors import ConfigError
 from ..outputs import atomic_folder, check_folder_target
-from .multitarget import MultiTargetScenario, is_multitarget, multitarget_from_dict
 from .references import reference_table
 from .report import write_report
 from .block_bank import bank_blocks, is_bank
@@ -33,9 +32,8 @@ from .scenario import Scenario, scenario_from_dict
 RESULT_COMMANDS = ("evaluate", "merge")
 """Output folders an ``evaluate`` or ``merge --overwrite`` may replace."""
 
-AnyScenario = Scenario | MultiTargetScenario
-STUDIES = (MultiTargetScenario,)
-"""Scenario kinds with no learned methods."""
+AnyScenario = Scenario
+"""What a scenario file holds (one schema: :class:`~.scenario.Scenario`)."""
 
 
 def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=()):
@@ -45,7 +43,7 @@ def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=())
 
 def _inputs(scenario, sc) -> list[Path]:
     """Files a scenario run reads: its YAML and every checkpoint a method names."""
-    paths = [] if isinstance(scenario, (Scenario, *STUDIES)) else [Path(scenario)]
+    paths = [] if isinstance(scenario, Scenario) else [Path(scenario)]
     for m in getattr(sc, "methods", ()):
         if getattr(m, "checkpoint", None):
             paths.append(sc.path(m.checkpoint))
@@ -53,17 +51,8 @@ def _inputs(scenario, sc) -> list[Path]:
 
 
 def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> AnyScenario:
-    """A designed scenario or a multi-target study (``kind: multitarget``), from plain data."""
-    if isinstance(data, dict) and data.get("kind") == "tbd":
-        raise ConfigError(f"{where}: 'kind: tbd' study files are gone: the track-before-detect filters are method kinds "
-                          "(pmb, icmb, modified_icmb, detect_then_track) of a scenario with an rd_maps section (e.g. "
-                          "evaluate/remotesensing2020_icmb.yaml)")
-    if isinstance(data, dict) and data.get("kind") == "phd":
-        raise ConfigError(f"{where}: 'kind: phd' study files are gone: the SMC-PHD of one pair's bistatic plane is method "
-                          "kind smc_phd_pair (labelling gtda | hungarian | none) of a multi-target scenario with aircraft "
-                          "(e.g. evaluate/daniyan_smcphd.yaml)")
-    if is_multitarget(data):
-        return multitarget_from_dict(data, base_dir, where=where)
+    """A scenario from plain data (a retired ``kind`` refused in one line,
+    :data:`~.scenario.RETIRED_KINDS`)."""
     return scenario_from_dict(data, base_dir, where=where)
 
 
@@ -71,12 +60,10 @@ def load_any(scenario: AnyScenario | str | Path, mc_runs: int | None = None,
              checkpoints: dict[str, str] | None = None, seed: int | None = None) -> AnyScenario:
     """The scenario (loaded from its YAML file if a path), with ``--mc-runs``, ``--seed`` and
     ``--checkpoint`` applied."""
-    if isinstance(scenario, (Scenario, *STUDIES)):
+    if isinstance(scenario, Scenario):
         sc = scenario
     else:
         sc = scenario_from_data(load_yaml(Path(scenario)), Path(scenario).parent, where=str(scenario))
-    if checkpoints and isinstance(sc, STUDIES):
-        raise ConfigError("a multi-target study has no learned methods: --checkpoint does not apply")
     sc = sc.with_mc_runs(mc_runs).with_seed(seed)
     return sc.with_checkpoints(checkpoints) if checkpoints else sc
 

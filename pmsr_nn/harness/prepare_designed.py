@@ -7,6 +7,15 @@ flights flown and checked against the recipe's envelope and sensors, its scored 
 methods loaded (a learned tracker's checkpoint) and their refusals of each case, tuned options
 resolved (:mod:`.tuning`), and the settings and definitions ``results.json`` records. Every user
 error surfaces here, before anything is written.
+
+A scenario with a ``world`` section (:mod:`.world`) has its own sensors and CV motion instead of a
+recipe: per case its targets (a formation or listed states flying CV, process noise drawn per run
+or straight lines, or designed aircraft) are seen through the case's detections (Pd, clutter,
+pooled per receiver when the illuminator is unknown, or from signals through the front end), the
+trackers started at the truth plus a draw from the case's prior; straight flights get each
+target's PCRB (every run flies them). Every draw of a block of runs (truth process noise,
+detections, clutter, the initiation offsets) comes from a generator seeded by ``(seed, case,
+block)``.
 """
 
 from __future__ import annotations
@@ -18,18 +27,21 @@ import torch
 
 from ..config import to_dict
 from ..errors import ConfigError
-from ..measurements import MeasurementModel
+from ..measurements import SPEED_OF_LIGHT, MeasurementModel
 from ..methods import Models, lists_read, method_kind
-from ..simulation.products import DesignedTruth, SensorSetup, check_pooled_clutter
+from ..motion import motion_model
+from ..simulation.aircraft import fly_all
+from ..simulation.products import DesignedTruth, SampledTruth, SensorSetup, check_pooled_clutter
 from ..simulation.recipe import TrackRecipe, load_recipe
 from ..simulation.tracks import MEASUREMENT_COMPONENTS, build_models
 from ..tbd.scene import build_scene
 from .case_bounds import case_bounds, memory_bounds
-from .definitions import designed_definitions
+from .definitions import designed_definitions, world_definitions
 from .prepared import Case, Setup, method_refusals, raise_refusals
 from .scenario import Scenario
 from .trajectories import check_inside, design_trajectory
 from .tuning import tune
+from .world import CVMotionSpec
 
 
 class LoadContext:
@@ -140,6 +152,8 @@ def case_maps(sc: Scenario, c, recipe: TrackRecipe, models: Models, sensing: Sen
 def prepare_designed(sc: Scenario, device: str = "cpu") -> Setup:
     """Resolve, design and check everything a designed scenario needs (every user error surfaces
     here, before any output is written)."""
+    if sc.world is not None:
+        return prepare_world(sc, device)
     recipe = load_recipe(sc.path(sc.recipe)) if sc.recipe else TrackRecipe()
     if recipe.dim != 2:
         raise ConfigError(f"scenario {sc.name!r}: the harness evaluates planar (dim 2) recipes")
@@ -222,4 +236,128 @@ def describe_designed(sc: Scenario, recipe: TrackRecipe, models: Models, prior_s
     if sc.rd_maps is not None:  # the maps' section as given (each case's overrides are in its own results)
         out["rd_maps"] = to_dict(sc.rd_maps)
         out["set_metrics"] = {"c_m": sc.set_metrics.c_m, "p": sc.set_metrics.p}
+    return out
+
+
+def world_models(sc: Scenario) -> tuple[Models, object]:
+    """A world scenario's models (its CV motion and q, the detections' pair model with the
+    scenario's noise of their components) and the sensors' geometry."""
+    w = sc.world
+    geometry = w.geometry.build(w.dimensions)
+    motion = motion_model(w.motion.model, w.dimensions)
+    comps = tuple(sc.detections.components)
+    model = MeasurementModel(geometry, comps, sc.noise.of(comps), motion.pos_idx, motion.vel_idx, layout="pair")
+    models = Models(motion, model, w.motion.dt_s, w.motion.q_per_axis(w.dimensions), model.R(),
+                    torch.tensor(model.noise_std, dtype=torch.float64))
+    return models, geometry
+
+
+def signal_model(sc: Scenario, model: MeasurementModel) -> MeasurementModel:
+    """The model of detections from signals: range and Doppler (what the chain measures), a
+    range-rate deviation converted through the carrier (then one for every transmitter)."""
+    if "range_rate" not in model.components:
+        return model
+    carriers = {t.carrier_hz for t in sc.world.geometry.transmitters}
+    if len(carriers) > 1:
+        raise ConfigError("noise.range_rate_mps with detections from signals needs one carrier for every transmitter "
+                          "(the chain measures Doppler); give components [range, doppler] and noise.doppler_hz instead")
+    sd = sc.noise.range_rate_mps * carriers.pop() / SPEED_OF_LIGHT
+    return MeasurementModel(model.geometry, ("range", "doppler"), (sc.noise.range_m, sd), model.pos_idx, model.vel_idx,
+                            layout="pair")
+
+
+def world_truth(sc: Scenario, c, models: Models, P0: torch.Tensor):
+    """A world case's truth, ``alive (K, N)``, target names and bounds (straight flights only):
+    designed aircraft (seen above ``min_altitude_m``, within ``max_range_m``), or a formation /
+    listed states flying CV (clear of the sensors), straight or with process noise per run."""
+    w, motion, model = sc.world, models.motion, models.model
+    K = w.scans
+    if c.aircraft:
+        truth = DesignedTruth(*fly_all(c.aircraft, K, w.motion.dt_s, model, w.min_altitude_m,
+                                       math.inf if w.max_range_m is None else w.max_range_m))
+        return truth, truth.alive, [a.name for a in c.aircraft], None
+    x0 = c.formation.initial_states() if c.formation else \
+        torch.tensor([t.state() for t in c.states], dtype=torch.float64)
+    t = torch.arange(K, dtype=torch.float64) * w.motion.dt_s
+    nominal = torch.einsum("kij,tj->tki", motion.F(t), x0)  # (N, K, n), no noise
+    if bool(model.near_sensor(nominal, 1000.0).any()):
+        raise ConfigError(f"case {c.name!r}: a target passes within 1 km of a sensor")
+    alive = torch.ones(K, len(x0), dtype=torch.bool)
+    names = [f"target {i + 1}" for i in range(len(x0))]
+    if w.motion.truth == "straight":
+        truth = DesignedTruth(nominal.transpose(0, 1).contiguous(), alive)
+        return truth, alive, names, case_bounds(truth.x, alive, models, torch.diag(P0**2))
+    return SampledTruth(x0, motion, K, w.motion.dt_s, models.q), alive, names, None
+
+
+def prepare_world(sc: Scenario, device: str = "cpu") -> Setup:
+    """A world scenario as a runner :class:`~.prepared.Setup` (see the module's docstring)."""
+    if device != "cpu":
+        raise ConfigError("the multi-target trackers run on the CPU (their assignment step is NumPy/SciPy)")
+    w = sc.world
+    models, geometry = world_models(sc)
+    kinds = {m.name: method_kind(m.kind) for m in sc.methods}
+    cases, refusals = [], []
+    for c in sc.cases:
+        det = sc.case_detections(c)
+        if not det.illuminator_known:
+            check_pooled_clutter(det.clutter, models.model, f"case {c.name!r}")
+        prior = c.prior or w.prior
+        P0 = prior.sd(w.dimensions)
+        truth, alive, names, bounds = world_truth(sc, c, models, P0)
+        detection_model = models.model if det.front_end is None else signal_model(sc, models.model)
+        sensing = SensorSetup(models.model, P0, detection_model=detection_model, pd=det.pd, clutter=det.clutter,
+                              illuminator_known=det.illuminator_known, front_end=det.front_end)
+        scored = _scored(alive, sc.warmup_steps, c.name, names)
+        refusals += method_refusals(sc.case_methods(c), kinds, {}, alive, c.name, sensing)
+        info = {"pd": det.pd, "clutter_per_scan": det.clutter.per_scan,
+                "spacing_m": c.formation.spacing_m if c.formation else None, "prior": to_dict(prior),
+                "reference_key": c.reference_key, "formation": c.formation is not None,
+                "clutter_list": "sensor" if det.illuminator_known else "receiver",
+                "detections_from": "signals" if det.front_end is not None else "model"}
+        # set figures average over every scan from warmup_steps on, also where no target lives (an
+        # estimate there is false)
+        cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored, names, info, bounds,
+                          set_scans=torch.arange(w.scans) >= sc.warmup_steps, methods=tuple(c.methods)))
+    raise_refusals(refusals)
+    straight = w.motion.truth == "straight" and not any(c.aircraft for c in sc.cases)
+    definitions = world_definitions(kinds.values(), straight, models.motion.dim_x)
+    causal = {m.name: bool(kinds[m.name].causal(None)) for m in sc.methods}
+    return Setup(sc, models, cases, sc.methods, kinds, {m.name: None for m in sc.methods}, causal, "per_block",
+                 (sc.set_metrics.c_m, sc.set_metrics.p), describe_world(sc, models.model), definitions, geometry,
+                 loss=sc.loss, divergence_m=sc.divergence_m)
+
+
+def _jpda_options(m) -> dict:
+    """The JPDA settings of a method's kind (m best events, gate, relaxation iterations) at their
+    defaults, recorded beside its options (the report quotes them)."""
+    kind = method_kind(m.kind)
+    return {k: kind.options[k].default for k in ("m_best", "gate_probability", "relaxation_iterations")
+            if k in kind.options}
+
+
+def describe_world(sc: Scenario, model: MeasurementModel) -> dict:
+    """A world scenario's settings recorded beside the figures (``results.json``'s ``settings``)."""
+    w, d, g = sc.world, sc.detections, model.geometry
+    names = {"range": "range_m", "doppler": "doppler_hz", "range_rate": "range_rate_mps", "azimuth": "azimuth_deg"}
+    noise = {names[c]: getattr(sc.noise, names[c]) for c in d.components}  # the deviations of what is measured
+    out = {"dt_s": w.motion.dt_s, "q": w.motion.q, "scans": w.scans, "state_dim": 2 * w.dimensions,
+           "noise": noise, "pd": d.pd, "components": list(d.components), "clutter": to_dict(d.clutter),
+           "clutter_volume_m_hz": d.clutter.volume, "prior": to_dict(w.prior),
+           "loss": None if sc.loss is None else to_dict(sc.loss), "warmup_steps": sc.warmup_steps, "sweep": sc.sweep,
+           "block_runs": sc.block_runs, "set_metrics": to_dict(sc.set_metrics),
+           "transmitters": [{"position_m": list(t.position_m), "carrier_hz": t.carrier_hz} for t in g.transmitters],
+           "receivers": [list(r.position_m) for r in g.receivers],
+           "methods": {m.name: {"kind": m.kind, "reads": method_kind(m.kind).reads, **_jpda_options(m), **m.options,
+                                **({} if d.illuminator_known else {"lists": lists_read(method_kind(m.kind))})}
+                       for m in sc.methods}}
+    if w.dimensions == 3 or w.motion != CVMotionSpec(w.motion.dt_s, w.motion.q) or not d.illuminator_known:
+        out.update({"dimensions": w.dimensions, "motion": to_dict(w.motion), "illuminator_known": d.illuminator_known})
+    aircraft = list(dict.fromkeys(a.name for c in sc.cases for a in c.aircraft))
+    if aircraft:
+        out.update({"aircraft": aircraft, "min_altitude_m": w.min_altitude_m, "max_range_m": w.max_range_m})
+    if d.front_end is not None:
+        fe = d.front_end
+        out["front_end"] = {**to_dict(fe), "map_shape": list(fe.map_shape), "range_bin_m": fe.signal.range_bin_m,
+                            "doppler_bin_hz": fe.doppler_bin_hz, "samples_per_cpi": fe.signal.samples}
     return out

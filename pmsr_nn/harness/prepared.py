@@ -3,10 +3,9 @@
 Takes nothing from the other stages; gives the types they share: :class:`Setup` (a scenario
 resolved and checked, its methods loaded), its :class:`Case` list (a truth source with the
 targets' births and deaths, how it is sensed, its :class:`Bounds`), the :class:`LossRule` of the
-S-MSJPDA studies, the estimate space of each method (:func:`method_space`), and the refusals
-both preparations (:mod:`.prepare_designed`,
-:mod:`.prepare_multitarget`) collect before anything is written (:func:`method_refusals`,
-:func:`raise_refusals`).
+S-MSJPDA studies (also a scenario's ``loss`` section), the estimate space of each method
+(:func:`method_space`), and the refusals the preparation (:mod:`.prepare_designed`) collects
+before anything is written (:func:`method_refusals`, :func:`raise_refusals`).
 
 Shapes: ``K`` scans, ``N`` targets; every curve is in metres (position) or metres per second
 (velocity).
@@ -85,7 +84,10 @@ class Case:
 
 @dataclass
 class LossRule:
-    """The S-MSJPDA paper's track-loss rule (:func:`~pmsr_nn.metrics.track_loss`)."""
+    """The S-MSJPDA paper's track-loss rule (:func:`~pmsr_nn.metrics.track_loss`; a scenario's
+    ``loss`` section): a track is lost after its dummy hypothesis was the most probable
+    ``successive_scans`` scans in a row, or once its predicted bistatic-range deviation exceeds
+    ``gate_range_sd_m`` (m)."""
 
     successive_scans: int = 4
     gate_range_sd_m: float = 5000.0

@@ -22,13 +22,16 @@ from .results import Results
 from .trajectory_figure import plot_trajectories
 
 
-def _study_setting(results: Results) -> str:
-    """What a multi-target study (``kind: multitarget`` scenario) simulated, in one paragraph."""
+def _world_lines(results: Results) -> list[str]:
+    """The sentences of a scenario with its own world (``settings`` has ``scans``; also a
+    ``kind: multitarget`` study's results.json, written before that schema was retired)."""
     st = results.settings.sections
     tx = ", ".join(f"({p['position_m'][0] / 1e3:g}, {p['position_m'][1] / 1e3:g}) km at {p['carrier_hz'] / 1e6:g} MHz"
                    for p in st["transmitters"])
     tr = results.settings.methods
     m_best = sorted({v.options["m_best"] for v in tr.values() if "m_best" in v.options})
+    gates = sorted({v.options["gate_probability"] for v in tr.values() if "gate_probability" in v.options})
+    gate = st["tracker"]["gate_probability"] if "tracker" in st else ", ".join(map(str, gates)) or "-"
     mo = st.get("motion", {"model": "cv", "vertical_q": None, "truth": "sampled"})
     unit = "m^2/s^3 (PSD of continuous white acceleration)" if mo["model"] == "cv_continuous" else "m^2/s^4"
     vertical = f", vertically {mo['vertical_q']:g}" if mo.get("vertical_q") is not None else ""
@@ -39,37 +42,29 @@ def _study_setting(results: Results) -> str:
     peers = (f" Stone Soup rows ({', '.join(peers)}): Stone Soup 1.9.1's EKF with its JPDA (every joint event) or "
              "GNN, given the same Pd, clutter density and priors and our motion and bistatic models, the pairs in "
              "turn (pmsr_nn/methods/stonesoup.py); the UKF moments and m best events are ours." if peers else "")
-    rate, box = f"Doppler {st['noise']['doppler_hz']} Hz", f"Doppler {st['clutter']['doppler_hz']} Hz"
+    rate, box = f"Doppler {st['noise'].get('doppler_hz')} Hz", f"Doppler {st['clutter']['doppler_hz']} Hz"
     if "range_rate_mps" in st["noise"]:  # detections of range-rate
         rate, box = f"range-rate {st['noise']['range_rate_mps']} m/s", f"range-rate {st['clutter']['range_rate_mps']} m/s"
+    loss = st.get("loss")
+    loss = ("" if not loss else f" Loss rule: {loss['successive_scans']} scans dummy-most-probable, or predicted range "
+                                f"deviation > {loss['gate_range_sd_m']:g} m.")
     trackers = (f"Trackers: UKF moments, m = {', '.join(map(str, m_best)) or '-'} best events (JPDA), gate probability "
-                f"{st['tracker']['gate_probability']}, CV with q = {st['q']} {unit}{vertical} ({truth}). Loss rule: "
-                f"{st['loss']['successive_scans']} scans dummy-most-probable, or predicted range deviation > "
-                f"{st['loss']['gate_range_sd_m']:g} m.")
+                f"{gate}, CV with q = {st['q']} {unit}{vertical} ({truth}).{loss}")
     if st.get("aircraft"):  # designed flights: the trackers' settings are their rows' options
         limit = "" if st.get("max_range_m") is None else f" and within {st['max_range_m'] / 1e3:g} km of bistatic range"
         trackers = (f"Truth: {len(st['aircraft'])} designed aircraft flights ({', '.join(st['aircraft'])}), each seen "
                     f"above {st['min_altitude_m']:g} m{limit}; the trackers' settings are their options (settings in "
                     "results.json).")
-    return (f"{st['scans']} scans of {st['dt_s']} s, {st.get('dimensions', 2)}-D. Transmitters {tx}; receiver at "
-            f"{st['receivers'][0]}. Noise: range "
-            f"{st['noise']['range_m']} m, {rate}. Clutter: {st['clutter']['model']}, "
-            f"uniform over range {st['clutter']['range_m']} m x {box}{pooled}. "
-            f"{trackers} OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
-            f"{st['set_metrics']['p']:g}. Position RMSE = {results.definitions['rmse_pos_m']}.{peers}")
+    return [f"{st['scans']} scans of {st['dt_s']} s, {st.get('dimensions', 2)}-D. Transmitters {tx}; receiver at "
+            f"{st['receivers'][0]}. Noise: range {st['noise']['range_m']} m, {rate}. Clutter: {st['clutter']['model']}, "
+            f"uniform over range {st['clutter']['range_m']} m x {box}{pooled}.", trackers,
+            f"OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order {st['set_metrics']['p']:g}. Position RMSE = "
+            f"{results.definitions['rmse_pos_m']}.{peers}"]
 
 
-def setting_lines(results: Results) -> list[str]:
-    """What was simulated, in one paragraph (quoting the settings of results.json)."""
-    if results.schema == "multitarget":
-        return [_study_setting(results), ""]
+def _recipe_lines(results: Results) -> list[str]:
+    """The sentences of a scenario on a recipe's sensors and motion (fixed noise, detections)."""
     st = results.settings.sections
-    if "rd_maps" in st and all(m.reads == "rd_maps" for m in results.settings.methods.values()):  # maps only
-        return [f"Every method reads the range-Doppler maps of the scenario's rd_maps section (each case's maps in the "
-                f"track-before-detect section below); recipe `{Path(st['recipe']).name}` (dt {st['dt_s']} s, the frames). "
-                f"Position RMSE = {results.definitions['rmse_pos_m']} (warm-up {st['warmup_steps']} steps), over each "
-                f"method's tracks matched to the target; OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
-                f"{st['set_metrics']['p']:g}.", ""]
     outliers = (f" ({100 * st['noise']['range_outlier_prob']:g} % of range errors with {st['noise']['range_outlier_scale']:g}x "
                 "the deviation; the filters assume the nominal one)" if "range_outlier_prob" in st["noise"] else "")
     lines = [f"Noise: {st['noise']['range_m']} m, {st['noise']['range_rate_mps']} m/s, {st['noise']['azimuth_deg']} deg{outliers}; "
@@ -92,7 +87,20 @@ def setting_lines(results: Results) -> list[str]:
                      "each target's own clean stream (association known). Random streams: "
                      f"{st.get('random_streams', 'per_block')}; OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, "
                      f"order {st['set_metrics']['p']:g}.")
-    return [" ".join(lines), ""]
+    return lines
+
+
+def setting_lines(results: Results) -> list[str]:
+    """What was simulated, in one paragraph (quoting the settings of results.json): the scenario's
+    own world or its recipe, the noise, the detections and trackers, the set metrics."""
+    st = results.settings.sections
+    if "rd_maps" in st and all(m.reads == "rd_maps" for m in results.settings.methods.values()):  # maps only
+        return [f"Every method reads the range-Doppler maps of the scenario's rd_maps section (each case's maps in the "
+                f"track-before-detect section below); recipe `{Path(st['recipe']).name}` (dt {st['dt_s']} s, the frames). "
+                f"Position RMSE = {results.definitions['rmse_pos_m']} (warm-up {st['warmup_steps']} steps), over each "
+                f"method's tracks matched to the target; OSPA / GOSPA cut-off {st['set_metrics']['c_m']:g} m, order "
+                f"{st['set_metrics']['p']:g}.", ""]
+    return [" ".join(_world_lines(results) if "scans" in st else _recipe_lines(results)), ""]
 
 
 def write_report(res: Results | dict, out: Path, examples: dict, geometry, ref: dict | None, ref_timing: dict | None,

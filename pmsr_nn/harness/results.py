@@ -5,7 +5,7 @@ attribute; a part a row or case lacks is ``None`` (a bound's row has no set figu
 row no finite-memory bound; the rows' types are in :mod:`.result_rows`). :meth:`Results.from_dict`
 is the one place that reads the dict's layout: the result kind (``res["kind"]``: ``designed``
 flights with a PCRB per case, or ``sampled`` multi-target truth), inferred there for files
-written before that key existed, and the scenario schema whose settings the report describes.
+written before that key existed.
 
 Units as in ``results.json``: metres, metres per second, seconds; ``*_se*`` fields are Monte
 Carlo standard errors over the runs.
@@ -220,13 +220,11 @@ class Settings:
 
 @dataclass(frozen=True)
 class Results:
-    """A scenario's results. ``kind``: :data:`KINDS`; ``schema``: the scenario file it ran
-    (``scenario``: designed targets of a recipe's geometry, ``multitarget``: a ``kind:
-    multitarget`` study), whose settings the report describes differently."""
+    """A scenario's results. ``kind``: :data:`KINDS`. The settings of a scenario with its own
+    world (``settings["scans"]``) and those of a retired ``kind: multitarget`` study read alike."""
 
     scenario: str
     kind: Literal["designed", "sampled"]
-    schema: Literal["scenario", "multitarget"]
     seed: int | None
     mc_runs: int
     settings: Settings
@@ -252,8 +250,7 @@ class Results:
             bare = next(n for n, c in cases.items() if c.get("pcrb") is None)
             raise ConfigError(f"results: kind 'designed' but case {bare!r} has no PCRB")
         settings = res.get("settings") or {}
-        schema = "multitarget" if res.get("kind") == "multitarget" or "scans" in settings else "scenario"
-        return cls(scenario=res.get("scenario", "?"), kind=kind, schema=schema, seed=res.get("seed"),
+        return cls(scenario=res.get("scenario", "?"), kind=kind, seed=res.get("seed"),
                    mc_runs=res.get("mc_runs", 0), settings=Settings.from_dict(settings),
                    cases={n: Case.from_dict(n, c) for n, c in cases.items()}, description=res.get("description"),
                    definitions=res.get("definitions") or {}, reference=res.get("reference") or {},

@@ -1236,7 +1236,8 @@ case("evaluate/seed-negative", "evaluate s.yaml --quiet --out out", setup=scenar
 case("evaluate/noise-zero", "evaluate s.yaml --out out", setup=scenario_set(noise={"range_m": 0.0}), message="noise",
      klass="refusal")
 case("evaluate/multitarget-incomplete", "evaluate mt.yaml --out out --shard 1/2",
-     setup=write("mt.yaml", "kind: multitarget\nname: mt\n"), message="cases", klass="refusal")
+     setup=write("mt.yaml", "kind: multitarget\nname: mt\n"), message="'kind: multitarget' scenarios are retired",
+     klass="refusal")
 case("evaluate/product-not-made", "evaluate s.yaml --out out",
      setup=scenario_method("s.yaml", {"name": "JPDA", "kind": "s_msjpda"}), message="reads detections",
      klass="refusal")
@@ -1266,23 +1267,27 @@ case("evaluate/pooled-clutter-odd-count", "evaluate s.yaml --out out",
      message="3 fixed clutter points per receiver list do not split evenly over its 2 pairs", klass="refusal",
      note="a fixed count per receiver list must split over the receiver's pairs (illuminator_known: false)")
 PMHT_YAML = """\
-kind: multitarget
 name: pmht_tiny
 mc_runs: 2
 block_runs: 2
-scans: 12
-dimensions: 3
-geometry:
-  transmitters: [{position_m: [29434.0, -34761.0, 293.0], carrier_hz: 500.0e+6},
-                 {position_m: [12845.0, -106922.0, 293.0], carrier_hz: 500.0e+6}]
-  receivers: [{position_m: [0.0, 0.0, 0.0]}]
-initial_states: [{position_m: [-55000.0, -3498.0, 890.0], velocity_mps: [200.0, 10.0, 0.0]}]
+world:
+  scans: 12
+  dimensions: 3
+  geometry:
+    transmitters: [{position_m: [29434.0, -34761.0, 293.0], carrier_hz: 500.0e+6},
+                   {position_m: [12845.0, -106922.0, 293.0], carrier_hz: 500.0e+6}]
+    receivers: [{position_m: [0.0, 0.0, 0.0]}]
+  motion: {dt_s: 1.0, q: 5.0, model: cv_continuous, truth: straight}
 noise: {range_m: 50.0, doppler_hz: 20.0}
-motion: {dt_s: 1.0, q: 5.0, model: cv_continuous, truth: straight}
-clutter: {per_scan: 4, model: fixed, range_m: [40000.0, 260000.0], doppler_hz: [-1000.0, 1000.0]}
-illuminator_known: false
-converged_from_scan: 2
-cases: [{name: c}]
+detections:
+  pd: 0.8
+  components: [range, doppler]
+  clutter: {per_scan: 4, model: fixed, range_m: [40000.0, 260000.0], doppler_hz: [-1000.0, 1000.0]}
+  illuminator_known: false
+loss: {}
+warmup_steps: 2
+divergence_m: null
+cases: [{name: c, states: [{position_m: [-55000.0, -3498.0, 890.0], velocity_mps: [200.0, 10.0, 0.0]}]}]
 methods: [{name: P, kind: pmht_3d, options: {window: 5, overlap: 2}}]
 """
 case("evaluate/pmht-window-longer-than-scans", "evaluate p.yaml --out out",
@@ -1295,12 +1300,13 @@ case("evaluate/pmht-overlap-whole-window", "evaluate p.yaml --out out",
      setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(overlap=5)),
      message="overlap", klass="refusal")
 case("evaluate/pmht-clutter-does-not-split-over-illuminators", "evaluate p.yaml --out out",
-     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["clutter"].update(per_scan=5)), message="split evenly",
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["detections"]["clutter"].update(per_scan=5)),
+     message="split evenly",
      klass="refusal")
 case("evaluate/pmht-2d-target-in-3d-scenario", "evaluate p.yaml --out out",
-     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["initial_states"][0].update(position_m=[0.0, 1.0],
-                                                                                  velocity_mps=[1.0, 0.0])),
-     message="initial_states[0]", klass="refusal")
+     setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["cases"][0]["states"][0].update(position_m=[0.0, 1.0],
+                                                                                      velocity_mps=[1.0, 0.0])),
+     message="states[0]", klass="refusal")
 case("evaluate/pmht-anneal-below-one", "evaluate p.yaml --out out",
      setup=yaml_edit(PMHT_YAML, "p.yaml", lambda d: d["methods"][0]["options"].update(anneal=0.5)),
      message="anneal", klass="refusal")
@@ -1318,43 +1324,47 @@ case("evaluate/s-msjpda-bias-test-on-handed-tracks", "evaluate p.yaml --out out"
      message="the innovation bias test (bias_window) acts on the tracks a sequential tracker starts itself",
      klass="refusal")
 FM_YAML = """\
-kind: multitarget
 name: fm_tiny
 mc_runs: 1
 block_runs: 1
-scans: 3
-geometry:
-  transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 100.0e+6}]
-  receivers: [{position_m: [0.0, 0.0]}]
-initial_states: [{position_m: [10000.0, 10000.0], velocity_mps: [60.0, 80.0]}]
+world:
+  scans: 3
+  geometry:
+    transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 100.0e+6}]
+    receivers: [{position_m: [0.0, 0.0]}]
 noise: {range_m: 1500.0, doppler_hz: 1.5}
-clutter: {per_scan: 1, model: poisson, range_m: [0.0, 60000.0], doppler_hz: [-120.0, 120.0]}
-front_end:
-  signal: {sample_rate_hz: 64000.0, cpi_s: 0.25, audio_bandwidth_hz: 4000.0, deviation_hz: 5000.0}
-  max_range_m: 40000.0
-  max_doppler_hz: 120.0
-  batch_len: 250
-  cancellation: {range_bins: 4}
-  cfar: {guard: [1, 1], train: [4, 2], pfa: 1.0e-3}
-converged_from_scan: 1
-cases: [{name: c}]
+detections:
+  pd: 0.8
+  components: [range, doppler]
+  clutter: {per_scan: 1, model: poisson, range_m: [0.0, 60000.0], doppler_hz: [-120.0, 120.0]}
+  front_end:
+    signal: {sample_rate_hz: 64000.0, cpi_s: 0.25, audio_bandwidth_hz: 4000.0, deviation_hz: 5000.0}
+    max_range_m: 40000.0
+    max_doppler_hz: 120.0
+    batch_len: 250
+    cancellation: {range_bins: 4}
+    cfar: {guard: [1, 1], train: [4, 2], pfa: 1.0e-3}
+loss: {}
+warmup_steps: 1
+divergence_m: null
+cases: [{name: c, states: [{position_m: [10000.0, 10000.0], velocity_mps: [60.0, 80.0]}]}]
 methods: [{name: J, kind: s_msjpda}]
 """
 case("evaluate/front-end-cpi-shorter-than-longest-delay", "evaluate fm.yaml --out out",
-     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: (d["front_end"]["signal"].update(cpi_s=0.0005),
-                                                 d["front_end"].update(max_range_m=200000.0))),
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: (d["detections"]["front_end"]["signal"].update(cpi_s=0.0005),
+                                                 d["detections"]["front_end"].update(max_range_m=200000.0))),
      message="shorter than the longest delay", klass="refusal")
 case("evaluate/front-end-sample-rate-cannot-resolve-range", "evaluate fm.yaml --out out",
-     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"].update(max_range_m=3000.0)),
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["detections"]["front_end"].update(max_range_m=3000.0)),
      message="can not resolve the requested max_range_m", klass="refusal")
 case("evaluate/front-end-cfar-window-larger-than-map", "evaluate fm.yaml --out out",
-     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"]["cfar"].update(guard=[2, 4], train=[4, 4])),
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["detections"]["front_end"]["cfar"].update(guard=[2, 4], train=[4, 4])),
      message="larger than the", klass="refusal")
 case("evaluate/front-end-cfar-alpha-factor-not-positive", "evaluate fm.yaml --out out",
-     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"]["cfar"].update(alpha_factor=0.0)),
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["detections"]["front_end"]["cfar"].update(alpha_factor=0.0)),
      message="cfar alpha_factor must be positive and finite, got 0.0", klass="refusal")
 case("evaluate/front-end-doppler-beyond-ambiguity", "evaluate fm.yaml --out out",
-     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["front_end"].update(max_doppler_hz=128.0)),
+     setup=yaml_edit(FM_YAML, "fm.yaml", lambda d: d["detections"]["front_end"].update(max_doppler_hz=128.0)),
      message="max_doppler_hz", klass="refusal")
 
 
@@ -1553,21 +1563,28 @@ case("evaluate/tbd-without-maps", "evaluate t.yaml --out out",
      setup=yaml_edit(TBD_YAML, "t.yaml", lambda d: d.pop("rd_maps")),
      message="add an rd_maps section", klass="refusal")
 PHD_YAML = """\
-kind: multitarget
 name: phd_tiny
 mc_runs: 1
 block_runs: 1
-scans: 6
-dimensions: 3
-converged_from_scan: 0
-geometry: {transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 106.0e6}], receivers: [{position_m: [0.0, 0.0]}]}
+world:
+  scans: 6
+  dimensions: 3
+  geometry: {transmitters: [{position_m: [6500.0, 0.0], carrier_hz: 106.0e6}], receivers: [{position_m: [0.0, 0.0]}]}
+  max_range_m: 48000.0
+warmup_steps: 0
+divergence_m: null
+loss: {}
 noise: {range_m: 30.0, range_rate_mps: 4.5}
-clutter: {per_scan: 10, model: poisson, range_m: [6500.0, 48000.0], range_rate_mps: [-500.0, 500.0]}
-max_range_m: 48000.0
+detections:
+  pd: 0.8
+  components: [range, range_rate]
+  clutter: {per_scan: 10, model: poisson, range_m: [6500.0, 48000.0], range_rate_mps: [-500.0, 500.0]}
 methods: [{name: g, kind: smc_phd_pair, options: {particles_per_target: 50, particles_per_birth: 20}}]
-cases: [{name: c}]
-aircraft:
-  - {name: a, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0, legs: [{duration_s: 6}]}
+cases:
+  - name: c
+    aircraft:
+      - {name: a, start_m: [-9000.0, -5000.0], altitude_m: 9000.0, speed_mps: 220.0, heading_deg: 60.0,
+         legs: [{duration_s: 6}]}
 """
 case("evaluate/phd-ok", "evaluate p.yaml --out out", expect="ok", setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: None),
      outputs=("out",))
@@ -1596,5 +1613,5 @@ case("evaluate/phd-study-file", "evaluate p.yaml --out out",
      setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d.update(kind="phd")),
      message="'kind: phd' study files are gone", klass="refusal")
 case("evaluate/phd-aircraft-never-seen", "evaluate p.yaml --out out",
-     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["aircraft"][0].update(altitude_m=50.0)),
+     setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["cases"][0]["aircraft"][0].update(altitude_m=50.0)),
      message="aircraft 'a' is never seen", klass="refusal")
