@@ -2,6 +2,7 @@
 
 - :mod:`.pointwise`: single-target errors over Monte Carlo runs (RMSE, NEES, track loss).
 - :mod:`.sets`: multi-object metrics on padded, masked sets (OSPA, GOSPA, assignments, label switches).
+- :mod:`.trajectory_gospa`: trajectory GOSPA with switching cost, per run (an LP / MILP per run).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from .pointwise import (
 )
 from .sets import GOSPA, SetScores, cardinality_error, fragmentations, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, persistent_assignment, set_scores
 from .tracks import TrackScores, matched_errors, matched_tracks, track_scores
+from .trajectory_gospa import TrajectoryGOSPA, trajectory_gospa
 
 __all__ = [
     "position_columns",
@@ -41,4 +43,6 @@ __all__ = [
     "track_scores",
     "matched_errors",
     "matched_tracks",
+    "TrajectoryGOSPA",
+    "trajectory_gospa",
 ]
