@@ -131,3 +131,19 @@ def test_a_plugin_may_name_a_function_that_registers(site):
     install(site, ORIGIN.replace("\nregister(", "\ndef kinds():\n    register(") , entry=f"my_gnn = {MODULE}:kinds")
     assert registry()["my_gnn"].description == "a test plugin: the origin, held"
     assert str(PLUGINS["my_gnn"]) == f"entry point 'my_gnn = {MODULE}:kinds' of distribution my-gnn-kind 0.1"
+
+
+def test_only_a_fault_on_a_plugins_code_is_laid_at_its_door(site):
+    from pmsr_nn.cli import describe_error
+
+    install(site, ORIGIN)
+    kind = method_kind("my_gnn")
+    with pytest.raises(AttributeError) as inside:
+        kind.run(None)  # raised in the plugin's run
+    with pytest.raises(KeyError) as outside:
+        {}["x"]  # raised with no plugin's code on the traceback
+    assert describe_error(inside.value)[1].endswith(f"raised in method kind 'my_gnn' of module {MODULE} ({WHO}): rerun "
+                                                    "with --debug for the traceback and report it to that package's "
+                                                    "authors")
+    assert describe_error(outside.value) == (1, "unexpected KeyError: 'x'; this is a bug in pmsr_nn: rerun with --debug "
+                                                "for the traceback and report it")

@@ -312,10 +312,11 @@ def plugin_at_fault(exc: BaseException) -> str | None:
     owners: dict[str, set[str]] = {}  # a plugin's modules -> its kinds
     runs = {}  # code object of each plugin kind's run -> its name
     for name, plugin in PLUGINS.items():
-        run = REGISTRY[name].run
+        run = REGISTRY[name].run if name in REGISTRY else None
         for module in {plugin.module, getattr(run, "__module__", None) or plugin.module}:
             owners.setdefault(module, set()).add(name)
-        runs[getattr(run, "__code__", None)] = name
+        if run is not None:
+            runs[getattr(run, "__code__", None)] = name
     where, kind = None, None
     for frame, _ in traceback.walk_tb(exc.__traceback__):
         module = frame.f_globals.get("__name__", "")
