@@ -2,7 +2,8 @@
 
 An anticipated failure (a bad recipe, path, dataset, checkpoint or device; a file that cannot be
 read or written; memory) becomes one line ``pmsr: error: ...`` and exit code 2; anything else is
-a bug: one line with a hint, exit code 1 (:func:`describe_error`).
+a bug: one line with a hint, exit code 1 (:func:`describe_error`), which names the method kind
+and module of another package where its code raised it.
 """
 
 from __future__ import annotations
@@ -65,8 +66,21 @@ def describe_error(exc: BaseException) -> tuple[int, str]:
     if isinstance(exc, MemoryError) or (isinstance(exc, RuntimeError) and "alloc" in str(exc).lower()):
         return 2, "out of memory; ask for less (fewer --tracks, --mc-runs or a smaller batch)"
     first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ""
-    return 1, (f"unexpected {type(exc).__name__}" + (f": {first}" if first else "")
-               + "; this is a bug in pmsr_nn: rerun with --debug for the traceback and report it")
+    said = f"unexpected {type(exc).__name__}" + (f": {first}" if first else "")
+    plugin = plugin_at_fault(exc)
+    if plugin is not None:  # raised in a method kind another package registered: not pmsr_nn's bug
+        return 1, one_line(f"{said}, raised in {plugin}: rerun with --debug for the traceback and report it to "
+                           "that package's authors")
+    return 1, said + "; this is a bug in pmsr_nn: rerun with --debug for the traceback and report it"
+
+
+def plugin_at_fault(exc: BaseException) -> str | None:
+    """The method kind of another package whose code raised ``exc`` (:func:`pmsr_nn.methods.plugin_at_fault`);
+    None when none did, or when no method kind was ever consulted (the registry not imported)."""
+    import sys
+
+    methods = sys.modules.get("pmsr_nn.methods")  # not imported: no plugin kind can have run
+    return None if methods is None or not methods.PLUGINS else methods.plugin_at_fault(exc)
 
 
 def one_line(text: str, limit: int = 400) -> str:

@@ -63,6 +63,9 @@ DEFINITIONS = {
     "scans_to_first_track": "scans from a target's birth to its first matched track, over the runs that had one",
     "track_loss_probability": "fraction of (run, target) whose matched tracks ended while the target still lived",
     "fragmentations_per_run": "interruptions of a target's matched coverage that resumed later, per run",
+    "runs_without_tracks": "runs in which the row reported no track at any scan though some target lived; the "
+                           "report flags a row with any (a tracker whose existence never reaches its reporting "
+                           "threshold scores every target missed)",
     "initiation": "how a row's tracks start: association known (each target's own stream), oracle (handed each "
                   "target's birth: truth plus a prior draw) or detections (the tracker's own initiator, from "
                   "detections or, for the track-before-detect rows, range-Doppler maps)",

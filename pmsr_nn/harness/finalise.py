@@ -124,6 +124,8 @@ def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarra
                     "track_loss_probability": float(s["lost_tracks"].sum() / (B * N)),
                     "fragmentations_per_run": float(s["fragmentations"].sum() / B),
                     "fragmentations_per_target": (s["fragmentations"] / B).tolist()})
+        if "runs_without_tracks" in s:  # absent from blocks summed before it was kept
+            row["runs_without_tracks"] = int(round(float(s["runs_without_tracks"])))
     curves = {"ospa_m": ospa_c.tolist(), "gospa_m": (gp ** (1 / p)).tolist(), "cardinality": (s["n_est"] / B).tolist()}
     return row, curves
 

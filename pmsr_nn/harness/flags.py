@@ -1,6 +1,6 @@
 """Honesty flags: rows below their bound, the q = 0 floor or their finite-memory bound beyond the
-Monte Carlo error, and diverged runs. The report's paragraphs (:func:`flag_paragraphs`) and the
-console's lines (:func:`warning_lines`) say the same flags.
+Monte Carlo error, diverged runs, and runs in which a row reported no track at all. The report's
+paragraphs (:func:`flag_paragraphs`) and the console's lines (:func:`warning_lines`) say the same flags.
 
 A row is below a bound when the runner's rule holds (``below`` in its results: the one-sided
 97.5 % Student-t bound of the mean over runs of the run's mean squared position error over the
@@ -87,6 +87,20 @@ def diverged(results: Results) -> list[tuple[str, str, MethodRow]]:
     return [(c, m, r) for c, m, r in results.rows() if r.diverged_runs]
 
 
+def trackless(results: Results) -> list[tuple[str, str, MethodRow]]:
+    """``(case, method, row)`` of every row that reported no track at all in some run (results
+    written before the count was kept flag nothing)."""
+    return [(c, m, r) for c, m, r in results.rows() if r.tracks is not None and r.tracks.runs_without_tracks]
+
+
+def _trackless_entry(case: str, method: str, r: MethodRow) -> str:
+    return f"{method} reported no track in {r.tracks.runs_without_tracks} of {r.runs} runs on {case}"
+
+
+TRACKLESS_HINT = "its existence update or reporting threshold may be wrong"
+"""What a row that reports no track in a whole run most often has wrong (said with its flag)."""
+
+
 def _floor_sentence(floor: list[Below]) -> str:
     """What the report says of the rows below the q = 0 floor (ending the bound's paragraph)."""
     if not floor:
@@ -104,7 +118,8 @@ def _floor_sentence(floor: list[Below]) -> str:
 
 
 def flag_paragraphs(res: Results | dict) -> list[str]:
-    """The report's paragraphs on the rows below their bound (and the floor) and on diverged runs."""
+    """The report's paragraphs on the rows below their bound (and the floor), on diverged runs and
+    on rows that reported no track in some run."""
     results = Results.of(res)
     lines = []
     flagged = below(results, "bound")
@@ -134,12 +149,18 @@ def flag_paragraphs(res: Results | dict) -> list[str]:
         lines += ["**Diverged runs** (position RMSE after the warm-up above "
                   f"{results.settings.divergence_m:g} m or not finite; kept in every average, see the median per run in "
                   "results.json): " + ", ".join(f"{m} {r.diverged_runs}/{r.runs} on {c}" for c, m, r in runs) + ".", ""]
+    silent = trackless(results)
+    if silent:
+        lines += ["**No track reported:** " + "; ".join(_trackless_entry(*t) for t in silent) + f": {TRACKLESS_HINT} "
+                  "(a tracker whose tracks' existence never reaches its reporting threshold reports nothing, and "
+                  "GOSPA then counts every target missed).", ""]
     return lines
 
 
 def warning_lines(res: Results | dict, prefix: str = "warning   ") -> list[str]:
     """One console line per flag of the report: rows below their bound, the floor or their
-    finite-memory bound, and rows with diverged runs (empty when the report flags nothing)."""
+    finite-memory bound, rows with diverged runs and rows with runs of no track (empty when the
+    report flags nothing)."""
     results = Results.of(res)
     lines = []
     for against, what in (("bound", "below its {which} bound"), ("floor", "below even the q = 0 floor"),
@@ -154,4 +175,6 @@ def warning_lines(res: Results | dict, prefix: str = "warning   ") -> list[str]:
     for c, m, r in diverged(results):
         lines.append(f"{prefix}{m} on {c}: {r.diverged_runs} of {r.runs} runs diverged (position RMSE above "
                      f"{results.settings.divergence_m:g} m or not finite; kept in the averages)")
+    for c, m, r in trackless(results):
+        lines.append(f"{prefix}{_trackless_entry(c, m, r)}: {TRACKLESS_HINT}")
     return lines

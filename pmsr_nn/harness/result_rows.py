@@ -87,6 +87,7 @@ class TrackFigures:
     track_loss_probability: float | None = None
     fragmentations_per_run: float | None = None
     fragmentations_per_target: list | None = None
+    runs_without_tracks: int | None = None  # runs with no reported track at all (None: not recorded)
 
 
 @dataclass(frozen=True)

@@ -120,17 +120,22 @@ def track_sums(assignment: torch.Tensor, exists: torch.Tensor, truth: Truth) -> 
     """Track-level sums over the runs (:func:`~pmsr_nn.metrics.track_scores` over each target's
     whole life): ``tracks_per_target``, ``missed_scans``, ``alive_scans``, ``lost_tracks``,
     ``fragmentations`` ``(N,)``, ``first_track_scans`` / ``first_track_count`` ``(N,)`` (sum and
-    count of the scans from birth to the first matched track, over runs that had one) and
-    ``false_tracks`` (a scalar)."""
+    count of the scans from birth to the first matched track, over runs that had one),
+    ``false_tracks`` and ``runs_without_tracks`` (scalars: runs in which the row reported no track
+    at any scan though some target lived, e.g. a tracker whose existence never reaches its
+    reporting threshold)."""
     B, K, N = truth.x.shape[:3]
-    ts = track_scores(assignment, exists, truth.alive.expand(B, K, N))
+    alive = truth.alive.expand(B, K, N)
+    silent = ~exists.flatten(1).any(1) & alive.flatten(1).any(1)  # (B,)
+    ts = track_scores(assignment, exists, alive)
     first = ts.scans_to_first_track
     found = torch.isfinite(first)
     as64 = lambda t: t.to(torch.float64).sum(0).numpy()
     return {"tracks_per_target": as64(ts.tracks_per_target), "missed_scans": as64(ts.missed_scans),
             "alive_scans": as64(ts.alive_scans), "lost_tracks": as64(ts.lost), "fragmentations": as64(ts.fragmentations),
             "first_track_scans": as64(torch.where(found, first, torch.zeros((), dtype=first.dtype))),
-            "first_track_count": as64(found), "false_tracks": np.asarray(float(ts.false_tracks.sum()))}
+            "first_track_count": as64(found), "false_tracks": np.asarray(float(ts.false_tracks.sum())),
+            "runs_without_tracks": np.asarray(float(silent.sum()))}
 
 
 def gospa_per_run(sc: SetScores, scored_scans: torch.Tensor) -> dict[str, np.ndarray]:

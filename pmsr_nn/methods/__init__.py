@@ -4,7 +4,9 @@ Every method kind is a :class:`MethodKind` in :data:`REGISTRY`: the product it r
 (:mod:`pmsr_nn.simulation.products`), its options with defaults and ranges, whether it needs a
 checkpoint, and ``run(call) -> Estimates``. The modules of this package register their kinds
 when imported, and :func:`registry` imports every module of the package, so a new tracker is
-one module here (plus its tests): the runner and the report need no edit.
+one module here (plus its tests): the runner and the report need no edit. Another installed
+package registers its kinds through the entry-point group :data:`PLUGIN_GROUP`
+(``pmsr_nn.methods``), loaded once when the registry is first consulted (:func:`load_plugins`).
 
 * :mod:`.single_target`: EKF, UKF, IMM, SI+KF, particle filter and learned trackers, each run
   on every target's own stream (association known);
@@ -23,6 +25,8 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+import sys
+import types
 import zlib
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -159,24 +163,173 @@ class EstimateSpace:
 REGISTRY: dict[str, MethodKind] = {}
 
 
+@dataclass(frozen=True)
+class Plugin:
+    """Where a kind registered from another installed package came from: its ``entry_point``
+    (``name = value`` in the group :data:`PLUGIN_GROUP`), the ``distribution`` that declares it
+    (name and version) and the ``module`` the entry point names."""
+
+    entry_point: str
+    distribution: str
+    module: str
+
+    def __str__(self) -> str:
+        return f"entry point '{self.entry_point}' of {self.distribution}"
+
+
+class PluginError(ConfigError):
+    """A method-kind plugin can not be loaded: it fails to import, registers a name another kind
+    has, or registers nothing (one line naming its entry point and distribution)."""
+
+
+PLUGIN_GROUP = "pmsr_nn.methods"
+"""The entry-point group through which another installed package registers method kinds: each
+entry point names a module that calls :func:`register` when imported, or a callable (``module:
+function``) that does when called with no argument."""
+
+PLUGINS: dict[str, Plugin] = {}
+"""Kind name -> the :class:`Plugin` that registered it (kinds of this package are not here)."""
+
+_loading: tuple[Plugin, set[str]] | None = None  # the plugin being loaded and the kinds there before it
+
+
 def register(kind: MethodKind) -> MethodKind:
+    """Add ``kind`` to :data:`REGISTRY`; a name registered twice is an error (naming the plugin
+    whose module registers it, while one loads)."""
     if kind.name in REGISTRY:
+        if _loading is not None:
+            plugin, before = _loading
+            owner = PLUGINS.get(kind.name)
+            what = (f"the kind of {owner}" if owner is not None else "a built-in kind" if kind.name in before
+                    else "registered twice by it")
+            raise PluginError(f"method-kind plugin {plugin} registers method kind {kind.name!r}, which is {what}: "
+                              "rename it")
         raise ValueError(f"method kind {kind.name!r} is registered twice")
     REGISTRY[kind.name] = kind
     return kind
 
 
 _loaded = False
+_plugins_loaded = False
 
 
 def registry() -> dict[str, MethodKind]:
-    """Every method kind, after importing each module of this package once."""
+    """Every method kind: each module of this package imported once, then the kinds of other
+    installed packages (:func:`load_plugins`)."""
     global _loaded
     if not _loaded:
         for info in pkgutil.iter_modules(__path__):
             importlib.import_module(f"{__name__}.{info.name}")
         _loaded = True
+    load_plugins()
     return REGISTRY
+
+
+def _distribution(ep) -> str:
+    dist = getattr(ep, "dist", None)
+    return "an unknown distribution" if dist is None else f"distribution {dist.metadata['Name']} {dist.version}"
+
+
+def _load_one(plugin: Plugin, ep) -> None:
+    """Import (or call) one entry point, its import errors as one :class:`PluginError` line."""
+    global _loading
+    _loading = (plugin, set(REGISTRY))
+    try:
+        loaded = ep.load()
+        if callable(loaded) and not isinstance(loaded, types.ModuleType):
+            loaded()
+    except PluginError:
+        raise
+    except Exception as exc:
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise PluginError(f"method-kind plugin {plugin} fails to load: {type(exc).__name__}"
+                          + (f": {first}" if first else "")) from None
+    finally:
+        _loading = None
+
+
+def load_plugins() -> None:
+    """Register, once, the kinds of every entry point of :data:`PLUGIN_GROUP` (after the built-in
+    kinds, in the entry points' order by name). A plugin that fails to import, registers a name
+    another kind has, or registers nothing is a one-line :class:`PluginError`; the kinds of every
+    plugin are then taken out again (their modules out of ``sys.modules``), and the next
+    consultation tries again."""
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    from importlib.metadata import entry_points
+
+    start, tried = set(REGISTRY), []
+    try:
+        for ep in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: (e.name, e.value)):
+            plugin = Plugin(f"{ep.name} = {ep.value}", _distribution(ep), ep.module)
+            before = set(REGISTRY)
+            tried.append(ep.module)
+            _load_one(plugin, ep)
+            # a module imported before (e.g. by the user's script) registered its kinds then
+            new = [n for n, k in REGISTRY.items() if n not in before or (n not in PLUGINS and _within(k, ep.module))]
+            if not new:
+                raise PluginError(f"method-kind plugin {plugin} registers no method kind (its module should call "
+                                  "pmsr_nn.methods.register(MethodKind(...)) when imported)")
+            PLUGINS.update({n: plugin for n in new})
+    except PluginError:
+        for n in set(REGISTRY) - start:
+            del REGISTRY[n]
+            PLUGINS.pop(n, None)
+        for m in tried:  # imported again (registering again) when next consulted
+            sys.modules.pop(m, None)
+        raise
+    _plugins_loaded = True
+
+
+def _within(kind: MethodKind, module: str) -> bool:
+    """``kind``'s ``run`` is defined in ``module`` or a module under it."""
+    where = getattr(kind.run, "__module__", None) or ""
+    return where == module or where.startswith(f"{module}.")
+
+
+def forget_plugins() -> None:
+    """Take the plugins' kinds out of the registry and their modules out of ``sys.modules``, so
+    that the next consultation discovers the installed plugins afresh (tests install one)."""
+    global _plugins_loaded
+    modules = {p.module for p in PLUGINS.values()}
+    for n in list(PLUGINS):
+        REGISTRY.pop(n, None)
+    PLUGINS.clear()
+    for m in modules:
+        sys.modules.pop(m, None)
+    importlib.invalidate_caches()
+    _plugins_loaded = False
+
+
+def plugin_at_fault(exc: BaseException) -> str | None:
+    """Where on ``exc``'s traceback a plugin's code raised it: ``method kind 'K' of module M
+    (entry point ... of distribution ...)`` (M the innermost frame in a plugin's modules, K the
+    kind whose ``run`` is on the traceback, else the kinds of that plugin); None when no frame is a
+    plugin's."""
+    import traceback
+
+    owners: dict[str, set[str]] = {}  # a plugin's modules -> its kinds
+    runs = {}  # code object of each plugin kind's run -> its name
+    for name, plugin in PLUGINS.items():
+        run = REGISTRY[name].run if name in REGISTRY else None
+        for module in {plugin.module, getattr(run, "__module__", None) or plugin.module}:
+            owners.setdefault(module, set()).add(name)
+        if run is not None:
+            runs[getattr(run, "__code__", None)] = name
+    where, kind = None, None
+    for frame, _ in traceback.walk_tb(exc.__traceback__):
+        module = frame.f_globals.get("__name__", "")
+        owner = next((m for m in owners if module == m or module.startswith(f"{m}.")), None)
+        if owner is not None:
+            where = (module, owner)
+            kind = runs.get(frame.f_code, kind)
+    if where is None:
+        return None
+    module, owner = where
+    names = sorted(owners[owner]) if kind is None else [kind]
+    what = f"method kind {names[0]!r}" if len(names) == 1 else "method kinds " + ", ".join(map(repr, names))
+    return f"{what} of module {module} ({PLUGINS[names[0]]})"
 
 
 PRODUCTS = {"measurements": "each target's own measurement stream (association known)",
@@ -242,6 +395,8 @@ def catalogue(names: list[str] | None = None) -> list[str]:
         pooled = "; the lists pooled per receiver where the illuminator is unknown" if k.pooled_lists else ""
         lines.append(f"{k.name}  (reads {k.reads}: {PRODUCTS.get(k.reads, k.reads)}{pooled})")
         lines.append(f"    {k.description}")
+        if k.name in PLUGINS:
+            lines.append(f"    from: module {PLUGINS[k.name].module}, {PLUGINS[k.name]}")
         if k.needs_checkpoint:
             lines.append("    needs: checkpoint: PATH (a tracker.pt of pmsr train)")
         lines.extend(f"    {describe_option(n, o)}" for n, o in k.options.items())
