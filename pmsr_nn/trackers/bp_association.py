@@ -87,7 +87,8 @@ def bp_associate(ratio: torch.Tensor, existence: torch.Tensor, pd: float | torch
     clutter density, 0 outside the gate (and for padding or tracks that gate nothing);
     ``existence (B, C)`` the tracks' predicted existence ``r_i``; ``pd`` the detection
     probability a track's miss term takes (``Pd Pg`` where a gate is applied), a float or
-    broadcastable to ``(B, C)``; ``birth (B, M)`` ``mu_m``, the expected number of new targets
+    broadcastable to ``(B, C)`` (below 1 where ``r_i = 1``: a sure target that must be detected
+    and gates nothing is an impossible event, its beliefs NaN); ``birth (B, M)`` ``mu_m``, the expected number of new targets
     behind detection ``m`` relative to clutter (None: no births, a free detection is clutter);
     ``valid (B, M)`` the detections that are not padding (None: all). Messages pass until the
     largest change of a ``nu`` is at most ``tolerance`` or ``iterations`` passes are run
