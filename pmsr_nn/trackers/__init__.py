@@ -5,6 +5,9 @@
 * :mod:`.gating`: chi-square gates and Gaussian association likelihoods;
 * :mod:`.clustering`: tracks that compete for detections;
 * :mod:`.jpda`: association probabilities from ranked events;
+* :mod:`.bp_association`: one pair's association, existence and new-target beliefs by loopy
+  belief propagation (Williams & Lau; Meyer et al. 2018); :mod:`.bp_associator`: the associator
+  that updates tracks with them pair by pair (no method kind yet);
 * :mod:`.roles`: the roles a tracker is assembled from (associator, track management) and
   what they hand each other; :mod:`.loop`: the one tracker loop that runs an assembly;
 * :mod:`.jpda_associators`: the S-MSJPDA and P-MSJPDA associators;
