@@ -12,7 +12,7 @@ import torch
 import yaml
 from scipy.stats import chi2
 
-from pmsr_nn.filters import Gaussian, predict, sequential_update, unscented_moments
+from pmsr_nn.filters import Gaussian
 from pmsr_nn.harness import evaluate
 from pmsr_nn.methods import REGISTRY
 from pmsr_nn.rng import seeded_generator
@@ -23,7 +23,7 @@ from pmsr_nn.trackers.management import Confirmer, Deleter, Management
 from pmsr_nn.trackers.own_tracks import OwnTracks
 from pmsr_nn.trackers.spherical_initiator import SphericalInitiator
 from script_loader import load_script
-from test_msjpda import MOTION, _formation, _model, _prior
+from test_msjpda import MOTION, _formation, _model, _prior, _sequential_ukf
 from test_one_scenario import two_drones
 
 
@@ -34,17 +34,6 @@ def gnn():
     mod = load_script("docs/examples/gnn_tracker.py")
     yield mod
     REGISTRY.pop("gnn_example", None)
-
-
-def _sequential_ukf(prior: Gaussian, z: torch.Tensor, model) -> torch.Tensor:
-    F, Q = MOTION.F(1.0), MOTION.Q(1.0, 1.0)
-    g, out = prior, []
-    for k in range(z.shape[1]):
-        if k:
-            g = predict(g, F, Q)
-        g, _ = sequential_update(g, z[:, k], model, model.R(), unscented_moments)
-        out.append(g.x)
-    return torch.stack(out, 1)
 
 
 def test_gnn_handed_the_births_of_separated_targets_is_the_sequential_ukf(gnn):
