@@ -37,6 +37,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..filters.gaussian import Gaussian, kalman_gain, linearised_moments, symmetrise
 from ..measurements import MeasurementModel
 from ..motion import ConstantAcceleration
 from .config import ModelConfig
@@ -154,9 +155,7 @@ class EKFGain:
 
     def __call__(self, x_pred: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
         P = self.F @ self.P @ self.F.T + self.Q
-        H = self.model.jacobian(x_pred)
-        S = H @ P @ H.transpose(-1, -2) + self.R
-        K = torch.linalg.solve(S, H @ P).transpose(-1, -2)  # P H^T S^-1 (S, P symmetric)
-        P = P - K @ S @ K.transpose(-1, -2)
-        self.P = 0.5 * (P + P.transpose(-1, -2))
+        m = linearised_moments(Gaussian(x_pred, P), self.model, self.R)  # S = H P H^T + R, C = P H^T
+        K = kalman_gain(m)
+        self.P = symmetrise(P - K @ m.C.transpose(-1, -2))  # K S K^T = C S^-1 C^T = K C^T
         return K
