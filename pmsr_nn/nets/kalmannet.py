@@ -44,7 +44,7 @@ from .config import ModelConfig
 
 
 class KalmanNetTracker(nn.Module):
-    """``u (B, T, m + n) -> y (B, T, n)``: measurements (SI) and state fixes in, correction to the
+    """``u (B, K, m + n) -> y (B, K, n)``: measurements (SI) and state fixes in, correction to the
     fix (in units of ``state_scale``) out. Causal with unbounded memory (``context == (None, 0)``)."""
 
     def __init__(self, cfg: ModelConfig, model: MeasurementModel, dt: float, noise_scale: torch.Tensor,
@@ -76,19 +76,19 @@ class KalmanNetTracker(nn.Module):
         return self.s_x[:, None] * G / self.s_z, hidden
 
     def filter(self, z: torch.Tensor, fix0: torch.Tensor, gain=None, fixes: torch.Tensor | None = None) -> torch.Tensor:
-        """Filtered states ``(B, T, n)`` (SI) of ``z (B, T, m)`` started at ``fix0 (B, n)``.
+        """Filtered states ``(B, K, n)`` (SI) of ``z (B, K, m)`` started at ``fix0 (B, n)``.
 
         ``gain``: None for the network; else a callable ``(x_pred, nu) -> K (B, n, m)`` (e.g.
-        :class:`EKFGain`) that replaces it. ``fixes (B, T, n)``: every scan's state fix, which a
+        :class:`EKFGain`) that replaces it. ``fixes (B, K, n)``: every scan's state fix, which a
         lost filter is re-started at (``restart_gate``; without them, or with a ``gain``, never)."""
-        B, T, _ = z.shape
+        B, K, _ = z.shape
         x = fix0
         x_prev, x_pred_prev = x, x
         hidden = z.new_zeros(B, self.gru.hidden_size) if gain is None else None
         F = self.F.to(z.dtype)
         restart = fixes is not None and self.cfg.restart_gate is not None
         out = [x]
-        for k in range(1, T):
+        for k in range(1, K):
             if gain is None:
                 x_new, x_pred, hidden = self.step(z[:, k], z[:, k - 1], x, x_prev, x_pred_prev, hidden)
                 if restart:
