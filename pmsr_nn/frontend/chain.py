@@ -39,7 +39,7 @@ import torch
 from .. import SPEED_OF_LIGHT
 from ..errors import ConfigError
 from ..measurements import MeasurementModel
-from ..simulation.detections import CLUTTER, PADDING, Scans, _shuffled, check_model_for_detections
+from ..simulation.detections import CLUTTER, PADDING, Scans, check_model_for_detections, shuffled
 from .cancellation import cancellation_depth_db, eca, nlms
 from .ccf import ccf_batches
 from .centroid import centroids
@@ -316,7 +316,7 @@ def front_end_scans(truth: torch.Tensor, alive: torch.Tensor, model: Measurement
     z = torch.stack([pad(t, math.nan) for t in lists_z], 1)
     ok = torch.stack([pad(t, False) for t in lists_ok], 1)
     origin = torch.stack([pad(t, PADDING) for t in lists_org], 1)
-    z, ok, (origin,) = _shuffled(z, ok, (origin,), generator)
+    z, ok, (origin,) = shuffled(z, ok, (origin,), generator)
     scans = Scans(z, ok, origin.masked_fill(~ok, PADDING))
     record.example = _example(example, scans, r_true, f_true, live, sig, spec)
     return scans, record
