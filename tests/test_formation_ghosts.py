@@ -14,8 +14,12 @@ from test_one_scenario import two_drones
 
 
 def test_the_per_run_gospa_is_the_reports(tmp_path):
-    path = two_drones(tmp_path, methods=[{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}}],
-                      mc_runs=4, block_runs=2)
+    # tracks confirmed at once, reported from existence 0.05 and kept 5 scans without a detection, in
+    # 30 clutter points a scan: false tracks in every run, so the split of their charge is put to the test
+    options = {"initiation": "detections", "confirm_m": 1, "confirm_n": 1, "report_existence": 0.05, "delete_misses": 5}
+    clutter = {"per_scan": 30, "range_m": [0.0, 25000.0], "range_rate_mps": [-40.0, 40.0]}
+    path = two_drones(tmp_path, methods=[{"name": "S", "kind": "s_msjpda", "options": options}], mc_runs=4, block_runs=2,
+                      detections={"pd": 0.9, "clutter": clutter})
     row = evaluate(path, tmp_path / "out", progress=False)["cases"]["c"]["methods"]["S"]
     r = load_script("evaluate/formation_ghosts.py").run_figures(path, None, None, 2)["S"]
     assert r["gospa_m"].shape == (4,) and r["nearest_m"].shape == (4, 2)
@@ -24,12 +28,17 @@ def test_the_per_run_gospa_is_the_reports(tmp_path):
     # the spread over runs: the quartiles, the 90 % point and the worst of the re-drawn runs
     assert row["gospa_run_quantiles_m"] == pytest.approx(np.quantile(r["gospa_m"], RUN_QUANTILES), rel=1e-9)
     assert row["gospa_run_quantiles_m"][-1] == pytest.approx(r["gospa_m"].max(), rel=1e-9)
-    assert np.all(r["nearest_m"] < 100.0)  # two drones far apart in light clutter: every track on its drone
+    assert np.all(r["nearest_m"] < 100.0)  # two drones far apart: each has a track on it
     # a list of blocks re-draws those blocks: block 1 alone is runs 2 and 3 of the whole
     second = load_script("evaluate/formation_ghosts.py").run_figures(path, None, None, [1])["S"]
     assert second["gospa_m"] == pytest.approx(r["gospa_m"][2:], rel=1e-12)
-    assert r["false_shares"].shape == (4, 3) and np.all(r["false_shares"] >= 0)
-    assert np.all(r["false_shares"].sum(1) <= 1 + 1e-12) and r["beside_m"].shape == (4,)
+    assert r["false_shares"].shape == (4, 3) and np.all(r["false_shares"].sum(1) <= 1 + 1e-12)
+    # the three classes add up to the report's false share: each run's shares of its GOSPA^p (p = 2),
+    # weighted by that GOSPA^p, over the runs' summed GOSPA^p (the report pools the runs and scans)
+    w = r["gospa_m"] ** 2
+    assert np.sum(r["false_shares"].sum(1) * w) / np.sum(w) == pytest.approx(row["gospa_false_share"], rel=1e-9)
+    assert np.all(r["false_shares"].sum(1) > 0)  # (the false tracks are there)
+    assert r["beside_m"].shape == (4,)
 
 
 def test_false_tracks_are_classed_outlived_beside_or_far():

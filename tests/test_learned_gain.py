@@ -490,7 +490,15 @@ def test_pmsr_train_of_the_hybrid_prints_a_line_per_validation_and_writes_the_tr
     best = float(summary.split("best validation loss ")[1].split()[0])
     printed = min(float(s.split("validation loss ")[1].split()[0]) for s in steps)  # 4 significant digits
     assert best == pytest.approx(printed, rel=5e-4)
-    assert load_gain_checkpoint(tmp_path / "run" / "tracker.pt").net is not None
+    # the tracker is the recipe's (its sensors and interval, read from the recipe file itself) and holds a
+    # trained network: the output layer, zero at construction, has moved
+    import yaml
+
+    ck = load_gain_checkpoint(tmp_path / "run" / "tracker.pt")
+    r = yaml.safe_load(recipe.read_text())
+    assert ck.meta["n_pairs"] == len(r["geometry"]["transmitters"]) * len(r["geometry"]["receivers"])
+    assert ck.meta["dt_s"] == r["motion"]["dt_s"]
+    assert float(ck.net.out.weight.abs().max()) > 0
 
 
 def test_the_default_management_is_the_method_kinds_default_options():

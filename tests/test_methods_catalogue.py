@@ -4,6 +4,7 @@ that is not a method kind lives."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -23,14 +24,43 @@ def test_every_kind_is_listed_with_its_product_description_and_options(capsys):
     assert sorted(blocks) == sorted(kinds)
     for name, k in kinds.items():
         lines = blocks[name].splitlines()
-        pooled = "; the lists pooled per receiver where the illuminator is unknown" if k.pooled_lists else ""
-        assert k.reads in PRODUCTS and lines[0] == f"{name}  (reads {k.reads}: {PRODUCTS[k.reads]}{pooled})"
+        # read back, not rebuilt: the kind, its product and its description as printed
+        head = re.fullmatch(r"(\S+)  \(reads (\w+): (.+?)(; the lists pooled per receiver where the illuminator "
+                            r"is unknown)?\)", lines[0])
+        assert head, lines[0]
+        assert head[1] == name and head[2] == k.reads and head[3] == PRODUCTS[k.reads]
+        assert (head[4] is not None) == k.pooled_lists
         assert k.description and lines[1].strip() == k.description
         shown = [ln.strip() for ln in lines[2:] if not ln.strip().startswith("needs:")]
-        assert shown == [describe_option(n, o) for n, o in k.options.items()]
+        assert [_read_option(line) for line in shown] == [_expected(n, o) for n, o in k.options.items()], name
         assert ("needs: checkpoint" in blocks[name]) == k.needs_checkpoint
     for _, where in ELSEWHERE:
         assert where in out
+
+
+def _read_option(line: str) -> tuple:
+    """A printed option line read back into ``(name, default, kind, lo, hi, hi_included, nullable,
+    tunable)`` (``kind``: ``integer`` / ``number`` / the choices; ``lo, hi`` None for choices)."""
+    name, rest = line.split(": ", 1)
+    default, _, spec = rest.partition(" (")
+    assert spec.endswith(")"), line
+    spec = spec[:-1]
+    if spec.startswith("one of "):
+        return name, default, tuple(spec[len("one of "):].split(" | ")), None, None, None, False, False
+    m = re.fullmatch(r"(integer|number) in \[([^,]+), ([^\])]+)([\])])(, or null: .+?)?(, tunable)?", spec)
+    assert m, line
+    value = None if default == "null" else float(default)
+    return name, value, m[1], float(m[2]), float(m[3]), m[4] == "]", m[5] is not None, m[6] is not None
+
+
+def _expected(name: str, o: Option) -> tuple:
+    """What :func:`_read_option` should read for option ``o`` (``:g`` prints 6 significant digits)."""
+    if o.choices:
+        return name, str(o.default), tuple(o.choices), None, None, None, False, False
+    six = lambda v: float(f"{v:.6g}")  # noqa: E731
+    default = None if o.default is None else six(o.default)
+    return (name, default, "integer" if o.kind is int else "number", six(o.lo), six(o.hi), six(o.hi) == o.hi,
+            o.nullable, o.tunable)
 
 
 def test_one_kind_and_its_options():

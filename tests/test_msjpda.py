@@ -79,8 +79,19 @@ def test_single_sensor_marginals_equal_exhaustive_enumeration(seed):
     cost = assignment_matrix(det, miss_cost(0.8))
     expected = _enumerate_single_sensor(cost)
     np.testing.assert_allclose(single_sensor_marginals(cost, m=10_000), expected, rtol=1e-10, atol=1e-14)
-    np.testing.assert_allclose(single_sensor_marginals(cost, m=None), expected, rtol=1e-10, atol=1e-14)
-    np.testing.assert_allclose(expected.sum(1), 1.0)
+    ours = single_sensor_marginals(cost, m=None)
+    np.testing.assert_allclose(ours, expected, rtol=1e-10, atol=1e-14)
+    assert np.all(ours[:, :M].sum(0) <= 1 + 1e-12)  # a detection goes to one track at most
+
+
+def test_one_tracks_marginals_are_its_normalised_likelihoods():
+    """One track (no other to compete with): the marginal of each detection and of the miss is its
+    ``exp(-cost)`` over their sum, in closed form; a detection outside the gate gets 0."""
+    cost = assignment_matrix(np.array([[0.3, 2.0, np.inf, -1.1]]), miss_cost(0.8))
+    w = np.exp(-cost[0])  # the four detections, then the miss
+    assert w[2] == 0.0 and w[-1] > 0.0
+    for m in (None, 10_000):  # every event, by brute force and by ranked assignment
+        np.testing.assert_allclose(single_sensor_marginals(cost, m=m)[0], w / w.sum(), rtol=1e-12, atol=1e-300)
 
 
 def test_m_best_marginals_approach_the_exact_ones():

@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pmsr_nn.harness.blocks import draw_block
 from pmsr_nn.harness.runner import prepare
 from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.simulation.detections import CLUTTER
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,21 +30,31 @@ def _xy(setup, name):
 
 
 def test_sensors_detections_and_lives(setup):
+    """The header's sensors and lives, read off a drawn block (not off the file's own keys): 6 pair
+    lists and 3 pooled receiver lists, 10 clutter points in every pair list and 20 in every
+    receiver list at every scan, Pd 0.85 at every pair, eight drones born and dying at staggered
+    times."""
     geometry = setup.geometry
-    assert len(geometry.transmitters) == 2 and len(geometry.receivers) == 3 and len(geometry.pairs) == 6
-    sc = setup.scenario
-    # as the file states them (Pd inside the issue's 0.8-0.9; a single-frequency network: 20 clutter
-    # points in each receiver's pooled list, 10 per pair in the per-pair lists the other trackers read)
-    d = sc.detections
-    assert d.pd == 0.85 and d.clutter.per_scan == 20 and d.clutter.model == "fixed" and d.illuminator_known is False
-    sensing = setup.cases[0].sensing
-    assert not sensing.illuminator_known and sensing.pair_clutter().per_scan == 10
-    case = setup.cases[0]
-    assert len(case.targets) == 8
-    births = case.alive.to(int).argmax(0)
-    ends = case.steps - case.alive.flip(0).to(int).argmax(0)
+    assert len(geometry.transmitters) == 2 and len(geometry.receivers) == 3
+    truth, products = draw_block(setup, 0, 0)
+    det = products["detections"]
+    scans, pooled = det.scans, det.pooled.scans
+    B, K, S, _ = scans.shape
+    assert S == 6 and pooled.shape[2] == 3
+    assert bool((((scans.origin == CLUTTER) & scans.valid).sum(-1) == 10).all())
+    assert bool((((pooled.origin == CLUTTER) & pooled.valid).sum(-1) == 20).all())
+    # a receiver pools its two pairs' lists: the same target detections, none lost or added
+    assert int((pooled.valid & (pooled.origin >= 0)).sum()) == int((scans.valid & (scans.origin >= 0)).sum())
+    # Pd: each living drone detected at each pair and scan with probability 0.85 (4 binomial deviations)
+    trials = int(truth.alive.sum()) * S * B
+    rate = int((scans.valid & (scans.origin >= 0)).sum()) / trials
+    assert abs(rate - 0.85) < 4 * (0.85 * 0.15 / trials) ** 0.5, rate
+    alive = truth.alive
+    assert alive.shape == (K, 8)
+    births = alive.to(int).argmax(0)
+    ends = K - alive.flip(0).to(int).argmax(0)
     assert len(set(births.tolist())) >= 5 and len(set(ends.tolist())) >= 4  # staggered both ways
-    assert int(case.alive.sum(1).max()) >= 6
+    assert int(alive.sum(1).max()) >= 6
 
 
 def test_the_crossing_pair_meets_and_the_formation_keeps_its_spacing(setup):

@@ -42,7 +42,7 @@ from pmsr_nn.motion import ConstantVelocity, ContinuousConstantVelocity
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import CLUTTER, ClutterSpec, Scans, pool_by_receiver, simulate_scans
 from pmsr_nn.trackers.pmht import pmht
-from pmsr_nn.trackers.pmht_em import (_log_terms, _rts, _smooth, association_weights, em_step,
+from pmsr_nn.trackers.pmht_em import (_log_terms, _smooth, association_weights, em_step,
                                       expected_complete_log_likelihood)
 from pmsr_nn.trackers.pmht_managed import managed_pmht
 from pmsr_nn.trackers.pmht_model import AssociationLists, PMHTSettings, pair_h, problem
@@ -577,9 +577,11 @@ def test_point_e_step_skips_covariances_without_changing_the_states():
     assert torch.allclose(x1, x2, rtol=1e-12, atol=0.0) and torch.allclose(h1.P, h2.P, rtol=1e-12, atol=0.0)
 
 
-def test_rts_pass_equals_the_library_smoother():
-    """_rts's rearranged recursion against rts_from_predictions on a UKF's moments (rtol 1e-9:
-    rounding of 1e5 m states through 9 gains)."""
+def test_rts_pass_equals_the_textbook_recursion():
+    """rts_from_predictions (the RTS pass PMHT's smoother and every RTS smoother share, rearranged
+    into fused multiply-adds) against the textbook recursion ``x_s = x + G (x_s' - x_pred)``,
+    ``P_s = P + G (P_s' - P_pred) G^T``, ``G = P F^T P_pred^-1``, written out here on a UKF's
+    moments (rtol 1e-9: rounding of 1e5 m states through 9 gains)."""
     model = _model(1)
     truth = _truth(3, 10, targets=1)[:, :, 0]
     z = model.h(truth) + torch.randn(3, 10, 2, generator=seeded_generator(2), dtype=torch.float64) * 30.0
@@ -587,10 +589,16 @@ def test_rts_pass_equals_the_library_smoother():
             5.0, model, model.R())
     F, Q = MOTION.F(1.0), MOTION.Q(1.0, 5.0)
     xp, Pp = f.x[:, :-1] @ F.T, F @ f.P[:, :-1] @ F.T + Q
-    ref = rts_from_predictions(f.x, f.P, xp, Pp, F)
-    xs, Ps = _rts(F, f.x, f.P, xp, Pp)
-    assert torch.allclose(xs, ref.x, rtol=1e-9, atol=1e-6) and torch.allclose(Ps, ref.P, rtol=1e-9, atol=1e-9)
-    assert _rts(F, f.x, f.P, xp, Pp, covariances=False)[1] is None
+    xs, Ps = f.x.clone(), f.P.clone()
+    for k in range(8, -1, -1):
+        G = f.P[:, k] @ F.T @ torch.linalg.inv(Pp[:, k])
+        xs[:, k] = f.x[:, k] + (G @ (xs[:, k + 1] - xp[:, k])[..., None])[..., 0]
+        Ps[:, k] = f.P[:, k] + G @ (Ps[:, k + 1] - Pp[:, k]) @ G.transpose(-1, -2)
+    ours = rts_from_predictions(f.x, f.P, xp, Pp, F)
+    assert torch.allclose(ours.x, xs, rtol=1e-9, atol=1e-6) and torch.allclose(ours.P, Ps, rtol=1e-9, atol=1e-9)
+    assert not torch.allclose(ours.x, f.x, rtol=1e-9, atol=1e-6)  # the smoother moved the filter's means
+    means = rts_from_predictions(f.x, f.P, xp, Pp, F, covariances=False)
+    assert means.P is None and torch.equal(means.x, ours.x)
 
 
 def test_a_window_whose_cholesky_check_fails_is_redone_with_jitter():

@@ -189,3 +189,83 @@ def test_no_import_cycle_among_packages(graph):
               if ".".join(a.split(".")[:2]) in c and ".".join(b.split(".")[:2]) in c
               and a.split(".")[:2] != b.split(".")[:2]]
     assert not found, f"package cycles {found}: " + "; ".join(detail)
+
+
+PRIVATE_IMPORTS_ALLOWED: dict[str, str] = {
+    # TEMPORARY (issue 54, item 1): the lead's tracker-loop rework removes these imports of
+    # _check_variant, _joint_step, _sensor_step from trackers/msjpda.py; then delete this entry.
+    "pmsr_nn/trackers/msjpda_managed.py": "imports msjpda.py's private steps until the one tracker loop lands",
+    # TEMPORARY (issue 54, item 4): harness/evaluate.py's _inputs, read by two other entry paths;
+    # the one run object that all entry paths go through removes them (harness/ is being rebuilt).
+    "pmsr_nn/cli/evaluate.py": "imports harness.evaluate._inputs until the harness's one run object lands",
+    "pmsr_nn/harness/dispatch.py": "imports harness.evaluate._inputs until the harness's one run object lands",
+}
+"""Modules allowed to use another module's private names: path (relative to the repository) -> why."""
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def private_imports(root: Path, package: str) -> dict[str, list[str]]:
+    """Per module file (relative path): each use of another module's private name (one leading
+    underscore), as ``line: what``: ``from M import _x`` with ``M`` a module of the package, and
+    ``m._x`` with ``m`` a name bound to a module of the package (``import P.m as m``,
+    ``from P import m``). A module's own names are its business."""
+    mods = modules(root, package)
+    out: dict[str, list[str]] = {}
+    for name, (path, is_package) in mods.items():
+        here = name.split(".") if is_package else name.split(".")[:-1]
+        tree = ast.parse(path.read_text(), filename=str(path))
+        bound: dict[str, str] = {}  # local name -> module of the package it is bound to
+        found = []
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name in mods:
+                        bound[a.asname or a.name.split(".")[0]] = a.name if a.asname else a.name.split(".")[0]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    if node.level - 1 >= len(here):
+                        continue
+                    base = ".".join(here[:len(here) - (node.level - 1)] + ([node.module] if node.module else []))
+                else:
+                    base = node.module or ""
+                if base not in mods:
+                    continue
+                for a in node.names:
+                    full = f"{base}.{a.name}"
+                    if full in mods:
+                        bound[a.asname or a.name] = full
+                    elif _private(a.name) and base != name:
+                        found.append(f"{node.lineno}: from {base} import {a.name}")
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in bound
+                    and _private(node.attr) and bound[node.value.id] != name):
+                found.append(f"{node.lineno}: {bound[node.value.id]}.{node.attr}")
+        if found:
+            out[str(path.relative_to(root))] = found
+    return out
+
+
+def test_the_private_import_finder_finds_made_up_uses(tmp_path):
+    files = {
+        "pkg/__init__.py": "",
+        "pkg/a.py": "_hidden = 1\nvisible = _hidden\n",  # its own private name: fine
+        "pkg/b.py": "from .a import _hidden, visible\n",
+        "pkg/c.py": "from . import a\nfrom pkg import a as other\n\ndef f():\n    return a._hidden + other.__name__\n",
+        "pkg/d.py": "import pkg.a as m\nimport os\nx = m._hidden + os._exit.__class__.__name__.__len__()\n",
+        "pkg/e.py": "from os import _exit\nfrom .a import visible\n",  # not the package's: fine
+    }
+    for rel, text in files.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    assert private_imports(tmp_path, "pkg") == {
+        "pkg/b.py": ["1: from pkg.a import _hidden"], "pkg/c.py": ["5: pkg.a._hidden"], "pkg/d.py": ["3: pkg.a._hidden"]}
+
+
+def test_no_module_uses_another_modules_private_names():
+    found = {p: uses for p, uses in private_imports(ROOT, PACKAGE).items() if p not in PRIVATE_IMPORTS_ALLOWED}
+    assert not found, f"private names used across modules (make them public or move them): {found}"
+    stale = {p for p in PRIVATE_IMPORTS_ALLOWED if p not in private_imports(ROOT, PACKAGE)}
+    assert not stale, f"PRIVATE_IMPORTS_ALLOWED lists modules that no longer need it: {sorted(stale)}"

@@ -150,7 +150,12 @@ def test_maps_of_a_scene_hold_each_living_target_at_its_cell():
     # the same maps whatever is asked first, and a selection of runs is a slice of the block's
     two = RangeDopplerMaps(scene, truth.expand(2, K, 2, 4), alive, seed=11)
     assert torch.equal(two.frame(2)[:1], two.runs(slice(0, 1)).frame(2))
-    assert torch.equal(two.frame(1), two.frame(1))
+    after = two.frame(1)  # asked after frame 2 (and its selection), of one product ...
+    fresh = RangeDopplerMaps(scene, truth.expand(2, K, 2, 4), alive, seed=11).frame(1)  # ... first, of another
+    assert torch.equal(after, fresh)
+    # and the maps are drawn: another seed, another frame and the other run give other noise
+    other = RangeDopplerMaps(scene, truth.expand(2, K, 2, 4), alive, seed=12).frame(1)
+    assert not torch.equal(after, other) and not torch.equal(after, two.frame(2)) and not torch.equal(after[0], after[1])
 
 
 # ------------------------------------------------------------------ through the runner

@@ -130,8 +130,10 @@ def unscented_moments(g: Gaussian, model: MeasurementModel, R: torch.Tensor, sig
     return MeasurementMoments(z_mean, symmetrise(S), C)
 
 
-def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: MeasurementModel) -> tuple[Gaussian, torch.Tensor, torch.Tensor]:
-    """Kalman update from predicted moments; NaN entries of ``z (..., m)`` are skipped.
+def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments,
+                  model: MeasurementModel | None) -> tuple[Gaussian, torch.Tensor, torch.Tensor]:
+    """Kalman update from predicted moments; NaN entries of ``z (..., m)`` are skipped. ``model``
+    wraps the angle rows of the innovation (None: no angle rows, ``nu = z - m.z``).
 
     The batch axes of ``g``/``m`` and ``z`` broadcast, so one call updates a track with each of
     several candidate measurements (one posterior per association hypothesis).
@@ -141,7 +143,8 @@ def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: Me
     degrees of freedom as entries present, when the filter is consistent).
     """
     missing = torch.isnan(z)
-    nu = model.residual(torch.where(missing, m.z, z), m.z)
+    filled = torch.where(missing, m.z, z)
+    nu = filled - m.z if model is None else model.residual(filled, m.z)
     S, C = m.S, m.C
     if bool(missing.any()):
         keep = (~missing).to(S.dtype)
@@ -159,6 +162,12 @@ def kalman_update(g: Gaussian, z: torch.Tensor, m: MeasurementMoments, model: Me
     x = g.x + (Wc.transpose(-1, -2) @ e.unsqueeze(-1)).squeeze(-1)
     P = symmetrise(g.P - Wc.transpose(-1, -2) @ Wc)
     return Gaussian(x, P), nu, (e * e).sum(-1)
+
+
+def kalman_gain(m: MeasurementMoments) -> torch.Tensor:
+    """The gain ``K = C S^-1 (..., n, m)`` of :func:`kalman_update` (Cholesky of ``S``), for a
+    filter that applies it itself (``x + K nu``, ``P - K C^T``)."""
+    return torch.cholesky_solve(m.C.transpose(-1, -2), safe_cholesky(m.S)).transpose(-1, -2)
 
 
 def sequential_update(g: Gaussian, z: torch.Tensor, model: MeasurementModel, R: torch.Tensor,

@@ -104,23 +104,24 @@ def systematic_resample(weights: torch.Tensor, generator: torch.Generator | None
 
 def segmented_resample(x: torch.Tensor, logw: torch.Tensor, comp: torch.Tensor, active: torch.Tensor, counts: torch.Tensor,
               g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Systematic resampling of each active component (a mixture's components, a PHD's runs) to ``counts (B, Q)`` particles, in one pass:
-    with the particles sorted by component and each component's weights summing to one, the
-    running sum of all weights passes ``c + (i + U) / L`` inside component ``c``'s ``i``-th stratum."""
-    B, Q = counts.shape
+    """Systematic resampling of each active component (a mixture's components, a PHD's runs) to
+    ``counts (B, n_components)`` particles, in one pass: with the particles sorted by component and
+    each component's weights summing to one, the running sum of all weights passes
+    ``c + (i + U) / L`` inside component ``c``'s ``i``-th stratum."""
+    B, n_components = counts.shape
     order = torch.argsort(comp, dim=1, stable=True)
     comp_s = comp.gather(1, order)
-    w = torch.where(comp_s < Q, logw.gather(1, order).exp(), torch.zeros((), dtype=logw.dtype))
+    w = torch.where(comp_s < n_components, logw.gather(1, order).exp(), torch.zeros((), dtype=logw.dtype))
     cum = w.cumsum(1)
-    base = active.to(w.dtype).cumsum(1) - active.to(w.dtype)  # (B, Q): components before q
+    base = active.to(w.dtype).cumsum(1) - active.to(w.dtype)  # (B, n_components): components before q
     ends = counts.cumsum(1)
     total = ends[:, -1]
     Mn = int(total.max()) if B else 0
     j = torch.arange(Mn).expand(B, Mn)
-    q = torch.searchsorted(ends, j.contiguous(), right=True).clamp(max=Q - 1)  # (B, Mn)
+    q = torch.searchsorted(ends, j.contiguous(), right=True).clamp(max=n_components - 1)  # (B, Mn)
     start = (ends - counts).gather(1, q)
     L = counts.gather(1, q).clamp(min=1).to(w.dtype)
-    U = torch.rand((B, Q), generator=g, dtype=w.dtype).gather(1, q)
+    U = torch.rand((B, n_components), generator=g, dtype=w.dtype).gather(1, q)
     target = base.gather(1, q) + ((j - start).to(w.dtype) + U) / L
     idx = torch.searchsorted(cum, target.contiguous())
     # stay inside component q whatever the rounding of the running sum
@@ -130,7 +131,7 @@ def segmented_resample(x: torch.Tensor, logw: torch.Tensor, comp: torch.Tensor, 
     src = order.gather(1, idx)
     valid = j < total[:, None]
     x_new = x.gather(1, src[..., None].expand(B, Mn, x.shape[-1]))
-    comp_new = torch.where(valid, q, torch.full_like(q, Q))
+    comp_new = torch.where(valid, q, torch.full_like(q, n_components))
     logw_new = torch.where(valid, -torch.log(L), torch.full_like(L, -math.inf))
     return x_new, comp_new, logw_new
 

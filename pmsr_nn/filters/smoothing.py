@@ -30,7 +30,7 @@ Transition = Callable[[torch.Tensor], torch.Tensor]
 
 @dataclass
 class SmootherResult:
-    """Smoothed means ``x (B, K, n)`` and covariances ``P (B, K, n, n)``."""
+    """Smoothed means ``x (B, K, n)`` and covariances ``P (B, K, n, n)`` (either None where not asked for)."""
 
     x: torch.Tensor
     P: torch.Tensor
@@ -52,24 +52,37 @@ def rts_backward(x: torch.Tensor | None, P: torch.Tensor, F: torch.Tensor, Q: to
 
 
 def rts_from_predictions(x: torch.Tensor | None, P: torch.Tensor, x_pred: torch.Tensor | None, P_pred: torch.Tensor,
-                         F: torch.Tensor) -> SmootherResult:
+                         F: torch.Tensor, covariances: bool = True) -> SmootherResult:
     """Linear RTS pass from filtered moments ``x (B, K, n)``, ``P (B, K, n, n)`` and the
     predictions the filter made from them, ``x_pred[k], P_pred[k]`` for scan ``k + 1``
-    (``(B, K-1, ...)``): what a filter that kept its predictions passes without recomputing them."""
+    (``(B, K-1, ...)``): what a filter that kept its predictions passes without recomputing them.
+    ``x`` None: covariances only; ``covariances`` False: means only (``P`` of the result None).
+
+    What does not depend on the smoothed moments is done for every scan at once (the gains
+    ``G_k^T = P_pred_k^-1 F P_k``, by Cholesky), leaving two fused multiply-adds per scan:
+    ``x_s[k] = (x[k] - G_k x_pred[k]) + G_k x_s[k+1]`` and ``P_s[k] = (P[k] - G_k P_pred[k] G_k^T)
+    + G_k P_s[k+1] G_k^T`` (symmetrised at the end)."""
     _check(x, P)
-    xs = None if x is None else x.clone()
-    Ps = P.clone()
     if P.shape[1] < 2:
-        return SmootherResult(xs, Ps)
-    # Every gain at once (they depend on the filter's moments only): G_k = P_k F^T P_pred_k^-1,
-    # i.e. G_k^T = P_pred_k^-1 F P_k (P_pred symmetric positive definite).
+        return SmootherResult(x, P if covariances else None)
     Gt = torch.cholesky_solve(F @ P[:, :-1], safe_cholesky(P_pred))
     G = Gt.transpose(-1, -2)
-    for k in range(P.shape[1] - 2, -1, -1):
-        Ps[:, k] = symmetrise(P[:, k] + G[:, k] @ (Ps[:, k + 1] - P_pred[:, k]) @ Gt[:, k])
-        if xs is not None:
-            xs[:, k] = x[:, k] + ((xs[:, k + 1] - x_pred[:, k]).unsqueeze(-2) @ Gt[:, k]).squeeze(-2)
-    return SmootherResult(xs, Ps)
+    K = P.shape[1]
+    xs = None
+    if x is not None:
+        cx = x[:, :-1] - (x_pred[:, :, None] @ Gt)[:, :, 0]
+        out = [x[:, -1]]
+        for k in range(K - 2, -1, -1):
+            out.append(torch.baddbmm(cx[:, k, None], out[-1][:, None], Gt[:, k])[:, 0])
+        xs = torch.stack(out[::-1], 1)
+    if not covariances:
+        return SmootherResult(xs, None)
+    cP = P[:, :-1] - G @ P_pred @ Gt
+    out = [P[:, -1]]
+    for k in range(K - 2, -1, -1):
+        out.append(torch.baddbmm(cP[:, k], G[:, k] @ out[-1], Gt[:, k]))
+    Ps = torch.stack(out[::-1], 1)
+    return SmootherResult(xs, 0.5 * (Ps + Ps.transpose(-1, -2)))
 
 
 def rts_smoother(x: torch.Tensor, P: torch.Tensor, motion: KinematicModel, dt: float, q) -> SmootherResult:

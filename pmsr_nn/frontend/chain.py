@@ -39,7 +39,7 @@ import torch
 from .. import SPEED_OF_LIGHT
 from ..errors import ConfigError
 from ..measurements import MeasurementModel
-from ..simulation.detections import CLUTTER, PADDING, Scans, _shuffled, check_model_for_detections
+from ..simulation.detections import CLUTTER, PADDING, Scans, check_model_for_detections, shuffled
 from .cancellation import cancellation_depth_db, eca, nlms
 from .ccf import ccf_batches
 from .centroid import centroids
@@ -141,11 +141,11 @@ class FrontEndRecord:
 
 
 def true_cells(model: MeasurementModel, truth: torch.Tensor):
-    """True bistatic range (m), Doppler (Hz) and the two leg lengths (m) ``(B, K, T, S)`` of
-    targets ``truth (B, K, T, n)`` for every pair of ``model`` (layout ``pair``, range and Doppler)."""
-    B, K, T, _ = truth.shape
+    """True bistatic range (m), Doppler (Hz) and the two leg lengths (m) ``(B, K, N, S)`` of
+    targets ``truth (B, K, N, n)`` for every pair of ``model`` (layout ``pair``, range and Doppler)."""
+    B, K, N, _ = truth.shape
     S = model.n_pairs
-    clean = model.h(truth).reshape(B, K, T, S, 2)
+    clean = model.h(truth).reshape(B, K, N, S, 2)
     g = model.geometry
     pos = truth[..., list(model.pos_idx)]
     tx, rx = g.pair_tx_positions(truth.dtype), g.pair_rx_positions(truth.dtype)
@@ -156,16 +156,16 @@ def true_cells(model: MeasurementModel, truth: torch.Tensor):
 
 def _label(z: torch.Tensor, valid: torch.Tensor, r_true: torch.Tensor, f_true: torch.Tensor, alive: torch.Tensor,
            cell: tuple[float, float], gate: tuple[float, float]) -> torch.Tensor:
-    """Truth origin of detections ``z (R, M, 2)`` given targets' true ``r_true, f_true (R, T)``:
+    """Truth origin of detections ``z (R, M, 2)`` given targets' true ``r_true, f_true (R, N)``:
     one detection per target, the nearest within the gate (in bins), else :data:`CLUTTER`."""
     R, M = valid.shape
-    T = r_true.shape[1]
-    if T == 0 or M == 0:
+    N = r_true.shape[1]
+    if N == 0 or M == 0:
         return torch.full((R, M), CLUTTER, dtype=torch.int64).masked_fill(~valid, PADDING)
     dr = (z[..., None, 0] - r_true[:, None]) / cell[1]
     df = (z[..., None, 1] - f_true[:, None]) / cell[0]
     inside = (dr.abs() <= gate[1]) & (df.abs() <= gate[0]) & valid[..., None] & alive[:, None]
-    dist = torch.where(inside, dr**2 + df**2, math.inf)  # (R, M, T)
+    dist = torch.where(inside, dr**2 + df**2, math.inf)  # (R, M, N)
     best_det = dist.argmin(1)  # per target: its nearest detection
     has = torch.isfinite(dist.amin(1))
     origin = torch.full((R, M), CLUTTER, dtype=torch.int64)
@@ -316,7 +316,7 @@ def front_end_scans(truth: torch.Tensor, alive: torch.Tensor, model: Measurement
     z = torch.stack([pad(t, math.nan) for t in lists_z], 1)
     ok = torch.stack([pad(t, False) for t in lists_ok], 1)
     origin = torch.stack([pad(t, PADDING) for t in lists_org], 1)
-    z, ok, (origin,) = _shuffled(z, ok, (origin,), generator)
+    z, ok, (origin,) = shuffled(z, ok, (origin,), generator)
     scans = Scans(z, ok, origin.masked_fill(~ok, PADDING))
     record.example = _example(example, scans, r_true, f_true, live, sig, spec)
     return scans, record

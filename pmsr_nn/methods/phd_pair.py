@@ -47,6 +47,7 @@ import time
 import torch
 
 from ..errors import ConfigError
+from ..filters.gaussian import Gaussian, MeasurementMoments, kalman_update, predict
 from ..measurements import SPEED_OF_LIGHT, MeasurementModel
 from ..rng import seeded_generator
 from ..trackers.base import Estimates
@@ -196,17 +197,15 @@ def known_association_kf(z: torch.Tensor, origin: torch.Tensor, N: int, F: torch
     P = R.expand(B, N, 2, 2).clone()
     started = torch.zeros(B, N, dtype=torch.bool)
     xs, Ps, ex = [], [], []
-    eye = torch.eye(2, dtype=torch.float64)
     for k in range(K):
-        x, P = x @ F.T, F @ P @ F.T + Q
+        pred = predict(Gaussian(x, P), F, Q)
+        x, P = pred.x, pred.P
         zk = own[:, k]
         seen = torch.isfinite(zk).all(-1)
-        Kg = P @ torch.linalg.inv(P + R)
-        xu = x + (Kg @ (torch.nan_to_num(zk) - x)[..., None])[..., 0]
-        Pu = (eye - Kg) @ P
+        post = kalman_update(pred, zk, MeasurementMoments(x, P + R, P), None)[0]  # H = I: z = x, S = P + R, C = P
         first = seen & ~started  # the first detection starts the filter
-        x = torch.where(first[..., None], torch.nan_to_num(zk), torch.where(seen[..., None], xu, x))
-        P = torch.where(first[..., None, None], R, torch.where(seen[..., None, None], Pu, P))
+        x = torch.where(first[..., None], torch.nan_to_num(zk), torch.where(seen[..., None], post.x, x))
+        P = torch.where(first[..., None, None], R, torch.where(seen[..., None, None], post.P, P))
         started = (started | seen) & alive[k]
         xs.append(x)
         Ps.append(P)

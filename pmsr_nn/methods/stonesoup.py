@@ -172,10 +172,10 @@ def _run_initiating(call: MethodCall) -> Estimates:
     m, sensing, det, spec = call.models, call.sensing, call.product, call.spec
     tracker = spec.option("tracker")
     scans = det.scans
-    B, K, N, _ = scans.shape
+    B, K, S, _ = scans.shape
     n = m.motion.dim_x
     model = sensing.detection_model
-    pair_models = [ss.measurement_model(model.for_pairs([p]), n) for p in range(N)]
+    pair_models = [ss.measurement_model(model.for_pairs([p]), n) for p in range(S)]
     _check_fixes(spec, pair_models)
     density, gate = clutter_density(sensing), float(spec.option("gate_probability"))
     associators, updaters, predictor = _components(tracker, pair_models, ss.transition_model(m.motion, m.q), sensing.pd,
@@ -197,7 +197,7 @@ def _run_initiating(call: MethodCall) -> Estimates:
             initiator=SinglePointMeasurementInitiator(prior, updater=updater))
         confirmed, tracks, life = [], [], []  # live confirmed tracks; every confirmed track and its [first, end) scans
         for k in range(K):
-            for p in range(N):
+            for p in range(S):
                 taken = set()
                 if confirmed:
                     hyps = associators[p].associate(confirmed, lists[k][p], times[k])

@@ -82,17 +82,17 @@ def tracks_of(out: MBOutput, threshold: float, to_state) -> tuple[torch.Tensor, 
     existence ``(B, K, M)``. A track is one life of a component slot (from the birth into it to
     the next birth into it) that is above ``threshold`` at some frame; ``to_state`` maps CV
     means ``(..., 4)`` into the scenario's state."""
-    B, K, Q = out.r.shape
+    B, K, n_slots = out.r.shape
     exists = out.r > threshold
-    born = torch.nn.functional.one_hot(out.born, Q).to(torch.int64)  # (B, K, Q)
-    life = born.cumsum(1)  # (B, K, Q): how many births the slot had so far
-    key = torch.arange(Q) * (K + 1) + life  # (B, K, Q): one id per life of a slot
-    L = Q * (K + 1)
+    born = torch.nn.functional.one_hot(out.born, n_slots).to(torch.int64)  # (B, K, n_slots)
+    life = born.cumsum(1)  # (B, K, n_slots): how many births the slot had so far
+    key = torch.arange(n_slots) * (K + 1) + life  # (B, K, n_slots): one id per life of a slot
+    L = n_slots * (K + 1)
     reported = torch.zeros(B, L, dtype=torch.int64).scatter_reduce(1, key.flatten(1), exists.flatten(1).to(torch.int64),
                                                                      "amax")
     M = max(int(reported.sum(1).max()), 1)
-    index = (reported.cumsum(1) - 1).gather(1, key.flatten(1)).view(B, K, Q)  # track of each (run, frame, slot)
-    keep = reported.gather(1, key.flatten(1)).view(B, K, Q).bool() & (out.r > 0)
+    index = (reported.cumsum(1) - 1).gather(1, key.flatten(1)).view(B, K, n_slots)  # track of each (run, frame, slot)
+    keep = reported.gather(1, key.flatten(1)).view(B, K, n_slots).bool() & (out.r > 0)
     b, k, q = torch.nonzero(keep, as_tuple=True)
     t = index[b, k, q]
     x = torch.zeros(B, K, M, 4, dtype=torch.float64)

@@ -59,12 +59,12 @@ def track_loss(dummy_most_probable: torch.Tensor, gate_sd: torch.Tensor, success
     (no detection) has been its most probable association for ``successive`` scans in a row, or
     once its gate grows past ``gate_limit`` (here: the predicted bistatic-range deviation, m).
 
-    ``dummy_most_probable`` and ``gate_sd`` are ``(B, K, T)``; returns the scan at which each
-    track was declared lost, ``(B, T)`` int64, -1 for a track never lost.
+    ``dummy_most_probable`` and ``gate_sd`` are ``(B, K, M)`` (``M`` tracks); returns the scan at which each
+    track was declared lost, ``(B, M)`` int64, -1 for a track never lost.
     """
-    B, K, T = dummy_most_probable.shape
-    run = torch.zeros(B, T, dtype=torch.int64)
-    lost_at = torch.full((B, T), -1, dtype=torch.int64)
+    B, K, M = dummy_most_probable.shape
+    run = torch.zeros(B, M, dtype=torch.int64)
+    lost_at = torch.full((B, M), -1, dtype=torch.int64)
     for k in range(K):  # K is small (scans); runs and tracks are vectorised
         run = torch.where(dummy_most_probable[:, k], run + 1, torch.zeros_like(run))
         hit = ((run >= successive) | (gate_sd[:, k] > gate_limit)) & (lost_at < 0)

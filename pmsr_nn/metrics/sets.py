@@ -264,7 +264,7 @@ def persistent_assignment(
     return out
 
 
-def _target_tracks(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
+def target_tracks(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
     """``(..., K, N)`` int64: the track slot assigned to each living target at each scan (-1: none)."""
     N = truth_mask.shape[-1]
     if assignment_per_scan.shape[:-1] != truth_mask.shape[:-1]:
@@ -285,7 +285,7 @@ def label_switches(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) 
     ``assignment_per_scan (B, K, M)`` int64 is :func:`optimal_assignment` per scan (truth index per
     track slot, -1 unassigned); ``truth_mask (B, K, N)``. Any leading dims before ``K`` work.
     """
-    track = _target_tracks(assignment_per_scan, truth_mask)
+    track = target_tracks(assignment_per_scan, truth_mask)
     has = track >= 0
     changed = has[..., 1:, :] & has[..., :-1, :] & (track[..., 1:, :] != track[..., :-1, :])
     return changed.sum(-2)
@@ -295,7 +295,7 @@ def fragmentations(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) 
     """``(B, N)`` int64: how often each target's track coverage is interrupted (the CLEAR MOT
     "fragmentation"): the target is assigned at scan ``k-1``, alive but unassigned at ``k``, and
     assigned again at a later scan. Arguments as :func:`label_switches`."""
-    track = _target_tracks(assignment_per_scan, truth_mask)
+    track = target_tracks(assignment_per_scan, truth_mask)
     has = track >= 0
     later = has.flip(-2).to(torch.int64).cummax(-2).values.flip(-2).bool()  # assigned at k or after
     after = torch.zeros_like(has)

@@ -17,7 +17,7 @@ from typing import Sequence
 
 import torch
 
-from .sets import _target_tracks, fragmentations, label_switches
+from .sets import fragmentations, label_switches, target_tracks
 
 
 def _check_assignment(assignment: torch.Tensor, N: int) -> torch.Tensor:
@@ -93,7 +93,7 @@ def track_scores(assignment: torch.Tensor, exists: torch.Tensor, truth_mask: tor
         raise ValueError("assignment gives a track to a target that does not live at that scan")
 
     f = torch.get_default_dtype()
-    track = _target_tracks(assignment, truth_mask)  # (..., K, N)
+    track = target_tracks(assignment, truth_mask)  # (..., K, N)
     has = track >= 0
     first_alive, first_track = _first_index(truth_mask), _first_index(has)
     # living scans after the last assigned one: living and not assigned at this scan or any later one

@@ -37,13 +37,14 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..filters.gaussian import Gaussian, kalman_gain, linearised_moments, symmetrise
 from ..measurements import MeasurementModel
 from ..motion import ConstantAcceleration
 from .config import ModelConfig
 
 
 class KalmanNetTracker(nn.Module):
-    """``u (B, T, m + n) -> y (B, T, n)``: measurements (SI) and state fixes in, correction to the
+    """``u (B, K, m + n) -> y (B, K, n)``: measurements (SI) and state fixes in, correction to the
     fix (in units of ``state_scale``) out. Causal with unbounded memory (``context == (None, 0)``)."""
 
     def __init__(self, cfg: ModelConfig, model: MeasurementModel, dt: float, noise_scale: torch.Tensor,
@@ -75,19 +76,19 @@ class KalmanNetTracker(nn.Module):
         return self.s_x[:, None] * G / self.s_z, hidden
 
     def filter(self, z: torch.Tensor, fix0: torch.Tensor, gain=None, fixes: torch.Tensor | None = None) -> torch.Tensor:
-        """Filtered states ``(B, T, n)`` (SI) of ``z (B, T, m)`` started at ``fix0 (B, n)``.
+        """Filtered states ``(B, K, n)`` (SI) of ``z (B, K, m)`` started at ``fix0 (B, n)``.
 
         ``gain``: None for the network; else a callable ``(x_pred, nu) -> K (B, n, m)`` (e.g.
-        :class:`EKFGain`) that replaces it. ``fixes (B, T, n)``: every scan's state fix, which a
+        :class:`EKFGain`) that replaces it. ``fixes (B, K, n)``: every scan's state fix, which a
         lost filter is re-started at (``restart_gate``; without them, or with a ``gain``, never)."""
-        B, T, _ = z.shape
+        B, K, _ = z.shape
         x = fix0
         x_prev, x_pred_prev = x, x
         hidden = z.new_zeros(B, self.gru.hidden_size) if gain is None else None
         F = self.F.to(z.dtype)
         restart = fixes is not None and self.cfg.restart_gate is not None
         out = [x]
-        for k in range(1, T):
+        for k in range(1, K):
             if gain is None:
                 x_new, x_pred, hidden = self.step(z[:, k], z[:, k - 1], x, x_prev, x_pred_prev, hidden)
                 if restart:
@@ -154,9 +155,7 @@ class EKFGain:
 
     def __call__(self, x_pred: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
         P = self.F @ self.P @ self.F.T + self.Q
-        H = self.model.jacobian(x_pred)
-        S = H @ P @ H.transpose(-1, -2) + self.R
-        K = torch.linalg.solve(S, H @ P).transpose(-1, -2)  # P H^T S^-1 (S, P symmetric)
-        P = P - K @ S @ K.transpose(-1, -2)
-        self.P = 0.5 * (P + P.transpose(-1, -2))
+        m = linearised_moments(Gaussian(x_pred, P), self.model, self.R)  # S = H P H^T + R, C = P H^T
+        K = kalman_gain(m)
+        self.P = symmetrise(P - K @ m.C.transpose(-1, -2))  # K S K^T = C S^-1 C^T = K C^T
         return K

@@ -123,9 +123,9 @@ def start_run(out: Path, cfg, recipe: str) -> None:
 
     from ..config import to_dict
     from ..outputs import write_marker
-    from .training import _check_run_folder
+    from .training import check_run_folder
 
-    _check_run_folder(out, resume=False, inputs=[Path(recipe)])
+    check_run_folder(out, resume=False, inputs=[Path(recipe)])
     out.mkdir(parents=True, exist_ok=True)
     write_marker(out, "train", state="running")
     (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))

@@ -82,7 +82,10 @@ def prepare_dataset(data: DataConfig, progress: bool = True) -> Path:
 
 # -- the run folder --------------------------------------------------------------------------
 
-def _check_run_folder(out: Path, resume: bool, inputs=()) -> None:
+def check_run_folder(out: Path, resume: bool, inputs=()) -> None:
+    """Refuse (one line) a training output folder ``out`` that is never safe to write
+    (:func:`~pmsr_nn.outputs.check_target`: the working directory, one of the ``inputs``, ...);
+    with ``resume``, one that is not a readable training run."""
     from ..outputs import check_target, output_kind
 
     if os.environ.get(_CHILD_ENV) == str(out.resolve()):
@@ -148,7 +151,7 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
     from .progress import EpochProgress
     from .representation import fit_on_training_tracks
 
-    _check_run_folder(out, resume, inputs=[p for p in (cfg and cfg.data.path, cfg and cfg.data.recipe) if p])
+    check_run_folder(out, resume, inputs=[p for p in (cfg and cfg.data.path, cfg and cfg.data.recipe) if p])
     if resume:
         stored = from_dict(TrainConfig, load_yaml(out / "config.yaml"), where=f"{out}/config.yaml")
         if cfg is not None and to_dict(cfg) != to_dict(stored):

@@ -160,11 +160,11 @@ def simulate_scans(truth: torch.Tensor, model: MeasurementModel, pd: float, clut
     valid = torch.cat([target_ok, clutter_ok], dim=3)
     target_ids = torch.arange(N, device=device).expand(B, K, S, N)
     origin = torch.cat([target_ids, torch.full((B, K, S, C), CLUTTER, dtype=torch.int64, device=device)], dim=3)
-    z, valid, (origin,) = _shuffled(z, valid, (origin,), generator)
+    z, valid, (origin,) = shuffled(z, valid, (origin,), generator)
     return Scans(z, valid, origin.masked_fill(~valid, PADDING))
 
 
-def _shuffled(z: torch.Tensor, valid: torch.Tensor, labels: tuple[torch.Tensor, ...], generator: torch.Generator | None):
+def shuffled(z: torch.Tensor, valid: torch.Tensor, labels: tuple[torch.Tensor, ...], generator: torch.Generator | None):
     """Lists ``z (..., M, d)``, ``valid (..., M)`` and per-detection ``labels`` in a random order
     of the valid detections, padding last, cut to the longest list: one draw per slot."""
     keys = torch.rand(valid.shape, generator=generator, dtype=z.dtype, device=z.device).masked_fill(~valid, 2.0)
@@ -220,5 +220,5 @@ def pool_by_receiver(scans: Scans, model: MeasurementModel, generator: torch.Gen
         return torch.stack(parts, 2)
 
     z, valid = stack(0, float("nan")), stack(1, False)
-    z, valid, (origin, pair) = _shuffled(z, valid, (stack(2, PADDING), stack(3, -1)), generator)
+    z, valid, (origin, pair) = shuffled(z, valid, (stack(2, PADDING), stack(3, -1)), generator)
     return PooledScans(Scans(z, valid, origin.masked_fill(~valid, PADDING)), pair.masked_fill(~valid, -1), routes)

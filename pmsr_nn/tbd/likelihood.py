@@ -18,8 +18,8 @@ the cost of ``torch.special.i0e``), over chunks of states whose temporaries stay
 The amplitude ``A`` of ``g = A G`` (``G`` the unit response) that maximises a state's likelihood
 solves ``A = sum |z| G rho(2 A |z| G / sigma^2) / sum G^2`` with ``rho = I1 / I0``; we solve it by
 Newton's method on the exact Rician density (:func:`ml_amplitude`; the seed's Eq. 19 uses the
-asymptotic expansion of ``I0``). Shapes: ``B`` runs, ``M`` particles, ``P`` maps,
-``S`` cells of a sub-area.
+asymptotic expansion of ``I0``). Shapes: ``B`` runs, ``M`` particles, ``S`` maps (one per pair),
+``C`` cells of a sub-area.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from .maps import MapGrid, triangle
 @dataclass
 class CellValues:
     """The cells a batch of states reads: ``absz`` (map magnitudes) and ``G`` (unit response
-    magnitudes), each ``(B, M, P, S)`` float32; cells outside the map have ``G = 0``."""
+    magnitudes), each ``(B, M, S, C)`` float32; cells outside the map have ``G = 0``."""
 
     absz: torch.Tensor
     G: torch.Tensor
@@ -48,19 +48,19 @@ def _offsets(half: int, n: int) -> torch.Tensor:
 def gather_cells(maps_abs: torch.Tensor, d: torch.Tensor, u: torch.Tensor, lobe_cells: float,
                  half: int | None) -> CellValues:
     """Magnitudes and unit responses of the sub-area cells of states at fractional cells
-    ``d, u (B, M, P)`` (Doppler row, range column) in maps ``maps_abs (B, P, D, U)``, gathered in
+    ``d, u (B, M, S)`` (Doppler row, range column) in maps ``maps_abs (B, S, D, U)``, gathered in
     chunks of states of about :data:`LIKELIHOOD_CHUNK_CELLS` cells (cache-sized temporaries)."""
-    B, P, D, U = maps_abs.shape
+    B, S, D, U = maps_abs.shape
     M = d.shape[1]
     n_rows = D if half is None else 2 * min(half, D) + 1
     n_cols = 2 * math.ceil(lobe_cells) + 1 if half is None else 2 * min(half, U) + 1
-    absz = maps_abs.new_empty(B, M, P, n_rows * n_cols)
-    G = maps_abs.new_empty(B, M, P, n_rows * n_cols)
-    step = max(1, LIKELIHOOD_CHUNK_CELLS // max(1, B * P * n_rows * n_cols))
+    absz = maps_abs.new_empty(B, M, S, n_rows * n_cols)
+    G = maps_abs.new_empty(B, M, S, n_rows * n_cols)
+    step = max(1, LIKELIHOOD_CHUNK_CELLS // max(1, B * S * n_rows * n_cols))
     flat_maps = maps_abs.reshape(B, -1)
     for m in range(0, M, step):
         sl = slice(m, m + step)
-        a, g = _gather_chunk(flat_maps, (P, D, U), d[:, sl], u[:, sl], lobe_cells, half)
+        a, g = _gather_chunk(flat_maps, (S, D, U), d[:, sl], u[:, sl], lobe_cells, half)
         absz[:, sl], G[:, sl] = a, g
     return CellValues(absz, G)
 
@@ -75,14 +75,14 @@ def _gather_chunk(flat_maps: torch.Tensor, shape: tuple[int, int, int], d: torch
 
 def sub_area(shape: tuple[int, int, int], d: torch.Tensor, u: torch.Tensor, lobe_cells: float,
              half: int | None) -> tuple[torch.Tensor, torch.Tensor]:
-    """The unit responses ``G`` and the flat indices into maps of ``shape = (P, D, U)`` (map ``p``'s
+    """The unit responses ``G`` and the flat indices into maps of ``shape = (S, D, U)`` (map ``p``'s
     cell ``(row, col)`` at ``(p D + row) U + col``; cells outside the map clamped to its edge, with
-    ``G = 0``) of the sub-area cells of states at fractional cells ``d, u (B, M, P)``: each
-    ``(B, M, P, S)``."""
-    P, D, U = shape
+    ``G = 0``) of the sub-area cells of states at fractional cells ``d, u (B, M, S)``: each
+    ``(B, M, S, C)``."""
+    S, D, U = shape
     B, M = d.shape[:2]
     if half is None:  # every row; the columns the triangle reaches
-        rows = torch.arange(D).view(1, 1, 1, D).expand(B, M, P, D)
+        rows = torch.arange(D).view(1, 1, 1, D).expand(B, M, S, D)
         cw = math.ceil(lobe_cells)
         cols = torch.round(u).to(torch.int64)[..., None] + torch.arange(-cw, cw + 1)
     else:
@@ -91,9 +91,9 @@ def sub_area(shape: tuple[int, int, int], d: torch.Tensor, u: torch.Tensor, lobe
     # the response is separable: a factor per row and per column, zero outside the map
     row_f = torch.sinc(rows - d[..., None]).abs() * ((rows >= 0) & (rows < D))
     col_f = triangle((cols - u[..., None]) / lobe_cells) * ((cols >= 0) & (cols < U))
-    G = (row_f[..., :, None] * col_f[..., None, :]).reshape(B, M, P, -1)
-    flat = (torch.arange(P).view(1, 1, P, 1) * D + rows.clamp(0, D - 1))[..., :, None] * U + cols.clamp(0, U - 1)[..., None, :]
-    return G, flat.reshape(B, M, P, -1)
+    G = (row_f[..., :, None] * col_f[..., None, :]).reshape(B, M, S, -1)
+    flat = (torch.arange(S).view(1, 1, S, 1) * D + rows.clamp(0, D - 1))[..., :, None] * U + cols.clamp(0, U - 1)[..., None, :]
+    return G, flat.reshape(B, M, S, -1)
 
 
 # Abramowitz & Stegun 9.8.1 (t = (x / 3.75)^2, x <= 3.75; stated error 1.6e-7 relative) and 9.8.2
@@ -150,13 +150,13 @@ def _chunk_log_likelihood_ratio(absz: torch.Tensor, G: torch.Tensor, amplitude: 
 
 
 def log_likelihood_ratio(cells: CellValues, amplitude: torch.Tensor, noise_power: float) -> torch.Tensor:
-    """Per state and map ``(B, M, P)``: the summed cell log ratios for amplitude ``amplitude``
-    (broadcast against ``(B, M, P)``, e.g. ``(B, 1, P)``), in chunks of states of about
+    """Per state and map ``(B, M, S)``: the summed cell log ratios for amplitude ``amplitude``
+    (broadcast against ``(B, M, S)``, e.g. ``(B, 1, S)``), in chunks of states of about
     :data:`LIKELIHOOD_CHUNK_CELLS` cells."""
-    B, M, P, S = cells.absz.shape
-    amp = amplitude.to(cells.G.dtype).expand(B, M, P)
-    step = max(1, LIKELIHOOD_CHUNK_CELLS // max(1, B * P * S))  # states per chunk
-    out = cells.absz.new_empty(B, M, P)
+    B, M, S, n_cells = cells.absz.shape
+    amp = amplitude.to(cells.G.dtype).expand(B, M, S)
+    step = max(1, LIKELIHOOD_CHUNK_CELLS // max(1, B * S * n_cells))  # states per chunk
+    out = cells.absz.new_empty(B, M, S)
     for m in range(0, M, step):
         sl = slice(m, m + step)
         out[:, sl] = _chunk_log_likelihood_ratio(cells.absz[:, sl], cells.G[:, sl], amp[:, sl], noise_power)
@@ -164,7 +164,7 @@ def log_likelihood_ratio(cells: CellValues, amplitude: torch.Tensor, noise_power
 
 
 def ml_amplitude(cells: CellValues, noise_power: float, iterations: int = 30, tol: float = 1e-6) -> torch.Tensor:
-    """The amplitude maximising each state's likelihood on its cells ``(B, M, P)`` (0 where the
+    """The amplitude maximising each state's likelihood on its cells ``(B, M, S)`` (0 where the
     state reads no cell).
 
     The score is ``f(A) = sum |z| G rho(2 A |z| G / sigma^2) - A sum G^2``, concave in ``A`` (``rho``
@@ -194,34 +194,34 @@ def ml_amplitude(cells: CellValues, noise_power: float, iterations: int = 30, to
 def max_ml_amplitude(cells: CellValues, valid: torch.Tensor, noise_power: float, iterations: int = 30,
                      candidates: int | None = 256) -> torch.Tensor:
     """The largest maximum-likelihood amplitude over the valid states ``valid (B, M)`` of each run
-    and map ``(B, P)`` (the seed's estimate below Eq. 24), over the states
+    and map ``(B, S)`` (the seed's estimate below Eq. 24), over the states
     :func:`candidate_ml_amplitudes` iterates."""
     return candidate_ml_amplitudes(cells, valid, noise_power, iterations, candidates)[0].amax(1)
 
 
 def candidate_ml_amplitudes(cells: CellValues, valid: torch.Tensor, noise_power: float, iterations: int = 30,
                             candidates: int | None = 256) -> tuple[torch.Tensor, torch.Tensor]:
-    """The maximum-likelihood amplitudes ``(B, k, P)`` of the ``k = candidates`` valid states
+    """The maximum-likelihood amplitudes ``(B, k, S)`` of the ``k = candidates`` valid states
     (``valid (B, M)``) with the largest starting values per run and map, and those states' indices
-    ``(B, k, P)`` into ``M``. Every state's ML amplitude is at most its starting value
+    ``(B, k, S)`` into ``M``. Every state's ML amplitude is at most its starting value
     ``sum |z| G / sum G^2`` (``rho < 1``), so only those are iterated (``None``: all states, exact).
     The pre-selection can miss the maximum where noise inflates a starting value more than the
     iteration deflates it; the cost of iterating every particle (the special functions on
-    ``B x M x P x S`` cells, 30 times) is what it saves."""
+    ``B x M x S x C`` cells, 30 times) is what it saves."""
     zG = (cells.absz * cells.G).sum(-1)
     G2 = (cells.G * cells.G).sum(-1)
     a0 = torch.where(valid[..., None] & (G2 > 0), zG / torch.where(G2 > 0, G2, torch.ones((), dtype=G2.dtype)),
-                     torch.zeros((), dtype=zG.dtype))  # (B, M, P)
+                     torch.zeros((), dtype=zG.dtype))  # (B, M, S)
     M = a0.shape[1]
     k = M if candidates is None else min(candidates, M)
-    _, idx = a0.topk(k, dim=1)  # (B, k, P)
-    S = cells.absz.shape[-1]
-    sub = CellValues(cells.absz.gather(1, idx[..., None].expand(-1, -1, -1, S)),
-                     cells.G.gather(1, idx[..., None].expand(-1, -1, -1, S)))
+    _, idx = a0.topk(k, dim=1)  # (B, k, S)
+    n_cells = cells.absz.shape[-1]
+    sub = CellValues(cells.absz.gather(1, idx[..., None].expand(-1, -1, -1, n_cells)),
+                     cells.G.gather(1, idx[..., None].expand(-1, -1, -1, n_cells)))
     return ml_amplitude(sub, noise_power, iterations), idx
 
 
 def cells_of_states(grid: MapGrid, rng: torch.Tensor, dop: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Fractional cells ``(d, u)`` float32 of ranges / Dopplers ``(B, M, P)``."""
+    """Fractional cells ``(d, u)`` float32 of ranges / Dopplers ``(B, M, S)``."""
     d, u = grid.cell_coordinates(rng, dop)
     return d.to(torch.float32), u.to(torch.float32)

@@ -23,8 +23,8 @@ def run_filter(scene: MapScene, spec: MBSpec, product: RangeDopplerMaps, g: torc
                detect: DetectSpec | None = None) -> MBOutput:
     """The CV multi-Bernoulli filter of ``spec`` over every frame of ``product`` (its runs batched)."""
     cv = motion_model("cv", 2)
-    T = scene.frame_s
-    mb = MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(T), cv.noise_factor(T, 1.0))
+    dt = scene.frame_s
+    mb = MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(dt), cv.noise_factor(dt, 1.0))
     snr = torch.tensor(scene.snr_db, dtype=torch.float64)
     if detect is not None:
         measure = DetectionLikelihood(detect, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power,

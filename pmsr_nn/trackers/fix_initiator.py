@@ -16,7 +16,7 @@ from ..config import require
 from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel, wrap_angle
-from .gating import gate_threshold
+from .gating import gate_threshold, inside_gate, mahalanobis
 from .initiators import velocity_fit
 
 
@@ -132,7 +132,7 @@ class FixInitiator:
             if (c, b) not in dist:
                 diff = pos[:, c, :, None] - pos[:, b, None, :]  # (B, M, M, 2)
                 both = cov[:, c, :, None] + cov[:, b, None, :]
-                dist[c, b] = (diff.unsqueeze(-2) @ torch.linalg.solve(both, diff.unsqueeze(-1))).squeeze(-1).squeeze(-1)
+                dist[c, b] = mahalanobis(diff, both)
             return dist[c, b]
 
         for a in range(S):
@@ -142,13 +142,13 @@ class FixInitiator:
             spread = torch.zeros(B, M, dtype=pos.dtype)  # summed distance of the members to the group
             for b in range(a + 1, S):
                 d2 = d2_of(a, b)
-                agree = (d2 <= gamma) & usable[:, a, :, None] & usable[:, b, None, :]
+                agree = inside_gate(d2, gamma) & usable[:, a, :, None] & usable[:, b, None, :]
                 if shared:
                     for c in range(a + 1, b):  # every member so far, not the anchor alone
                         m_c = members[..., c]
                         row = d2_of(c, b).gather(1, m_c.clamp(min=0)[..., None].expand(B, M, M))
                         has_c = (m_c >= 0)[..., None]
-                        agree &= ~has_c | (row <= gamma)
+                        agree &= ~has_c | inside_gate(row, gamma)
                         d2 = d2 + torch.where(has_c, row, torch.zeros((), dtype=d2.dtype))
                     for c in range(a, b):  # a detection of b's list already in the group under another pair
                         if src[c] == src[b]:

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import torch
 
 from ..config import require
+from .gating import inside_gate
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,7 @@ def utilities(d2: torch.Tensor, strategy_ok: torch.Tensor, gate: float, spec: Ga
     """Own-distance utilities ``U (B, P, T + 1)`` (last column: null), before the conflict term."""
     B, P, T = d2.shape
     bad = -gate * (1 + spec.conflict)
-    U = torch.where(strategy_ok[:, None, :] & (d2 < gate), -d2, torch.full((), bad, dtype=d2.dtype))
+    U = torch.where(strategy_ok[:, None, :] & inside_gate(d2, gate), -d2, torch.full((), bad, dtype=d2.dtype))
     return torch.cat([U, torch.full((B, P, 1), -gate, dtype=d2.dtype)], -1)
 
 

@@ -21,6 +21,7 @@ cut a labelled track while a one-scan false estimate does not linger.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -29,7 +30,7 @@ import torch
 from scipy.optimize import linear_sum_assignment
 
 from ..config import require
-from .gating import gate_threshold
+from .gating import gate_threshold, inside_gate, mahalanobis
 from .base import Estimates
 from .gtda import GameSpec, play
 from .management import Confirmer
@@ -63,21 +64,21 @@ class LabelSpec:
         self.confirmer  # refuses an M-of-N that could never confirm
 
 
-def mahalanobis(x: torch.Tensor, P: torch.Tensor, e: torch.Tensor, Pe: torch.Tensor) -> torch.Tensor:
-    """``d2 (B, P, T)`` of estimates ``e (B, T, 2)`` (covariances ``Pe (B, T, 2, 2)``) from tracks
-    ``x (B, P, 2)`` (``P (B, P, 2, 2)``); NaN inputs give NaN."""
-    S = P[:, :, None] + Pe[:, None, :]  # (B, P, T, 2, 2)
-    d = e[:, None, :, :] - x[:, :, None, :]
-    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
-    det = a * c - b * b
-    return (c * d[..., 0] ** 2 - 2 * b * d[..., 0] * d[..., 1] + a * d[..., 1] ** 2) / det
+def track_distances(x: torch.Tensor, P: torch.Tensor, e: torch.Tensor, Pe: torch.Tensor) -> torch.Tensor:
+    """``d2 (B, tracks, estimates)`` of estimates ``e (B, estimates, 2)`` (covariances ``Pe``) from
+    tracks ``x (B, tracks, 2)`` (covariances ``P``) under the summed covariance
+    (:func:`~.gating.mahalanobis`); NaN inputs give NaN, a sum that is not positive definite ``inf``."""
+    return mahalanobis(e[:, None, :, :] - x[:, :, None, :], P[:, :, None] + Pe[:, None, :])
 
 
 def hungarian(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor, gate: float) -> torch.Tensor:
-    """``choice (B, P)`` (-1: none): per run, the assignment minimising ``sum min(d2, gate)``."""
-    B, P, T = d2.shape
-    choice = np.full((B, P), -1, dtype=np.int64)
+    """``choice (B, tracks)`` (-1: none) of ``d2 (B, tracks, estimates)``: per run, the assignment
+    minimising ``sum min(d2, gate)``; a track takes its estimate only inside the gate
+    (:func:`~.gating.inside_gate`)."""
+    B, n_tracks, _ = d2.shape
+    choice = np.full((B, n_tracks), -1, dtype=np.int64)
     cost = torch.nan_to_num(d2, nan=gate).clamp(max=gate).numpy()
+    inside = inside_gate(d2, gate).numpy()
     pl, ok = player.numpy(), strategy_ok.numpy()
     for b in range(B):
         rows, cols = np.flatnonzero(pl[b]), np.flatnonzero(ok[b])
@@ -85,7 +86,7 @@ def hungarian(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor,
             continue
         c = cost[b][np.ix_(rows, cols)]
         r, k = linear_sum_assignment(c)
-        take = c[r, k] < gate
+        take = inside[b, rows[r], cols[k]]
         choice[b, rows[r[take]]] = cols[k[take]]
     return torch.from_numpy(choice)
 
@@ -115,8 +116,8 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
     for k in range(K):
         tx, tP = tx @ F.T, F @ tP @ F.T + Q
         ek, Pk, ok = torch.nan_to_num(x[:, k]), P[:, k], exists[:, k]
-        d2 = mahalanobis(tx, tP, ek, Pk)
-        d2 = torch.where(alive[:, :, None] & ok[:, None, :], torch.nan_to_num(d2, nan=gate), torch.full((), gate))
+        d2 = track_distances(tx, tP, ek, Pk)
+        d2 = torch.where(alive[:, :, None] & ok[:, None, :] & ~d2.isnan(), d2, torch.full((), math.inf))  # inf: no gate
         if spec.method == "gtda":
             res = play(d2, alive, ok, gate, spec.game, g)
             choice = res.choice

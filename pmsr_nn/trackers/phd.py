@@ -53,7 +53,7 @@ from ..config import require
 from ..errors import ConfigError
 from ..filters.particle import segmented_resample
 from ..rng import standard_normal
-from .gating import gate_threshold
+from .gating import gate_threshold, inside_gate, pairwise_d2
 
 @dataclass(frozen=True)
 class PHDSpec:
@@ -178,7 +178,7 @@ def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate
     metric ``d2(points (B, P, n), centres (B, C, n), which (B, C)) -> (B, P, C)`` (squared, gated at
     ``gate``; ``which``: the seed each centre came from, for a metric per seed): greedily the
     heaviest seed of mass at least ``least``, dropping the seeds inside its gate (``near_seeds (B, S,
-    S)``, null: row ``i`` of ``d2(seeds, seeds) < gate``); then ``iterations`` Lloyd passes, each
+    S)``, null: row ``i`` of ``d2(seeds, seeds)`` inside the gate); then ``iterations`` Lloyd passes, each
     particle joining its nearest centre when inside the gate.
     Returns ``x (B, C, n)`` (the weighted means), ``P (B, C, n, n)`` (the weighted spreads),
     ``mass (B, C)``, ``exists (B, C)`` (a positive mass of at least ``keep``, null: ``least``) and
@@ -187,7 +187,7 @@ def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate
     n = st.x.shape[-1]
     S = seeds.shape[1]
     if near_seeds is None:
-        near_seeds = d2(seeds, seeds, torch.arange(S).expand(B, S)) < gate  # (B, S, S)
+        near_seeds = inside_gate(d2(seeds, seeds, torch.arange(S).expand(B, S)), gate)  # (B, S, S)
     centres, exists, picked = [], [], []
     for _ in range(S):  # greedy: the heaviest seed, then drop the seeds inside its gate
         best = seed_mass.argmax(1)
@@ -212,7 +212,7 @@ def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate
     for it in range(iterations + 1):  # the last pass only assigns (and gives P)
         dist = d2(st.x, centre, which).masked_fill_(~exists[:, None, :], math.inf)
         near_d2, owner = dist.min(2)
-        owner = (torch.where(near_d2 < gate, owner, torch.full_like(owner, C)) + base).reshape(-1)  # C: no gate
+        owner = (torch.where(inside_gate(near_d2, gate), owner, torch.full_like(owner, C)) + base).reshape(-1)  # C: no gate
         mass = binned(owner, w)
         if it == iterations:
             break
@@ -319,13 +319,10 @@ class SMCPHD:
         return correct(st, self.weighted_likelihood(st, z, valid), valid, self.pd, self.kappa)
 
     def _d2(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        """Squared distances ``(B, M, C)`` between points ``x (B, M, 2)`` and ``c (B, C, 2)`` in units of the
-        detection deviations, as ``|x|^2 + |c|^2 - 2 x.c`` (one batched product: the cancellation costs
-        ``|x / sd|^2 x eps``, below 1e-9 for ranges of 100 km)."""
-        xs, cs = x / self.sd, c / self.sd
-        d2 = torch.baddbmm((xs * xs).sum(-1)[:, :, None] + (cs * cs).sum(-1)[:, None, :], xs, cs.transpose(1, 2),
-                           alpha=-2.0)
-        return d2.clamp_(min=0.0)
+        """Squared Mahalanobis distances ``(B, M, C)`` between points ``x (B, M, 2)`` and ``c (B, C, 2)``
+        under the detections' covariance ``diag(sd^2)`` (:func:`~.gating.pairwise_d2` of the points in
+        units of the deviations)."""
+        return pairwise_d2(x / self.sd, c / self.sd)
 
     def estimate(self, st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor):
         """Gated weighted k-means (module docstring, :func:`cluster`) from candidate centres ``seeds (B, S, 2)``

@@ -66,7 +66,7 @@ from ..filters.particle import segmented_resample
 from ..measurements import MeasurementModel, wrap_angle
 from ..motion import KinematicModel
 from ..rng import standard_normal
-from .gating import gate_threshold
+from .gating import gate_threshold, inside_gate, mahalanobis, whitened_d2, whitening
 from .fix_initiator import FixInitiator
 from .initiators import rate_component
 from .phd import PHDEstimates, PHDState, check_phd_settings, cluster, correct
@@ -245,16 +245,9 @@ class CartesianPHD:
 
     # -- 4. and 5.
 
-    def _metric(self, P: torch.Tensor) -> torch.Tensor:
-        """The inverse ``(..., 2, 2)`` of spreads ``P (..., 2, 2)`` floored by ``cluster_sd_m^2`` per axis."""
-        floor = self.spec.cluster_sd_m**2 * torch.eye(2, dtype=P.dtype)
-        return torch.linalg.inv(0.5 * (P + P.transpose(-1, -2)) + floor)
-
-    @staticmethod
-    def _quadratic(d: torch.Tensor, W: torch.Tensor) -> torch.Tensor:
-        """``d^T W d`` of differences ``d (..., 2)`` and symmetric ``W (..., 2, 2)`` (broadcast)."""
-        return (W[..., 0, 0] * d[..., 0] ** 2 + 2 * W[..., 0, 1] * d[..., 0] * d[..., 1]
-                + W[..., 1, 1] * d[..., 1] ** 2)
+    def _spread(self, P: torch.Tensor) -> torch.Tensor:
+        """Spreads ``P (..., 2, 2)`` symmetrised and floored by ``cluster_sd_m^2`` per axis: a clustering metric's covariance."""
+        return 0.5 * (P + P.transpose(-1, -2)) + self.spec.cluster_sd_m**2 * torch.eye(2, dtype=P.dtype)
 
     def estimate(self, st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, seed_P: torch.Tensor):
         """Clusters (step 4) from the partitions ``seeds (B, S, n)``, ``seed_mass (B, S)``, ``seed_P
@@ -266,14 +259,14 @@ class CartesianPHD:
         deviations. Two seeds are one target when inside the gate of the sum of their spreads."""
         B, S = seed_mass.shape
         sp = seeds[..., self.pos]
-        W = self._metric(seed_P)  # (B, S, 2, 2)
-        pair_W = self._metric(seed_P[:, :, None] + seed_P[:, None, :] + self.spec.cluster_sd_m**2 * torch.eye(
+        W = whitening(self._spread(seed_P))  # (B, S, 2, 2)
+        pair_S = self._spread(seed_P[:, :, None] + seed_P[:, None, :] + self.spec.cluster_sd_m**2 * torch.eye(
             2, dtype=seed_P.dtype))  # (B, S, S, 2, 2)
-        near_seeds = self._quadratic(sp[:, :, None] - sp[:, None, :], pair_W) < self.spec.gate
+        near_seeds = inside_gate(mahalanobis(sp[:, :, None] - sp[:, None, :], pair_S), self.spec.gate)
 
         def d2(x, c, which):
             Wc = W.gather(1, which[..., None, None].expand(*which.shape, 2, 2))  # (B, C, 2, 2)
-            return self._quadratic(x[..., self.pos][:, :, None] - c[..., self.pos][:, None], Wc[:, None])
+            return whitened_d2(x[..., self.pos][:, :, None] - c[..., self.pos][:, None], Wc[:, None])
 
         # keep 0: a cluster a partition of at least estimate_mass seeded is an estimate whatever its final
         # mass; the iterated corrector leaves a target the last pair missed with 1 - Pd of its mass

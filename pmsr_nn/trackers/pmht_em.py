@@ -14,6 +14,7 @@ import math
 import torch
 
 from ..filters.gaussian import Gaussian, safe_cholesky
+from ..filters.smoothing import rts_from_predictions
 from ..measurements import wrap_angle
 from .gating import gaussian_log_likelihood
 from .pmht_model import AssociationLists, PMHTProblem
@@ -186,8 +187,8 @@ def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tens
     update of
     :func:`~pmsr_nn.filters.gaussian.kalman_update` with the moments of
     :func:`~pmsr_nn.filters.gaussian.unscented_moments`, written out once for the fixed shapes of
-    this loop), then the RTS pass (:func:`_rts`). Returns smoothed ``x (rows, W, n)``, ``P (rows,
-    W, n, n)`` (None unless ``covariances``) and the filter's prediction at scan ``hand_off`` of
+    this loop), then the RTS pass (:func:`~pmsr_nn.filters.smoothing.rts_from_predictions`).
+    Returns smoothed ``x (rows, W, n)``, ``P (rows, W, n, n)`` (None unless ``covariances``) and the filter's prediction at scan ``hand_off`` of
     the window (the next window's prior).
 
     ``born (rows,)`` (optional, -1: none) and ``start`` ``(rows, n)``: a row born at scan ``born`` of
@@ -251,37 +252,9 @@ def _smooth(pr: PMHTProblem, prior: Gaussian, z: torch.Tensor, scale: torch.Tens
         return _smooth(pr, prior, z.masked_fill(missing, math.nan), scale, hand_off, born, start, covariances, True)
     xp.append(x @ Ft)
     Pp.append(pr.F @ P @ Ft + pr.Q)
-    xs, Ps = _rts(pr.F, torch.stack(xf, 1), torch.stack(Pf, 1), torch.stack(xp[1:W], 1), torch.stack(Pp[1:W], 1),
-                  covariances)
-    return xs, Ps, Gaussian(xp[hand_off], Pp[hand_off])
-
-
-def _rts(F: torch.Tensor, x: torch.Tensor, P: torch.Tensor, x_pred: torch.Tensor, P_pred: torch.Tensor,
-         covariances: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """RTS pass of :func:`~pmsr_nn.filters.smoothing.rts_from_predictions` (filtered ``x (rows,
-    W, n)``, ``P (rows, W, n, n)``, predictions for scans ``1..W-1``: ``x_pred (rows, W-1, n)``,
-    ``P_pred``) with what does not depend on the smoothed moments done for every scan at once:
-    ``x_s[k] = (x[k] - G_k x_pred[k]) + G_k x_s[k+1]`` and ``P_s[k] = (P[k] - G_k P_pred[k] G_k^T)
-    + G_k P_s[k+1] G_k^T``, two fused multiply-adds per scan. Returns ``x_s``, ``P_s`` (None
-    unless ``covariances``: EM's point E-step needs only the last iteration's)."""
-    W = x.shape[1]
-    if W < 2:
-        return x, P if covariances else None
-    Gt = torch.cholesky_solve(F @ P[:, :-1], safe_cholesky(P_pred))  # G_k^T = P_pred_k^-1 F P_k
-    G = Gt.transpose(-1, -2)
-    cx = x[:, :-1] - (x_pred[:, :, None] @ Gt)[:, :, 0]
-    xs = [x[:, -1]]
-    for k in range(W - 2, -1, -1):
-        xs.append(torch.baddbmm(cx[:, k, None], xs[-1][:, None], Gt[:, k])[:, 0])
-    xs = torch.stack(xs[::-1], 1)
-    if not covariances:
-        return xs, None
-    cP = P[:, :-1] - G @ P_pred @ Gt
-    Ps = [P[:, -1]]
-    for k in range(W - 2, -1, -1):
-        Ps.append(torch.baddbmm(cP[:, k], G[:, k] @ Ps[-1], Gt[:, k]))
-    Ps = torch.stack(Ps[::-1], 1)
-    return xs, 0.5 * (Ps + Ps.transpose(-1, -2))
+    sm = rts_from_predictions(torch.stack(xf, 1), torch.stack(Pf, 1), torch.stack(xp[1:W], 1), torch.stack(Pp[1:W], 1),
+                              pr.F, covariances)
+    return sm.x, sm.P, Gaussian(xp[hand_off], Pp[hand_off])
 
 
 def state_log_prior(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian) -> torch.Tensor:

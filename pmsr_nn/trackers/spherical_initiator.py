@@ -17,7 +17,7 @@ from ..config import require
 from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
-from .gating import gate_threshold
+from .gating import gate_threshold, inside_gate
 from .initiators import rate_component, velocity_fit
 
 
@@ -217,7 +217,7 @@ class SphericalInitiator:
         scale = float((others - c).norm(dim=-1).max())
         p, chi2_r, ok = _range_fix(rho / scale, w, (others - c) / scale)
         chi2_r = chi2_r * (scale / sd_r) ** 2
-        keep = torch.nonzero(ok & (chi2_r <= gamma)).squeeze(-1)
+        keep = torch.nonzero(ok & inside_gate(chi2_r, gamma)).squeeze(-1)
         x = zq.new_zeros(len(keep), n)
         x[:, pi] = c + scale * p[keep]
         # 3. the joint ML estimate of the survivors, from the rates' velocity fit at the range fix
@@ -241,7 +241,7 @@ class SphericalInitiator:
         chi2 = (wr * (zr - model.h(x)[:, rows]) ** 2).sum(-1)
         J = model.jacobian(x)[:, rows][..., idx]
         info = torch.einsum("qra,qr,qrb->qab", J, wr, J)
-        ok = ok & torch.isfinite(chi2) & (torch.linalg.cholesky_ex(info).info == 0) & (chi2 <= gamma)
+        ok = ok & torch.isfinite(chi2) & (torch.linalg.cholesky_ex(info).info == 0) & inside_gate(chi2, gamma)
         passed = torch.zeros(n_comb, dtype=torch.bool)
         passed[keep] = ok
         full = lambda t, fill: torch.full((n_comb, *t.shape[1:]), fill, dtype=t.dtype).index_copy_(0, keep, t)
