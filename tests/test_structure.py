@@ -191,15 +191,7 @@ def test_no_import_cycle_among_packages(graph):
     assert not found, f"package cycles {found}: " + "; ".join(detail)
 
 
-PRIVATE_IMPORTS_ALLOWED: dict[str, str] = {
-    # TEMPORARY (issue 54, item 1): the lead's tracker-loop rework removes these imports of
-    # _check_variant, _joint_step, _sensor_step from trackers/msjpda.py; then delete this entry.
-    "pmsr_nn/trackers/msjpda_managed.py": "imports msjpda.py's private steps until the one tracker loop lands",
-    # TEMPORARY (issue 54, item 4): harness/evaluate.py's _inputs, read by two other entry paths;
-    # the one run object that all entry paths go through removes them (harness/ is being rebuilt).
-    "pmsr_nn/cli/evaluate.py": "imports harness.evaluate._inputs until the harness's one run object lands",
-    "pmsr_nn/harness/dispatch.py": "imports harness.evaluate._inputs until the harness's one run object lands",
-}
+PRIVATE_IMPORTS_ALLOWED: dict[str, str] = {}
 """Modules allowed to use another module's private names: path (relative to the repository) -> why."""
 
 

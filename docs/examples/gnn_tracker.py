@@ -21,7 +21,7 @@ from pmsr_nn.filters.gaussian import kalman_update, unscented_moments
 from pmsr_nn.methods import MethodKind, Option, register
 from pmsr_nn.methods.track_management import OWN_TRACK_OPTIONS, check_initiation, clutter_density, management
 from pmsr_nn.trackers.base import Estimates
-from pmsr_nn.trackers.gating import gate_threshold, gaussian_log_likelihood
+from pmsr_nn.trackers.gating import gate_threshold, gaussian_log_likelihood, inside_gate
 from pmsr_nn.trackers.jpda import miss_cost
 from pmsr_nn.trackers.loop import run_tracker
 from pmsr_nn.trackers.own_tracks import OwnTracks
@@ -48,7 +48,7 @@ class GNNAssociator(Associator):
         for s, (sub, R) in enumerate(zip(self.subs, self.R)):
             mom = unscented_moments(g, sub, R)
             d2, log_lik = gaussian_log_likelihood(sub.residual(z[:, s].unsqueeze(1), mom.z.unsqueeze(2)), mom.S)
-            gate = (d2 <= self.gamma) & valid[:, s].unsqueeze(1)
+            gate = inside_gate(d2, self.gamma) & valid[:, s].unsqueeze(1)
             gate = gate if associating is None else gate & associating.unsqueeze(-1)
             cost = torch.where(gate, math.log(self.density / self.pd) - log_lik, math.inf).numpy()
             pick = torch.from_numpy(np.stack([self.assign(c) for c in cost]))  # (B, C), a loop over runs

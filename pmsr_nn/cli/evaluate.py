@@ -177,10 +177,10 @@ def cmd_evaluate(args) -> int:
         scenario, checkpoints, runs = keep_methods(sc, method_names(args.methods, [m.name for m in sc.methods])), None, None
     if args.per_block:
         from ..harness.block_bank import evaluate_per_block
-        from ..harness.evaluate import _inputs, load_any
+        from ..harness.evaluate import load_any, scenario_inputs
 
         sc = load_any(scenario, runs, checkpoints, args.seed)
-        evaluate_per_block(sc, args.out, shard=shard, inputs=_inputs(args.scenario, sc), device=args.device,
+        evaluate_per_block(sc, args.out, shard=shard, inputs=scenario_inputs(args.scenario, sc), device=args.device,
                            progress=not args.quiet)
         return 0
     res = evaluate(scenario, args.out, mc_runs=runs, checkpoints=checkpoints, shard=shard, device=args.device,

@@ -49,7 +49,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
              seed: int | None = None) -> dict:
     """Run ``scenario`` as ``shards`` jobs on ``executor`` and merge them into ``out``; returns
     results.json's content. ``partition`` and ``timeout_min`` (per shard) are SLURM's."""
-    from .evaluate import RESULT_COMMANDS, _inputs, load_any, merge
+    from .evaluate import RESULT_COMMANDS, load_any, merge, scenario_inputs
     from .runner import prepare
 
     if executor not in EXECUTORS:
@@ -63,7 +63,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
         raise ConfigError(f"--shards must be in 1..{sc.n_blocks} (the scenario's blocks of runs), got {shards}")
     if not isinstance(timeout_min, int) or timeout_min < 1:
         raise ConfigError(f"--timeout-min must be a positive number of minutes, got {timeout_min}")
-    check_folder_target(out, overwrite=overwrite, inputs=_inputs(scenario, sc), allow=RESULT_COMMANDS)
+    check_folder_target(out, overwrite=overwrite, inputs=scenario_inputs(scenario, sc), allow=RESULT_COMMANDS)
     prepare(sc, device)  # a method that can not run is refused here, before any job is submitted
     made = make_parents(out)
     work = out.parent / f".{out.name}.shards-{os.getpid()}"

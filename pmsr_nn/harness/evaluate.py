@@ -41,7 +41,7 @@ def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=())
     return atomic_folder(out, command=command, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
 
 
-def _inputs(scenario, sc) -> list[Path]:
+def scenario_inputs(scenario, sc) -> list[Path]:
     """Files a scenario run reads: its YAML and every checkpoint a method names."""
     paths = [] if isinstance(scenario, Scenario) else [Path(scenario)]
     for m in getattr(sc, "methods", ()):
@@ -117,9 +117,9 @@ def evaluate(scenario: AnyScenario | str | Path, out: Path, *, mc_runs: int | No
              progress: bool = True, overwrite: bool = False, seed: int | None = None) -> dict:
     """Run a scenario (or one shard) into ``out``; returns results.json's content (or shard.json's).
     ``seed`` replaces the scenario's seed (other draws of the same scenario)."""
-    check_folder_target(out, overwrite=overwrite, inputs=_inputs(scenario, None), allow=RESULT_COMMANDS)
+    check_folder_target(out, overwrite=overwrite, inputs=scenario_inputs(scenario, None), allow=RESULT_COMMANDS)
     sc = load_any(scenario, mc_runs, checkpoints, seed)
-    inputs = _inputs(scenario, sc)
+    inputs = scenario_inputs(scenario, sc)
     check_folder_target(out, overwrite=overwrite, inputs=inputs, allow=RESULT_COMMANDS)
     blocks = shard_blocks(sc.n_blocks, shard)
     setup = prepare(sc, device)

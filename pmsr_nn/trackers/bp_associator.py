@@ -35,7 +35,7 @@ import torch
 from ..filters.gaussian import Gaussian, safe_cholesky, unscented_moments
 from ..measurements import MeasurementModel
 from .bp_association import bp_associate
-from .gating import gate_threshold
+from .gating import gate_threshold, inside_gate
 from .mixture import pda_collapse
 from .roles import AssociationStep, Associator
 
@@ -101,7 +101,7 @@ class BPAssociator(Associator):
             d2 = (e * e).sum(-1)
             half_logdet = torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
             log_lik = -0.5 * d2 - half_logdet.unsqueeze(-1) - 0.5 * nu.shape[-1] * math.log(2 * math.pi)
-            gate = (d2 <= self.gamma) & vj.unsqueeze(1) & active.unsqueeze(-1)
+            gate = inside_gate(d2, self.gamma) & vj.unsqueeze(1) & active.unsqueeze(-1)
             ratio = torch.where(gate, log_lik.exp() / self.density, 0.0)
             birth = torch.full(vj.shape, float(self.birth), dtype=g.x.dtype)
             bp = bp_associate(ratio, torch.where(active, r, 0.0), self.pd, birth, vj, self.iterations, self.tolerance)

@@ -29,7 +29,7 @@ import torch
 from ..filters.gaussian import Gaussian, kalman_update, safe_cholesky, unscented_moments
 from ..measurements import MeasurementModel, wrap_angle
 from .clustering import track_clusters
-from .gating import gate_threshold, gaussian_log_likelihood
+from .gating import gate_threshold, gaussian_log_likelihood, inside_gate
 from .jpda import batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
 from .mixture import collapse, expand_moments, pda_collapse
 from .roles import Associator, AssociationStep, MeanCorrection
@@ -88,7 +88,7 @@ def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measurem
     half_logdet = torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
     log_lik = (-0.5 * d2 - half_logdet.unsqueeze(-1) - 0.5 * nu.shape[-1] * math.log(2 * math.pi)).masked_fill(
         pad, math.nan)
-    gate = (d2 <= gamma) & valid.unsqueeze(1)
+    gate = inside_gate(d2, gamma) & valid.unsqueeze(1)
     gate = gate if active is None else gate & active.unsqueeze(-1)
     gated = gate.numpy()
     M = gated.shape[-1]
@@ -190,7 +190,7 @@ class ParallelJPDA(Associator):
         S_blocks = mom.S.reshape(B, C, S, d, S, d).diagonal(dim1=2, dim2=4).permute(0, 1, 4, 2, 3)
         nu = _wrap(z.unsqueeze(1) - zhat.unsqueeze(3), model)  # (B, C, S, M, d)
         d2, block_log_lik = gaussian_log_likelihood(nu, S_blocks)
-        gate = (d2 <= self.gamma) & valid.unsqueeze(1)
+        gate = inside_gate(d2, self.gamma) & valid.unsqueeze(1)
         gated = (gate if associating is None else gate & associating[:, :, None, None]).numpy()  # (B, C, S, M)
         cand_z, cand_w, miss, detected, gap = self._candidates(gated, z.numpy(), zhat.numpy(), mom.S)
         Lmax = max(len(w) for row in cand_w for w in row)
