@@ -26,16 +26,16 @@ dimension, ``d`` measurement components per pair.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
 import torch
 
-from ..filters.gaussian import Gaussian, safe_cholesky, unscented_moments
+from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
 from .bp_association import bp_associate
 from .gating import gate_threshold, inside_gate
+from .jpda_associators import pair_innovations
 from .mixture import pda_collapse
 from .roles import AssociationStep, Associator
 
@@ -92,17 +92,10 @@ class BPAssociator(Associator):
         ratios, explained, hits, sds, whitened, new, legacy, assoc, passes = [], [], [], [], [], [], [], [], 0
         for j, (sub, R) in enumerate(zip(self.subs, self.R)):
             zj, vj = z[:, j], valid[:, j]
-            mom = unscented_moments(g, sub, R)
-            nu = sub.residual(zj.unsqueeze(1), mom.z.unsqueeze(2))  # (B, C, M, d), NaN for padding
-            L = safe_cholesky(mom.S)
-            pad = ~vj.unsqueeze(1)
-            e = torch.linalg.solve_triangular(L, nu.masked_fill(pad.unsqueeze(-1), 0.0).transpose(-1, -2),
-                                              upper=False).transpose(-1, -2)  # (B, C, M, d)
-            d2 = (e * e).sum(-1)
-            half_logdet = torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
-            log_lik = -0.5 * d2 - half_logdet.unsqueeze(-1) - 0.5 * nu.shape[-1] * math.log(2 * math.pi)
-            gate = inside_gate(d2, self.gamma) & vj.unsqueeze(1) & active.unsqueeze(-1)
-            ratio = torch.where(gate, log_lik.exp() / self.density, 0.0)
+            inn = pair_innovations(g, zj, vj, sub, R)
+            mom, L, e = inn.moments, inn.L, inn.e
+            gate = inside_gate(inn.d2, self.gamma) & vj.unsqueeze(1) & active.unsqueeze(-1)
+            ratio = torch.where(gate, inn.log_lik.exp() / self.density, 0.0)
             birth = torch.full(vj.shape, float(self.birth), dtype=g.x.dtype)
             bp = bp_associate(ratio, torch.where(active, r, 0.0), self.pd, birth, vj, self.iterations, self.tolerance)
             g = pda_collapse(g, mom, L, e, gate, bp.weights)

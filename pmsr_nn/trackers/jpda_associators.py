@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 import torch
 
-from ..filters.gaussian import Gaussian, kalman_update, safe_cholesky, unscented_moments
+from ..filters.gaussian import Gaussian, MeasurementMoments, kalman_update, safe_cholesky, unscented_moments
 from ..measurements import MeasurementModel, wrap_angle
 from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood, inside_gate
@@ -48,6 +48,39 @@ def pda_marginals(log_lik: torch.Tensor, gated: torch.Tensor, pd: float, density
     det = torch.where(gated, log_lik + math.log(pd) - math.log(density), torch.tensor(-math.inf, dtype=log_lik.dtype))
     miss = torch.full((*log_lik.shape[:-1], 1), -miss_cost(pd), dtype=log_lik.dtype)
     return torch.softmax(torch.cat([det, miss], -1), -1)
+
+
+@dataclass
+class PairInnovations:
+    """Tracks ``(B, C, n)`` against one pair's detections ``(B, M, d)``: the sigma-point
+    ``moments``, the innovations ``nu (B, C, M, d)`` (NaN for padding), the Cholesky factor ``L
+    (B, C, d, d)`` of ``S``, the whitened innovations ``e = L^-1 nu`` (0 for padding), the squared
+    Mahalanobis distances ``d2 (B, C, M)`` and ``log_lik (B, C, M)`` ``log N(nu; 0, S)``."""
+
+    moments: MeasurementMoments
+    nu: torch.Tensor
+    L: torch.Tensor
+    e: torch.Tensor
+    d2: torch.Tensor
+    log_lik: torch.Tensor
+
+
+def pair_innovations(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel,
+                     R: torch.Tensor) -> PairInnovations:
+    """:class:`PairInnovations` of tracks ``g`` and detections ``z (B, M, d)`` (``valid (B, M)``)
+    of the one-pair model ``sub`` with noise ``R (d, d)``: gaussian_log_likelihood's algebra with
+    one triangular solve per track for all ``M`` detections (``M`` right-hand sides, not ``M``
+    broadcast solves); ``L`` and ``e`` serve the update too."""
+    mom = unscented_moments(g, sub, R)
+    nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))
+    L = safe_cholesky(mom.S)
+    pad = ~valid.unsqueeze(1)  # (B, 1, M)
+    e = torch.linalg.solve_triangular(L, nu.masked_fill(pad.unsqueeze(-1), 0.0).transpose(-1, -2),
+                                      upper=False).transpose(-1, -2)
+    d2 = (e * e).sum(-1)
+    half_logdet = torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+    log_lik = -0.5 * d2 - half_logdet.unsqueeze(-1) - 0.5 * nu.shape[-1] * math.log(2 * math.pi)
+    return PairInnovations(mom, nu, L, e, d2, log_lik)
 
 
 @dataclass
@@ -76,18 +109,9 @@ def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measurem
     ``correction`` adds its learned correction times the combined innovation of pair ``pair`` to
     the posterior mean, on the tracks ``learned (B, C)`` (default: ``active``); the association
     weights are constants to it (no gradient)."""
-    mom = unscented_moments(g, sub, R)
-    nu = sub.residual(z.unsqueeze(1), mom.z.unsqueeze(2))  # (B, C, M, d), NaN for padding
-    # gaussian_log_likelihood's algebra with one triangular solve per track for all M detections
-    # (M right-hand sides, not M broadcast solves); L and e = L^-1 nu serve the update too.
-    L = safe_cholesky(mom.S)  # (B, C, d, d)
-    pad = ~valid.unsqueeze(1)  # (B, 1, M)
-    e = torch.linalg.solve_triangular(L, nu.masked_fill(pad.unsqueeze(-1), 0.0).transpose(-1, -2),
-                                      upper=False).transpose(-1, -2)  # (B, C, M, d)
-    d2 = (e * e).sum(-1)
-    half_logdet = torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
-    log_lik = (-0.5 * d2 - half_logdet.unsqueeze(-1) - 0.5 * nu.shape[-1] * math.log(2 * math.pi)).masked_fill(
-        pad, math.nan)
+    inn = pair_innovations(g, z, valid, sub, R)
+    mom, nu, L, e, d2 = inn.moments, inn.nu, inn.L, inn.e, inn.d2
+    log_lik = inn.log_lik.masked_fill(~valid.unsqueeze(1), math.nan)
     gate = inside_gate(d2, gamma) & valid.unsqueeze(1)
     gate = gate if active is None else gate & active.unsqueeze(-1)
     gated = gate.numpy()
