@@ -266,8 +266,9 @@ class TrackTable:
             drop |= self.biased(bias)
         self.free(drop)
 
-    def add(self, g: Gaussian, real: torch.Tensor, initial_existence: float = 0.5) -> None:
-        """Start tentative tracks ``g (B, G, n)`` where ``real (B, G)`` in free slots."""
+    def add(self, g: Gaussian, real: torch.Tensor, initial_existence: float | torch.Tensor = 0.5) -> None:
+        """Start tentative tracks ``g (B, G, n)`` where ``real (B, G)`` in free slots, with
+        ``initial_existence`` (a float, or each track's ``(B, G)``)."""
         if not bool(real.any()):
             return
         count = real.sum(1)
@@ -291,6 +292,8 @@ class TrackTable:
         self.status = torch.where(filled, TENTATIVE, self.status)
         for name, value in (("hits", 1), ("age", 0), ("misses", 0)):
             setattr(self, name, torch.where(filled, value, getattr(self, name)))
+        if torch.is_tensor(initial_existence):
+            initial_existence = initial_existence.to(self.existence.dtype).gather(1, j)
         self.existence = torch.where(filled, initial_existence, self.existence)
         self.track_id = torch.where(filled, -1, self.track_id)
         self._clear_bias(filled)
