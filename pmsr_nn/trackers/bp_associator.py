@@ -13,6 +13,15 @@ update the tracks the previous pair left, with
 * the moment-matched collapse (:func:`~.mixture.pda_collapse`) of each track's updated mixture
   with the BP weights given that the track is a target.
 
+With :class:`Births` (the tracker of :mod:`.bp_tracker`), undetected targets are a Poisson
+intensity of mass ``mu_u`` spread like the clutter (Meyer et al., Sec. VIII): at each pair every
+detection's new potential target has ``mu_m = mu_u Pd / Lambda_c`` (``Lambda_c`` the pair's
+expected clutter count), the pair's undetected mass becomes ``mu_u (1 - Pd)``, and each new
+potential target (its Gaussian from the one detection that seeds it, :attr:`Births.seed`) is a
+track for the later pairs of the same scan: a target seen at the first pair is a track by the
+second, so its other detections confirm it instead of seeding duplicates. New potential targets
+whose existence is below :attr:`Births.keep` are dropped.
+
 What the step hands the management: per pair the likelihood ratio ``sum_m L_m nu_m`` whose IPDA
 update (:meth:`~.management.TrackTable.update_existence`, with the same detection probability)
 is BP's existence update, so :class:`~.own_tracks.OwnTracks` keeps BP's existence unchanged; the
@@ -40,20 +49,49 @@ from .mixture import pda_collapse
 from .roles import AssociationStep, Associator
 
 
+@dataclass(frozen=True)
+class Births:
+    """New targets born inside the association (module docstring): ``undetected`` a callable that
+    gives the undetected targets' expected number ``mu_u (B,)`` at this scan (after its
+    prediction), ``pd`` the detection probability of an undetected target (no gate: it has no
+    prediction), ``clutter_count`` ``Lambda_c``, the expected clutter detections of one pair per
+    scan, ``seed(pair, z (B, M, d), valid (B, M)) -> Gaussian (B, M, n)`` the state of the new
+    potential target behind each detection of ``pair`` given that detection alone, and ``keep``
+    the existence below which a new potential target is dropped."""
+
+    undetected: Callable[[], torch.Tensor]
+    pd: float
+    clutter_count: float
+    seed: Callable[[int, torch.Tensor, torch.Tensor], tuple[Gaussian, torch.Tensor]]
+    keep: float
+
+
 @dataclass
 class BPStep(AssociationStep):
-    """An :class:`~.roles.AssociationStep` with BP's beliefs: ``existence (B, C)`` each track's
+    """An :class:`~.roles.AssociationStep` with BP's beliefs: ``existence (B, C')`` each track's
     existence after the last pair (the predicted one where a slot took no part),
     ``new_existence (B, S, M)`` the existence of each detection's new potential target,
     ``legacy (B, S, M)`` the probability that a detection is a track's and ``association
-    (B, C, S, M + 1)`` each pair's association probabilities (last column the miss or no
-    target). ``iterations`` the most message passes a pair took."""
+    (B, C', S, M + 1)`` each pair's association probabilities (last column the miss or no
+    target). ``iterations`` the most message passes a pair took.
+
+    With :class:`Births`: ``C' = C + G``, the last ``G`` slots the new potential targets kept
+    (``born (B, C')`` marks them; a slot of them not kept has existence 0), and ``undetected
+    (B,)`` ``mu_u`` after the last pair. The per-pair fields are 0 for a new potential target at
+    the pairs before its birth."""
 
     existence: torch.Tensor | None = None
     new_existence: torch.Tensor | None = None
     legacy: torch.Tensor | None = None
     association: torch.Tensor | None = None
     iterations: int = 0
+    born: torch.Tensor | None = None
+    undetected: torch.Tensor | None = None
+
+
+def _padded(parts: list[torch.Tensor], C: int) -> torch.Tensor:
+    """Per-pair ``(B, C_j, ...)`` zero-padded to ``C`` slots and stacked on dim 2."""
+    return torch.stack([torch.cat([t, t.new_zeros(t.shape[0], C - t.shape[1], *t.shape[2:])], 1) for t in parts], 2)
 
 
 class BPAssociator(Associator):
@@ -67,7 +105,8 @@ class BPAssociator(Associator):
     management's, e.g. ``lambda: tracks.table.existence``; None: every track is a target,
     existence 1); ``birth`` ``mu``, each detection's expected new targets relative to clutter
     (for undetected targets spread like the clutter: their expected number per scan times ``Pd``
-    over the expected clutter count of a pair; 0: no births); ``explained`` the probability of
+    over the expected clutter count of a pair; 0: no births) where ``births`` is None, else
+    :class:`Births` gives it and starts new potential targets; ``explained`` the probability of
     being a track's from which a detection counts as explained (it starts no track);
     ``iterations`` and ``tolerance`` the message passing's (:func:`~.bp_association.bp_associate`)."""
 
@@ -76,9 +115,9 @@ class BPAssociator(Associator):
     def __init__(self, model: MeasurementModel, R: torch.Tensor, pd: float, clutter_density: float,
                  existence: Callable[[], torch.Tensor] | None = None, birth: float = 0.0,
                  gate_probability: float = 0.999, explained: float = 0.5, iterations: int = 1000,
-                 tolerance: float = 1e-10):
+                 tolerance: float = 1e-10, births: Births | None = None):
         self.pd, self.density, self.existence, self.birth = pd, clutter_density, existence, birth
-        self.explained, self.iterations, self.tolerance = explained, iterations, tolerance
+        self.explained, self.iterations, self.tolerance, self.births = explained, iterations, tolerance, births
         self.gamma = gate_threshold(gate_probability, len(model.components))
         rows = [model.rows_for_pairs([s]) for s in range(model.n_pairs)]
         self.subs = [model.for_pairs([s]) for s in range(model.n_pairs)]
@@ -87,20 +126,28 @@ class BPAssociator(Associator):
     def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
                   learned: torch.Tensor | None = None) -> BPStep:
         B, C = g.x.shape[:2]
+        dtype = g.x.dtype
         active = torch.ones(B, C, dtype=torch.bool) if associating is None else associating
-        r = torch.ones(B, C, dtype=g.x.dtype) if self.existence is None else self.existence().to(g.x.dtype).clone()
-        ratios, explained, hits, sds, whitened, new, legacy, assoc, passes = [], [], [], [], [], [], [], [], 0
+        r = torch.ones(B, C, dtype=dtype) if self.existence is None else self.existence().to(dtype).clone()
+        born = torch.zeros(B, C, dtype=torch.bool)
+        births = self.births
+        mu_u = births.undetected().to(dtype).clone() if births is not None else None
+        ratios, hits, sds, whitened, new, legacy, assoc, passes = [], [], [], [], [], [], [], 0
+        explained = []
         for j, (sub, R) in enumerate(zip(self.subs, self.R)):
             zj, vj = z[:, j], valid[:, j]
+            M = zj.shape[1]
             inn = pair_innovations(g, zj, vj, sub, R)
             mom, L, e = inn.moments, inn.L, inn.e
             gate = inside_gate(inn.d2, self.gamma) & vj.unsqueeze(1) & active.unsqueeze(-1)
             ratio = torch.where(gate, inn.log_lik.exp() / self.density, 0.0)
-            birth = torch.full(vj.shape, float(self.birth), dtype=g.x.dtype)
+            if births is None:
+                birth = torch.full(vj.shape, float(self.birth), dtype=dtype)
+            else:
+                birth = (mu_u * births.pd / births.clutter_count).unsqueeze(-1).expand(B, M)
             bp = bp_associate(ratio, torch.where(active, r, 0.0), self.pd, birth, vj, self.iterations, self.tolerance)
             g = pda_collapse(g, mom, L, e, gate, bp.weights)
             r = torch.where(active, bp.existence, r)
-            M = zj.shape[1]
             w = bp.weights
             hits.append(active & (w[..., :M].amax(-1) > w[..., M]) if M else torch.zeros_like(active))
             ratios.append(bp.ratio)
@@ -111,8 +158,20 @@ class BPAssociator(Associator):
             legacy.append(bp.legacy)
             assoc.append(bp.association)
             passes = max(passes, bp.iterations)
-        hit = torch.stack(hits, -1)
-        return BPStep(g, hit.sum(-1), torch.stack(ratios, -1), torch.stack(explained, 1), ~hit.any(-1),
-                      torch.stack(sds, -1).amax(-1), torch.stack(whitened, 2), existence=r,
+            if births is not None:
+                mu_u = mu_u * (1.0 - births.pd)
+                kept = vj & (bp.new_existence >= births.keep)
+                if bool(kept.any()):
+                    seeded, ok = births.seed(j, zj, vj)
+                    kept = kept & ok
+                    g = Gaussian(torch.cat([g.x, seeded.x], 1), torch.cat([g.P, seeded.P], 1))
+                    r = torch.cat([r, torch.where(kept, bp.new_existence, 0.0)], 1)
+                    active = torch.cat([active, kept], 1)
+                    born = torch.cat([born, kept], 1)
+        Cn = g.x.shape[1]
+        hit = _padded(hits, Cn)
+        return BPStep(g, hit.sum(-1), _padded(ratios, Cn), torch.stack(explained, 1), ~hit.any(-1),
+                      _padded(sds, Cn).amax(-1), _padded(whitened, Cn), existence=r,
                       new_existence=torch.stack(new, 1), legacy=torch.stack(legacy, 1),
-                      association=torch.stack(assoc, 2), iterations=passes)
+                      association=_padded(assoc, Cn), iterations=passes,
+                      born=born if births is not None else None, undetected=mu_u)

@@ -250,12 +250,7 @@ class TrackTable:
     def manage(self, confirmer: Confirmer, deleter: Deleter, pos_idx: list[int], bias: BiasTest | None = None) -> None:
         """Confirm, then delete (see the module docstring); with ``bias`` whose action is
         ``delete``, a confirmed track it flags (:meth:`biased`) is deleted too."""
-        tent = self.status == TENTATIVE
-        new = tent & confirmer.confirms(self.hits)
-        rank = new.to(torch.int64).cumsum(1) - 1
-        self.track_id = torch.where(new, self.next_id[:, None] + rank, self.track_id)
-        self.next_id = self.next_id + new.sum(1)
-        self.status = torch.where(new, CONFIRMED, self.status)
+        self.confirm((self.status == TENTATIVE) & confirmer.confirms(self.hits))
         drop = (self.status == TENTATIVE) & confirmer.hopeless(self.hits, self.age)
         conf = self.status == CONFIRMED
         drop |= conf & (self.misses >= deleter.misses)
@@ -265,6 +260,14 @@ class TrackTable:
         if bias is not None and bias.action == "delete":
             drop |= self.biased(bias)
         self.free(drop)
+
+    def confirm(self, new: torch.Tensor) -> None:
+        """Confirm the tentative tracks at ``new (B, C)``: each takes its run's next track id, in
+        slot order."""
+        rank = new.to(torch.int64).cumsum(1) - 1
+        self.track_id = torch.where(new, self.next_id[:, None] + rank, self.track_id)
+        self.next_id = self.next_id + new.sum(1)
+        self.status = torch.where(new, CONFIRMED, self.status)
 
     def add(self, g: Gaussian, real: torch.Tensor, initial_existence: float | torch.Tensor = 0.5) -> None:
         """Start tentative tracks ``g (B, G, n)`` where ``real (B, G)`` in free slots, with

@@ -1,0 +1,90 @@
+"""The multisensor belief-propagation tracker (:mod:`pmsr_nn.trackers.bp_tracker`) on the
+detections, ``kind: bp``: a TOMB/P filter with BP association, pair by pair, that starts,
+confirms and deletes its own tracks by their existence.
+
+Options:
+
+* the model: ``gate_probability``; ``survival`` per scan; ``birth_rate`` (new targets expected
+  per scan) and ``initial_targets`` (undetected targets expected at the first scan), the
+  undetected targets' Poisson intensity, spread like the clutter;
+* the management, by existence: ``confirm_existence`` (a potential target at or above it is
+  confirmed), ``delete_existence`` (below it a track is deleted, and a detection's new potential
+  target is not kept), ``report_existence`` (a confirmed track is reported while at or above it);
+* new potential targets: with azimuth, one per detection, its velocity prior
+  ``birth_velocity_sd_mps`` per axis; without azimuth, tentative tracks from the multi-pair
+  initiator (``init_pairs``, ``init_gate_probability``) at ``initial_existence``;
+* the message passing: ``iterations`` at most, until the largest change of a message is at most
+  ``tolerance``.
+
+The clutter rate and Pd are the scenario's (the detection list's clutter per pair and scan,
+floored as the JPDA's). Reads the per-pair lists (the illuminator given).
+"""
+
+from __future__ import annotations
+
+from ..errors import ConfigError
+from ..trackers.base import Estimates
+from ..trackers.bp_tracker import BPSettings, bp_tracker
+from ..trackers.spherical_initiator import SphericalInitiator
+from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, register
+from .track_management import clutter_density
+
+EXISTENCE = dict(kind=float, lo=1e-12, hi=1.0 - 1e-12)
+
+
+def settings(spec, sensing) -> BPSettings:
+    """The BP settings of a row (``spec``) on a case's ``sensing``; one-line refusals naming the
+    row of settings that could never confirm a track."""
+    o = spec.option
+    try:
+        return BPSettings(pd=float(sensing.pd), clutter_count=max(float(sensing.pair_clutter().per_scan), MIN_CLUTTER_PER_SCAN),
+                          clutter_density=clutter_density(sensing), gate_probability=float(o("gate_probability")),
+                          survival=float(o("survival")), birth_rate=float(o("birth_rate")),
+                          initial_targets=float(o("initial_targets")), confirm_existence=float(o("confirm_existence")),
+                          delete_existence=float(o("delete_existence")), report_existence=float(o("report_existence")),
+                          initial_existence=float(o("initial_existence")), iterations=int(o("iterations")),
+                          tolerance=float(o("tolerance")))
+    except ConfigError as exc:
+        raise ConfigError(f"method {spec.name!r}: {exc}") from None
+
+
+def _initiator(spec) -> SphericalInitiator:
+    pairs = spec.option("init_pairs")
+    return SphericalInitiator(float(spec.option("birth_velocity_sd_mps")), None if pairs is None else int(pairs),
+                              float(spec.option("init_gate_probability")))
+
+
+def check_sensing(spec, sensing) -> None:
+    """Refuses, in one line naming the row, settings that could never confirm a track, and
+    detections no new potential target can be seeded from."""
+    settings(spec, sensing)
+    model = sensing.detection_model
+    if "azimuth" not in model.components:
+        try:
+            _initiator(spec).check(model, "BP without azimuth (tracks from the multi-pair initiator)")
+        except ConfigError as exc:
+            raise ConfigError(f"method {spec.name!r}: {exc}") from None
+
+
+def run_bp(call: MethodCall) -> Estimates:
+    m, s = call.models, call.sensing
+    model = s.detection_model
+    rep = bp_tracker(call.product.scans, m.motion, m.dt, m.q, model, model.R(), settings(call.spec, s), s.prior_sd,
+                     float(call.spec.option("birth_velocity_sd_mps")),
+                     None if "azimuth" in model.components else _initiator(call.spec))
+    return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
+
+
+OPTIONS = {"gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+           "survival": Option(0.999, float, 1e-6, 1.0),
+           "birth_rate": Option(0.01, float, 0.0, 1e3), "initial_targets": Option(0.01, float, 0.0, 1e3),
+           "confirm_existence": Option(0.9, **EXISTENCE), "delete_existence": Option(1e-4, **EXISTENCE),
+           "report_existence": Option(0.5, **EXISTENCE), "initial_existence": Option(0.1, **EXISTENCE),
+           "birth_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
+           "init_pairs": Option(None, int, 1, 64, nullable=True, null="every pair (the multi-pair initiator, without "
+                                                                       "azimuth)"),
+           "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+           "iterations": Option(100, int, 1, 100_000), "tolerance": Option(1e-8, float, 0.0, 1.0)}
+register(MethodKind("bp", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
+                    description="multisensor belief-propagation tracker (TOMB/P with BP association, Meyer et al., "
+                                "Proc. IEEE 2018), pair by pair; starts, confirms and deletes its own tracks by existence"))

@@ -1,0 +1,217 @@
+"""The multisensor belief-propagation (BP) tracker: a TOMB/P filter (Williams, IEEE TAES 2015)
+with BP data association, pair by pair (Meyer et al., *Message passing algorithms for scalable
+multitarget tracking*, Proc. IEEE 2018), on the one tracker loop (:mod:`.loop`).
+
+Its parts:
+
+* the association and update, :class:`~.bp_associator.BPAssociator` (sigma-point moments of
+  each pair's bistatic measurement, BP association beliefs, the moment-matched update);
+* the undetected targets, a Poisson intensity of mass ``mu_u`` per run spread like the clutter:
+  it survives (``survival``) and grows by ``birth_rate`` per scan, and each pair's detections
+  take ``Pd`` of it (:class:`~.bp_associator.Births`);
+* new potential targets: where the detections measure azimuth, one behind every detection,
+  seeded by that detection alone (its range/azimuth position fix and a velocity fit of its rate,
+  :func:`one_detection_seed`) inside the association, so the later pairs of the same scan see it
+  as a track; without azimuth, tentative tracks from the detections no track explains, with the
+  management's initiator (a multi-pair fit), at ``initial_existence``;
+* tracks managed by their existence (:class:`BPTracks`): a potential target whose existence
+  reaches ``confirm_existence`` is confirmed (it takes a track id), one whose existence falls below
+  ``delete_existence`` is deleted (tentative or confirmed), and a confirmed track is reported while
+  its existence is at least ``report_existence``.
+
+Shapes: ``B`` runs, ``K`` scans, ``C`` track slots, ``S`` pairs, ``M`` detections per list, ``n``
+state dimension, ``d`` measurement components per pair.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..config import require
+from ..filters.gaussian import Gaussian
+from ..measurements import MeasurementModel
+from ..motion import KinematicModel
+from ..simulation.detections import Scans
+from .bp_associator import Births, BPAssociator, BPStep
+from .fix_initiator import FixInitiator, range_azimuth_fix
+from .loop import run_tracker
+from .management import TENTATIVE, TrackReport, TrackTable, parked_state
+from .msjpda import check_scans
+from .roles import Initiator, MeanCorrection
+
+
+@dataclass(frozen=True)
+class BPSettings:
+    """The BP tracker's model and management (module docstring).
+
+    ``pd`` the detection probability and ``gate_probability`` the gate's; ``clutter_count``
+    ``Lambda_c`` the expected clutter detections per pair and scan and ``clutter_density``
+    ``lambda`` per unit of one pair's measurement space; ``survival`` per scan; ``birth_rate``
+    new targets per scan and ``initial_targets`` the undetected targets expected at the first
+    scan; the existence thresholds ``confirm_existence``, ``delete_existence`` and
+    ``report_existence``; ``initial_existence`` of a tentative track from the initiator (without
+    azimuth); ``iterations`` and ``tolerance`` the message passing's."""
+
+    pd: float
+    clutter_count: float
+    clutter_density: float
+    gate_probability: float = 0.999
+    survival: float = 0.999
+    birth_rate: float = 0.01
+    initial_targets: float = 0.01
+    confirm_existence: float = 0.9
+    delete_existence: float = 1e-4
+    report_existence: float = 0.5
+    initial_existence: float = 0.1
+    iterations: int = 100
+    tolerance: float = 1e-8
+
+    def __post_init__(self) -> None:
+        for name in ("confirm_existence", "delete_existence", "report_existence", "initial_existence"):
+            v = getattr(self, name)
+            require(0.0 < v < 1.0, f"{name} must be in (0, 1), got {v}")
+        require(self.confirm_existence >= self.delete_existence,
+                f"confirm_existence ({self.confirm_existence}) is below delete_existence ({self.delete_existence}): "
+                "a track would be deleted before it could be confirmed")
+        require(self.birth_rate >= 0.0 and self.initial_targets >= 0.0,
+                f"birth_rate and initial_targets are expected numbers of targets, never negative; got "
+                f"{self.birth_rate} and {self.initial_targets}")
+        require(0.0 < self.survival <= 1.0, f"survival must be in (0, 1], got {self.survival}")
+        require(0.0 < self.pd <= 1.0, f"the BP tracker needs 0 < Pd <= 1, got {self.pd}")
+        require(self.clutter_count > 0.0 and self.clutter_density > 0.0,
+                "the BP tracker needs a positive clutter count and density")
+
+
+def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, velocity_sd_mps: float,
+                       dtype=torch.float64):
+    """A :attr:`~.bp_associator.Births.seed`: the state behind each detection of one pair given
+    that detection alone, where it measures (bistatic range, azimuth): the position fix of
+    :func:`~.fix_initiator.range_azimuth_fix`, with the covariance about it of the fixes of the
+    detection's (range, azimuth) sigma points (the unscented transform, ``kappa = 1``), and the velocity fit of the one rate under the prior
+    ``N(0, velocity_sd_mps^2)`` per axis (:meth:`~.fix_initiator.FixInitiator.states` with one
+    member per group); other entries as ``other_sd (n,)``."""
+    initiator = FixInitiator(velocity_sd_mps, min_pairs=1)
+    subs = [model.for_pairs([s]) for s in range(model.n_pairs)]
+    park = parked_state(model, n, dtype)
+    comps = model.components
+    rows = [comps.index("range"), comps.index("azimuth")]
+    pi = torch.tensor(model.pos_idx)
+    # sigma points of (range, azimuth) at +-sqrt(3) deviations (the unscented transform's kappa = 1)
+    steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=dtype)
+
+    def seed(pair: int, z: torch.Tensor, valid: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
+        B, M = valid.shape
+        zs = z.unsqueeze(1)  # (B, 1, M, d): the one pair's list
+        pos, cov, ok = initiator.fixes(zs, subs[pair], n)
+        # the fix's covariance about it from its sigma points: the ellipse's curvature, tens of
+        # metres across the range where the azimuth spreads a fix over hundreds, counts too
+        spread = torch.zeros_like(cov)
+        for c, step in zip(rows, steps):
+            for sign in (1.0, -1.0):
+                moved = zs.clone()
+                moved[..., c] = moved[..., c] + sign * step
+                p, fine = range_azimuth_fix(moved, subs[pair])
+                d = p - pos
+                spread = spread + d.unsqueeze(-1) * d.unsqueeze(-2) / 6.0
+                ok = ok & fine
+        ok = ok[:, 0] & valid
+        groups = torch.where(ok, torch.arange(M), -1).unsqueeze(-1)  # (B, M, 1): a group per detection
+        g, real = initiator.states(zs, groups, pos, spread, subs[pair], n, other_sd)
+        x = torch.where(real[..., None], g.x, park)
+        P = torch.where(real[..., None, None], g.P, torch.eye(n, dtype=g.P.dtype))
+        return Gaussian(x, P), real
+
+    return seed
+
+
+class BPTracks:
+    """The BP tracker's :class:`~.roles.TrackManagement` (module docstring): the tracks in a
+    :class:`~.management.TrackTable` with BP's existence, the undetected targets' mass
+    ``undetected (B,)``, confirmation and deletion by existence. ``initiator`` starts tentative
+    tracks where the association births none (no azimuth; None where it does), from the
+    detections no track explains, with deviations ``other_sd (n,)`` of the entries it does not fix."""
+
+    def __init__(self, settings: BPSettings, model: MeasurementModel, n: int, initiator: Initiator | None = None,
+                 other_sd: torch.Tensor | None = None, dtype=torch.float64):
+        self.s, self.model, self.n, self.initiator, self.other_sd, self.dtype = settings, model, n, initiator, other_sd, dtype
+        self.started = None
+
+    def begin(self, B: int, K: int) -> None:
+        self.table = TrackTable.empty(B, self.n, parked_state(self.model, self.n, self.dtype))
+        self.report = TrackReport.empty(B, K, self.n, self.dtype)
+        self.undetected = torch.full((B,), float(self.s.initial_targets), dtype=self.dtype)
+
+    @property
+    def g(self) -> Gaussian:
+        return self.table.g
+
+    @g.setter
+    def g(self, value: Gaussian) -> None:
+        self.table.g = value
+
+    def predicted(self, k: int) -> None:
+        self.table.free(~self.table.active)  # keep free slots parked
+        self.table.predict_existence(self.s.survival)
+        self.undetected = self.s.survival * self.undetected + self.s.birth_rate
+
+    def associating(self, k: int) -> torch.Tensor:
+        return self.table.active
+
+    def learned(self, correction: MeanCorrection | None) -> None:
+        return None
+
+    def updated(self, k: int, step: BPStep, z: torch.Tensor, valid: torch.Tensor,
+                correction: MeanCorrection | None) -> None:
+        table, s = self.table, self.s
+        before = table.active
+        C = before.shape[1]
+        post = step.posterior
+        table.g = Gaussian(post.x[:, :C], post.P[:, :C])
+        table.existence = torch.where(before, step.existence[:, :C], table.existence)
+        if step.born is not None:
+            self.undetected = step.undetected
+            born = step.born[:, C:]
+            if bool(born.any()):
+                table.add(Gaussian(post.x[:, C:], post.P[:, C:]), born, step.existence[:, C:])
+        elif self.initiator is not None:
+            unused = valid & ~step.explained
+            if bool(unused.any()):
+                table.add(*self.initiator.initiate(z, unused, self.model, self.n, self.other_sd), s.initial_existence)
+        table.confirm((table.status == TENTATIVE) & (table.existence >= s.confirm_existence))
+        table.free(table.active & (table.existence < s.delete_existence))
+        self.report.write(k, table, s.report_existence)
+        C2 = table.active.shape[1]
+        grown = torch.cat([before, before.new_zeros(before.shape[0], C2 - C)], 1)
+        started = table.active & ~grown
+        self.started = started if bool(started.any()) else None
+
+    def result(self) -> TrackReport:
+        return self.report.trimmed()
+
+
+def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
+               settings: BPSettings, other_sd: torch.Tensor, velocity_sd_mps: float = 20.0,
+               initiator: Initiator | None = None) -> TrackReport:
+    """The BP tracker (module docstring) on per-pair detection lists ``scans`` (``z (B, K, S, M,
+    d)``) of ``model`` with noise ``R (S d, S d)``, the CV/CA prediction of ``motion`` over ``dt``
+    with process noise ``q``. New potential targets are seeded one per detection where the
+    detections measure azimuth (``velocity_sd_mps`` the velocity prior per axis), else by
+    ``initiator``; ``other_sd (n,)`` the deviations of the state entries neither fixes.
+    Returns the confirmed tracks as reported at each scan."""
+    check_scans(scans, model)
+    n = motion.dim_x
+    dtype = scans.z.dtype
+    s = settings
+    seeding = "azimuth" in model.components
+    tracks = BPTracks(s, model, n, None if seeding else initiator, other_sd, dtype)
+    births = None
+    if seeding:
+        births = Births(lambda: tracks.undetected, s.pd, s.clutter_count,
+                        one_detection_seed(model, n, other_sd, velocity_sd_mps, dtype), s.delete_existence)
+    associator = BPAssociator(model, R, s.pd * s.gate_probability, s.clutter_density,
+                              existence=lambda: tracks.table.existence, gate_probability=s.gate_probability,
+                              iterations=s.iterations, tolerance=s.tolerance, births=births)
+    return run_tracker(scans, motion, dt, q, associator, tracks)

@@ -1,0 +1,168 @@
+"""The belief-propagation tracker (pmsr_nn.trackers.bp_tracker, kind: bp): its seed of a new
+potential target against the truth, the undetected targets' mass against its recursion, births
+and deaths on a clutter-free case, no track from clutter alone, and refusals in one line."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from scipy.stats import chi2
+
+from pmsr_nn.cli import main
+from pmsr_nn.filters.gaussian import Gaussian
+from pmsr_nn.harness.blocks import call_method, draw_block
+from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.motion import ConstantAcceleration
+from pmsr_nn.metrics import set_scores, track_scores
+from pmsr_nn.rng import seeded_generator
+from pmsr_nn.simulation.detections import ClutterSpec, simulate_scans
+from pmsr_nn.trackers.bp_tracker import BPSettings, BPTracks, bp_tracker, one_detection_seed
+from pmsr_nn.trackers.management import TrackTable
+from test_track_management import ca_state, model, scenario
+
+OTHER_SD = torch.tensor([300.0, 20.0, 0.5, 300.0, 20.0, 0.5], dtype=torch.float64)
+
+
+def test_a_new_potential_target_from_one_detection_holds_the_truth_within_its_covariance():
+    """Noise-free detections of known states at every pair: the seed's position is the fix (the
+    truth, to round-off); with noisy ones, its position error is consistent with its covariance
+    (NEES over 2000 draws within the chi-square interval of 2 x 2000 degrees of freedom)."""
+    m = model()
+    truth = torch.stack([ca_state(3000.0 + 500 * i, 5.0, 2000.0 - 300 * i, -3.0) for i in range(4)])  # (4, 6)
+    seed = one_detection_seed(m, 6, OTHER_SD, 20.0)
+    z = m.h(truth).unflatten(-1, (m.n_pairs, -1))  # (4, S, d)
+    for s in range(m.n_pairs):
+        g, ok = seed(s, z[None, :, s], torch.ones(1, 4, dtype=torch.bool))
+        assert ok.all()
+        torch.testing.assert_close(g.x[0][:, [0, 3]], truth[:, [0, 3]], rtol=0, atol=1e-6)
+    gen = seeded_generator(7)
+    draws = 2000
+    x = truth[0].expand(draws, 6)
+    noisy = z[0, 0] + torch.randn(draws, 3, generator=gen, dtype=torch.float64) * torch.tensor(m.noise_std[:3])
+    g, ok = seed(0, noisy[None], torch.ones(1, draws, dtype=torch.bool))
+    e = (g.x[0] - x)[ok[0]][:, [0, 3]]
+    P = g.P[0][ok[0]][:, [0, 3]][:, :, [0, 3]]
+    nees = float((e.unsqueeze(-2) @ torch.linalg.solve(P, e.unsqueeze(-1))).sum())
+    dof = 2 * int(ok.sum())
+    # the fix is linearised: allow the 99.99 % interval (a wrong covariance is off by far more)
+    assert chi2.ppf(1e-4, dof) < nees < chi2.ppf(1 - 1e-4, dof), (nees, dof)
+
+
+def _settings(**over) -> BPSettings:
+    return BPSettings(**{"pd": 0.9, "clutter_count": 5.0, "clutter_density": 1e-7, **over})
+
+
+def test_the_undetected_mass_follows_its_recursion_when_nothing_is_detected():
+    """No detections at all: every scan the mass survives, grows by the birth rate and each of
+    the S pairs takes Pd of it, ``mu <- (ps mu + b) (1 - Pd)^S`` (the first scan without the
+    prediction), and no track is ever started."""
+    m = model()
+    B, K = 2, 5
+    scans = simulate_scans(torch.zeros(B, K, 0, 6, dtype=torch.float64), m, 0.9, ClutterSpec(per_scan=0),
+                           seeded_generator(1))
+    assert not scans.valid.any()
+    s = _settings(survival=0.95, birth_rate=0.2, initial_targets=3.0)
+    seen = []
+    tracks_cls = BPTracks.updated
+
+    def spy(self, k, step, z, valid, correction):
+        tracks_cls(self, k, step, z, valid, correction)
+        seen.append(self.undetected.clone())
+
+    BPTracks.updated = spy
+    try:
+        rep = bp_tracker(scans, _motion(), 1.0, 1.0, m, m.R(), s, OTHER_SD)
+    finally:
+        BPTracks.updated = tracks_cls
+    expected, mu = [], 3.0
+    for k in range(K):
+        if k > 0:
+            mu = 0.95 * mu + 0.2
+        mu = mu * 0.1 ** m.n_pairs
+        expected.append(mu)
+    torch.testing.assert_close(torch.stack(seen), torch.tensor(expected, dtype=torch.float64)[:, None].expand(K, B),
+                               rtol=1e-12, atol=0)
+    assert rep.exists.shape[2] == 0
+
+
+def _motion():
+    return ConstantAcceleration(2)
+
+
+def test_clutter_alone_confirms_no_track():
+    """Clutter only (5 per pair and scan over the whole space), no target, 30 scans, 4 runs: new
+    potential targets are born every scan, and none reaches the confirmation threshold."""
+    m = model()
+    truth = torch.full((4, 30, 0, 6), 0.0, dtype=torch.float64)
+    clutter = ClutterSpec(per_scan=5, range_m=(0.0, 25000.0), range_rate_mps=(-40.0, 40.0),
+                          azimuth_deg=(-180.0, 180.0))
+    scans = simulate_scans(truth, m, 0.9, clutter, seeded_generator(3))
+    s = _settings(clutter_density=clutter.density_of(m.components))
+    rep = bp_tracker(scans, _motion(), 1.0, 1.0, m, m.R(), s, OTHER_SD)
+    assert not rep.exists.any()
+
+
+@pytest.mark.parametrize("pd, clutter, first", [(1.0, 0, 0.0), (0.9, 3, 1.0)])
+def test_births_and_deaths_give_one_confirmed_track_per_target_from_the_first_scan(tmp_path, pd, clutter, first):
+    """Two drones, one born at 15 s (three pairs): BP confirms one track per drone at the scan
+    of its first detections (one detection seeds a potential target that the other pairs'
+    detections confirm within the scan; with Pd 0.9 a drone may be seen at one pair only at its
+    birth, so within a scan), no other, and ends it when the drone dies."""
+    path = scenario(tmp_path, pd=pd, clutter=clutter, methods=[{"name": "BP", "kind": "bp"}])
+    setup = prepare(load_scenario(path))
+    case = setup.cases[0]
+    truth, products = draw_block(setup, 0, 0)
+    est = call_method(setup, setup.methods[0], case, products, (3, 0, 0))
+    assert not est.paired and est.x.shape[2] == 2  # two track ids in all, per run
+    B, K, _ = est.exists.shape
+    alive = case.alive.expand(B, K, 2)
+    sets = set_scores(est.x[..., [0, 3]], est.exists, truth.x[..., [0, 3]], alive, 300.0, 2.0)
+    ts = track_scores(sets.assignment, est.exists, alive)
+    assert ts.tracks_per_target.tolist() == [[1.0, 1.0]] * B and ts.false_tracks.tolist() == [0.0] * B
+    assert float(ts.scans_to_first_track.max()) == first
+    for t, k1 in enumerate((40, 60)):
+        slot = [row.index(t) for row in sets.assignment[:, k1 - 1].tolist()]
+        for b in range(B):
+            assert not est.exists[b, k1 + 1:, slot[b]].any()
+
+
+def test_table_add_takes_each_new_tracks_existence():
+    park = torch.zeros(2, dtype=torch.float64)
+    t = TrackTable.empty(1, 2, park, capacity=2)
+    g = Gaussian(torch.tensor([[[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]]], dtype=torch.float64),
+                 torch.eye(2, dtype=torch.float64).expand(1, 3, 2, 2))
+    t.add(g, torch.tensor([[True, False, True]]), torch.tensor([[0.3, 0.9, 0.7]], dtype=torch.float64))
+    assert t.existence[0, :2].tolist() == [0.3, 0.7] and t.g.x[0, :2, 0].tolist() == [1.0, 3.0]
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"confirm_existence": 1.0}, "option confirm_existence must be"),
+    ({"delete_existence": 0.0}, "option delete_existence must be"),
+    ({"confirm_existence": 0.01, "delete_existence": 0.1}, "confirm_existence (0.01) is below delete_existence (0.1)"),
+    ({"birth_rate": -0.1}, "option birth_rate must be"),
+])
+def test_settings_that_never_confirm_are_one_line_errors_and_write_nothing(tmp_path, capsys, options, message):
+    path = scenario(tmp_path, methods=[{"name": "B", "kind": "bp", "options": options}])
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "method 'B'" in err[0] and message in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_bp_on_a_scenario_without_detections_is_refused_in_one_line(tmp_path, capsys):
+    path = scenario(tmp_path, methods=[{"name": "B", "kind": "bp"}])
+    text = path.read_text().replace("detections:", "unused_detections:")
+    import yaml
+    data = yaml.safe_load(path.read_text())
+    del data["detections"]
+    path.write_text(yaml.safe_dump(data))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'B'" in err[0] and "detections" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert text  # the YAML had a detections section to remove
