@@ -5,9 +5,11 @@ and deaths on a clutter-free case, no track from clutter alone, and refusals in 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 import torch
+import yaml
 from scipy.stats import chi2
 
 from pmsr_nn.cli import main
@@ -155,8 +157,6 @@ def test_settings_that_never_confirm_are_one_line_errors_and_write_nothing(tmp_p
 
 def test_bp_on_a_scenario_without_detections_is_refused_in_one_line(tmp_path, capsys):
     path = scenario(tmp_path, methods=[{"name": "B", "kind": "bp"}])
-    text = path.read_text().replace("detections:", "unused_detections:")
-    import yaml
     data = yaml.safe_load(path.read_text())
     del data["detections"]
     path.write_text(yaml.safe_dump(data))
@@ -165,4 +165,16 @@ def test_bp_on_a_scenario_without_detections_is_refused_in_one_line(tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'B'" in err[0] and "detections" in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
-    assert text  # the YAML had a detections section to remove
+
+
+def test_the_bp_companion_is_one_sky_but_for_its_rows_and_maps():
+    """``evaluate/one_sky_bp.yaml`` puts BP on one_sky's draws: every setting but the name, the
+    description, the rows and the maps section (no row reads maps) is one_sky.yaml's, and its
+    S-MSJPDA rows are one_sky's."""
+    root = Path(__file__).resolve().parents[1] / "evaluate"
+    main_, bp = (yaml.safe_load((root / f).read_text()) for f in ("one_sky.yaml", "one_sky_bp.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods", "rd_maps")}  # noqa: E731
+    assert rest(bp) == rest(main_) and "rd_maps" not in bp
+    theirs = {m["name"]: m for m in main_["methods"]}
+    assert [m for m in bp["methods"] if m["kind"] != "bp"] == [theirs["S-MSJPDA (oracle births)"], theirs["S-MSJPDA"]]
+    assert [m["kind"] for m in bp["methods"]].count("bp") == 1
