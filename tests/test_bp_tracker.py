@@ -178,3 +178,16 @@ def test_the_bp_companion_is_one_sky_but_for_its_rows_and_maps():
     theirs = {m["name"]: m for m in main_["methods"]}
     assert [m for m in bp["methods"] if m["kind"] != "bp"] == [theirs["S-MSJPDA (oracle births)"], theirs["S-MSJPDA"]]
     assert [m["kind"] for m in bp["methods"]].count("bp") == 1
+
+
+@pytest.mark.parametrize("main_name, oracle", [("dense_crossing", "S-MSJPDA (oracle births)"),
+                                               ("shared_drones", "S-MSJPDA")])
+def test_the_bp_companions_are_their_studies_but_for_the_rows(main_name, oracle):
+    """``evaluate/<study>_bp.yaml``: every setting but the name, the description and the rows is
+    the study's (the draws do not depend on those), its oracle row is the study's, and BP is the
+    other row."""
+    root = Path(__file__).resolve().parents[1] / "evaluate"
+    main_, bp = (yaml.safe_load((root / f).read_text()) for f in (f"{main_name}.yaml", f"{main_name}_bp.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(bp) == rest(main_)
+    assert bp["methods"] == [next(m for m in main_["methods"] if m["name"] == oracle), {"name": "BP", "kind": "bp"}]
