@@ -191,3 +191,44 @@ def test_the_bp_companions_are_their_studies_but_for_the_rows(main_name, oracle)
     rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
     assert rest(bp) == rest(main_)
     assert bp["methods"] == [next(m for m in main_["methods"] if m["name"] == oracle), {"name": "BP", "kind": "bp"}]
+
+
+def test_a_target_seeded_at_one_pair_is_a_track_for_the_next_in_closed_form():
+    """One target, two pairs, one scan, no clutter, no track yet: pair 0's detection seeds a new
+    potential target with existence ``mu / (1 + mu)`` (``mu = mu_u Pd / Lambda_c``); at pair 1 it
+    is the one track, and the one-track, one-detection factor graph is a tree, so BP is exact:
+    with ``L`` its likelihood ratio (sigma-point moments, independently computed) and ``mu_1 =
+    mu_u (1 - Pd) Pd / Lambda_c``, its existence becomes ``r (Pd L + (1 - Pd)(1 + mu_1)) / D`` and
+    pair 1's own new potential target ``mu_1 (1 - r Pd) / D``, ``D = r Pd L + (1 - r Pd)(1 +
+    mu_1)``; the undetected mass ends at ``mu_u (1 - Pd)^2``."""
+    from pmsr_nn.filters import unscented_moments
+    from pmsr_nn.filters.gaussian import Gaussian as G
+    from pmsr_nn.trackers.bp_associator import Births, BPAssociator
+
+    full = model()
+    m = full.for_pairs([0, 1])
+    x = ca_state(3000.0, 5.0, 2000.0, -3.0)
+    z = m.h(x[None]).reshape(1, 2, 1, 3)  # (B, S, M, d): noise-free
+    valid = torch.ones(1, 2, 1, dtype=torch.bool)
+    pd, count, density, mu_u = 0.9, 5.0, 1e-7, 0.02
+    seed = one_detection_seed(m, 6, OTHER_SD, 20.0)
+    births = Births(lambda: torch.tensor([mu_u], dtype=torch.float64), pd, count, seed, 1e-12)
+    bp = BPAssociator(m, m.R(), pd, density, existence=lambda: torch.zeros(1, 0, dtype=torch.float64),
+                      gate_probability=1 - 1e-12, births=births)
+    empty = G(torch.zeros(1, 0, 6, dtype=torch.float64), torch.zeros(1, 0, 6, 6, dtype=torch.float64))
+    step = bp.associate(empty, z, valid, torch.zeros(1, 0, dtype=torch.bool))
+    mu0 = mu_u * pd / count
+    r = mu0 / (1 + mu0)
+    g0, _ = seed(0, z[:, 0], valid[:, 0])
+    sub = m.for_pairs([1])
+    R1 = m.R()[3:, 3:]
+    mom = unscented_moments(g0, sub, R1)
+    nu = sub.residual(z[0, 1, 0], mom.z[0, 0])
+    S = mom.S[0, 0]
+    L = float(torch.exp(-0.5 * nu @ torch.linalg.solve(S, nu)) / torch.sqrt(torch.linalg.det(2 * math.pi * S))) / density
+    mu1 = mu_u * (1 - pd) * pd / count
+    D = r * pd * L + (1 - r * pd) * (1 + mu1)
+    assert step.existence.shape == (1, 2) and step.born.tolist() == [[True, True]]
+    assert math.isclose(float(step.existence[0, 0]), r * (pd * L + (1 - pd) * (1 + mu1)) / D, rel_tol=1e-9)
+    assert math.isclose(float(step.existence[0, 1]), mu1 * (1 - r * pd) / D, rel_tol=1e-9)
+    assert math.isclose(float(step.undetected[0]), mu_u * (1 - pd) ** 2, rel_tol=1e-12)
