@@ -74,7 +74,7 @@ def test_the_crossing_pair_meets_and_the_formation_keeps_its_spacing(setup):
 def test_every_family_is_a_row(setup):
     kinds = {m.kind for m in setup.methods}
     assert {"ekf", "ukf", "imm", "learned", "pcrb", "s_msjpda", "p_msjpda", "pmht", "pmht_3d", "smc_phd",
-            "stonesoup"} <= kinds
+            "stonesoup", "bp"} <= kinds
     detection_rows = [m for m in setup.methods if setup.kinds[m.name].reads == "detections"]
     from pmsr_nn.harness.finalise import initiation
 

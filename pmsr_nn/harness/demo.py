@@ -7,7 +7,8 @@
    with fewer Monte Carlo runs than the full study, and print the comparison table;
 4. a small version of the flagship scenario ``evaluate/one_sky.yaml`` (its crossing pair and its
    formation, 2 runs): the EKF and the released KalmanNet trained for its sensors on each drone's own
-   stream, the PCRB, S-MSJPDA handed the births and S-MSJPDA starting its own tracks on detections
+   stream, the PCRB, S-MSJPDA handed the births and S-MSJPDA and the belief-propagation tracker
+   starting their own tracks on detections
    with missed targets and clutter, OSPA / GOSPA beside the RMSE.
 
 Everything goes under one folder (default ``runs/demo``): ``train/mdfnn``, ``train/kalmannet`` (runs
@@ -91,7 +92,7 @@ ONE_SKY = Path(__file__).resolve().parents[2] / "evaluate" / "one_sky.yaml"
 ONE_SKY_RUNS = 2
 ONE_SKY_TARGETS = ("cross_1", "cross_2", "lead", "wing")
 ONE_SKY_END_S = 360.0
-ONE_SKY_METHODS = ("EKF", "KalmanNet [seed 0]", "PCRB", "S-MSJPDA (oracle births)", "S-MSJPDA")
+ONE_SKY_METHODS = ("EKF", "KalmanNet [seed 0]", "PCRB", "S-MSJPDA (oracle births)", "S-MSJPDA", "BP")
 """What the demo keeps of ``evaluate/one_sky.yaml``: its crossing pair and its formation, each gone at
 :data:`ONE_SKY_END_S` (after the crossing), and the rows that take seconds (the full scenario's PMHT,
 PHD and Stone Soup rows take minutes per run)."""
@@ -117,7 +118,8 @@ def demo_one_sky(mc_runs: int) -> Scenario:
                       mc_runs=mc_runs, block_runs=mc_runs,
                       description="pmsr demo: four drones of evaluate/one_sky.yaml (2 transmitters x 3 receivers); the EKF "
                                   "and the released KalmanNet on each drone's stream, the PCRB, S-MSJPDA on detections "
-                                  "with Pd 0.85 and clutter, handed the births and starting its own tracks.")
+                                  "with Pd 0.85 and clutter, handed the births and starting its own tracks, and the "
+                                  "belief-propagation tracker starting its own tracks.")
 
 
 def _fresh(out: Path) -> None:
