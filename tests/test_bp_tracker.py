@@ -232,3 +232,44 @@ def test_a_target_seeded_at_one_pair_is_a_track_for_the_next_in_closed_form():
     assert math.isclose(float(step.existence[0, 0]), r * (pd * L + (1 - pd) * (1 + mu1)) / D, rel_tol=1e-9)
     assert math.isclose(float(step.existence[0, 1]), mu1 * (1 - r * pd) / D, rel_tol=1e-9)
     assert math.isclose(float(step.undetected[0]), mu_u * (1 - pd) ** 2, rel_tol=1e-12)
+
+
+def test_a_pooled_list_is_one_association_over_the_illuminators_as_enumerated():
+    """Two transmitters 300 m apart, one receiver, their detections pooled (the illuminator
+    unknown): the list's one detection fits the track under both illuminators. BP associates it
+    with one (track, illuminator) node at most, as the enumeration of the three joint events
+    gives on this tree: node k takes it with ``r Pd L_k (1 - r Pd)``, neither with ``(1 - r
+    Pd)^2 (1 + mu)`` (``L_k`` from the sigma-point moments of pair k, independently computed)."""
+    from pmsr_nn.filters import unscented_moments
+    from pmsr_nn.filters.gaussian import Gaussian as G
+    from pmsr_nn.geometry import Geometry, Receiver, Transmitter
+    from pmsr_nn.measurements import MeasurementModel
+    from pmsr_nn.trackers.bp_associator import BPAssociator
+
+    geo = Geometry.all_pairs([Transmitter((0.0, 0.0), 98e6), Transmitter((300.0, 0.0), 98e6)],
+                             [Receiver((-7000.0, -3000.0))])
+    m = MeasurementModel(geo, ("range", "range_rate", "azimuth"), (30.0, 2.0, math.radians(3.0)), (0, 3), (1, 4),
+                         layout="pair")
+    x = ca_state(3000.0, 5.0, 2000.0, -3.0)
+    P = torch.diag(torch.tensor([150.0, 3.0, 0.1, 150.0, 3.0, 0.1], dtype=torch.float64) ** 2)
+    g = G(x[None, None], P[None, None])
+    z = m.h(x[None]).reshape(1, 2, 1, 3)[:, :1] + torch.tensor([60.0, 1.0, 0.01], dtype=torch.float64)  # (B, L=1, M, d)
+    valid = torch.ones(1, 1, 1, dtype=torch.bool)
+    r, pd, density, mu = 0.6, 0.9, 1e-7, 0.3
+    bp = BPAssociator(m, m.R(), pd, density, existence=lambda: torch.tensor([[r]], dtype=torch.float64), birth=mu,
+                      gate_probability=1 - 1e-12, lists=[0, 0])
+    step = bp.associate(g, z, valid, None)
+    L = []
+    for k in range(2):
+        mom = unscented_moments(g, m.for_pairs([k]), m.R()[3 * k:3 * k + 3, 3 * k:3 * k + 3])
+        nu = m.for_pairs([k]).residual(z[0, 0, 0], mom.z[0, 0])
+        S = mom.S[0, 0]
+        L.append(float(torch.exp(-0.5 * nu @ torch.linalg.solve(S, nu)) / torch.sqrt(torch.linalg.det(2 * math.pi * S)))
+                 / density)
+    q = 1 - r * pd
+    events = [r * pd * L[0] * q, q * r * pd * L[1], q * q * (1 + mu)]
+    Z = sum(events)
+    assert min(events[:2]) / Z > 0.05, "the detection fits the track under both illuminators"
+    for k in range(2):
+        assert math.isclose(float(step.association[0, 0, k, 0]), events[k] / Z, rel_tol=1e-9)
+    assert math.isclose(float(step.legacy[0, 0, 0]), (events[0] + events[1]) / Z, rel_tol=1e-9)

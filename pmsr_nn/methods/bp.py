@@ -16,8 +16,14 @@ Options:
 * the message passing: ``iterations`` at most, until the largest change of a message is at most
   ``tolerance``.
 
-The clutter rate and Pd are the scenario's (the detection list's clutter per pair and scan,
-floored as the JPDA's). Reads the per-pair lists (the illuminator given).
+The clutter rate and Pd are the scenario's (the detection list's clutter per scan, floored as the
+JPDA's). ``bp`` reads the per-pair lists (the illuminator given); ``bp_3d`` reads, where the
+scenario pools them (``illuminator_known: false``), the lists a receiver of a single-frequency
+network has, the illuminator of each detection unknown: each pair reads its receiver's pooled
+list in turn, so the illuminator is a third dimension of the association (as PMHT-3D's), and a
+detection seeds a new potential target under each illuminator, the wrong ones finding no
+support at the other receivers. (A detection may then be a track's under two illuminators at
+once: the association does not tie the pairs of one receiver together.)
 """
 
 from __future__ import annotations
@@ -25,20 +31,23 @@ from __future__ import annotations
 from ..errors import ConfigError
 from ..trackers.base import Estimates
 from ..trackers.bp_tracker import BPSettings, bp_tracker
+from ..trackers.jpda import floored_clutter_density
 from ..trackers.spherical_initiator import SphericalInitiator
 from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, register
-from .track_management import clutter_density
 
 EXISTENCE = dict(kind=float, lo=1e-12, hi=1.0 - 1e-12)
 
 
 def settings(spec, sensing) -> BPSettings:
     """The BP settings of a row (``spec``) on a case's ``sensing``; one-line refusals naming the
-    row of settings that could never confirm a track."""
+    row of settings that could never confirm a track. The clutter is a pair's list's, or a
+    receiver's pooled list's for ``bp_3d`` where the scenario pools them."""
     o = spec.option
+    clutter = sensing.clutter if _pooled(spec, sensing) else sensing.pair_clutter()
     try:
-        return BPSettings(pd=float(sensing.pd), clutter_count=max(float(sensing.pair_clutter().per_scan), MIN_CLUTTER_PER_SCAN),
-                          clutter_density=clutter_density(sensing), gate_probability=float(o("gate_probability")),
+        return BPSettings(pd=float(sensing.pd), clutter_count=max(float(clutter.per_scan), MIN_CLUTTER_PER_SCAN),
+                          clutter_density=floored_clutter_density(clutter, sensing.detection_model.components),
+                          gate_probability=float(o("gate_probability")),
                           survival=float(o("survival")), birth_rate=float(o("birth_rate")),
                           initial_targets=float(o("initial_targets")), confirm_existence=float(o("confirm_existence")),
                           delete_existence=float(o("delete_existence")), report_existence=float(o("report_existence")),
@@ -59,6 +68,10 @@ def check_sensing(spec, sensing) -> None:
     detections no new potential target can be seeded from."""
     settings(spec, sensing)
     model = sensing.detection_model
+    if _pooled(spec, sensing) and "azimuth" not in model.components:
+        raise ConfigError(f"method {spec.name!r}: kind bp_3d reads lists pooled per receiver only where each pair "
+                          f"measures azimuth (a detection seeds a target under each illuminator); the detections "
+                          f"measure {list(model.components)} (use kind bp)")
     if "azimuth" not in model.components:
         try:
             _initiator(spec).check(model, "BP without azimuth (tracks from the multi-pair initiator)")
@@ -66,12 +79,19 @@ def check_sensing(spec, sensing) -> None:
             raise ConfigError(f"method {spec.name!r}: {exc}") from None
 
 
+def _pooled(spec, sensing) -> bool:
+    """Whether the row reads lists pooled per receiver: ``bp_3d`` where the scenario pools them."""
+    return spec.kind == "bp_3d" and not sensing.illuminator_known
+
+
 def run_bp(call: MethodCall) -> Estimates:
-    m, s = call.models, call.sensing
+    m, s, det = call.models, call.sensing, call.product
     model = s.detection_model
-    rep = bp_tracker(call.product.scans, m.motion, m.dt, m.q, model, model.R(), settings(call.spec, s), s.prior_sd,
-                     float(call.spec.option("birth_velocity_sd_mps")),
-                     None if "azimuth" in model.components else _initiator(call.spec))
+    pooled = _pooled(call.spec, s)
+    rep = bp_tracker(det.pooled.scans if pooled else det.scans, m.motion, m.dt, m.q, model, model.R(),
+                     settings(call.spec, s), s.prior_sd, float(call.spec.option("birth_velocity_sd_mps")),
+                     None if "azimuth" in model.components else _initiator(call.spec),
+                     routes=det.pooled.routes if pooled else None)
     return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
 
 
@@ -88,3 +108,7 @@ OPTIONS = {"gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
 register(MethodKind("bp", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
                     description="multisensor belief-propagation tracker (TOMB/P with BP association, Meyer et al., "
                                 "Proc. IEEE 2018), pair by pair; starts, confirms and deletes its own tracks by existence"))
+register(MethodKind("bp_3d", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
+                    pooled_lists=True,
+                    description="the belief-propagation tracker on the lists a single-frequency-network receiver has "
+                                "(pooled, the illuminator unknown: each pair reads its receiver's list); elsewhere as bp"))

@@ -108,14 +108,21 @@ class BPAssociator(Associator):
     over the expected clutter count of a pair; 0: no births) where ``births`` is None, else
     :class:`Births` gives it and starts new potential targets; ``explained`` the probability of
     being a track's from which a detection counts as explained (it starts no track);
-    ``iterations`` and ``tolerance`` the message passing's (:func:`~.bp_association.bp_associate`)."""
+    ``iterations`` and ``tolerance`` the message passing's (:func:`~.bp_association.bp_associate`);
+    ``lists (S,)`` the detection list each pair reads (None: list ``s`` for pair ``s``): where a
+    receiver pools its pairs' detections (the illuminator unknown), each of its pairs reads the
+    pooled list in turn, so the illuminator is a third dimension of the association, resolved by
+    which pair's prediction a detection fits (``clutter_density`` then the pooled list's)."""
 
     correction = None
 
     def __init__(self, model: MeasurementModel, R: torch.Tensor, pd: float, clutter_density: float,
                  existence: Callable[[], torch.Tensor] | None = None, birth: float = 0.0,
                  gate_probability: float = 0.999, explained: float = 0.5, iterations: int = 1000,
-                 tolerance: float = 1e-10, births: Births | None = None):
+                 tolerance: float = 1e-10, births: Births | None = None, lists: list[int] | None = None):
+        self.lists = list(range(model.n_pairs)) if lists is None else [int(v) for v in lists]
+        # the pairs that read each list, in the order of its first pair
+        self.groups = [[j for j, v in enumerate(self.lists) if v == l] for l in dict.fromkeys(self.lists)]
         self.pd, self.density, self.existence, self.birth = pd, clutter_density, existence, birth
         self.explained, self.iterations, self.tolerance, self.births = explained, iterations, tolerance, births
         self.gamma = gate_threshold(gate_probability, len(model.components))
@@ -132,46 +139,56 @@ class BPAssociator(Associator):
         born = torch.zeros(B, C, dtype=torch.bool)
         births = self.births
         mu_u = births.undetected().to(dtype).clone() if births is not None else None
-        ratios, hits, sds, whitened, new, legacy, assoc, passes = [], [], [], [], [], [], [], 0
-        explained = []
-        for j, (sub, R) in enumerate(zip(self.subs, self.R)):
-            zj, vj = z[:, j], valid[:, j]
-            M = zj.shape[1]
-            inn = pair_innovations(g, zj, vj, sub, R)
-            mom, L, e = inn.moments, inn.L, inn.e
-            gate = inside_gate(inn.d2, self.gamma) & vj.unsqueeze(1) & active.unsqueeze(-1)
-            ratio = torch.where(gate, inn.log_lik.exp() / self.density, 0.0)
+        per_pair, explained, passes = {}, torch.zeros(valid.shape, dtype=torch.bool), 0
+        for pairs in self.groups:
+            l = self.lists[pairs[0]]
+            zl, vl = z[:, l], valid[:, l]
+            C, M, J = g.x.shape[1], zl.shape[1], len(pairs)
+            inns = [pair_innovations(g, zl, vl, self.subs[j], self.R[j]) for j in pairs]
+            gates = [inside_gate(inn.d2, self.gamma) & vl.unsqueeze(1) & active.unsqueeze(-1) for inn in inns]
+            # one node per (track, pair) of the list: a detection is at most one of them
+            ratio = torch.cat([torch.where(gate, inn.log_lik.exp() / self.density, 0.0) for inn, gate in zip(inns, gates)], 1)
             if births is None:
-                birth = torch.full(vj.shape, float(self.birth), dtype=dtype)
-            else:
-                birth = (mu_u * births.pd / births.clutter_count).unsqueeze(-1).expand(B, M)
-            bp = bp_associate(ratio, torch.where(active, r, 0.0), self.pd, birth, vj, self.iterations, self.tolerance)
-            g = pda_collapse(g, mom, L, e, gate, bp.weights)
-            r = torch.where(active, bp.existence, r)
-            w = bp.weights
-            hits.append(active & (w[..., :M].amax(-1) > w[..., M]) if M else torch.zeros_like(active))
-            ratios.append(bp.ratio)
-            explained.append(bp.legacy >= self.explained)
-            sds.append(mom.S[..., 0, 0].sqrt())
-            whitened.append((w[..., :M, None] * torch.where(gate[..., None], e, 0.0)).sum(-2))
-            new.append(bp.new_existence)
-            legacy.append(bp.legacy)
-            assoc.append(bp.association)
+                birth = torch.full(vl.shape, float(self.birth), dtype=dtype)
+            else:  # a new target under any of the list's illuminators
+                birth = (mu_u * births.pd / births.clutter_count * J).unsqueeze(-1).expand(B, M)
+            prior = torch.where(active, r, 0.0)
+            bp = bp_associate(ratio, prior.repeat(1, J), self.pd, birth, vl, self.iterations, self.tolerance)
             passes = max(passes, bp.iterations)
+            explained[:, l] |= bp.legacy >= self.explained
+            for k, j in enumerate(pairs):
+                nodes = slice(k * C, (k + 1) * C)
+                # the weights are the joint association's; the moments the state's after the list's earlier pairs
+                inn = inns[k] if k == 0 else pair_innovations(g, zl, vl, self.subs[j], self.R[j])
+                w = bp.weights[:, nodes]
+                g = pda_collapse(g, inn.moments, inn.L, inn.e, gates[k], w)
+                if J == 1:
+                    r = torch.where(active, bp.existence, r)
+                else:  # each pair's IPDA-form update with its BP likelihood ratio, in turn
+                    pd_eff = self.pd * bp.ratio[:, nodes]
+                    r = torch.where(active, r * (1.0 - self.pd + pd_eff) / (1.0 - r * self.pd + r * pd_eff), r)
+                per_pair[j] = (active & (w[..., :M].amax(-1) > w[..., M]) if M else torch.zeros_like(active),
+                               bp.ratio[:, nodes], inn.moments.S[..., 0, 0].sqrt(),
+                               (w[..., :M, None] * torch.where(gates[k][..., None], inn.e, 0.0)).sum(-2),
+                               bp.new_existence / J, bp.legacy, bp.association[:, nodes])
             if births is not None:
-                mu_u = mu_u * (1.0 - births.pd)
-                kept = vj & (bp.new_existence >= births.keep)
-                if bool(kept.any()):
-                    seeded, ok = births.seed(j, zj, vj)
-                    kept = kept & ok
-                    g = Gaussian(torch.cat([g.x, seeded.x], 1), torch.cat([g.P, seeded.P], 1))
-                    r = torch.cat([r, torch.where(kept, bp.new_existence, 0.0)], 1)
-                    active = torch.cat([active, kept], 1)
-                    born = torch.cat([born, kept], 1)
+                for j in pairs:
+                    mu_u = mu_u * (1.0 - births.pd)
+                for j in pairs:  # a new potential target behind each detection, under each illuminator
+                    new_existence = bp.new_existence / J
+                    kept = vl & (new_existence >= births.keep)
+                    if bool(kept.any()):
+                        seeded, ok = births.seed(j, zl, vl)
+                        kept = kept & ok
+                        g = Gaussian(torch.cat([g.x, seeded.x], 1), torch.cat([g.P, seeded.P], 1))
+                        r = torch.cat([r, torch.where(kept, new_existence, 0.0)], 1)
+                        active = torch.cat([active, kept], 1)
+                        born = torch.cat([born, kept], 1)
         Cn = g.x.shape[1]
-        hit = _padded(hits, Cn)
-        return BPStep(g, hit.sum(-1), _padded(ratios, Cn), torch.stack(explained, 1), ~hit.any(-1),
-                      _padded(sds, Cn).amax(-1), _padded(whitened, Cn), existence=r,
+        hits, ratios, sds, whitened, new, legacy, assoc = zip(*(per_pair[j] for j in range(len(self.subs))))
+        hit = _padded(list(hits), Cn)
+        return BPStep(g, hit.sum(-1), _padded(list(ratios), Cn), explained, ~hit.any(-1),
+                      _padded(list(sds), Cn).amax(-1), _padded(list(whitened), Cn), existence=r,
                       new_existence=torch.stack(new, 1), legacy=torch.stack(legacy, 1),
-                      association=_padded(assoc, Cn), iterations=passes,
+                      association=_padded(list(assoc), Cn), iterations=passes,
                       born=born if births is not None else None, undetected=mu_u)

@@ -31,12 +31,13 @@ from dataclasses import dataclass
 import torch
 
 from ..config import require
+from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
 from ..motion import KinematicModel
 from ..simulation.detections import Scans
 from .bp_associator import Births, BPAssociator, BPStep
-from .fix_initiator import FixInitiator, range_azimuth_fix
+from .fix_initiator import FixInitiator, list_of_pairs, range_azimuth_fix
 from .loop import run_tracker
 from .management import TENTATIVE, TrackReport, TrackTable, parked_state
 from .msjpda import check_scans
@@ -194,18 +195,34 @@ class BPTracks:
 
 def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
                settings: BPSettings, other_sd: torch.Tensor, velocity_sd_mps: float = 20.0,
-               initiator: Initiator | None = None) -> TrackReport:
+               initiator: Initiator | None = None, routes: torch.Tensor | None = None) -> TrackReport:
     """The BP tracker (module docstring) on per-pair detection lists ``scans`` (``z (B, K, S, M,
     d)``) of ``model`` with noise ``R (S d, S d)``, the CV/CA prediction of ``motion`` over ``dt``
     with process noise ``q``. New potential targets are seeded one per detection where the
     detections measure azimuth (``velocity_sd_mps`` the velocity prior per axis), else by
     ``initiator``; ``other_sd (n,)`` the deviations of the state entries neither fixes.
-    Returns the confirmed tracks as reported at each scan."""
-    check_scans(scans, model)
+
+    ``routes (L, S)`` bool: the scans are ``L`` lists pooled per receiver (pair ``s`` ends at the
+    receiver of list ``l``; the illuminator of a detection unknown), which each pair reads in
+    turn (:class:`~.bp_associator.BPAssociator`'s ``lists``); ``settings``' clutter is then a
+    pooled list's, and the detections must measure azimuth. Returns the confirmed tracks as
+    reported at each scan."""
+    seeding = "azimuth" in model.components
+    lists = None
+    if routes is None:
+        check_scans(scans, model)
+    else:
+        lists = list_of_pairs(routes).tolist()
+        if tuple(scans.z.shape[2:3]) != (routes.shape[0],) or scans.z.shape[-1] != len(model.components):
+            raise ConfigError(f"pooled detections come in {scans.z.shape[2]} lists of {scans.z.shape[-1]} values; the "
+                              f"routes name {routes.shape[0]} receivers and the model measures {len(model.components)}")
+        if not seeding:
+            raise ConfigError("BP reads lists pooled per receiver only where each pair measures azimuth (a detection "
+                              f"seeds a target under each illuminator); the detections measure {list(model.components)}")
+        check_scans(Scans(scans.z[:, :, lists], scans.valid[:, :, lists], scans.origin[:, :, lists]), model)  # each pair's view
     n = motion.dim_x
     dtype = scans.z.dtype
     s = settings
-    seeding = "azimuth" in model.components
     tracks = BPTracks(s, model, n, None if seeding else initiator, other_sd, dtype)
     births = None
     if seeding:
@@ -213,5 +230,5 @@ def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model:
                         one_detection_seed(model, n, other_sd, velocity_sd_mps, dtype), s.delete_existence)
     associator = BPAssociator(model, R, s.pd * s.gate_probability, s.clutter_density,
                               existence=lambda: tracks.table.existence, gate_probability=s.gate_probability,
-                              iterations=s.iterations, tolerance=s.tolerance, births=births)
+                              iterations=s.iterations, tolerance=s.tolerance, births=births, lists=lists)
     return run_tracker(scans, motion, dt, q, associator, tracks)
