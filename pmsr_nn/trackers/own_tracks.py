@@ -21,7 +21,8 @@ import torch
 
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
-from .management import Management, TrackReport, TrackTable, parked_state
+from .coalescence import CoalescenceTest, merged_existence
+from .management import EXPLAINED, Management, TrackReport, TrackTable, parked_state
 from .roles import AssociationStep, MeanCorrection
 
 
@@ -41,6 +42,8 @@ class OwnTracks:
     def begin(self, B: int, K: int) -> None:
         self.table = TrackTable.empty(B, self.n, parked_state(self.model, self.n, self.dtype))
         self.report = TrackReport.empty(B, K, self.n, self.dtype)
+        rule = self.mg.coalescence
+        self.merging = None if rule is None else CoalescenceTest(rule, B, self.pos + list(self.model.vel_idx))
 
     @property
     def g(self) -> Gaussian:
@@ -71,18 +74,25 @@ class OwnTracks:
                 correction: MeanCorrection | None) -> None:
         table, mg = self.table, self.mg
         table.g = step.posterior
-        S = step.ratio.shape[-1]
+        ratio = step.shared_ratio if mg.shared_existence else step.ratio
+        S = ratio.shape[-1]
         for j in range(S):
-            table.update_existence(step.ratio[..., j], self.pd_pg)
+            table.update_existence(ratio[..., j], self.pd_pg)
             if mg.bias is not None:
                 table.update_bias(mg.bias, j, S, step.whitened[:, :, j])
         table.record(step.detected, mg.hit_pairs)
         table.manage(mg.confirmer, mg.deleter, self.pos, mg.bias)
+        if self.merging is not None:
+            now = table.g if step.reported is None else step.reported
+            merged = self.merging.step(now.x, now.P, table.confirmed, table.track_id)
+            if bool(merged.any()):
+                table.existence = merged_existence(table.existence, merged)
+                table.free(merged.any(1))
         if correction is not None:
             correction.forget(~table.active)
         # new tracks are tentative, so reporting before or after starting them is the same
         self.report.write(k, table if step.reported is None else replace(table, g=step.reported), mg.report_existence)
-        unused = valid & ~step.explained
+        unused = valid & ~(step.explained if mg.explained_by == "gate" else step.taken >= EXPLAINED)
         self.started = None
         if bool(unused.any()):
             before = table.active
