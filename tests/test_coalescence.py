@@ -121,3 +121,40 @@ def test_slots_grow_with_the_table():
 def test_a_window_of_no_scans_is_refused():
     with pytest.raises(ConfigError, match="merge_scans"):
         Coalescence(0)
+
+
+def test_own_tracks_merge_a_duplicate_and_report_the_older_id():
+    """Two confirmed tracks on one state (a duplicate) and one 2 km away, in OwnTracks with
+    merge_scans 3: reported side by side for two scans, then only the older of the pair."""
+    from pmsr_nn.filters.gaussian import Gaussian
+    from pmsr_nn.geometry import Geometry, Receiver, Transmitter
+    from pmsr_nn.measurements import MeasurementModel
+    from pmsr_nn.trackers.management import CONFIRMED, Confirmer, Deleter, FixInitiator, Management
+    from pmsr_nn.trackers.own_tracks import OwnTracks
+    from pmsr_nn.trackers.roles import AssociationStep
+
+    geo = Geometry.all_pairs([Transmitter((0.0, 0.0), 650e6)], [Receiver((-7000.0, -3000.0)), Receiver((-8000.0, 500.0))])
+    m = MeasurementModel(geo, ("range", "range_rate", "azimuth"), (30.0, 2.0, math.radians(3.0)), (0, 2), (1, 3),
+                         layout="pair")
+    mg = Management(FixInitiator(), Confirmer(), Deleter(), torch.ones(4, dtype=torch.float64),
+                    coalescence=Coalescence(3))
+    own = OwnTracks(mg, m, 4, 0.85)
+    own.begin(1, 5)
+    x = torch.tensor([[[3000.0, 10.0, 2000.0, 0.0], [3004.0, 10.0, 2003.0, 0.0], [5000.0, 10.0, 2000.0, 0.0]]],
+                     dtype=torch.float64)
+    P = torch.diag(torch.tensor([400.0, 4.0, 400.0, 4.0], dtype=torch.float64)).expand(1, 3, 4, 4).clone()
+    own.table.add(Gaussian(x, P), torch.ones(1, 3, dtype=torch.bool), 0.9)
+    C = own.table.status.shape[1]
+    own.table.status[0, :3] = CONFIRMED
+    own.table.track_id[0, :3] = torch.tensor([5, 2, 7])  # slot 1 holds the older of the pair
+    own.table.next_id[:] = 8
+    S, M, d = 2, 1, 3
+    for k in range(5):
+        step = AssociationStep(own.table.g, torch.full((1, C), 2), torch.full((1, C, S), 50.0, dtype=torch.float64),
+                               torch.ones(1, S, M, dtype=torch.bool))
+        own.updated(k, step, torch.zeros(1, S, M, d, dtype=torch.float64), torch.zeros(1, S, M, dtype=torch.bool), None)
+    rep = own.result()
+    # ids 2, 5, 7 are report slots 2, 5, 7: the duplicate (id 5) reported at scans 0-1 only
+    assert rep.exists[0, :, 2].tolist() == [True] * 5 and rep.exists[0, :, 7].tolist() == [True] * 5
+    assert rep.exists[0, :, 5].tolist() == [True, True, False, False, False]
+    assert own.table.active[0].tolist()[:3] == [False, True, True]
