@@ -103,7 +103,12 @@ class PairUpdate:
     shared_ratio: torch.Tensor
 
 
-def shared_ratio(alpha: torch.Tensor, pd: float) -> torch.Tensor:
+UNDERFLOW = 1e-200
+"""Below this, a probability of no detection has lost its digits (``Pd`` 1: a miss weight of
+:data:`~.jpda.MIN_MISS_PROBABILITY`)."""
+
+
+def shared_ratio(alpha: torch.Tensor, pd: float, ratio: torch.Tensor) -> torch.Tensor:
     """The JIPDA-style likelihood ratio of a track at one pair from its association probabilities
     ``alpha (..., M + 1)`` (the last column no detection, computed with the miss weight
     ``1 - Pd`` of :func:`~.jpda.miss_cost`): ``(1 - Pd) / Pd * sum_i alpha_i / alpha_0``, ``(...)``.
@@ -112,9 +117,12 @@ def shared_ratio(alpha: torch.Tensor, pd: float) -> torch.Tensor:
     l_i / (lambda (1 - Pd))``, so this is the IPDA's ``sum_i l_i / lambda`` over the gated
     detections; where another track takes a detection, ``alpha_0`` grows and the ratio falls (the
     existence of a track that only shares another's detections fades). 0 for a track that gates
-    nothing."""
+    nothing. Where ``alpha_0`` is below :data:`UNDERFLOW` (the track surely took a detection) the
+    IPDA ``ratio (...)`` stands in."""
     q = math.exp(-miss_cost(pd))
-    return (q / pd) * alpha[..., :-1].sum(-1) / alpha[..., -1].clamp(min=1e-300)
+    beta0 = alpha[..., -1]
+    odds = (q / pd) * alpha[..., :-1].sum(-1) / beta0.clamp(min=UNDERFLOW)
+    return torch.where(beta0 < UNDERFLOW, ratio, odds)
 
 
 def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
@@ -146,8 +154,8 @@ def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measurem
     if correction is not None:
         out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active if learned is None else learned), out.P)
     e_c = (w[..., :M, None] * torch.where(gate[..., None], e, torch.zeros((), dtype=e.dtype))).sum(-2)
-    return PairUpdate(out, miss, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / clutter_density, e_c,
-                      w[..., :M].sum(1), shared_ratio(w, pd))
+    ratio = ratio.detach() / clutter_density
+    return PairUpdate(out, miss, mom.S[..., 0, 0].sqrt(), gated, ratio, e_c, w[..., :M].sum(1), shared_ratio(w, pd, ratio))
 
 
 class SequentialJPDA(Associator):
@@ -248,10 +256,11 @@ class ParallelJPDA(Associator):
                                    expand_moments(mom), model)
         range_sd = mom.S.diagonal(dim1=-2, dim2=-1)[..., 0::d].sqrt().amax(-1)
         ratio = torch.where(torch.from_numpy(gated), block_log_lik.exp(), torch.zeros((), dtype=d2.dtype)).sum(-1)
+        ratio = ratio / s.clutter_density
         return AssociationStep(collapse(torch.from_numpy(Wc), post.x, post.P), torch.from_numpy(detected),
-                               ratio / s.clutter_density, torch.from_numpy(gated.any(1)), torch.from_numpy(miss),
+                               ratio, torch.from_numpy(gated.any(1)), torch.from_numpy(miss),
                                range_sd, None, gap, taken=torch.from_numpy(taken),
-                               shared_ratio=shared_ratio(torch.from_numpy(np.stack([1.0 - p_miss, p_miss], -1)), s.pd))
+                               shared_ratio=shared_ratio(torch.from_numpy(np.stack([1.0 - p_miss, p_miss], -1)), s.pd, ratio))
 
     def _candidates(self, gated: np.ndarray, zn: np.ndarray, zhat_n: np.ndarray, S_joint: torch.Tensor):
         """Per run and track, the candidate measurements ``(L, S d)`` and their marginal weights
