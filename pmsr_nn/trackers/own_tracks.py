@@ -3,9 +3,13 @@ of :func:`~.loop.run_tracker` built from the components of :mod:`.management`.
 
 Every scan, around the association: the tracks' existence is predicted (``survival``), free
 slots are parked; after the association each pair's IPDA existence update (Musicki, Evans &
-Stankovic 1994) with that pair's likelihood ratio, the innovation bias test's means where the
-management has one, hits and misses, M-of-N confirmation and deletion, and tentative tracks from
-the detections no track explains (the management's initiator). The confirmed tracks whose
+Stankovic 1994) with that pair's likelihood ratio (the JIPDA-style shared ratio with
+``shared_existence``), the innovation bias test's means where the management has one, hits and
+misses, M-of-N confirmation and deletion, the coalescence test where the management has one, and
+tentative tracks from the detections no track explains (the management's initiator; by the
+association probabilities with ``explained_by: association``). An associator that forms no
+shared ratio or no association probabilities (``None`` in its step) gets the IPDA ratio and the
+gates. The confirmed tracks whose
 existence is at least ``report_existence`` are reported (:class:`~.management.TrackReport`),
 with the states the associator reports (a smoother's smoothed states) where it gives them.
 
@@ -74,7 +78,7 @@ class OwnTracks:
                 correction: MeanCorrection | None) -> None:
         table, mg = self.table, self.mg
         table.g = step.posterior
-        ratio = step.shared_ratio if mg.shared_existence else step.ratio
+        ratio = step.shared_ratio if mg.shared_existence and step.shared_ratio is not None else step.ratio
         S = ratio.shape[-1]
         for j in range(S):
             table.update_existence(ratio[..., j], self.pd_pg)
@@ -92,7 +96,8 @@ class OwnTracks:
             correction.forget(~table.active)
         # new tracks are tentative, so reporting before or after starting them is the same
         self.report.write(k, table if step.reported is None else replace(table, g=step.reported), mg.report_existence)
-        unused = valid & ~(step.explained if mg.explained_by == "gate" else step.taken >= EXPLAINED)
+        by_gate = mg.explained_by == "gate" or step.taken is None
+        unused = valid & ~(step.explained if by_gate else step.taken >= EXPLAINED)
         self.started = None
         if bool(unused.any()):
             before = table.active
