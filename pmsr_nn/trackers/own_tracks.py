@@ -9,9 +9,9 @@ misses, M-of-N confirmation and deletion, the coalescence test where the managem
 tentative tracks from the detections no track explains (the management's initiator; by the
 association probabilities with ``explained_by: association``). An associator that forms no
 shared ratio or no association probabilities (``None`` in its step) gets the IPDA ratio and the
-gates. The confirmed tracks whose
-existence is at least ``report_existence`` are reported (:class:`~.management.TrackReport`),
-with the states the associator reports (a smoother's smoothed states) where it gives them.
+gates. The confirmed tracks whose existence is at least ``report_existence`` are reported
+(:class:`~.management.TrackReport`), with the states the associator reports (a smoother's
+smoothed states) where it gives them; the coalescence test compares those.
 
 Shapes: ``B`` runs, ``K`` scans, ``C`` track slots, ``S`` pairs, ``M`` detections per list, ``n``
 state dimension.

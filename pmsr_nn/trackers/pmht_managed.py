@@ -39,11 +39,13 @@ def managed_pmht(scans: Scans | PooledScans, motion: KinematicModel, dt: float, 
     scan a window commits (hands on: the scans before the next window's first), in order:
 
     1. existence: predicted by ``survival``, then each pair's IPDA update with the ratio of
-       :func:`~.pmht_em.window_evidence` (no gate: ``Pd Pg = Pd``);
+       :func:`~.pmht_em.window_evidence` (no gate: ``Pd Pg = Pd``), or its shared ratio with the
+       management's ``shared_existence``;
     2. a track whose summed association weight at a pair is >= 0.5 was detected there; hit and
        miss, M-of-N confirmation and deletion as the table does;
-    3. the confirmed tracks whose existence is >= ``report_existence`` are reported with their
-       smoothed states at that scan;
+    3. where the management has a coalescence test, confirmed tracks whose smoothed states
+       coalesce are merged; the confirmed tracks whose existence is >= ``report_existence`` are
+       reported with their smoothed states at that scan;
     4. the detections whose total weight on the tracks is < 0.5 (explained mostly by clutter)
        start tentative tracks (the management's initiator, :mod:`.initiators`).
 
