@@ -253,6 +253,7 @@ def test_initiation_from_detections_is_scored_as_tracks_in_the_report(tmp_path):
 @pytest.mark.parametrize("options, message", [
     ({"confirm_m": 4, "confirm_n": 3}, "method 'S': confirmation needs 1 <= M <= N <= 62 (M of N scans); got M = 4, N = 3"),
     ({"delete_misses": 0}, "method 'S': a deleter needs misses >= 1"),
+    ({"merge_scans": 0}, "method 'S': a merge window needs at least 1 scan (merge_scans), got 0"),
     ({"hit_pairs": 4}, "method 'S': initiation from detections: hit_pairs (4) must be in [1, 3]"),
     ({"init_pairs": 4}, "method 'S': min_pairs (4) is more than the 3 pairs"),
     ({"report_existence": 1.5}, "method 'S': option report_existence must be a number in [0.0, 1.0], got 1.5"),

@@ -88,8 +88,10 @@ class PairUpdate:
     """One pair's association and update (:meth:`SequentialJPDA.pair_step`): the ``posterior``
     ``(B, C, n)``, whether no detection was the likeliest association ``miss_likeliest (B, C)``
     (numpy), the predicted range deviation ``range_sd_m (B, C)``, the gates ``gated (B, C, M)``
-    (numpy), the summed likelihood ratio of the gated detections to clutter ``ratio (B, C)`` and
-    the whitened combined innovation ``whitened (B, C, d)``."""
+    (numpy), the summed likelihood ratio of the gated detections to clutter ``ratio (B, C)``, the
+    whitened combined innovation ``whitened (B, C, d)``, each detection's association probability
+    summed over the tracks ``taken (B, M)`` and the JIPDA-style ratio ``shared_ratio (B, C)``
+    (:func:`shared_ratio`)."""
 
     posterior: Gaussian
     miss_likeliest: np.ndarray
@@ -97,6 +99,30 @@ class PairUpdate:
     gated: np.ndarray
     ratio: torch.Tensor
     whitened: torch.Tensor
+    taken: torch.Tensor
+    shared_ratio: torch.Tensor
+
+
+UNDERFLOW = 1e-200
+"""Below this, a probability of no detection has lost its digits (``Pd`` 1: a miss weight of
+:data:`~.jpda.MIN_MISS_PROBABILITY`)."""
+
+
+def shared_ratio(alpha: torch.Tensor, pd: float, ratio: torch.Tensor) -> torch.Tensor:
+    """The JIPDA-style likelihood ratio of a track at one pair from its association probabilities
+    ``alpha (..., M + 1)`` (the last column no detection, computed with the miss weight
+    ``1 - Pd`` of :func:`~.jpda.miss_cost`): ``(1 - Pd) / Pd * sum_i alpha_i / alpha_0``, ``(...)``.
+
+    For a track on its own (PDA, or JPDA without a competing track) ``alpha_i / alpha_0 = Pd
+    l_i / (lambda (1 - Pd))``, so this is the IPDA's ``sum_i l_i / lambda`` over the gated
+    detections; where another track takes a detection, ``alpha_0`` grows and the ratio falls (the
+    existence of a track that only shares another's detections fades). 0 for a track that gates
+    nothing. Where ``alpha_0`` is below :data:`UNDERFLOW` (the track surely took a detection) the
+    IPDA ``ratio (...)`` stands in."""
+    q = math.exp(-miss_cost(pd))
+    beta0 = alpha[..., -1]
+    odds = (q / pd) * alpha[..., :-1].sum(-1) / beta0.clamp(min=UNDERFLOW)
+    return torch.where(beta0 < UNDERFLOW, ratio, odds)
 
 
 def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
@@ -128,7 +154,8 @@ def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measurem
     if correction is not None:
         out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active if learned is None else learned), out.P)
     e_c = (w[..., :M, None] * torch.where(gate[..., None], e, torch.zeros((), dtype=e.dtype))).sum(-2)
-    return PairUpdate(out, miss, mom.S[..., 0, 0].sqrt(), gated, ratio.detach() / clutter_density, e_c)
+    ratio = ratio.detach() / clutter_density
+    return PairUpdate(out, miss, mom.S[..., 0, 0].sqrt(), gated, ratio, e_c, w[..., :M].sum(1), shared_ratio(w, pd, ratio))
 
 
 class SequentialJPDA(Associator):
@@ -162,7 +189,8 @@ class SequentialJPDA(Associator):
             g, detected, torch.stack([st.ratio for st in steps], -1),
             torch.from_numpy(np.stack([st.gated.any(1) for st in steps], 1)),
             torch.from_numpy(np.logical_and.reduce([st.miss_likeliest for st in steps])),
-            torch.stack([st.range_sd_m for st in steps], -1).amax(-1), torch.stack([st.whitened for st in steps], 2))
+            torch.stack([st.range_sd_m for st in steps], -1).amax(-1), torch.stack([st.whitened for st in steps], 2),
+            taken=torch.stack([st.taken for st in steps], 1), shared_ratio=torch.stack([st.shared_ratio for st in steps], -1))
 
 
 def _wrap(nu: torch.Tensor, model: MeasurementModel) -> torch.Tensor:
@@ -216,7 +244,7 @@ class ParallelJPDA(Associator):
         d2, block_log_lik = gaussian_log_likelihood(nu, S_blocks)
         gate = inside_gate(d2, self.gamma) & valid.unsqueeze(1)
         gated = (gate if associating is None else gate & associating[:, :, None, None]).numpy()  # (B, C, S, M)
-        cand_z, cand_w, miss, detected, gap = self._candidates(gated, z.numpy(), zhat.numpy(), mom.S)
+        cand_z, cand_w, miss, detected, gap, taken, p_miss = self._candidates(gated, z.numpy(), zhat.numpy(), mom.S)
         Lmax = max(len(w) for row in cand_w for w in row)
         Zc = np.full((B, C, Lmax, S * d), np.nan)
         Wc = np.zeros((B, C, Lmax))
@@ -228,14 +256,17 @@ class ParallelJPDA(Associator):
                                    expand_moments(mom), model)
         range_sd = mom.S.diagonal(dim1=-2, dim2=-1)[..., 0::d].sqrt().amax(-1)
         ratio = torch.where(torch.from_numpy(gated), block_log_lik.exp(), torch.zeros((), dtype=d2.dtype)).sum(-1)
+        ratio = ratio / s.clutter_density
         return AssociationStep(collapse(torch.from_numpy(Wc), post.x, post.P), torch.from_numpy(detected),
-                               ratio / s.clutter_density, torch.from_numpy(gated.any(1)), torch.from_numpy(miss),
-                               range_sd, None, gap)
+                               ratio, torch.from_numpy(gated.any(1)), torch.from_numpy(miss),
+                               range_sd, None, gap, taken=torch.from_numpy(taken),
+                               shared_ratio=shared_ratio(torch.from_numpy(np.stack([1.0 - p_miss, p_miss], -1)), s.pd, ratio))
 
     def _candidates(self, gated: np.ndarray, zn: np.ndarray, zhat_n: np.ndarray, S_joint: torch.Tensor):
         """Per run and track, the candidate measurements ``(L, S d)`` and their marginal weights
         (cluster by cluster, :func:`~.jpda.candidate_marginals`); the loss-rule flag, the detected
-        pair count ``(B, C)`` and the largest duality gap."""
+        pair count ``(B, C)``, the largest duality gap, each detection's probability of being some
+        track's ``(B, S, M)`` and each track's probability of no detection per pair ``(B, C, S)``."""
         model, s = self.model, self.settings
         B, C, S, M = gated.shape
         d = zn.shape[-1]
@@ -247,6 +278,8 @@ class ParallelJPDA(Associator):
         cand_w = [[np.ones(1)] * C for _ in range(B)]
         dummy = np.ones((B, C), dtype=bool)
         detected = np.zeros((B, C), dtype=np.int64)
+        taken = np.zeros((B, S, M))
+        p_miss_all = np.ones((B, C, S))
         worst_gap = 0.0
         for b in range(B):
             for cl in track_clusters(gated[b].reshape(C, S * M)):
@@ -288,6 +321,8 @@ class ParallelJPDA(Associator):
                         p_miss = w[keep][idx[:, k] < 0].sum()
                         p_det = np.bincount(idx[:, k][idx[:, k] >= 0], weights=w[keep][idx[:, k] >= 0], minlength=1)
                         flags.append(p_miss >= p_det.max(initial=0.0))
+                        taken[b, k, :len(p_det)] += p_det
+                        p_miss_all[b, t, k] = p_miss
                     dummy[b, t] = all(flags)
                     detected[b, t] = S - sum(flags)
-        return cand_z, cand_w, dummy, detected, worst_gap
+        return cand_z, cand_w, dummy, detected, worst_gap, taken, p_miss_all

@@ -38,15 +38,26 @@ from ..config import require
 from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
+from .coalescence import Coalescence
 from .fix_initiator import FixInitiator
 from .innovation_bias import BiasTest
 from .roles import Initiator
 from .spherical_initiator import SphericalInitiator
 
-__all__ = ["FREE", "TENTATIVE", "CONFIRMED", "BiasTest", "Confirmer", "Deleter", "FixInitiator", "SphericalInitiator",
+__all__ = ["FREE", "TENTATIVE", "CONFIRMED", "EXPLAINED", "EXPLAINED_BY", "MERGE_SCANS", "BiasTest", "Coalescence", "Confirmer", "Deleter", "FixInitiator", "SphericalInitiator",
            "Management", "TrackTable", "TrackReport", "parked_state"]
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
+
+EXPLAINED_BY = ("gate", "association")
+"""How a detection counts as explained by the tracks (it starts no track): :attr:`Management.explained_by`."""
+
+MERGE_SCANS = 3
+"""The default coalescence window (scans), chosen on one_sky draws no recorded study uses."""
+
+EXPLAINED = 0.5
+"""With ``explained_by: association``, a detection whose probability of being some track's is at
+least this is explained (more probably a track's than clutter)."""
 
 
 @dataclass(frozen=True)
@@ -95,7 +106,14 @@ class Management:
     new track and ``report_existence``, the existence a confirmed track needs to be reported at a
     scan (a track that missed at every pair drops below it at once; see
     :meth:`TrackTable.update_existence`); ``bias``, the innovation bias test of a tracker that
-    keeps its tracks' whitened innovations (:mod:`.innovation_bias`; None: none)."""
+    keeps its tracks' whitened innovations (:mod:`.innovation_bias`; None: none); ``coalescence``,
+    the test that merges two confirmed tracks holding one target (:mod:`.coalescence`; None: no
+    merging); ``shared_existence``: the existence update reads the association probabilities
+    (JIPDA-style, :attr:`~.roles.AssociationStep.shared_ratio`), so a track that only shares
+    another track's detections fades, instead of the bare gated likelihood sum (IPDA);
+    ``explained_by``: which detections start no track, those a track gates (``gate``) or those
+    whose association probability on the tracks is at least :data:`EXPLAINED` (``association``:
+    :attr:`~.roles.AssociationStep.taken`)."""
 
     initiator: Initiator
     confirmer: Confirmer
@@ -106,19 +124,26 @@ class Management:
     initial_existence: float = 0.5
     report_existence: float = 0.5
     bias: BiasTest | None = None
+    coalescence: Coalescence | None = None
+    shared_existence: bool = False
+    explained_by: str = "gate"
 
     def __post_init__(self) -> None:
         for name in ("survival", "initial_existence", "report_existence"):
             v = getattr(self, name)
             require(0.0 < v < 1.0, f"{name} must be in (0, 1), got {v}")
+        require(self.explained_by in EXPLAINED_BY, f"explained_by must be one of {EXPLAINED_BY}, got {self.explained_by!r}")
 
     @classmethod
     def defaults(cls, model: MeasurementModel, other_sd: torch.Tensor) -> "Management":
         """The management the method kinds' options give by default (``initiation: detections``
         with no other option): the fix initiator where the detections measure azimuth, else the
-        spherical one, each with its defaults, 2-of-3 confirmation, deletion after 2 misses."""
+        spherical one, each with its defaults, 2-of-3 confirmation, deletion after 2 misses,
+        JIPDA-style existence, seeding from the detections no track takes by its association
+        probabilities and the coalescence test over :data:`MERGE_SCANS` scans."""
         initiator = FixInitiator() if "azimuth" in model.components else SphericalInitiator()
-        return cls(initiator, Confirmer(), Deleter(), other_sd)
+        return cls(initiator, Confirmer(), Deleter(), other_sd, coalescence=Coalescence(MERGE_SCANS),
+                   shared_existence=True, explained_by="association")
 
     def check(self, model: MeasurementModel, what: str, pooled: bool = False) -> None:
         """One-line refusals of settings that could never confirm a track on ``model`` (``pooled``:

@@ -29,8 +29,11 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
 
     Every scan: predict the tracks, associate and update them as :func:`~.msjpda.msjpda` does
     (tentative and confirmed tracks alike), update their existence probabilities (IPDA: each
-    pair's gated detections against clutter, ``Pd Pg``), count at how many pairs each was
-    detected, confirm and delete, then start tentative tracks from the detections no track gated.
+    pair's gated detections against clutter, ``Pd Pg``; or JIPDA-style from the association
+    probabilities), count at how many pairs each was detected, confirm and delete, merge tracks
+    that coalesce (the management's coalescence test), then start tentative tracks from the
+    detections no track explains (gates, or association probabilities: the management's
+    ``explained_by``).
     Step 0 has no prediction. Returns the confirmed tracks as reported at each scan (those whose
     existence is at least the management's ``report_existence``).
 

@@ -3,11 +3,15 @@ of :func:`~.loop.run_tracker` built from the components of :mod:`.management`.
 
 Every scan, around the association: the tracks' existence is predicted (``survival``), free
 slots are parked; after the association each pair's IPDA existence update (Musicki, Evans &
-Stankovic 1994) with that pair's likelihood ratio, the innovation bias test's means where the
-management has one, hits and misses, M-of-N confirmation and deletion, and tentative tracks from
-the detections no track explains (the management's initiator). The confirmed tracks whose
-existence is at least ``report_existence`` are reported (:class:`~.management.TrackReport`),
-with the states the associator reports (a smoother's smoothed states) where it gives them.
+Stankovic 1994) with that pair's likelihood ratio (the JIPDA-style shared ratio with
+``shared_existence``), the innovation bias test's means where the management has one, hits and
+misses, M-of-N confirmation and deletion, the coalescence test where the management has one, and
+tentative tracks from the detections no track explains (the management's initiator; by the
+association probabilities with ``explained_by: association``). An associator that forms no
+shared ratio or no association probabilities (``None`` in its step) gets the IPDA ratio and the
+gates. The confirmed tracks whose existence is at least ``report_existence`` are reported
+(:class:`~.management.TrackReport`), with the states the associator reports (a smoother's
+smoothed states) where it gives them; the coalescence test compares those.
 
 Shapes: ``B`` runs, ``K`` scans, ``C`` track slots, ``S`` pairs, ``M`` detections per list, ``n``
 state dimension.
@@ -21,7 +25,8 @@ import torch
 
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
-from .management import Management, TrackReport, TrackTable, parked_state
+from .coalescence import CoalescenceTest, merged_existence
+from .management import EXPLAINED, Management, TrackReport, TrackTable, parked_state
 from .roles import AssociationStep, MeanCorrection
 
 
@@ -41,6 +46,8 @@ class OwnTracks:
     def begin(self, B: int, K: int) -> None:
         self.table = TrackTable.empty(B, self.n, parked_state(self.model, self.n, self.dtype))
         self.report = TrackReport.empty(B, K, self.n, self.dtype)
+        rule = self.mg.coalescence
+        self.merging = None if rule is None else CoalescenceTest(rule, B, self.pos + list(self.model.vel_idx))
 
     @property
     def g(self) -> Gaussian:
@@ -71,18 +78,26 @@ class OwnTracks:
                 correction: MeanCorrection | None) -> None:
         table, mg = self.table, self.mg
         table.g = step.posterior
-        S = step.ratio.shape[-1]
+        ratio = step.shared_ratio if mg.shared_existence and step.shared_ratio is not None else step.ratio
+        S = ratio.shape[-1]
         for j in range(S):
-            table.update_existence(step.ratio[..., j], self.pd_pg)
+            table.update_existence(ratio[..., j], self.pd_pg)
             if mg.bias is not None:
                 table.update_bias(mg.bias, j, S, step.whitened[:, :, j])
         table.record(step.detected, mg.hit_pairs)
         table.manage(mg.confirmer, mg.deleter, self.pos, mg.bias)
+        if self.merging is not None:
+            now = table.g if step.reported is None else step.reported
+            merged = self.merging.step(now.x, now.P, table.confirmed, table.track_id)
+            if bool(merged.any()):
+                table.existence = merged_existence(table.existence, merged)
+                table.free(merged.any(1))
         if correction is not None:
             correction.forget(~table.active)
         # new tracks are tentative, so reporting before or after starting them is the same
         self.report.write(k, table if step.reported is None else replace(table, g=step.reported), mg.report_existence)
-        unused = valid & ~step.explained
+        by_gate = mg.explained_by == "gate" or step.taken is None
+        unused = valid & ~(step.explained if by_gate else step.taken >= EXPLAINED)
         self.started = None
         if bool(unused.any()):
             before = table.active

@@ -312,14 +312,19 @@ def _rows(t: torch.Tensor) -> torch.Tensor:
 
 
 def window_evidence(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
-                    alive: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                    alive: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """What track management reads from a window's final states ``X (b, W, N, n)`` (tracks
     ``alive (b, W, N)``): each track's summed association weight per pair ``(b, W, N, S)``, its
     IPDA likelihood ratio per pair ``(b, W, N, S)`` (the sum over the pair's detections of
     ``sum_p c_p N(z_r; h_s(x_t), kappa_p R_s)`` over the clutter density ``lambda_A / V``: PMHT's
-    own measurement density at the smoothed state) and each detection's total weight on a target
-    ``(b, W, L, M)``."""
+    own measurement density at the smoothed state), each detection's total weight on a target
+    ``(b, W, L, M)`` and the shared ratio ``(b, W, N, S)``: the same sum with every other track's
+    density added to the clutter's (the modified clutter density of LM-IPDA, Musicki & La Scala
+    2008), ``sum_r w_rt / (1 - W_rt) / Pd`` (``W_rt`` the detection's total weight on track
+    ``t``): the IPDA ratio for a track alone, smaller where other tracks explain its detections."""
     _, log_t, log_clutter = _log_terms(pr, X, lists, 1.0, alive)
     w = torch.exp(log_t - _log_density(log_t, log_clutter)[..., None, None, None])  # 0 on padding: log_t = -inf
     ratio = torch.exp(log_t - log_clutter[..., None, None, None]).sum((2, 3, 6)) / pr.settings.pd
-    return w.sum((2, 3, 6)), ratio, w.sum((4, 5, 6))
+    on_track = w.sum((5, 6), keepdim=True)  # (b, W, L, M, N, 1, 1)
+    shared = (w / (1.0 - on_track).clamp(min=1e-300)).sum((2, 3, 6)) / pr.settings.pd
+    return w.sum((2, 3, 6)), ratio, w.sum((4, 5, 6)), shared

@@ -39,11 +39,13 @@ def managed_pmht(scans: Scans | PooledScans, motion: KinematicModel, dt: float, 
     scan a window commits (hands on: the scans before the next window's first), in order:
 
     1. existence: predicted by ``survival``, then each pair's IPDA update with the ratio of
-       :func:`~.pmht_em.window_evidence` (no gate: ``Pd Pg = Pd``);
+       :func:`~.pmht_em.window_evidence` (no gate: ``Pd Pg = Pd``), or its shared ratio with the
+       management's ``shared_existence``;
     2. a track whose summed association weight at a pair is >= 0.5 was detected there; hit and
        miss, M-of-N confirmation and deletion as the table does;
-    3. the confirmed tracks whose existence is >= ``report_existence`` are reported with their
-       smoothed states at that scan;
+    3. where the management has a coalescence test, confirmed tracks whose smoothed states
+       coalesce are merged; the confirmed tracks whose existence is >= ``report_existence`` are
+       reported with their smoothed states at that scan;
     4. the detections whose total weight on the tracks is < 0.5 (explained mostly by clutter)
        start tentative tracks (the management's initiator, :mod:`.initiators`).
 
@@ -153,7 +155,8 @@ class PMHTWindows(Associator):
                 self.Pm = self.fit.P.clone()
         fit = self.fit
         return AssociationStep(g, (fit.pair_w[:, kk] >= 0.5).sum(-1), fit.ratio[:, kk], ~(fit.target_w[:, kk] < 0.5),
-                               reported=Gaussian(self.X[:, kk], fit.P[:, kk]))
+                               reported=Gaussian(self.X[:, kk], fit.P[:, kk]), taken=fit.target_w[:, kk],
+                               shared_ratio=fit.shared[:, kk])
 
     def tracks_started(self, started: torch.Tensor | None, g: Gaussian) -> None:
         C = g.x.shape[1]
@@ -170,7 +173,8 @@ class PMHTWindows(Associator):
 @dataclass
 class _WindowFit:
     """What EM on a window gives each run: states ``X (b, W, C, n)``, covariances ``P``, the
-    forward prediction handed to the next window ``(b, C, n)`` and :func:`~.pmht_em.window_evidence`."""
+    forward prediction handed to the next window ``(b, C, n)`` and :func:`~.pmht_em.window_evidence`
+    (``shared``: its shared ratio)."""
 
     X: torch.Tensor
     P: torch.Tensor
@@ -178,6 +182,7 @@ class _WindowFit:
     pair_w: torch.Tensor
     ratio: torch.Tensor
     target_w: torch.Tensor
+    shared: torch.Tensor
 
     @classmethod
     def empty(cls, X: torch.Tensor, L: int, M: int, S: int) -> "_WindowFit":
@@ -185,13 +190,14 @@ class _WindowFit:
         b, W, C, n = X.shape
         z = X.new_zeros
         return cls(X, z(b, W, C, n, n), Gaussian(z(b, C, n), z(b, C, n, n)), z(b, W, C, S), z(b, W, C, S),
-                   z(b, W, L, M))
+                   z(b, W, L, M), z(b, W, C, S))
 
     def padded(self, C: int) -> "_WindowFit":
         """Slots up to ``C``; the new slots are free (no weight, no evidence)."""
         return _WindowFit(_pad_slots(self.X, C, 0.0), _pad_slots(self.P, C, 0.0),
                           Gaussian(_pad_slots(self.handed.x, C, 0.0, 1), _pad_slots(self.handed.P, C, 0.0, 1)),
-                          _pad_slots(self.pair_w, C, 0.0), _pad_slots(self.ratio, C, 0.0), self.target_w)
+                          _pad_slots(self.pair_w, C, 0.0), _pad_slots(self.ratio, C, 0.0), self.target_w,
+                          _pad_slots(self.shared, C, 0.0))
 
     def put(self, rows: torch.Tensor, part: "_WindowFit") -> "_WindowFit":
         """A copy with the runs ``rows`` replaced by ``part``."""
@@ -201,7 +207,8 @@ class _WindowFit:
             return out
         return _WindowFit(put(self.X, part.X), put(self.P, part.P),
                           Gaussian(put(self.handed.x, part.handed.x), put(self.handed.P, part.handed.P)),
-                          put(self.pair_w, part.pair_w), put(self.ratio, part.ratio), put(self.target_w, part.target_w))
+                          put(self.pair_w, part.pair_w), put(self.ratio, part.ratio), put(self.target_w, part.target_w),
+                          put(self.shared, part.shared))
 
 
 def _window_em(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, win: AssociationLists, h: int,

@@ -46,7 +46,12 @@ class AssociationStep:
     pair's whitened combined innovation ``L^-1 sum_i alpha_i nu_i`` (the innovation bias test's);
     ``duality_gap`` the largest Lagrangian-relaxation duality gap met (nats; 0 for exact events);
     ``reported`` the tracks to report at this scan where they are not the posterior (a smoother's
-    smoothed states)."""
+    smoothed states); ``taken (B, L, M)`` the probability that each detection is some track's (the
+    association probabilities summed over the tracks); ``shared_ratio (B, C, S)`` the JIPDA-style
+    counterpart of ``ratio``: the association probabilities' odds of a detection against none,
+    ``(1 - Pd) / Pd * (1 - beta_0) / beta_0`` (``beta_0`` the track's probability of no detection
+    at the pair), which equals ``ratio`` for a track that competes for no detection and falls
+    below it where another track takes the detections."""
 
     posterior: Gaussian
     detected: torch.Tensor
@@ -57,6 +62,8 @@ class AssociationStep:
     whitened: torch.Tensor | None = None
     duality_gap: float = 0.0
     reported: Gaussian | None = None
+    taken: torch.Tensor | None = None
+    shared_ratio: torch.Tensor | None = None
 
 
 class MeanCorrection(Protocol):
