@@ -53,7 +53,8 @@ EXPLAINED_BY = ("gate", "association")
 """How a detection counts as explained by the tracks (it starts no track): :attr:`Management.explained_by`."""
 
 MERGE_SCANS = 3
-"""The default coalescence window (scans), chosen on one_sky draws no recorded study uses."""
+"""The duplicate-free management's coalescence window (scans), chosen on one_sky draws no recorded
+study uses (seed 1000)."""
 
 EXPLAINED = 0.5
 """With ``explained_by: association``, a detection whose probability of being some track's is at
@@ -138,12 +139,10 @@ class Management:
     def defaults(cls, model: MeasurementModel, other_sd: torch.Tensor) -> "Management":
         """The management the method kinds' options give by default (``initiation: detections``
         with no other option): the fix initiator where the detections measure azimuth, else the
-        spherical one, each with its defaults, 2-of-3 confirmation, deletion after 2 misses,
-        JIPDA-style existence, seeding from the detections no track takes by its association
-        probabilities and the coalescence test over :data:`MERGE_SCANS` scans."""
+        spherical one, each with its defaults, 2-of-3 confirmation, deletion after 2 misses, IPDA
+        existence, seeding from the detections no track gates, no coalescence test."""
         initiator = FixInitiator() if "azimuth" in model.components else SphericalInitiator()
-        return cls(initiator, Confirmer(), Deleter(), other_sd, coalescence=Coalescence(MERGE_SCANS),
-                   shared_existence=True, explained_by="association")
+        return cls(initiator, Confirmer(), Deleter(), other_sd)
 
     def check(self, model: MeasurementModel, what: str, pooled: bool = False) -> None:
         """One-line refusals of settings that could never confirm a track on ``model`` (``pooled``:
