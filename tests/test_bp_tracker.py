@@ -274,3 +274,16 @@ def test_a_pooled_list_is_one_association_over_the_illuminators_as_enumerated():
     for k in range(2):
         assert math.isclose(float(step.association[0, 0, k, 0]), events[k] / Z, rel_tol=1e-9)
     assert math.isclose(float(step.legacy[0, 0, 0]), (events[0] + events[1]) / Z, rel_tol=1e-9)
+
+
+def test_the_managed_companion_is_one_sky_bp_but_for_its_rows():
+    """``evaluate/one_sky_managed.yaml``: one_sky_bp's draws and scoring, S-MSJPDA with the
+    duplicate-free management's options."""
+    from pmsr_nn.methods.track_management import DUPLICATE_FREE
+
+    root = Path(__file__).resolve().parents[1] / "evaluate"
+    bp, managed = (yaml.safe_load((root / f).read_text()) for f in ("one_sky_bp.yaml", "one_sky_managed.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(managed) == rest(bp)
+    [row] = managed["methods"]
+    assert row["kind"] == "s_msjpda" and row["options"] == {"initiation": "detections", **DUPLICATE_FREE}
