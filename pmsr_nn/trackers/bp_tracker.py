@@ -39,7 +39,7 @@ from ..simulation.detections import Scans
 from .bp_associator import Births, BPAssociator, BPStep
 from .fix_initiator import FixInitiator, list_of_pairs, range_azimuth_fix
 from .loop import run_tracker
-from .management import TENTATIVE, TrackReport, TrackTable, parked_state
+from .management import TENTATIVE, TableTracks, TrackReport, parked_state
 from .msjpda import check_scans
 from .roles import Initiator, MeanCorrection
 
@@ -99,7 +99,6 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
     park = parked_state(model, n, dtype)
     comps = model.components
     rows = [comps.index("range"), comps.index("azimuth")]
-    pi = torch.tensor(model.pos_idx)
     # sigma points of (range, azimuth) at +-sqrt(3) deviations (the unscented transform's kappa = 1)
     steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=dtype)
 
@@ -128,7 +127,7 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
     return seed
 
 
-class BPTracks:
+class BPTracks(TableTracks):
     """The BP tracker's :class:`~.roles.TrackManagement` (module docstring): the tracks in a
     :class:`~.management.TrackTable` with BP's existence, the undetected targets' mass
     ``undetected (B,)``, confirmation and deletion by existence. ``initiator`` starts tentative
@@ -141,25 +140,12 @@ class BPTracks:
         self.started = None
 
     def begin(self, B: int, K: int) -> None:
-        self.table = TrackTable.empty(B, self.n, parked_state(self.model, self.n, self.dtype))
-        self.report = TrackReport.empty(B, K, self.n, self.dtype)
+        self.start_table(B, K, self.model, self.n, self.dtype)
         self.undetected = torch.full((B,), float(self.s.initial_targets), dtype=self.dtype)
 
-    @property
-    def g(self) -> Gaussian:
-        return self.table.g
-
-    @g.setter
-    def g(self, value: Gaussian) -> None:
-        self.table.g = value
-
     def predicted(self, k: int) -> None:
-        self.table.free(~self.table.active)  # keep free slots parked
-        self.table.predict_existence(self.s.survival)
+        self.predict_table(self.s.survival)
         self.undetected = self.s.survival * self.undetected + self.s.birth_rate
-
-    def associating(self, k: int) -> torch.Tensor:
-        return self.table.active
 
     def learned(self, correction: MeanCorrection | None) -> None:
         return None
@@ -188,9 +174,6 @@ class BPTracks:
         grown = torch.cat([before, before.new_zeros(before.shape[0], C2 - C)], 1)
         started = table.active & ~grown
         self.started = started if bool(started.any()) else None
-
-    def result(self) -> TrackReport:
-        return self.report.trimmed()
 
 
 def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,

@@ -45,7 +45,7 @@ from .roles import Initiator
 from .spherical_initiator import SphericalInitiator
 
 __all__ = ["FREE", "TENTATIVE", "CONFIRMED", "EXPLAINED", "EXPLAINED_BY", "MERGE_SCANS", "BiasTest", "Coalescence", "Confirmer", "Deleter", "FixInitiator", "SphericalInitiator",
-           "Management", "TrackTable", "TrackReport", "parked_state"]
+           "Management", "TableTracks", "TrackTable", "TrackReport", "parked_state"]
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
 
@@ -324,6 +324,38 @@ class TrackTable:
         self.existence = torch.where(filled, initial_existence, self.existence)
         self.track_id = torch.where(filled, -1, self.track_id)
         self._clear_bias(filled)
+
+
+class TableTracks:
+    """The part every management whose tracks live in a :class:`TrackTable` shares
+    (:class:`~.own_tracks.OwnTracks`, :class:`~.bp_tracker.BPTracks`): the loop's tracks ``g``
+    are the table's, free slots stay parked, the existence is predicted with ``survival`` and
+    the active tracks associate. ``begin`` sets :attr:`table` and :attr:`report`."""
+
+    table: TrackTable
+    report: "TrackReport"
+
+    def start_table(self, B: int, K: int, model: MeasurementModel, n: int, dtype) -> None:
+        self.table = TrackTable.empty(B, n, parked_state(model, n, dtype))
+        self.report = TrackReport.empty(B, K, n, dtype)
+
+    @property
+    def g(self) -> Gaussian:
+        return self.table.g
+
+    @g.setter
+    def g(self, value: Gaussian) -> None:
+        self.table.g = value
+
+    def predict_table(self, survival: float) -> None:
+        self.table.free(~self.table.active)  # keep free slots parked
+        self.table.predict_existence(survival)
+
+    def associating(self, k: int) -> torch.Tensor:
+        return self.table.active
+
+    def result(self) -> "TrackReport":
+        return self.report.trimmed()
 
 
 @dataclass

@@ -23,14 +23,13 @@ from dataclasses import replace
 
 import torch
 
-from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
 from .coalescence import CoalescenceTest, merged_existence
-from .management import EXPLAINED, Management, TrackReport, TrackTable, parked_state
+from .management import EXPLAINED, Management, TableTracks
 from .roles import AssociationStep, MeanCorrection
 
 
-class OwnTracks:
+class OwnTracks(TableTracks):
     """Tracks started from the detections (module docstring): ``management`` the components,
     ``model`` the detections' measurement model, ``n`` the state dimension, ``detection_probability``
     what a pair's existence update takes as ``Pd Pg`` (the detection probability times the gate
@@ -44,25 +43,12 @@ class OwnTracks:
         self.started = None
 
     def begin(self, B: int, K: int) -> None:
-        self.table = TrackTable.empty(B, self.n, parked_state(self.model, self.n, self.dtype))
-        self.report = TrackReport.empty(B, K, self.n, self.dtype)
+        self.start_table(B, K, self.model, self.n, self.dtype)
         rule = self.mg.coalescence
         self.merging = None if rule is None else CoalescenceTest(rule, B, self.pos + list(self.model.vel_idx))
 
-    @property
-    def g(self) -> Gaussian:
-        return self.table.g
-
-    @g.setter
-    def g(self, value: Gaussian) -> None:
-        self.table.g = value
-
     def predicted(self, k: int) -> None:
-        self.table.free(~self.table.active)  # keep free slots parked
-        self.table.predict_existence(self.mg.survival)
-
-    def associating(self, k: int) -> torch.Tensor:
-        return self.table.active
+        self.predict_table(self.mg.survival)
 
     def learned(self, correction: MeanCorrection | None) -> torch.Tensor | None:
         """Where a learned correction acts this scan (None: every active track): the tracks the
@@ -105,6 +91,3 @@ class OwnTracks:
                       mg.initial_existence)
             C = table.active.shape[1]
             self.started = table.active & ~torch.cat([before, before.new_zeros(before.shape[0], C - before.shape[1])], 1)
-
-    def result(self) -> TrackReport:
-        return self.report.trimmed()
