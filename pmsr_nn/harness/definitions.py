@@ -45,10 +45,10 @@ DEFINITIONS = {
     "seconds_per_run": "wall-clock seconds of the method per Monte Carlo run, measured in this run (whole block "
                        "calls divided by the runs; all targets); timings differ between repeats",
     "ospa_m": "OSPA (Schuhmacher et al. 2008, cut-off c_m, order p) between the existing tracks and the living targets "
-              "at each scan, averaged over runs, then over the scans after the warm-up; ospa_se_m its Monte Carlo "
+              "at each scan, averaged over runs, then over the scans after the warm-up (set_scans); ospa_se_m its Monte Carlo "
               "standard error (the spread of the runs' mean OSPA over those scans)",
     "gospa_m": "GOSPA (alpha = 2, Rahmathullah et al. 2017): the p-th root of the mean over runs and scans after the "
-               "warm-up of GOSPA^p; gospa_localisation_share, gospa_missed_share and gospa_false_share split that "
+               "warm-up (set_scans) of GOSPA^p; gospa_localisation_share, gospa_missed_share and gospa_false_share split that "
                "mean into its parts (sum of d^p over assigned pairs, c^p/2 per missed target, c^p/2 per false track), "
                "which add up to 1; gospa_se_m its Monte Carlo standard error (the spread of the runs' mean GOSPA^p, "
                "through the p-th root by the delta method); gospa_median_run_m the median over runs of each run's "
@@ -69,7 +69,13 @@ DEFINITIONS = {
     "initiation": "how a row's tracks start: association known (each target's own stream), oracle (handed each "
                   "target's birth: truth plus a prior draw) or detections (the tracker's own initiator, from "
                   "detections or, for the track-before-detect rows, range-Doppler maps)",
-    "cardinality_mean_abs_error": "mean over runs and scans after the warm-up of |number of tracks - number of targets|",
+    "cardinality_mean_abs_error": "mean over runs and scans after the warm-up (set_scans) of |number of tracks - "
+                                  "number of targets|",
+    "set_scans": "the scans the set figures (ospa_m, gospa_m and their parts, per-run GOSPA, cardinality) average over, "
+                 "in every scenario: every scan from warmup_steps on, counted from the case's first scan. Every target "
+                 "living at such a scan counts, also one still inside its own warm-up (its start-up, the scans before "
+                 "its first track, is part of the score), and so does a scan where no target lives (a track there is "
+                 "false)",
     "rmse_pos_assigned_per_target_m": "per target: each run's track labels are assigned to targets once (the assignment "
                                       "minimising the summed capped squared distances over the run), then the RMSE of "
                                       "the assigned track, averaged over the target's scans after the warm-up",

@@ -88,10 +88,10 @@ def _run_quantiles(per_run: np.ndarray | None, p: float) -> list[float] | None:
     return [float(v) for v in np.quantile(roots, RUN_QUANTILES)]
 
 
-def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarray | None = None) -> tuple[dict, dict]:
+def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarray) -> tuple[dict, dict]:
     """Multi-target figures of one method: the row's fields and its per-scan curves; ``scans (K,)``:
-    the scans the set figures average over (default: where some target is scored)."""
-    k = scored.any(1) if scans is None else scans
+    the scans the set figures average over (:func:`~.prepared.set_scans_after`)."""
+    k = scans
     ospa_c = s["ospa"] / B
     assigned = np.sqrt(s["assigned_pos"] / np.where(s["assigned_count"] > 0, s["assigned_count"], np.nan))
     per_target = []
