@@ -85,6 +85,12 @@ DEFINITIONS = {
                               "the others are matched by the per-scan OSPA assignment (track-level figures: confirmed "
                               "tracks per target, fragmentations, first track and track loss are counted on the same "
                               "mapping)",
+    "id_switches_per_run": "identity switches (CLEAR MOT, counted as the MOTChallenge counts them: Milan et al. 2016), "
+                           "summed over targets, per run: the scans at which a target's mapped track (the mapping of "
+                           "label_switches_per_run) is another than the last track mapped to it, also after scans "
+                           "at which it had none (a track lost and another started on the target is a switch, the "
+                           "same track back is not); at least label_switches_per_run. id_switches_per_target: per "
+                           "target, mean over runs",
     "swap_probability": "fraction of (run, target) tracks nearer another target's truth than their own at the last scan",
     "loss_probability": "fraction of (run, target) tracks declared lost by the S-MSJPDA paper's rule (dummy most "
                         "probable at every sensor for successive_scans scans in a row, or predicted bistatic-range "

@@ -112,6 +112,9 @@ def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarra
            "rmse_pos_assigned_per_target_m": per_target,
            "label_switches_per_run": float(s["switches"].sum() / B),
            "label_switches_per_target": (s["switches"] / B).tolist()}
+    if "id_switches" in s:  # absent from blocks summed before it was kept
+        row.update({"id_switches_per_run": float(s["id_switches"].sum() / B),
+                    "id_switches_per_target": (s["id_switches"] / B).tolist()})
     if "swap" in s:  # paired slots only
         row["swap_probability"] = float(s["swap"].sum() / max(s["swap_n"].sum(), 1))
     if "tracks_per_target" in s:
@@ -154,6 +157,7 @@ def _unlabelled(N: int) -> dict:
     estimates): the figures that follow a track's label over scans do not apply (None); OSPA, GOSPA,
     cardinality, matched errors and fragmentations (gaps in a target's coverage) do."""
     return {"labelled": False, "label_switches_per_run": None, "label_switches_per_target": None,
+            "id_switches_per_run": None, "id_switches_per_target": None,
             "rmse_pos_assigned_per_target_m": [None] * N, "confirmed_tracks_per_target": None,
             "false_tracks_per_run": None, "track_loss_probability": None}
 

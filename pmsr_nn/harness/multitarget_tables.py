@@ -1,8 +1,10 @@
 """Tables of cases with several targets or tracks: position RMSE overall and per target, OSPA,
-GOSPA and its parts, cardinality, label switches, swaps and losses, track-level figures, velocity
-RMSE and NEES per target (the paper's beside), and a study's sweep."""
+GOSPA and its parts, cardinality, identity (in older records label) switches, swaps and losses,
+track-level figures, velocity RMSE and NEES per target (the paper's beside), and a study's sweep."""
 
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 
@@ -24,9 +26,17 @@ def case_heading(name: str, case: Case) -> str:
     return f"### {case.title} (`{name}`, {case.steps} steps{': ' + lives if lives else ''})"
 
 
+def switch_column(rows: dict[str, MethodRow]) -> tuple[str, Callable]:
+    """The switches a case's tables show: CLEAR MOT identity switches where its rows hold them,
+    else (results recorded before them) label switches; the column's header and each row's value."""
+    if any(r.sets is not None and r.sets.id_switches_per_run is not None for r in rows.values()):
+        return "ID switches / run (CLEAR MOT)", lambda s: s and s.id_switches_per_run
+    return "label switches / run", lambda s: s and s.label_switches_per_run
+
+
 def multi_target_tables(res: Results | dict, timing: dict | None, label: str) -> list[str]:
     """Per multi-target case: position RMSE (overall and per target), OSPA, GOSPA and its parts,
-    cardinality error, label switches, swaps, the loss rule, and run time (the paper's beside).
+    cardinality error, switches (:func:`switch_column`), swaps, the loss rule, and run time (the paper's beside).
     Every RMSE, OSPA and GOSPA cell carries its standard error over runs where the results hold it."""
     results = Results.of(res)
     lines = []
@@ -36,9 +46,10 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
             continue
         key = case.study.reference_key if case.study else None
         paper = timing is not None and key is not None
+        switch_head, switches = switch_column(rows)
         lines += [case_heading(name, case), *overview_table(results, case), "",
                   "| method | reads | pos RMSE (m) | pos RMSE, all scans (m) | per target (m) | per target, assigned (m) | "
-                  "OSPA (m) | GOSPA (m) ± s.e.: % localisation / missed / false | mean abs. cardinality error | label switches / run | "
+                  f"OSPA (m) | GOSPA (m) ± s.e.: % localisation / missed / false | mean abs. cardinality error | {switch_head} | "
                   "swap prob. | loss prob. | s / run |" + (f" {label}: s / run |" if paper else ""),
                   "|---|---|" + "---:|" * 2 + "---|---|" + "---:|" * 7 + ("---:|" if paper else "")]
         for m, r in rows.items():
@@ -54,7 +65,7 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
                 f"{100 * share:.0f}" for share in (s.gospa_localisation_share, s.gospa_missed_share, s.gospa_false_share)))
             line = (f"| {m} | {_reads(results, m, r)} | {rmse} | "
                     f"{fmt(r.rmse_pos_all_scans_m, 1)} | {per} | {assigned} | {fmt_se(s.ospa_m, s.ospa_se_m, 1)} | "
-                    f"{split} | {fmt(s.cardinality_mean_abs_error, 3)} | {fmt(s.label_switches_per_run, 2)} | "
+                    f"{split} | {fmt(s.cardinality_mean_abs_error, 3)} | {fmt(switches(s), 2)} | "
                     f"{fmt(r.swap_probability, 3)} | {fmt(r.loss_probability, 3)} | {fmt(r.seconds_per_run, 3)} |")
             if paper:
                 line += f" {fmt(paper_seconds(timing, m, key))} |"
@@ -94,17 +105,18 @@ def _reads(results: Results, m: str, r: MethodRow) -> str:
 def overview_table(results: Results, case: Case) -> list[str]:
     """Every row of a case whose rows keep tracks in one table: GOSPA and its parts, OSPA, the
     matched tracks' position RMSE (each ± its standard error over the runs), confirmed and false
-    tracks, track loss, label switches, time to the first track and run time. Empty where no row
+    tracks, track loss, switches (:func:`switch_column`), time to the first track and run time. Empty where no row
     reports tracks (the tables below hold the rest)."""
     rows = case.methods
     if not any(r.tracks is not None for r in rows.values()):
         return []
     dt = results.settings.dt_s
+    switch_head, switches = switch_column(rows)
     lines = ["", f"Every row in one table ({results.mc_runs} runs; ± the standard error over the runs; the tables "
              "below break each column down):", "",
              "| method | reads | GOSPA (m) ± s.e. | median run's GOSPA (m) | % localisation / missed / false | "
              "OSPA (m) ± s.e. | pos RMSE, matched (m) ± s.e. | confirmed tracks / target | false tracks / run | track loss prob. | "
-             "label switches / run | first track after birth (s) | s / run |",
+             f"{switch_head} | first track after birth (s) | s / run |",
              "|---|---|" + "---:|" * 2 + "---|" + "---:|" * 8]
     for m, r in rows.items():
         s, t = r.sets, r.tracks
@@ -116,7 +128,7 @@ def overview_table(results: Results, case: Case) -> list[str]:
                      f"{fmt(s and s.gospa_median_run_m, 1)} | {parts} | "
                      f"{fmt_se(s and s.ospa_m, s and s.ospa_se_m, 1)} | {fmt_se(r.rmse_pos_m, r.rmse_pos_se_m, 1)} | "
                      f"{fmt(t and t.confirmed_tracks_per_target, 2)} | {fmt(t and t.false_tracks_per_run, 2)} | "
-                     f"{fmt(t and t.track_loss_probability, 2)} | {fmt(s and s.label_switches_per_run, 2)} | "
+                     f"{fmt(t and t.track_loss_probability, 2)} | {fmt(switches(s), 2)} | "
                      f"{fmt(first, 2)} | {fmt(r.seconds_per_run, 3)} |")
     return lines
 

@@ -70,6 +70,8 @@ class SetFigures:
     rmse_pos_assigned_per_target_m: list | None = None
     label_switches_per_run: float | None = None
     label_switches_per_target: list | None = None
+    id_switches_per_run: float | None = None  # CLEAR MOT identity switches (None: not recorded)
+    id_switches_per_target: list | None = None
     ospa_se_m: float | None = None
     gospa_se_m: float | None = None
     gospa_median_run_m: float | None = None

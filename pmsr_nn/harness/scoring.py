@@ -19,7 +19,8 @@ assignment of track labels to targets over the run (``assigned_pos``, ``assigned
 switches per target, the swaps of the S-MSJPDA study (at the last scan, a track nearer another
 target than its own; paired slots only) and, for trackers that report the flags, the paper's
 track-loss rule. Label switches and the track-level sums (:func:`track_sums`) come from the
-persistent (CLEAR MOT) mapping of :func:`track_mapping`: a track stays on its target while it is
+persistent (CLEAR MOT) mapping of :func:`track_mapping`, and so do the identity switches (a
+target's track changes from the last one it had, also across scans without one): a track stays on its target while it is
 within the cut-off, so two tracks that each follow their own target through a crossing are not
 counted as switching there (the per-scan assignment swaps them wherever that costs a little less).
 
@@ -34,8 +35,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..metrics import (SetScores, label_switches, labelled_assignment, matched_tracks, normalised_nees,
-                       persistent_assignment, set_scores, squared_error, track_loss, track_scores)
+from ..metrics import (SetScores, identity_switches, label_switches, labelled_assignment, matched_tracks,
+                       normalised_nees, persistent_assignment, set_scores, squared_error, track_loss, track_scores)
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
@@ -151,7 +152,8 @@ def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
              sc: SetScores | None = None, mapping: torch.Tensor | None = None) -> dict[str, np.ndarray]:
     """Multi-target sums over the runs (module docstring): per scan ``(K,)`` ``ospa``,
     ``gospa_loc``, ``gospa_missed``, ``gospa_false`` (p-th powers, m^p), ``n_est``, ``abs_card``;
-    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)`` (on :func:`track_mapping`).
+    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)`` label switches and
+    ``id_switches (N,)`` CLEAR MOT identity switches (both on :func:`track_mapping`).
     ``pos``: position columns; ``sc``: :func:`per_scan_sets` and ``mapping``: :func:`track_mapping`
     when already computed."""
     n = est.x.shape[-1]
@@ -178,6 +180,7 @@ def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
     out["assigned_count"] = both.sum(0).to(torch.float64).numpy()
     mapping = track_mapping(est, truth, pos, c, p) if mapping is None else mapping
     out["switches"] = label_switches(mapping, t_mask).sum(0).to(torch.float64).numpy()
+    out["id_switches"] = identity_switches(mapping, t_mask).sum(0).to(torch.float64).numpy()
     return out
 
 
