@@ -91,6 +91,17 @@ DEFINITIONS = {
                            "at which it had none (a track lost and another started on the target is a switch, the "
                            "same track back is not); at least label_switches_per_run. id_switches_per_target: per "
                            "target, mean over runs",
+    "tgospa_m": "trajectory GOSPA (alpha = 2, García-Fernández, Rahmathullah & Svensson, IEEE TSP 2020) of each "
+                "run's tracks (one trajectory per track) against the targets' trajectories over the set scans, "
+                "cut-off c_m, order p and switching cost gamma = c_m (tgospa_gamma_m: a switch costs c^p, as much "
+                "as one scan with the target missed and its track false; a change from or to no track half that), "
+                "divided by the number of set scans so that it reads like gospa_m: the p-th root of the mean over "
+                "runs; with gamma = 0 it would equal gospa_m. Solved per run as the paper's LP relaxation (HiGHS), "
+                "a metric and a lower bound of the integer programme's value, equal to it in the "
+                "tgospa_integral_runs runs whose solution is integral; tgospa_se_m its Monte Carlo standard error "
+                "(delta method); tgospa_localisation_share, _missed_share, _false_share and _switching_share split "
+                "its p-th power; tgospa_switches_per_run the switches the optimal assignment makes (a half switch "
+                "counts 1/2). Absent for rows whose estimates have no identities",
     "swap_probability": "fraction of (run, target) tracks nearer another target's truth than their own at the last scan",
     "loss_probability": "fraction of (run, target) tracks declared lost by the S-MSJPDA paper's rule (dummy most "
                         "probable at every sensor for successive_scans scans in a row, or predicted bistatic-range "

@@ -133,6 +133,20 @@ def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarra
     return row, curves
 
 
+def _trajectory_figures(s: dict, B: int, c: float, p: float) -> dict:
+    """A row's trajectory GOSPA (:func:`.scoring.trajectory_sums`: switching cost ``gamma = c``,
+    the LP relaxation) from its sums: the p-th root of the mean over runs of each run's value per
+    set scan, its standard error, its parts' shares, switches per run and the runs whose LP
+    solution was integral."""
+    total = float(s["tgospa_run"].mean())
+    share = lambda q: float(s[q] / B / total) if total > 0 else 0.0
+    return {"tgospa_m": total ** (1 / p), "tgospa_se_m": _root_se(s["tgospa_run"], total, p), "tgospa_gamma_m": c,
+            "tgospa_localisation_share": share("tgospa_loc"), "tgospa_missed_share": share("tgospa_missed"),
+            "tgospa_false_share": share("tgospa_false"), "tgospa_switching_share": share("tgospa_switching"),
+            "tgospa_switches_per_run": float(s["tgospa_switches"] / B),
+            "tgospa_integral_runs": int(round(float(s["tgospa_integral"])))}
+
+
 def _extra_figures(s: dict, B: int, n_blocks: int) -> tuple[dict, dict]:
     """Figures of the diagnostics some trackers report (:func:`.scoring.extra_sums`): the row's
     fields and per-scan curves (empty for a tracker without them)."""
@@ -313,6 +327,8 @@ def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tup
     if "ospa" in s:
         extra, set_curves = _set_figures(s, B, scored, setup.set_metric[1], case.set_scan_mask.numpy())
         row.update(extra)
+        if "tgospa_run" in s:
+            row.update(_trajectory_figures(s, B, *setup.set_metric))
         extra, more = _extra_figures(s, B, sc.n_blocks)
         row.update(extra)
         set_curves.update(more)

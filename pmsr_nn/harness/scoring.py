@@ -16,7 +16,8 @@ Multi-target metrics (cases with more than one target, and every tracker that st
 tracks), from the labelled estimates as sets: OSPA and GOSPA (split into localisation, missed and
 false parts) per scan, the cardinality error, per-target squared error after the best fixed
 assignment of track labels to targets over the run (``assigned_pos``, ``assigned_count``), label
-switches per target, the swaps of the S-MSJPDA study (at the last scan, a track nearer another
+switches per target, trajectory GOSPA with a switching cost (:func:`trajectory_sums`; labelled
+tracks only), the swaps of the S-MSJPDA study (at the last scan, a track nearer another
 target than its own; paired slots only) and, for trackers that report the flags, the paper's
 track-loss rule. Label switches and the track-level sums (:func:`track_sums`) come from the
 persistent (CLEAR MOT) mapping of :func:`track_mapping`, and so do the identity switches (a
@@ -36,11 +37,12 @@ import numpy as np
 import torch
 
 from ..metrics import (SetScores, identity_switches, label_switches, labelled_assignment, matched_tracks,
-                       normalised_nees, persistent_assignment, set_scores, squared_error, track_loss, track_scores)
+                       normalised_nees, persistent_assignment, set_scores, squared_error, track_loss, track_scores,
+                       trajectory_gospa)
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
-PER_RUN = ("run_mse", "gospa_run", "ospa_run", "tbd_run_pos_err")
+PER_RUN = ("run_mse", "gospa_run", "ospa_run", "tbd_run_pos_err", "tgospa_run")
 """Quantities kept per run (concatenated over blocks); every other one is summed per block."""
 
 
@@ -146,6 +148,27 @@ def gospa_per_run(sc: SetScores, scored_scans: torch.Tensor) -> dict[str, np.nda
     g = sc.gospa
     per_scan = g.localisation + g.missed + g.false  # (B, K)
     return {"gospa_run": per_scan[:, scored_scans].mean(1).numpy(), "ospa_run": sc.ospa[:, scored_scans].mean(1).numpy()}
+
+
+def trajectory_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
+                    scans: torch.Tensor) -> dict[str, np.ndarray]:
+    """Trajectory GOSPA (:func:`~pmsr_nn.metrics.trajectory_gospa`, alpha = 2, switching cost
+    ``gamma = c``, its LP relaxation) of each run's tracks over the scans ``scans (K,)`` (the set
+    scans), divided by their number so that it reads like GOSPA^p per scan (m^p): ``tgospa_run
+    (B,)`` per run; summed over the runs ``tgospa_loc``, ``tgospa_missed``, ``tgospa_false``,
+    ``tgospa_switching`` (its parts, m^p per scan), ``tgospa_switches`` (a half switch counts 1/2)
+    and ``tgospa_integral`` (runs whose LP solution is integral: there it is the integer
+    programme's value, the metric itself)."""
+    B, K, M = est.exists.shape
+    N = truth.x.shape[2]
+    e, t = est.x[:, scans][..., pos], truth.x[:, scans][..., pos]
+    tg = trajectory_gospa(e, est.exists[:, scans], t, truth.alive.expand(B, K, N)[:, scans], c, p, c, integer=False)
+    n = max(int(scans.sum()), 1)
+    f = lambda v: np.asarray(float(v.sum()) / n)
+    return {"tgospa_run": (tg.total ** p / n).numpy(), "tgospa_loc": f(tg.localisation), "tgospa_missed": f(tg.missed),
+            "tgospa_false": f(tg.false), "tgospa_switching": f(tg.switching),
+            "tgospa_switches": np.asarray(float(tg.n_switches.sum())),
+            "tgospa_integral": np.asarray(float(tg.integral.sum()))}
 
 
 def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
