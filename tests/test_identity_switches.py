@@ -5,7 +5,6 @@ where two drones cross."""
 
 from __future__ import annotations
 
-import itertools
 from pathlib import Path
 
 import pytest
@@ -24,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _per_target(tracks: list[list[int]]) -> torch.Tensor:
     """An assignment ``(1, K, M)`` from each target's track per scan (``tracks[n][k]``, -1: none)."""
-    N, K = len(tracks), len(tracks[0])
+    K = len(tracks[0])
     M = 1 + max(max(t) for t in tracks)
     a = torch.full((1, K, M), -1, dtype=torch.int64)
     for n, row in enumerate(tracks):
