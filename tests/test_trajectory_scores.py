@@ -111,3 +111,13 @@ def test_rows_holding_it_get_its_table_and_rows_recorded_before_it_none():
     report = "\n".join(multi_target_tables(new, None, "paper"))
     assert "switching cost gamma = 500 m" in report
     assert "| 123.5 ± 6.8 | 50 / 25 / 15 / 10 | 1.50 | 9 of 10 |" in report
+
+
+def test_a_quantity_some_blocks_lack_is_left_out_not_summed_over_part_of_the_runs():
+    """Blocks of a bank recorded before a quantity was kept, merged with newer ones: the figure
+    built on it is absent from the row, the others as before."""
+    from pmsr_nn.harness.finalise import complete
+
+    sums = {"pos": np.ones((3, 5, 2)), "run_mse": np.ones((6, 2)), "tgospa_loc": np.ones(2), "tgospa_run": np.ones(4),
+            "id_switches": np.ones((3, 2))}
+    assert sorted(complete(sums)) == ["id_switches", "pos", "run_mse"]

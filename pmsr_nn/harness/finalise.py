@@ -176,6 +176,16 @@ def _unlabelled(N: int) -> dict:
             "false_tracks_per_run": None, "track_loss_probability": None}
 
 
+def complete(sums: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A method's block sums without the quantities some block lacks (blocks of a bank recorded
+    before the quantity was kept, merged with newer ones): such a figure is left out, not summed
+    over part of the runs. Per-run quantities have a row per run, the others one per block: a
+    quantity with fewer than the most of its kind is incomplete."""
+    most = {per: max((len(a) for q, a in sums.items() if (q in scoring.PER_RUN) == per), default=0)
+            for per in (False, True)}
+    return {q: a for q, a in sums.items() if len(a) == most[q in scoring.PER_RUN]}
+
+
 def _space_fields(space, s: dict, scored: np.ndarray) -> dict:
     """What a row scored in an estimate space says of it: the space, what its "position" and
     "velocity" figures are, and the velocity RMSE pooled over the matched (run, scan, target)
@@ -294,7 +304,7 @@ def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tup
     B = sc.mc_runs
     scored, alive = case.scored.numpy(), case.alive.numpy()
     N = alive.shape[1]
-    s = {q: a.sum(0) if q not in scoring.PER_RUN else a for q, a in bs.sums[case.name][spec.name].items()}
+    s = {q: a.sum(0) if q not in scoring.PER_RUN else a for q, a in complete(bs.sums[case.name][spec.name]).items()}
     count = np.where(s["count"] > 0, s["count"], np.nan)
     rmse_p, rmse_v, nees = np.sqrt(s["pos"] / count), np.sqrt(s["vel"] / count), s["nees"] / count
     mse = s["run_mse"]  # (B, N)
