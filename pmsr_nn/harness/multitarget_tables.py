@@ -5,13 +5,11 @@ and a study's sweep."""
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
 from .paired import comparison_lines
 from .references import paper_seconds
-from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, start_label, starts
+from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, start_label, starts, switch_column
 from .result_rows import RUN_QUANTILES, MethodRow
 from .results import Case, Results
 
@@ -27,18 +25,10 @@ def case_heading(name: str, case: Case) -> str:
     return f"### {case.title} (`{name}`, {case.steps} steps{': ' + lives if lives else ''})"
 
 
-def switch_column(rows: dict[str, MethodRow]) -> tuple[str, Callable]:
-    """The switches a case's tables show: CLEAR MOT identity switches where its rows hold them,
-    else (results recorded before them) label switches; the column's header and each row's value."""
-    if any(r.sets is not None and r.sets.id_switches_per_run is not None for r in rows.values()):
-        return "ID switches / run (CLEAR MOT)", lambda s: s and s.id_switches_per_run
-    return "label switches / run", lambda s: s and s.label_switches_per_run
-
-
 def multi_target_tables(res: Results | dict, timing: dict | None, label: str) -> list[str]:
     """Per multi-target case: position RMSE (overall and per target), OSPA, GOSPA and its parts,
-    cardinality error, switches (:func:`switch_column`), swaps, the loss rule, and run time (the paper's beside).
-    Every RMSE, OSPA and GOSPA cell carries its standard error over runs where the results hold it."""
+    cardinality error, switches (:func:`~.report_cells.switch_column`), swaps, the loss rule,
+    trajectory GOSPA and run time (the paper's beside). Every RMSE, OSPA and GOSPA cell carries its standard error over runs where the results hold it."""
     results = Results.of(res)
     lines = []
     for name, case in results.cases.items():
@@ -107,8 +97,8 @@ def _reads(results: Results, m: str, r: MethodRow) -> str:
 def overview_table(results: Results, case: Case) -> list[str]:
     """Every row of a case whose rows keep tracks in one table: GOSPA and its parts, OSPA, the
     matched tracks' position RMSE (each ± its standard error over the runs), confirmed and false
-    tracks, track loss, switches (:func:`switch_column`), time to the first track and run time. Empty where no row
-    reports tracks (the tables below hold the rest)."""
+    tracks, track loss, switches (:func:`~.report_cells.switch_column`), time to the first track
+    and run time. Empty where no row reports tracks (the tables below hold the rest)."""
     rows = case.methods
     if not any(r.tracks is not None for r in rows.values()):
         return []
