@@ -121,3 +121,18 @@ def test_a_quantity_some_blocks_lack_is_left_out_not_summed_over_part_of_the_run
     sums = {"pos": np.ones((3, 5, 2)), "run_mse": np.ones((6, 2)), "tgospa_loc": np.ones(2), "tgospa_run": np.ones(4),
             "id_switches": np.ones((3, 2))}
     assert sorted(complete(sums)) == ["id_switches", "pos", "run_mse"]
+
+
+def test_a_track_without_a_finite_position_counts_as_absent():
+    """A diverged track (NaN at two of its scans) is scored as absent there, not refused: one
+    target with its track exactly on it but NaN at 2 of 5 scans, c = 10 m, p = 2. The pair is kept
+    through the gap (a target assigned to an absent track pays c^2/2, as a missed one, and
+    nothing switches), so d^2 = 2 c^2/2 = 100 m^2, 20 m^2 per scan."""
+    xy = np.stack([np.arange(5.0) * 10.0, np.zeros(5)], -1)[:, None]
+    est_xy = xy.copy()
+    est_xy[1:3] = np.nan
+    est = Estimates(_states(est_xy[None]), torch.ones(1, 5, 1, dtype=torch.bool), paired=False)
+    truth = Truth(_states(xy[None]), torch.ones(5, 1, dtype=torch.bool))
+    out = scoring.trajectory_sums(est, truth, [0, 2], 10.0, 2.0, torch.ones(5, dtype=torch.bool))
+    np.testing.assert_allclose(out["tgospa_run"], [20.0], rtol=1e-9)
+    assert float(out["tgospa_switches"]) == 0.0

@@ -19,10 +19,10 @@ assignment of track labels to targets over the run (``assigned_pos``, ``assigned
 switches per target, trajectory GOSPA with a switching cost (:func:`trajectory_sums`; labelled
 tracks only), the swaps of the S-MSJPDA study (at the last scan, a track nearer another
 target than its own; paired slots only) and, for trackers that report the flags, the paper's
-track-loss rule. Label switches and the track-level sums (:func:`track_sums`) come from the
-persistent (CLEAR MOT) mapping of :func:`track_mapping`, and so do the identity switches (a
-target's track changes from the last one it had, also across scans without one): a track stays on its target while it is
-within the cut-off, so two tracks that each follow their own target through a crossing are not
+track-loss rule. Label switches, identity switches (a target's track changing from the last one
+it had, also across scans without one) and the track-level sums (:func:`track_sums`) come from
+the persistent (CLEAR MOT) mapping of :func:`track_mapping`: a track stays on its target while it
+is within the cut-off, so two tracks that each follow their own target through a crossing are not
 counted as switching there (the per-scan assignment swaps them wherever that costs a little less).
 
 Estimates whose slots are tracks the tracker started (``paired=False``) enter the point metrics
@@ -158,11 +158,13 @@ def trajectory_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: f
     (B,)`` per run; summed over the runs ``tgospa_loc``, ``tgospa_missed``, ``tgospa_false``,
     ``tgospa_switching`` (its parts, m^p per scan), ``tgospa_switches`` (a half switch counts 1/2)
     and ``tgospa_integral`` (runs whose LP solution is integral: there it is the integer
-    programme's value, the metric itself)."""
+    programme's value, the metric itself). A track whose position is not finite at a scan (a
+    diverged filter) counts as absent there."""
     B, K, M = est.exists.shape
     N = truth.x.shape[2]
     e, t = est.x[:, scans][..., pos], truth.x[:, scans][..., pos]
-    tg = trajectory_gospa(e, est.exists[:, scans], t, truth.alive.expand(B, K, N)[:, scans], c, p, c, integer=False)
+    exists = est.exists[:, scans] & torch.isfinite(e).all(-1)
+    tg = trajectory_gospa(e, exists, t, truth.alive.expand(B, K, N)[:, scans], c, p, c, integer=False)
     n = max(int(scans.sum()), 1)
     f = lambda v: np.asarray(float(v.sum()) / n)
     return {"tgospa_run": (tg.total ** p / n).numpy(), "tgospa_loc": f(tg.localisation), "tgospa_missed": f(tg.missed),
