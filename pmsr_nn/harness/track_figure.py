@@ -120,6 +120,7 @@ def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path)
     centre, side = 0.5 * (lo + hi), max(float((hi - lo).max()), 1e-3) * 1.16
     tab20 = plt.get_cmap("tab20")
     palette = lambda i: tab20(PALETTE[i % len(PALETTE)])
+    drawn = []  # per panel: its axes, its tracks (km) and its counts
     for ax, m in zip(axes.flat, rows):
         tracks = _as_tracks(ex[m])
         cls = classify_tracks(truth, tracks, c, p)
@@ -136,15 +137,10 @@ def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path)
             ax.plot(xy[:, 0], xy[:, 1], color=st["color"], ls=st["ls"], lw=1.2, zorder=4)
             first = xy[np.isfinite(xy).all(1)][0]
             ax.plot(*first, color=st["color"], marker=st["marker"], ms=6, ls="none", zorder=5)
-        lo_w, hi_w = centre - side / 2, centre + side / 2
-        pts_in = lambda xy: bool((np.isfinite(xy).all(1) & (xy >= lo_w).all(1) & (xy <= hi_w).all(1)).any())
-        outside = sum(not pts_in(tracks[:, slot] / 1e3) for slot in cls.slots)
-        title = (f"{m}: {cls.count('mapped')} on targets, {cls.count('duplicate')} duplicate, "
-                 f"{cls.count('false')} false" + (f" ({outside} outside the frame)" if outside else ""))
-        ax.set_title(textwrap.fill(title, 44), fontsize=8)
-        # a square window in a square box: equal scales without an aspect the layout has to chase
+        counts = f"{cls.count('mapped')} on targets, {cls.count('duplicate')} duplicate, {cls.count('false')} false"
+        ax.set_title(f"{textwrap.shorten(m, 48)}\n{counts}", fontsize=8)  # two lines in every panel
+        drawn.append((ax, [tracks[:, slot] / 1e3 for slot in cls.slots], counts))
         ax.set(xlim=(centre[0] - side / 2, centre[0] + side / 2), ylim=(centre[1] - side / 2, centre[1] + side / 2))
-        ax.set_box_aspect(1)
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=7)
     for i, ax in enumerate(axes.flat):
@@ -163,4 +159,24 @@ def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path)
               "false: never mapped, away from the targets (marker: first scan)"]
     fig.legend(handles, labels, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
     fig.suptitle(textwrap.fill(f"{case.title}: each row's tracks in run 0", 90), fontsize=10)
+    _equal_scales(fig, [ax for ax, _, _ in drawn], centre, side)
+    for ax, tracks, counts in drawn:  # the window is final: say how many tracks lie wholly outside it
+        lo_w, hi_w = np.array([ax.get_xlim()[0], ax.get_ylim()[0]]), np.array([ax.get_xlim()[1], ax.get_ylim()[1]])
+        outside = sum(not bool((np.isfinite(xy).all(1) & (xy >= lo_w).all(1) & (xy <= hi_w).all(1)).any())
+                      for xy in tracks)
+        if outside:
+            ax.set_title(f"{ax.get_title()} ({outside} outside the frame)", fontsize=8)
     return save_figure(fig, path)
+
+
+def _equal_scales(fig, panels: list, centre: np.ndarray, side: float) -> None:
+    """Widen each panel's square window (``centre``, ``side``, km) along its box's longer side, once
+    the layout has placed the boxes: one km is as long east as north, and every panel (every box
+    the same size) keeps the same window."""
+    fig.canvas.draw()  # runs the constrained layout
+    W, H = fig.get_size_inches()
+    for ax in panels:
+        box = ax.get_position()
+        ratio = (box.width * W) / (box.height * H)
+        half = 0.5 * side * np.array([max(ratio, 1.0), max(1.0 / ratio, 1.0)])
+        ax.set(xlim=(centre[0] - half[0], centre[0] + half[0]), ylim=(centre[1] - half[1], centre[1] + half[1]))
