@@ -130,3 +130,19 @@ def test_the_report_links_the_figure_and_draws_it(tmp_path):
     assert_drawn_png(tmp_path / "dense_crossing_tracks.png")
     img = assert_drawn_png(tmp_path / "trajectories.png")
     assert img.shape[1] < img.shape[0] * 1.2  # one panel (with its legend below), not one per case besides it
+
+
+def test_a_3d_studys_tracks_are_classed_in_3d_and_drawn_east_and_north(captured, tmp_path):
+    """Positions with a height column (a 3-D study): the classes are those of the 2-D scene
+    when every height is equal, and a duplicate lifted 600 m above its target (beyond c = 500 m)
+    becomes false; the panels draw east and north (the window of the 2-D scene)."""
+    truth, tracks = _scene()
+    up = lambda a, h: np.concatenate([a, np.full(a.shape[:-1] + (1,), h)], -1)
+    truth3, tracks3 = up(truth, 100.0), up(tracks, 100.0)
+    assert classify_tracks(truth3, tracks3, 500.0, 2.0).kind == classify_tracks(truth, tracks, 500.0, 2.0).kind
+    tracks3[:, 1, 2] += 600.0
+    assert classify_tracks(truth3, tracks3, 500.0, 2.0).kind[1] == "false"
+    plot_case_tracks(_results(["PMHT-3D"]), {"c": {"truth": truth3, "PMHT-3D": tracks3}}, "c", tmp_path / "c.png")
+    plot_case_tracks(_results(["PMHT-3D"]), {"c": {"truth": truth, "PMHT-3D": tracks}}, "c", tmp_path / "d.png")
+    three, two = (fig.axes[0] for fig in captured)
+    assert three.get_xlim() == two.get_xlim() and three.get_ylim() == two.get_ylim()

@@ -56,8 +56,8 @@ class TrackClasses:
 
 
 def classify_tracks(truth: np.ndarray, tracks: np.ndarray, c: float, p: float) -> TrackClasses:
-    """The class of each track of one run (module docstring): ``truth (K, N, 2)`` and ``tracks
-    (K, M, 2)`` in metres, NaN where a target does not live or a track does not exist; ``c`` (m)
+    """The class of each track of one run (module docstring): ``truth (K, N, D)`` and ``tracks
+    (K, M, D)`` in metres (the scored position columns, as the mapping uses them), NaN where a target does not live or a track does not exist; ``c`` (m)
     and ``p`` the set metrics' cut-off and order."""
     K = min(len(truth), len(tracks))
     truth, tracks = truth[:K], tracks[:K]
@@ -78,7 +78,7 @@ def classify_tracks(truth: np.ndarray, tracks: np.ndarray, c: float, p: float) -
 
 
 def _as_tracks(est) -> np.ndarray:
-    """Estimates ``(K, 2)`` or ``(K, M, 2)`` as ``(K, M, 2)``."""
+    """Estimates ``(K, D)`` or ``(K, M, D)`` as ``(K, M, D)``."""
     est = np.asarray(est, dtype=float)
     return est[:, None] if est.ndim == 2 else est
 
@@ -96,8 +96,9 @@ def _rows(case: Case, ex: dict) -> list[str]:
 
 
 def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path) -> Path | None:
-    """The figure of case ``name`` (module docstring; ``examples[name]``: ``truth (K, N, 2)`` and
-    per row ``(K, 2)`` or ``(K, M, 2)``, m): one panel per row, every panel the same window (the
+    """The figure of case ``name`` (module docstring; ``examples[name]``: ``truth (K, N, D)`` and
+    per row ``(K, D)`` or ``(K, M, D)``, m; classified in all ``D`` position columns, drawn in the
+    first two, east and north): one panel per row, every panel the same window (the
     truth's extent with a margin; a track beyond it is cut, its count in the panel's title).
     Constrained layout, the legend below the panels inside the figure. None where run 0 has no
     row to draw."""
@@ -114,7 +115,7 @@ def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path)
     nrows = math.ceil(len(rows) / ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(PANEL_IN * ncols, PANEL_IN * nrows + 1.3), squeeze=False,
                              layout="constrained")
-    pts = truth.reshape(-1, 2) / 1e3
+    pts = truth[..., :2].reshape(-1, 2) / 1e3  # drawn east and north (a 3-D study's height is not)
     pts = pts[np.isfinite(pts).all(1)]
     lo, hi = (pts.min(0), pts.max(0)) if len(pts) else (np.zeros(2), np.ones(2))
     centre, side = 0.5 * (lo + hi), max(float((hi - lo).max()), 1e-3) * 1.16
@@ -128,7 +129,7 @@ def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path)
             ax.plot(truth[:, t, 0] / 1e3, truth[:, t, 1] / 1e3, color="0.72", lw=3.0, solid_capstyle="round", zorder=1)
         colour = 0
         for slot, kind in zip(cls.slots, cls.kind):
-            xy = tracks[:, slot] / 1e3
+            xy = tracks[:, slot, :2] / 1e3
             if kind == "mapped":
                 ax.plot(xy[:, 0], xy[:, 1], color=palette(colour), lw=1.0, zorder=3)
                 colour += 1
@@ -139,7 +140,7 @@ def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path)
             ax.plot(*first, color=st["color"], marker=st["marker"], ms=6, ls="none", zorder=5)
         counts = f"{cls.count('mapped')} on targets, {cls.count('duplicate')} duplicate, {cls.count('false')} false"
         ax.set_title(f"{textwrap.shorten(m, 48)}\n{counts}", fontsize=8)  # two lines in every panel
-        drawn.append((ax, [tracks[:, slot] / 1e3 for slot in cls.slots], counts))
+        drawn.append((ax, [tracks[:, slot, :2] / 1e3 for slot in cls.slots], counts))
         ax.set(xlim=(centre[0] - side / 2, centre[0] + side / 2), ylim=(centre[1] - side / 2, centre[1] + side / 2))
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=7)
