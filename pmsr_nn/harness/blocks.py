@@ -111,6 +111,8 @@ def score(setup: Setup, case: Case, est, truth: Truth, space=None) -> dict[str, 
         out.update(scoring.set_sums(est, truth, pos, *setup.set_metric, sc=sets, mapping=mapping))
         out.update(scoring.gospa_per_run(sets, case.set_scan_mask))
         out.update(scoring.track_sums(mapping, est.exists, truth))
+        if not est.extras.get("unlabelled"):  # a set without identities has no trajectories to score
+            out.update(scoring.trajectory_sums(est, truth, pos, *setup.set_metric, case.set_scan_mask))
     if setup.loss is not None:
         out.update(scoring.loss_counts(est, setup.loss.successive_scans, setup.loss.gate_range_sd_m))
     if "max_duality_gap" in est.extras:

@@ -45,10 +45,10 @@ DEFINITIONS = {
     "seconds_per_run": "wall-clock seconds of the method per Monte Carlo run, measured in this run (whole block "
                        "calls divided by the runs; all targets); timings differ between repeats",
     "ospa_m": "OSPA (Schuhmacher et al. 2008, cut-off c_m, order p) between the existing tracks and the living targets "
-              "at each scan, averaged over runs, then over the scans after the warm-up; ospa_se_m its Monte Carlo "
+              "at each scan, averaged over runs, then over the scans after the warm-up (set_scans); ospa_se_m its Monte Carlo "
               "standard error (the spread of the runs' mean OSPA over those scans)",
     "gospa_m": "GOSPA (alpha = 2, Rahmathullah et al. 2017): the p-th root of the mean over runs and scans after the "
-               "warm-up of GOSPA^p; gospa_localisation_share, gospa_missed_share and gospa_false_share split that "
+               "warm-up (set_scans) of GOSPA^p; gospa_localisation_share, gospa_missed_share and gospa_false_share split that "
                "mean into its parts (sum of d^p over assigned pairs, c^p/2 per missed target, c^p/2 per false track), "
                "which add up to 1; gospa_se_m its Monte Carlo standard error (the spread of the runs' mean GOSPA^p, "
                "through the p-th root by the delta method); gospa_median_run_m the median over runs of each run's "
@@ -69,7 +69,13 @@ DEFINITIONS = {
     "initiation": "how a row's tracks start: association known (each target's own stream), oracle (handed each "
                   "target's birth: truth plus a prior draw) or detections (the tracker's own initiator, from "
                   "detections or, for the track-before-detect rows, range-Doppler maps)",
-    "cardinality_mean_abs_error": "mean over runs and scans after the warm-up of |number of tracks - number of targets|",
+    "cardinality_mean_abs_error": "mean over runs and scans after the warm-up (set_scans) of |number of tracks - "
+                                  "number of targets|",
+    "set_scans": "the scans the set figures (ospa_m, gospa_m and their parts, per-run GOSPA, cardinality) average over, "
+                 "in every scenario: every scan from warmup_steps on, counted from the case's first scan. Every target "
+                 "living at such a scan counts, also one still inside its own warm-up (its start-up, the scans before "
+                 "its first track, is part of the score), and so does a scan where no target lives (a track there is "
+                 "false)",
     "rmse_pos_assigned_per_target_m": "per target: each run's track labels are assigned to targets once (the assignment "
                                       "minimising the summed capped squared distances over the run), then the RMSE of "
                                       "the assigned track, averaged over the target's scans after the warm-up",
@@ -79,6 +85,23 @@ DEFINITIONS = {
                               "the others are matched by the per-scan OSPA assignment (track-level figures: confirmed "
                               "tracks per target, fragmentations, first track and track loss are counted on the same "
                               "mapping)",
+    "id_switches_per_run": "identity switches (CLEAR MOT, counted as the MOTChallenge counts them: Milan et al. 2016), "
+                           "summed over targets, per run: the scans at which a target's mapped track (the mapping of "
+                           "label_switches_per_run) is another than the last track mapped to it, also after scans "
+                           "at which it had none (a track lost and another started on the target is a switch, the "
+                           "same track back is not); at least label_switches_per_run. id_switches_per_target: per "
+                           "target, mean over runs",
+    "tgospa_m": "trajectory GOSPA (alpha = 2, García-Fernández, Rahmathullah & Svensson, IEEE TSP 2020) of each "
+                "run's tracks (one trajectory per track) against the targets' trajectories over the set scans, "
+                "cut-off c_m, order p and switching cost gamma = c_m (tgospa_gamma_m: a switch costs c^p, as much "
+                "as one scan with the target missed and its track false; a change from or to no track half that), "
+                "divided by the number of set scans so that it reads like gospa_m: the p-th root of the mean over "
+                "runs; with gamma = 0 it would equal gospa_m. Solved per run as the paper's LP relaxation (HiGHS), "
+                "a metric and a lower bound of the integer programme's value, equal to it in the "
+                "tgospa_integral_runs runs whose solution is integral; tgospa_se_m its Monte Carlo standard error "
+                "(delta method); tgospa_localisation_share, _missed_share, _false_share and _switching_share split "
+                "its p-th power; tgospa_switches_per_run the switches the optimal assignment makes (a half switch "
+                "counts 1/2). Absent for rows whose estimates have no identities",
     "swap_probability": "fraction of (run, target) tracks nearer another target's truth than their own at the last scan",
     "loss_probability": "fraction of (run, target) tracks declared lost by the S-MSJPDA paper's rule (dummy most "
                         "probable at every sensor for successive_scans scans in a row, or predicted bistatic-range "

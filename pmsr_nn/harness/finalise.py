@@ -88,10 +88,10 @@ def _run_quantiles(per_run: np.ndarray | None, p: float) -> list[float] | None:
     return [float(v) for v in np.quantile(roots, RUN_QUANTILES)]
 
 
-def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarray | None = None) -> tuple[dict, dict]:
+def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarray) -> tuple[dict, dict]:
     """Multi-target figures of one method: the row's fields and its per-scan curves; ``scans (K,)``:
-    the scans the set figures average over (default: where some target is scored)."""
-    k = scored.any(1) if scans is None else scans
+    the scans the set figures average over (:func:`~.prepared.set_scans_after`)."""
+    k = scans
     ospa_c = s["ospa"] / B
     assigned = np.sqrt(s["assigned_pos"] / np.where(s["assigned_count"] > 0, s["assigned_count"], np.nan))
     per_target = []
@@ -112,6 +112,9 @@ def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarra
            "rmse_pos_assigned_per_target_m": per_target,
            "label_switches_per_run": float(s["switches"].sum() / B),
            "label_switches_per_target": (s["switches"] / B).tolist()}
+    if "id_switches" in s:  # absent from blocks summed before it was kept
+        row.update({"id_switches_per_run": float(s["id_switches"].sum() / B),
+                    "id_switches_per_target": (s["id_switches"] / B).tolist()})
     if "swap" in s:  # paired slots only
         row["swap_probability"] = float(s["swap"].sum() / max(s["swap_n"].sum(), 1))
     if "tracks_per_target" in s:
@@ -128,6 +131,20 @@ def _set_figures(s: dict, B: int, scored: np.ndarray, p: float, scans: np.ndarra
             row["runs_without_tracks"] = int(round(float(s["runs_without_tracks"])))
     curves = {"ospa_m": ospa_c.tolist(), "gospa_m": (gp ** (1 / p)).tolist(), "cardinality": (s["n_est"] / B).tolist()}
     return row, curves
+
+
+def _trajectory_figures(s: dict, B: int, c: float, p: float) -> dict:
+    """A row's trajectory GOSPA (:func:`.scoring.trajectory_sums`: switching cost ``gamma = c``,
+    the LP relaxation) from its sums: the p-th root of the mean over runs of each run's value per
+    set scan, its standard error, its parts' shares, switches per run and the runs whose LP
+    solution was integral."""
+    total = float(s["tgospa_run"].mean())
+    share = lambda q: float(s[q] / B / total) if total > 0 else 0.0
+    return {"tgospa_m": total ** (1 / p), "tgospa_se_m": _root_se(s["tgospa_run"], total, p), "tgospa_gamma_m": c,
+            "tgospa_localisation_share": share("tgospa_loc"), "tgospa_missed_share": share("tgospa_missed"),
+            "tgospa_false_share": share("tgospa_false"), "tgospa_switching_share": share("tgospa_switching"),
+            "tgospa_switches_per_run": float(s["tgospa_switches"] / B),
+            "tgospa_integral_runs": int(round(float(s["tgospa_integral"])))}
 
 
 def _extra_figures(s: dict, B: int, n_blocks: int) -> tuple[dict, dict]:
@@ -154,8 +171,19 @@ def _unlabelled(N: int) -> dict:
     estimates): the figures that follow a track's label over scans do not apply (None); OSPA, GOSPA,
     cardinality, matched errors and fragmentations (gaps in a target's coverage) do."""
     return {"labelled": False, "label_switches_per_run": None, "label_switches_per_target": None,
+            "id_switches_per_run": None, "id_switches_per_target": None,
             "rmse_pos_assigned_per_target_m": [None] * N, "confirmed_tracks_per_target": None,
             "false_tracks_per_run": None, "track_loss_probability": None}
+
+
+def complete(sums: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A method's block sums without the quantities some block lacks (blocks of a bank recorded
+    before the quantity was kept, merged with newer ones): such a figure is left out, not summed
+    over part of the runs. Per-run quantities have a row per run, the others one per block: a
+    quantity with fewer than the most of its kind is incomplete."""
+    most = {per: max((len(a) for q, a in sums.items() if (q in scoring.PER_RUN) == per), default=0)
+            for per in (False, True)}
+    return {q: a for q, a in sums.items() if len(a) == most[q in scoring.PER_RUN]}
 
 
 def _space_fields(space, s: dict, scored: np.ndarray) -> dict:
@@ -276,7 +304,7 @@ def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tup
     B = sc.mc_runs
     scored, alive = case.scored.numpy(), case.alive.numpy()
     N = alive.shape[1]
-    s = {q: a.sum(0) if q not in scoring.PER_RUN else a for q, a in bs.sums[case.name][spec.name].items()}
+    s = {q: a.sum(0) if q not in scoring.PER_RUN else a for q, a in complete(bs.sums[case.name][spec.name]).items()}
     count = np.where(s["count"] > 0, s["count"], np.nan)
     rmse_p, rmse_v, nees = np.sqrt(s["pos"] / count), np.sqrt(s["vel"] / count), s["nees"] / count
     mse = s["run_mse"]  # (B, N)
@@ -309,6 +337,8 @@ def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tup
     if "ospa" in s:
         extra, set_curves = _set_figures(s, B, scored, setup.set_metric[1], case.set_scan_mask.numpy())
         row.update(extra)
+        if "tgospa_run" in s:
+            row.update(_trajectory_figures(s, B, *setup.set_metric))
         extra, more = _extra_figures(s, B, sc.n_blocks)
         row.update(extra)
         set_curves.update(more)

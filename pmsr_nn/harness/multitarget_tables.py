@@ -1,6 +1,7 @@
 """Tables of cases with several targets or tracks: position RMSE overall and per target, OSPA,
-GOSPA and its parts, cardinality, label switches, swaps and losses, track-level figures, velocity
-RMSE and NEES per target (the paper's beside), and a study's sweep."""
+GOSPA and its parts, cardinality, identity (in older records label) switches, swaps and losses,
+trajectory GOSPA, track-level figures, velocity RMSE and NEES per target (the paper's beside),
+and a study's sweep."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 
 from .paired import comparison_lines
 from .references import paper_seconds
-from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, start_label, starts
+from .report_cells import SWEEP_LABELS, fmt, fmt_se, space_mark, start_label, starts, switch_column
 from .result_rows import RUN_QUANTILES, MethodRow
 from .results import Case, Results
 
@@ -26,8 +27,8 @@ def case_heading(name: str, case: Case) -> str:
 
 def multi_target_tables(res: Results | dict, timing: dict | None, label: str) -> list[str]:
     """Per multi-target case: position RMSE (overall and per target), OSPA, GOSPA and its parts,
-    cardinality error, label switches, swaps, the loss rule, and run time (the paper's beside).
-    Every RMSE, OSPA and GOSPA cell carries its standard error over runs where the results hold it."""
+    cardinality error, switches (:func:`~.report_cells.switch_column`), swaps, the loss rule,
+    trajectory GOSPA and run time (the paper's beside). Every RMSE, OSPA and GOSPA cell carries its standard error over runs where the results hold it."""
     results = Results.of(res)
     lines = []
     for name, case in results.cases.items():
@@ -36,9 +37,10 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
             continue
         key = case.study.reference_key if case.study else None
         paper = timing is not None and key is not None
+        switch_head, switches = switch_column(rows)
         lines += [case_heading(name, case), *overview_table(results, case), "",
                   "| method | reads | pos RMSE (m) | pos RMSE, all scans (m) | per target (m) | per target, assigned (m) | "
-                  "OSPA (m) | GOSPA (m) ± s.e.: % localisation / missed / false | mean abs. cardinality error | label switches / run | "
+                  f"OSPA (m) | GOSPA (m) ± s.e.: % localisation / missed / false | mean abs. cardinality error | {switch_head} | "
                   "swap prob. | loss prob. | s / run |" + (f" {label}: s / run |" if paper else ""),
                   "|---|---|" + "---:|" * 2 + "---|---|" + "---:|" * 7 + ("---:|" if paper else "")]
         for m, r in rows.items():
@@ -54,7 +56,7 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
                 f"{100 * share:.0f}" for share in (s.gospa_localisation_share, s.gospa_missed_share, s.gospa_false_share)))
             line = (f"| {m} | {_reads(results, m, r)} | {rmse} | "
                     f"{fmt(r.rmse_pos_all_scans_m, 1)} | {per} | {assigned} | {fmt_se(s.ospa_m, s.ospa_se_m, 1)} | "
-                    f"{split} | {fmt(s.cardinality_mean_abs_error, 3)} | {fmt(s.label_switches_per_run, 2)} | "
+                    f"{split} | {fmt(s.cardinality_mean_abs_error, 3)} | {fmt(switches(s), 2)} | "
                     f"{fmt(r.swap_probability, 3)} | {fmt(r.loss_probability, 3)} | {fmt(r.seconds_per_run, 3)} |")
             if paper:
                 line += f" {fmt(paper_seconds(timing, m, key))} |"
@@ -65,6 +67,7 @@ def multi_target_tables(res: Results | dict, timing: dict | None, label: str) ->
                       + ", ".join(f"{m} {v:.3g} nats" for m, v in gaps.items()) + "."]
         lines += comparison_lines(case.set_comparisons)
         lines += run_spread_table(rows, results.mc_runs)
+        lines += trajectory_table(rows, results.mc_runs)
         if case.pcrb is not None:
             lines += ["", f"PCRB (filtering, per target from its birth, clean streams): {fmt(case.pcrb.pos_m)} m."]
         lines += track_table(rows, results.settings.dt_s, "CLEAR MOT" in results.definitions.get("label_switches_per_run", ""),
@@ -94,17 +97,18 @@ def _reads(results: Results, m: str, r: MethodRow) -> str:
 def overview_table(results: Results, case: Case) -> list[str]:
     """Every row of a case whose rows keep tracks in one table: GOSPA and its parts, OSPA, the
     matched tracks' position RMSE (each ± its standard error over the runs), confirmed and false
-    tracks, track loss, label switches, time to the first track and run time. Empty where no row
-    reports tracks (the tables below hold the rest)."""
+    tracks, track loss, switches (:func:`~.report_cells.switch_column`), time to the first track
+    and run time. Empty where no row reports tracks (the tables below hold the rest)."""
     rows = case.methods
     if not any(r.tracks is not None for r in rows.values()):
         return []
     dt = results.settings.dt_s
+    switch_head, switches = switch_column(rows)
     lines = ["", f"Every row in one table ({results.mc_runs} runs; ± the standard error over the runs; the tables "
              "below break each column down):", "",
              "| method | reads | GOSPA (m) ± s.e. | median run's GOSPA (m) | % localisation / missed / false | "
              "OSPA (m) ± s.e. | pos RMSE, matched (m) ± s.e. | confirmed tracks / target | false tracks / run | track loss prob. | "
-             "label switches / run | first track after birth (s) | s / run |",
+             f"{switch_head} | first track after birth (s) | s / run |",
              "|---|---|" + "---:|" * 2 + "---|" + "---:|" * 8]
     for m, r in rows.items():
         s, t = r.sets, r.tracks
@@ -116,7 +120,7 @@ def overview_table(results: Results, case: Case) -> list[str]:
                      f"{fmt(s and s.gospa_median_run_m, 1)} | {parts} | "
                      f"{fmt_se(s and s.ospa_m, s and s.ospa_se_m, 1)} | {fmt_se(r.rmse_pos_m, r.rmse_pos_se_m, 1)} | "
                      f"{fmt(t and t.confirmed_tracks_per_target, 2)} | {fmt(t and t.false_tracks_per_run, 2)} | "
-                     f"{fmt(t and t.track_loss_probability, 2)} | {fmt(s and s.label_switches_per_run, 2)} | "
+                     f"{fmt(t and t.track_loss_probability, 2)} | {fmt(switches(s), 2)} | "
                      f"{fmt(first, 2)} | {fmt(r.seconds_per_run, 3)} |")
     return lines
 
@@ -133,6 +137,27 @@ def run_spread_table(rows: dict[str, MethodRow], runs: int) -> list[str]:
     lines = ["", f"Each run's GOSPA (m) over the {runs} runs (the p-th root of the run's mean GOSPA^p; linear "
                  "interpolation between the runs):", "", f"| method | {head} |", "|---|" + "---:|" * len(RUN_QUANTILES)]
     lines += [f"| {m} | " + " | ".join(f"{v:.1f}" for v in q) + " |" for m, q in have.items()]
+    return lines
+
+
+def trajectory_table(rows: dict[str, MethodRow], runs: int) -> list[str]:
+    """Trajectory GOSPA with its switching cost, per row that holds it (empty for none, e.g.
+    results recorded before it was kept): each row's value ± its standard error, its parts and
+    the switches of its optimal assignment."""
+    have = {m: r.sets for m, r in rows.items() if r.sets is not None and r.sets.tgospa_m is not None}
+    if not have:
+        return []
+    gamma = next(iter(have.values())).tgospa_gamma_m
+    lines = ["", f"Trajectory GOSPA (García-Fernández et al. 2020; switching cost gamma = {gamma:g} m, the cut-off; "
+                 "per set scan, like GOSPA, which it equals without the switching cost; the LP relaxation, integral "
+                 "and so the metric's own value in the runs counted):", "",
+             "| method | trajectory GOSPA (m) ± s.e. | % localisation / missed / false / switching | switches / run | "
+             "runs integral |", "|---|---:|---|---:|---:|"]
+    for m, s in have.items():
+        parts = " / ".join(f"{100 * v:.0f}" for v in (s.tgospa_localisation_share, s.tgospa_missed_share,
+                                                     s.tgospa_false_share, s.tgospa_switching_share))
+        lines.append(f"| {m} | {fmt_se(s.tgospa_m, s.tgospa_se_m, 1)} | {parts} | {fmt(s.tgospa_switches_per_run, 2)} | "
+                     f"{s.tgospa_integral_runs} of {runs} |")
     return lines
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .figures import pyplot as _plt
-from .report_cells import fmt, fmt_se
+from .report_cells import fmt, fmt_se, switch_column
 from .result_rows import MethodRow
 from .results import Case, Results
 
@@ -169,7 +169,8 @@ def _sweeps(results: Results, out: Path) -> list[str]:
             continue
         xs = [getattr(c.study, key) for c in cases]
         every = [n for n in _plane_rows(cases[0]) if all(n in _plane_rows(c) for c in cases)]
-        labelled = [n for n in every if cases[0].methods[n].sets.label_switches_per_run is not None]
+        switch_head, switches = switch_column({n: cases[0].methods[n] for n in every})
+        labelled = [n for n in every if switches(cases[0].methods[n].sets) is not None]
         colour = {n: plt.get_cmap("tab10")(i % 10) for i, n in enumerate(every)}  # one colour per row, every panel
         style = {n: "--" if n in labelled[1:] else "-" for n in every}  # labellings that coincide stay visible
         fig, axes = plt.subplots(1, 3, figsize=(14, 4.0))
@@ -177,11 +178,11 @@ def _sweeps(results: Results, out: Path) -> list[str]:
             axes[0].plot(xs, [c.methods[n].sets.ospa_m for c in cases], marker="o", color=colour[n], ls=style[n],
                          label=n)
         for n in labelled:
-            axes[1].plot(xs, [c.methods[n].sets.label_switches_per_run for c in cases], marker="o", color=colour[n],
+            axes[1].plot(xs, [switches(c.methods[n].sets) for c in cases], marker="o", color=colour[n],
                          ls=style[n])
             axes[2].plot(xs, [c.methods[n].tracks.fragmentations_per_run for c in cases], marker="o", color=colour[n],
                          ls=style[n])
-        for ax, ylabel in zip(axes, ("OSPA on bistatic range (m), mean over scans", "label switches per run",
+        for ax, ylabel in zip(axes, ("OSPA on bistatic range (m), mean over scans", switch_head.replace(" / ", " per "),
                                      "fragmentations per run")):
             ax.set_xlabel(xlabel)
             ax.set_ylabel(ylabel)
@@ -236,9 +237,9 @@ def plane_report(res: Results | dict, examples: dict, out: Path) -> tuple[list[s
              f"{st.set_metrics.c_m:g} m, order {st.set_metrics.p:g}) are on the "
              "bistatic range alone (one axis, in metres); range and range-rate errors are over the estimate-target "
              "pairs the OSPA assignment matches. **Not comparable with a Cartesian row's OSPA or position RMSE.** "
-             "A known-association reference's label switches are the one-axis OSPA assignment trading two targets "
-             "whose ranges cross (its tracks never change target): they measure the range-only scoring, not the "
-             "filter. Seconds per run count the PHD filter's in full in every row that reads it (it runs once per "
+             "A known-association reference's switches, where records counted them on each scan's OSPA assignment, "
+             "are that one-axis assignment trading two targets whose ranges cross (its tracks never change target): "
+             "they measure the range-only scoring, not the filter. Seconds per run count the PHD filter's in full in every row that reads it (it runs once per "
              "block and settings; its own share in brackets), plus the row's labelling.", ""]
     lines += _setup_lines(results)
     figures = []
@@ -249,10 +250,12 @@ def plane_report(res: Results | dict, examples: dict, out: Path) -> tuple[list[s
         source = "detections from the FM front end's signal chain" if case.study.detections_from == "signals" \
             else "simulated detections"
         space = next(iter(rows.values())).space.title
+        switch_head, switches = switch_column(rows)
+        ident = switch_head.startswith("ID")
         lines += [f"### {case.title} (`{cname}`, {space})", "",
                   f"Pd {case.study.pd:g}, {case.study.clutter_per_scan:g} clutter points per scan; {source}.", "",
                   "| method | kind | tracks start | OSPA m | GOSPA m | abs. card. error | RMS range m | RMS range-rate m/s | "
-                  "label switches / run | fragmentations / run | labels / run | s / run (PHD) |",
+                  f"{switch_head} | fragmentations / run | labels / run | s / run (PHD) |",
                   "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for n, r in rows.items():
             kind = r.kind + ("" if r.labelled else ", unlabelled")
@@ -261,15 +264,16 @@ def plane_report(res: Results | dict, examples: dict, out: Path) -> tuple[list[s
             lines.append(f"| {n} | {kind} | {r.initiation} | {fmt_se(s.ospa_m, s.ospa_se_m, 1)} | "
                          f"{fmt_se(s.gospa_m, s.gospa_se_m, 1)} | "
                          f"{fmt(s.cardinality_mean_abs_error, 3)} | {fmt(r.rmse_pos_pooled_m, 1)} | "
-                         f"{fmt(r.space.rmse_vel_pooled_mps, 2)} | {fmt(s.label_switches_per_run, 2)} | "
+                         f"{fmt(r.space.rmse_vel_pooled_mps, 2)} | {fmt(switches(s), 2)} | "
                          f"{fmt(tracks.fragmentations_per_run if tracks else None, 2)} | {fmt(r.labels_per_run, 1)} | "
                          f"{r.seconds_per_run:.2f}{phd} |")
-        labelled = [n for n, r in rows.items() if r.sets.label_switches_per_target is not None]
+        per = (lambda r: r.sets.id_switches_per_target) if ident else (lambda r: r.sets.label_switches_per_target)
+        labelled = [n for n, r in rows.items() if per(r) is not None]
         if labelled:
-            lines += ["", "Per target, mean over runs: label switches / fragmentations", "",
+            lines += ["", f"Per target, mean over runs: {'identity' if ident else 'label'} switches / fragmentations", "",
                       "| target | " + " | ".join(labelled) + " |", "|---|" + "---|" * len(labelled)]
             for i, a in enumerate(case.targets):
-                lines.append(f"| {a} | " + " | ".join(f"{rows[n].sets.label_switches_per_target[i]:.2f} / "
+                lines.append(f"| {a} | " + " | ".join(f"{per(rows[n])[i]:.2f} / "
                                                       f"{rows[n].tracks.fragmentations_per_target[i]:.2f}"
                                                       for n in labelled) + " |")
         lines.append("")

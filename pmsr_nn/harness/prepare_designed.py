@@ -37,7 +37,7 @@ from ..simulation.tracks import MEASUREMENT_COMPONENTS, build_models
 from ..tbd.scene import build_scene
 from .case_bounds import case_bounds, memory_bounds
 from .definitions import designed_definitions, world_definitions
-from .prepared import Case, Setup, method_refusals, raise_refusals
+from .prepared import Case, Setup, method_refusals, raise_refusals, set_scans_after
 from .scenario import Scenario
 from .trajectories import check_inside, design_trajectory
 from .tuning import tune
@@ -187,10 +187,8 @@ def prepare_designed(sc: Scenario, device: str = "cpu") -> Setup:
         mb = memory_bounds(x, alive, sc.methods, resources, causal, models)
         info = {"lives": [{"name": t.name, "first_scan": int(k0), "end_scan": int(k1)}
                             for t, (k0, k1) in zip(c.flights(), _lives(c, models.dt)[1])], **maps_info}
-        # with maps, the set figures count every frame: a false track while no target lives is the seed's false alarm
-        set_scans = torch.ones(alive.shape[0], dtype=torch.bool) if maps_info else None
         cases.append(Case(c.name, c.title or c.name, DesignedTruth(x, alive), case_sensing, alive, scored, targets, info,
-                          bounds, mb, set_scans=set_scans, methods=tuple(c.methods)))
+                          bounds, mb, methods=tuple(c.methods), set_scans=set_scans_after(alive.shape[0], sc.warmup_steps)))
     raise_refusals(refusals)
     methods, tuning = sc.methods, {}
     if any(m.tuned() for m in sc.methods):  # last: the slowest check, after every quick one
@@ -315,10 +313,8 @@ def prepare_world(sc: Scenario, device: str = "cpu") -> Setup:
                 "reference_key": c.reference_key, "formation": c.formation is not None,
                 "clutter_list": "sensor" if det.illuminator_known else "receiver",
                 "detections_from": "signals" if det.front_end is not None else "model"}
-        # set figures average over every scan from warmup_steps on, also where no target lives (an
-        # estimate there is false)
         cases.append(Case(c.name, c.title or c.name, truth, sensing, alive, scored, names, info, bounds,
-                          set_scans=torch.arange(w.scans) >= sc.warmup_steps, methods=tuple(c.methods)))
+                          methods=tuple(c.methods), set_scans=set_scans_after(w.scans, sc.warmup_steps)))
     raise_refusals(refusals)
     straight = w.motion.truth == "straight" and not any(c.aircraft for c in sc.cases)
     definitions = world_definitions(kinds.values(), straight, models.motion.dim_x)

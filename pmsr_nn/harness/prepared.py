@@ -40,6 +40,15 @@ class Bounds:
     q0_smoothing_pos: np.ndarray
 
 
+def set_scans_after(K: int, warmup: int) -> torch.Tensor:
+    """``(K,)`` bool: the scans a case's set figures (OSPA, GOSPA, cardinality, the per-run GOSPA)
+    average over in every scenario: every scan from ``warmup`` on, counted from the case's first
+    scan. At those scans every living target counts, also one still inside its own warm-up (its
+    start-up is part of the score), and so does a scan where no target lives (a track there is
+    false). The point figures (RMSE, NEES) keep each target's own warm-up (``Case.scored``)."""
+    return torch.arange(K) >= warmup
+
+
 @dataclass
 class Case:
     """A case ready to run. ``truth`` draws the true states of a block; ``alive (K, N)`` and
@@ -58,8 +67,8 @@ class Case:
     info: dict = field(default_factory=dict)
     bounds: Bounds | None = None
     memory_bounds: dict = field(default_factory=dict)
-    set_scans: torch.Tensor | None = None  # (K,) the scans set metrics average over (None: some target scored)
     methods: tuple[str, ...] = ()  # the methods the case runs (empty: every method of the scenario)
+    set_scans: torch.Tensor = field(kw_only=True)  # (K,) bool: the scans set metrics average over (set_scans_after)
 
     def runs(self, spec) -> bool:
         """Whether the case runs method ``spec`` (a case may name the methods it runs)."""
@@ -67,9 +76,8 @@ class Case:
 
     @property
     def set_scan_mask(self) -> torch.Tensor:
-        """``(K,)`` the scans the set metrics (OSPA, GOSPA, cardinality) average over: ``set_scans``,
-        or else the scans where some target is scored."""
-        return self.scored.any(1) if self.set_scans is None else self.set_scans
+        """``(K,)`` the scans the set metrics (OSPA, GOSPA, cardinality) average over (:func:`set_scans_after`)."""
+        return self.set_scans
 
     @property
     def steps(self) -> int:

@@ -19,6 +19,7 @@ from .multitarget_tables import multi_target_tables, per_target_tables, space_no
 from .plane_report import plane_report
 from .rd_maps_report import report_lines as rd_maps_lines
 from .results import Results
+from .track_figure import drawn_cases, plot_case_tracks
 from .trajectory_figure import plot_trajectories
 
 
@@ -113,7 +114,9 @@ def write_report(res: Results | dict, out: Path, examples: dict, geometry, ref: 
     cases = results.cases
     sweep = results.settings.sweep
     figures = plot_rmse(results, out) + plot_set_metrics(results, out)
-    figures.append(plot_trajectories(results, examples, geometry, out / "trajectories.png"))
+    per_row = [n for n in drawn_cases(results) if plot_case_tracks(results, examples, n, out / f"{n}_tracks.png")]
+    figures += [out / f"{n}_tracks.png" for n in per_row]
+    figures.append(plot_trajectories(results, examples, geometry, out / "trajectories.png", skip=per_row))
     figures += write_front_end_outputs(results, examples, out)
     plane_lines, plane_figures = plane_report(results, examples, out)
     figures += plane_figures
@@ -158,8 +161,14 @@ def write_report(res: Results | dict, out: Path, examples: dict, geometry, ref: 
                   "bound. Diverged runs are counted and kept in the averages.", ""]
     elif sweep == "none":
         lines += ["## RMSE per target vs time", ""] + [f"![{n}]({n}_rmse.png)" for n in cases] + [""]
-    lines += ["## Trajectories", "", "![trajectories](trajectories.png)", "",
-              "## Run time (measured in this run)", ""]
+    lines += ["## Trajectories", "", "![trajectories](trajectories.png)", ""]
+    for n in per_row:
+        lines += [f"Run 0's tracks of every row, `{n}` (`{n}_tracks.png`): the truth in grey, each track mapped to a "
+                  "target (the track table's mapping) in its own colour; the report's false tracks (never mapped) "
+                  "split into duplicates (within the cut-off of a living target at half their scans or more: beside "
+                  "a target another track holds) and false tracks (the rest), each marked at its first scan.", "",
+                  f"![tracks of every row, {n}]({n}_tracks.png)", ""]
+    lines += ["## Run time (measured in this run)", ""]
     lines += timing_table(results, ref_timing, ref_label)
     lines += ["", f"Environment: pmsr_nn {env['pmsr_nn']}, torch {env['torch']}, {env['machine']}, device {env['device']}, "
               f"{env['threads']} threads, {env['date']}, commit {env['commit']}. Command: `{env['command']}`.", "",

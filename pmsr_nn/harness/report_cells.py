@@ -1,6 +1,9 @@
-"""How the report writes a number, a number with its Monte Carlo error, and a row's marks."""
+"""How the report writes a number, a number with its Monte Carlo error, a row's marks, and which
+switches a case's tables show."""
 
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 
@@ -58,3 +61,12 @@ def start_label(row: MethodRow, reads: str | None) -> str:
 SWEEP_LABELS = {"pd": "detection probability Pd", "clutter_per_scan": "clutter points per sensor per scan",
                 "spacing_m": "spacing of the formation (m)"}
 """Axis and column labels of a multi-target study's swept quantity."""
+
+
+def switch_column(rows: dict[str, MethodRow]) -> tuple[str, Callable]:
+    """The switches a case's tables show: CLEAR MOT identity switches where its rows hold them,
+    else (results recorded before them) label switches; the column's header and each row's value
+    from its set figures (None for a row without them)."""
+    if any(r.sets is not None and r.sets.id_switches_per_run is not None for r in rows.values()):
+        return "ID switches / run (CLEAR MOT)", lambda s: s and s.id_switches_per_run
+    return "label switches / run", lambda s: s and s.label_switches_per_run

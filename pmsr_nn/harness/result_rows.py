@@ -70,10 +70,21 @@ class SetFigures:
     rmse_pos_assigned_per_target_m: list | None = None
     label_switches_per_run: float | None = None
     label_switches_per_target: list | None = None
+    id_switches_per_run: float | None = None  # CLEAR MOT identity switches (None: not recorded)
+    id_switches_per_target: list | None = None
     ospa_se_m: float | None = None
     gospa_se_m: float | None = None
     gospa_median_run_m: float | None = None
     gospa_run_quantiles_m: list | None = None  # at RUN_QUANTILES
+    tgospa_m: float | None = None  # trajectory GOSPA per set scan (None: not recorded, or no identities)
+    tgospa_se_m: float | None = None
+    tgospa_gamma_m: float | None = None
+    tgospa_localisation_share: float | None = None
+    tgospa_missed_share: float | None = None
+    tgospa_false_share: float | None = None
+    tgospa_switching_share: float | None = None
+    tgospa_switches_per_run: float | None = None
+    tgospa_integral_runs: int | None = None
 
 
 @dataclass(frozen=True)

@@ -16,11 +16,13 @@ Multi-target metrics (cases with more than one target, and every tracker that st
 tracks), from the labelled estimates as sets: OSPA and GOSPA (split into localisation, missed and
 false parts) per scan, the cardinality error, per-target squared error after the best fixed
 assignment of track labels to targets over the run (``assigned_pos``, ``assigned_count``), label
-switches per target, the swaps of the S-MSJPDA study (at the last scan, a track nearer another
+switches per target, trajectory GOSPA with a switching cost (:func:`trajectory_sums`; labelled
+tracks only), the swaps of the S-MSJPDA study (at the last scan, a track nearer another
 target than its own; paired slots only) and, for trackers that report the flags, the paper's
-track-loss rule. Label switches and the track-level sums (:func:`track_sums`) come from the
-persistent (CLEAR MOT) mapping of :func:`track_mapping`: a track stays on its target while it is
-within the cut-off, so two tracks that each follow their own target through a crossing are not
+track-loss rule. Label switches, identity switches (a target's track changing from the last one
+it had, also across scans without one) and the track-level sums (:func:`track_sums`) come from
+the persistent (CLEAR MOT) mapping of :func:`track_mapping`: a track stays on its target while it
+is within the cut-off, so two tracks that each follow their own target through a crossing are not
 counted as switching there (the per-scan assignment swaps them wherever that costs a little less).
 
 Estimates whose slots are tracks the tracker started (``paired=False``) enter the point metrics
@@ -34,12 +36,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..metrics import (SetScores, label_switches, labelled_assignment, matched_tracks, normalised_nees,
-                       persistent_assignment, set_scores, squared_error, track_loss, track_scores)
+from ..metrics import (SetScores, identity_switches, label_switches, labelled_assignment, matched_tracks,
+                       normalised_nees, persistent_assignment, set_scores, squared_error, track_loss, track_scores,
+                       trajectory_gospa)
 from ..simulation.products import Truth
 from ..trackers.base import Estimates
 
-PER_RUN = ("run_mse", "gospa_run", "ospa_run", "tbd_run_pos_err")
+PER_RUN = ("run_mse", "gospa_run", "ospa_run", "tbd_run_pos_err", "tgospa_run")
 """Quantities kept per run (concatenated over blocks); every other one is summed per block."""
 
 
@@ -147,11 +150,35 @@ def gospa_per_run(sc: SetScores, scored_scans: torch.Tensor) -> dict[str, np.nda
     return {"gospa_run": per_scan[:, scored_scans].mean(1).numpy(), "ospa_run": sc.ospa[:, scored_scans].mean(1).numpy()}
 
 
+def trajectory_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
+                    scans: torch.Tensor) -> dict[str, np.ndarray]:
+    """Trajectory GOSPA (:func:`~pmsr_nn.metrics.trajectory_gospa`, alpha = 2, switching cost
+    ``gamma = c``, its LP relaxation) of each run's tracks over the scans ``scans (K,)`` (the set
+    scans), divided by their number so that it reads like GOSPA^p per scan (m^p): ``tgospa_run
+    (B,)`` per run; summed over the runs ``tgospa_loc``, ``tgospa_missed``, ``tgospa_false``,
+    ``tgospa_switching`` (its parts, m^p per scan), ``tgospa_switches`` (a half switch counts 1/2)
+    and ``tgospa_integral`` (runs whose LP solution is integral: there it is the integer
+    programme's value, the metric itself). A track whose position is not finite at a scan (a
+    diverged filter) counts as absent there."""
+    B, K, M = est.exists.shape
+    N = truth.x.shape[2]
+    e, t = est.x[:, scans][..., pos], truth.x[:, scans][..., pos]
+    exists = est.exists[:, scans] & torch.isfinite(e).all(-1)
+    tg = trajectory_gospa(e, exists, t, truth.alive.expand(B, K, N)[:, scans], c, p, c, integer=False)
+    n = max(int(scans.sum()), 1)
+    f = lambda v: np.asarray(float(v.sum()) / n)
+    return {"tgospa_run": (tg.total ** p / n).numpy(), "tgospa_loc": f(tg.localisation), "tgospa_missed": f(tg.missed),
+            "tgospa_false": f(tg.false), "tgospa_switching": f(tg.switching),
+            "tgospa_switches": np.asarray(float(tg.n_switches.sum())),
+            "tgospa_integral": np.asarray(float(tg.integral.sum()))}
+
+
 def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
              sc: SetScores | None = None, mapping: torch.Tensor | None = None) -> dict[str, np.ndarray]:
     """Multi-target sums over the runs (module docstring): per scan ``(K,)`` ``ospa``,
     ``gospa_loc``, ``gospa_missed``, ``gospa_false`` (p-th powers, m^p), ``n_est``, ``abs_card``;
-    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)`` (on :func:`track_mapping`).
+    ``assigned_pos`` / ``assigned_count`` ``(K, N)``; ``switches (N,)`` label switches and
+    ``id_switches (N,)`` CLEAR MOT identity switches (both on :func:`track_mapping`).
     ``pos``: position columns; ``sc``: :func:`per_scan_sets` and ``mapping``: :func:`track_mapping`
     when already computed."""
     n = est.x.shape[-1]
@@ -178,6 +205,7 @@ def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
     out["assigned_count"] = both.sum(0).to(torch.float64).numpy()
     mapping = track_mapping(est, truth, pos, c, p) if mapping is None else mapping
     out["switches"] = label_switches(mapping, t_mask).sum(0).to(torch.float64).numpy()
+    out["id_switches"] = identity_switches(mapping, t_mask).sum(0).to(torch.float64).numpy()
     return out
 
 

@@ -1,6 +1,7 @@
 """The report's trajectory figure: the sensors and every case's true paths, then per case run 0's
 truth and each method's estimates, with a zoomed inset where they lie metres apart on a km-scale
-panel (Fig. 8 / 12 analogue)."""
+panel (Fig. 8 / 12 analogue). Cases scored as tracks get a figure per row instead
+(:mod:`.track_figure`)."""
 
 from __future__ import annotations
 
@@ -99,10 +100,11 @@ def _add_inset(ax, truth: np.ndarray, tracks: dict[str, np.ndarray], colours: di
     ax.indicate_inset_zoom(inset, edgecolor="0.3")
 
 
-def plot_trajectories(res: Results | dict, examples: dict, geometry, path: Path) -> Path:
+def plot_trajectories(res: Results | dict, examples: dict, geometry, path: Path, skip=()) -> Path:
     """Sensors and every case's true paths, then per case run 0's truth and each method's
     estimates (``examples[case]``: ``truth (K, N, 2)`` and per method ``(K, 2)`` or ``(K, M, 2)``,
-    m; drawn in km).
+    m; drawn in km); the cases in ``skip`` (drawn per row by :mod:`.track_figure`) only in the
+    first panel.
 
     The per-case panels share one extent: each is a square window of the same side (the largest
     case's true path, with a margin) centred on its own path, so every panel has the same scale
@@ -111,7 +113,8 @@ def plot_trajectories(res: Results | dict, examples: dict, geometry, path: Path)
     panels: no title or legend is cut."""
     results = Results.of(res)
     plt = pyplot()
-    names = list(results.cases)
+    every = list(results.cases)
+    names = [n for n in every if n not in set(skip)]
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.8 * (len(names) + 1), 5.2), squeeze=False,
                              layout="constrained")
     axes = axes[0]
@@ -120,14 +123,14 @@ def plot_trajectories(res: Results | dict, examples: dict, geometry, path: Path)
         ax0.plot(tx.position_m[0] / 1e3, tx.position_m[1] / 1e3, "k^", ms=9, label="transmitter" if i == 0 else None)
     for i, rx in enumerate(geometry.receivers):
         ax0.plot(rx.position_m[0] / 1e3, rx.position_m[1] / 1e3, "bv", ms=7, label="receiver" if i == 0 else None)
-    truths = {n: np.asarray(examples.get(n, {}).get("truth", np.zeros((0, 1, 2))), dtype=float) / 1e3 for n in names}
-    for j, name in enumerate(names):
+    truths = {n: np.asarray(examples.get(n, {}).get("truth", np.zeros((0, 1, 2))), dtype=float) / 1e3 for n in every}
+    for j, name in enumerate(every):
         truth = truths[name]
         for t in range(truth.shape[1]):
             ax0.plot(truth[:, t, 0], truth[:, t, 1], color=f"C{j}", lw=1.6, label=name if t == 0 else None)
     ax0.set(xlabel="east (km)", ylabel="north (km)", title="sensors and true trajectories", aspect="equal")
     ax0.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
-    side = max(path_extent([t])[1] for t in truths.values()) if truths else 1.0
+    side = max(path_extent([truths[n]])[1] for n in names) if names else 1.0
     colours = method_colours(m for n in names for m in examples.get(n, {}) if m != "truth" and not m.startswith("@"))
     for ax, name in zip(axes[1:], names):
         ex = examples.get(name, {})

@@ -1,7 +1,7 @@
 """Accuracy metrics.
 
 - :mod:`.pointwise`: single-target errors over Monte Carlo runs (RMSE, NEES, track loss).
-- :mod:`.sets`: multi-object metrics on padded, masked sets (OSPA, GOSPA, assignments, label switches).
+- :mod:`.sets`: multi-object metrics on padded, masked sets (OSPA, GOSPA, assignments, label and identity switches).
 - :mod:`.trajectory_gospa`: trajectory GOSPA with switching cost, per run (an LP / MILP per run).
 """
 
@@ -16,7 +16,7 @@ from .pointwise import (
     track_loss,
     velocity_columns,
 )
-from .sets import GOSPA, SetScores, cardinality_error, fragmentations, gospa, label_switches, labelled_assignment, optimal_assignment, ospa, persistent_assignment, set_scores
+from .sets import GOSPA, SetScores, cardinality_error, fragmentations, gospa, identity_switches, label_switches, labelled_assignment, optimal_assignment, ospa, persistent_assignment, set_scores
 from .tracks import TrackScores, matched_errors, matched_tracks, track_scores
 from .trajectory_gospa import TrajectoryGOSPA, trajectory_gospa
 
@@ -38,6 +38,7 @@ __all__ = [
     "cardinality_error",
     "labelled_assignment",
     "label_switches",
+    "identity_switches",
     "fragmentations",
     "TrackScores",
     "track_scores",

@@ -291,6 +291,25 @@ def label_switches(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) 
     return changed.sum(-2)
 
 
+def identity_switches(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
+    """``(..., N)`` int64: CLEAR MOT identity switches of each target (Bernardin & Stiefelhagen 2008,
+    counted as the MOTChallenge counts them, Milan et al. 2016): the scans at which the target is
+    assigned a track other than the last track assigned to it at an earlier scan, also across
+    scans at which it had none (a track lost and another started on the target is a switch; the
+    same track back after a gap is not). Arguments as :func:`label_switches` (on
+    :func:`persistent_assignment`, a target keeps its track while that track stays within the
+    cut-off). At least :func:`label_switches`, which counts only consecutive scans."""
+    track = target_tracks(assignment_per_scan, truth_mask)  # (..., K, N)
+    K = track.shape[-2]
+    has = track >= 0
+    scan = torch.arange(K, device=track.device).view(K, 1)
+    last = torch.where(has, scan, torch.full_like(track, -1)).cummax(-2).values  # last assigned scan <= k
+    before = torch.full_like(last, -1)
+    before[..., 1:, :] = last[..., :-1, :]  # last assigned scan < k
+    previous = track.gather(-2, before.clamp(min=0))
+    return (has & (before >= 0) & (track != previous)).sum(-2)
+
+
 def fragmentations(assignment_per_scan: torch.Tensor, truth_mask: torch.Tensor) -> torch.Tensor:
     """``(B, N)`` int64: how often each target's track coverage is interrupted (the CLEAR MOT
     "fragmentation"): the target is assigned at scan ``k-1``, alive but unassigned at ``k``, and
