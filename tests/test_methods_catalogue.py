@@ -75,13 +75,13 @@ def test_one_kind_and_its_options():
 
 
 @pytest.mark.parametrize("name, message", [
-    ("ekff", "unknown method kind 'ekff' (did you mean ekf?); known: detect_then_track, ekf,"),
+    ("ekff", "unknown method kind 'ekff' (did you mean ekf?); known: bp, bp_3d, detect_then_track, ekf,"),
     ("smsjpda", "(did you mean s_msjpda or p_msjpda?)"),
     ("ICMB", "unknown method kind 'ICMB' (did you mean icmb"),
     ("track-before-detect", "kinds pmb, icmb, modified_icmb and detect_then_track"),
     ("gtda", "kind smc_phd (Cartesian, every pair) or smc_phd_pair (one pair's bistatic range and range-rate"),
     ("crb", "the posterior Cramer-Rao bound is kind pcrb"),
-    ("zzzz", "unknown method kind 'zzzz'; known: detect_then_track, ekf,"),
+    ("zzzz", "unknown method kind 'zzzz'; known: bp, bp_3d, detect_then_track, ekf,"),
 ])
 def test_unknown_kinds_name_the_nearest_or_where_they_live(capsys, name, message):
     with pytest.raises(ConfigError) as err:
