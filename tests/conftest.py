@@ -53,3 +53,24 @@ def perturbed_prior(states0: torch.Tensor, seed: int = 0):
     g = torch.Generator().manual_seed(seed)
     x0 = states0 + torch.randn(B, 6, generator=g, dtype=torch.float64) * sd
     return Gaussian(x0, torch.diag(sd**2).expand(B, 6, 6).clone())
+
+
+@pytest.fixture
+def captured(monkeypatch):
+    """The figures the report functions make, laid out as they would be written and kept open
+    (``save_figure`` of :mod:`pmsr_nn.harness.figures` and of the modules that import it)."""
+    from pmsr_nn.harness import figures, track_figure, trajectory_figure
+
+    figs = []
+
+    def keep(fig, path, dpi=110, rect=None):
+        figures.lay_out(fig, rect)
+        fig.canvas.draw()
+        figs.append(fig)
+        return path
+
+    for module in (figures, trajectory_figure, track_figure):
+        monkeypatch.setattr(module, "save_figure", keep)
+    yield figs
+    for fig in figs:
+        figures.pyplot().close(fig)

@@ -10,24 +10,6 @@ from pmsr_nn.simulation.recipe import TrackRecipe
 from pmsr_nn.simulation.tracks import build_models
 
 
-@pytest.fixture
-def captured(monkeypatch):
-    """The figures the report functions make, laid out as they would be written and kept open."""
-    figs = []
-
-    def keep(fig, path, dpi=110, rect=None):
-        figures.lay_out(fig, rect)
-        fig.canvas.draw()
-        figs.append(fig)
-        return path
-
-    monkeypatch.setattr(figures, "save_figure", keep)
-    monkeypatch.setattr(trajectory_figure, "save_figure", keep)
-    yield figs
-    for fig in figs:
-        figures.pyplot().close(fig)
-
-
 @pytest.fixture(scope="module")
 def geometry():
     return build_models(TrackRecipe())[1].geometry

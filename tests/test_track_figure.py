@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import torch
 
-from pmsr_nn.harness import figures, track_figure, trajectory_figure
 from pmsr_nn.harness.track_figure import classify_tracks, plot_case_tracks
 from pmsr_nn.metrics import persistent_assignment, track_scores
 
@@ -56,23 +55,6 @@ def test_track_classes_by_hand_and_the_reports_false_tracks():
     assert float(ts.false_tracks[0]) == cls.count("duplicate") + cls.count("false") == 4
     # a smaller cut-off (30 m): track 1 (40 m off) is no longer within it, a false track
     assert classify_tracks(truth, tracks, 30.0, 2.0).kind[1] == "false"
-
-
-@pytest.fixture
-def captured(monkeypatch):
-    figs = []
-
-    def keep(fig, path, dpi=110, rect=None):
-        figures.lay_out(fig, rect)
-        fig.canvas.draw()
-        figs.append(fig)
-        return path
-
-    monkeypatch.setattr(track_figure, "save_figure", keep)
-    monkeypatch.setattr(trajectory_figure, "save_figure", keep)
-    yield figs
-    for fig in figs:
-        figures.pyplot().close(fig)
 
 
 def _results(rows: list[str]) -> dict:
