@@ -60,7 +60,7 @@ class BPSettings:
     clutter_count: float
     clutter_density: float
     gate_probability: float = 0.999
-    survival: float = 0.999
+    survival: float = 0.9975
     birth_rate: float = 0.01
     initial_targets: float = 0.01
     confirm_existence: float = 0.9
@@ -177,7 +177,7 @@ class BPTracks(TableTracks):
 
 
 def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
-               settings: BPSettings, other_sd: torch.Tensor, velocity_sd_mps: float = 20.0,
+               settings: BPSettings, other_sd: torch.Tensor, velocity_sd_mps: float = 10.0,
                initiator: Initiator | None = None, routes: torch.Tensor | None = None) -> TrackReport:
     """The BP tracker (module docstring) on per-pair detection lists ``scans`` (``z (B, K, S, M,
     d)``) of ``model`` with noise ``R (S d, S d)``, the CV/CA prediction of ``motion`` over ``dt``
