@@ -34,9 +34,10 @@ DUPLICATE_SHARE = 0.5
 PANEL_IN = 3.4
 """Side of a panel (inches)."""
 
-PALETTE = (0, 4, 8, 10, 12, 16, 18, 1, 5, 9, 11, 13, 17, 19)
-"""The tracks mapped to a target take tab20's colours in this order: neither the orange and red of
-:data:`STYLE` nor the grey of the truth."""
+PALETTE = ("tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "black",
+           "navy", "darkgreen", "indigo", "saddlebrown", "darkmagenta", "teal")
+"""The tracks mapped to a target take these colours in turn: dark ones, none of them the orange and
+red of :data:`STYLE`, each readable on the light grey of the truth (tab20's light shades were not)."""
 
 STYLE = {"duplicate": {"color": "darkorange", "ls": "--", "marker": "D"},
          "false": {"color": "crimson", "ls": ":", "marker": "x"}}
@@ -119,8 +120,7 @@ def plot_case_tracks(res: Results | dict, examples: dict, name: str, path: Path)
     pts = pts[np.isfinite(pts).all(1)]
     lo, hi = (pts.min(0), pts.max(0)) if len(pts) else (np.zeros(2), np.ones(2))
     centre, side = 0.5 * (lo + hi), max(float((hi - lo).max()), 1e-3) * 1.16
-    tab20 = plt.get_cmap("tab20")
-    palette = lambda i: tab20(PALETTE[i % len(PALETTE)])
+    palette = lambda i: PALETTE[i % len(PALETTE)]
     drawn = []  # per panel: its axes, its tracks (km) and its counts
     for ax, m in zip(axes.flat, rows):
         tracks = _as_tracks(ex[m])
