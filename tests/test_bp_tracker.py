@@ -180,6 +180,19 @@ def test_the_bp_companion_is_one_sky_but_for_its_rows_and_maps():
     assert [m for m in bp["methods"] if m["kind"] == "bp"] == [theirs["BP"]]
 
 
+def test_the_stonesoup_companion_is_one_sky_bp_on_its_first_runs():
+    """``evaluate/one_sky_stonesoup.yaml``: one_sky_bp's settings but for fewer runs, one per
+    block (so its blocks are one_sky_bp's first ones), BP as one_sky's and Stone Soup's JPDA as
+    one_sky's."""
+    root = Path(__file__).resolve().parents[1] / "evaluate"
+    main_, bp, ss = (yaml.safe_load((root / f).read_text())
+                     for f in ("one_sky.yaml", "one_sky_bp.yaml", "one_sky_stonesoup.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods", "mc_runs")}  # noqa: E731
+    assert rest(ss) == rest(bp) and ss["block_runs"] == 1 and ss["mc_runs"] < bp["mc_runs"]
+    theirs = {m["name"]: m for m in main_["methods"]}
+    assert ss["methods"] == [theirs["BP"], theirs["Stone Soup JPDA"]]
+
+
 @pytest.mark.parametrize("main_name, oracle", [("dense_crossing", "S-MSJPDA (oracle births)"),
                                                ("shared_drones", "S-MSJPDA")])
 def test_the_bp_companions_are_their_studies_but_for_the_rows(main_name, oracle):
