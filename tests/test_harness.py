@@ -13,11 +13,11 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import CheckpointError, ConfigError, OutputError
 from pmsr_nn.filters import ekf
 from pmsr_nn.harness import evaluate, load_scenario, merge
-from pmsr_nn.harness.blocks import stream_block as draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.case_spec import FITEE2023_TRAJECTORIES, CaseSpec, SegmentSpec
-from pmsr_nn.harness.scenario import scenario_from_dict
-from pmsr_nn.harness.trajectories import design_trajectory
+from pmsr_nn.harness.run.blocks import stream_block as draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.case_spec import FITEE2023_TRAJECTORIES, CaseSpec, SegmentSpec
+from pmsr_nn.harness.scenario.schema import scenario_from_dict
+from pmsr_nn.harness.scenario.trajectories import design_trajectory
 from pmsr_nn.simulation.recipe import TrackRecipe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -244,8 +244,8 @@ def test_scenario_errors_name_the_key():
         scenario_from_dict({"name": "x", "mc_run": 3, "cases": [], "methods": []})
     with pytest.raises(ConfigError, match="duplicate case"):
         c = CaseSpec("a", 5000.0, 90.0, 1.0, 0.0, (SegmentSpec(200.0),))
-        from pmsr_nn.harness.method_spec import MethodSpec
-        from pmsr_nn.harness.scenario import Scenario
+        from pmsr_nn.harness.scenario.method_spec import MethodSpec
+        from pmsr_nn.harness.scenario.schema import Scenario
 
         Scenario(name="x", cases=(c, c), methods=(MethodSpec("EKF", "ekf"),))
 

@@ -2,8 +2,8 @@
 report.md and figures (:func:`evaluate`, :func:`merge`)."""
 
 from .evaluate import evaluate, merge
-from .case_spec import CaseSpec, SegmentSpec
-from .method_spec import MethodSpec
-from .scenario import Scenario, load_scenario
+from .scenario.case_spec import CaseSpec, SegmentSpec
+from .scenario.method_spec import MethodSpec
+from .scenario.schema import Scenario, load_scenario
 
 __all__ = ["evaluate", "merge", "CaseSpec", "MethodSpec", "Scenario", "SegmentSpec", "load_scenario"]

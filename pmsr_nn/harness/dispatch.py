@@ -50,7 +50,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
     """Run ``scenario`` as ``shards`` jobs on ``executor`` and merge them into ``out``; returns
     results.json's content. ``partition`` and ``timeout_min`` (per shard) are SLURM's."""
     from .evaluate import RESULT_COMMANDS, load_any, merge, scenario_inputs
-    from .runner import prepare
+    from .run.runner import prepare
 
     if executor not in EXECUTORS:
         raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")

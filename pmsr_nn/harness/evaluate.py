@@ -14,26 +14,26 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..environment import environment
 from ..config import load_yaml
+from ..environment import environment
 from ..errors import ConfigError
 from ..outputs import atomic_folder, check_folder_target
-from .references import reference_table
-from .report import write_report
-from .block_bank import bank_blocks, is_bank
-from .block_sums import BlockSums, read_shard, shard_blocks, write_shard
-from .blocks import run_blocks
-from .finalise import finalise, result_kind
-from .prepared import Setup
-from .runner import prepare
-from .scenario import Scenario, scenario_from_dict
+from .report.document import write_report
+from .results.finalise import finalise, result_kind
+from .run.block_bank import bank_blocks, is_bank
+from .run.block_sums import BlockSums, read_shard, shard_blocks, write_shard
+from .run.blocks import run_blocks
+from .run.runner import prepare
+from .scenario.prepared import Setup
+from .scenario.references import reference_table
+from .scenario.schema import Scenario, scenario_from_dict
 
 
 RESULT_COMMANDS = ("evaluate", "merge")
 """Output folders an ``evaluate`` or ``merge --overwrite`` may replace."""
 
 AnyScenario = Scenario
-"""What a scenario file holds (one schema: :class:`~.scenario.Scenario`)."""
+"""What a scenario file holds (one schema: :class:`~.scenario.schema.Scenario`)."""
 
 
 def atomic_dir(out: Path, overwrite: bool, command: str = "evaluate", inputs=()):
@@ -52,7 +52,7 @@ def scenario_inputs(scenario, sc) -> list[Path]:
 
 def scenario_from_data(data, base_dir: str | Path, where: str = "scenario") -> AnyScenario:
     """A scenario from plain data (a retired ``kind`` refused in one line,
-    :data:`~.scenario.RETIRED_KINDS`)."""
+    :data:`~.scenario.schema.RETIRED_KINDS`)."""
     return scenario_from_dict(data, base_dir, where=where)
 
 
@@ -91,7 +91,7 @@ def _references(sc: AnyScenario) -> tuple[dict | None, dict | None, dict]:
 
 
 def build_results(setup: Setup, bs: BlockSums, device: str, merged: dict | None = None) -> dict:
-    """``results.json``'s content: the scenario, its result kind (:func:`~.finalise.result_kind`),
+    """``results.json``'s content: the scenario, its result kind (:func:`~.results.finalise.result_kind`),
     settings, definitions, the paper's reference and every case's figures; ``merged``: what a merge
     adds to the environment (the shards' commits, a preview's full run count)."""
     sc = setup.scenario
