@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.filters import Gaussian, ekf, si_kf, ukf  # noqa: E402
-from pmsr_nn.harness.evaluate import load_any  # noqa: E402
+from pmsr_nn.harness.scenario.loading import load_any  # noqa: E402
 from pmsr_nn.harness.run.blocks import draw_block, run_blocks  # noqa: E402
 from pmsr_nn.harness.run.runner import prepare  # noqa: E402
 from pmsr_nn.methods.msjpda import settings  # noqa: E402

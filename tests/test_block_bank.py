@@ -11,14 +11,14 @@ import pytest
 from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError, OutputError
 from pmsr_nn.harness import evaluate, merge
-from pmsr_nn.harness.run.block_bank import bank_blocks, block_folder, evaluate_per_block
-from pmsr_nn.harness.evaluate import load_any
+from pmsr_nn.harness.evaluate import execute
+from pmsr_nn.harness.run.block_bank import bank_blocks, block_folder
+from pmsr_nn.harness.run.runner import open_run
 from test_harness import ROOT, accuracy, tiny
 
 
-def bank(path, out, shard=(1, 1), **over):
-    sc = load_any(path)
-    return evaluate_per_block(sc, out, shard=shard, inputs=[path], progress=False, **over)
+def bank(path, out, shard=(1, 1)):
+    return execute(open_run(path, out, target="bank", shard=shard, progress=False))
 
 
 def snapshot(folder):

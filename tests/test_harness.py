@@ -157,6 +157,29 @@ def test_merge_refuses_incomplete_or_mixed_shards(tmp_path):
     assert not (tmp_path / "m").exists()
 
 
+
+def test_every_entry_path_hands_one_run_to_execute(tmp_path, monkeypatch):
+    """evaluate, a shard, ``--per-block`` and merge each build a Run (output checked, scenario
+    prepared) and hand it to the one function that writes; nothing is written before it."""
+    import importlib
+
+    entry = importlib.import_module("pmsr_nn.harness.evaluate")  # the module (the package's name is the function)
+    path = tiny(tmp_path, mc_runs=2, block_runs=1)
+    evaluate(path, tmp_path / "s1", shard=(1, 2), progress=False)
+    evaluate(path, tmp_path / "s2", shard=(2, 2), progress=False)
+    seen = []
+    monkeypatch.setattr(entry, "execute", lambda run: seen.append(run) or {})
+    evaluate(path, tmp_path / "whole", progress=False)
+    evaluate(path, tmp_path / "shard", shard=(2, 2), progress=False)
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 0
+    merge([tmp_path / "s2", tmp_path / "s1"], tmp_path / "merged")
+    assert [(r.target, list(r.blocks), r.out.name) for r in seen] == [
+        ("results", [0, 1], "whole"), ("shard", [1], "shard"), ("bank", [0, 1], "bank"), ("results", [], "merged")]
+    assert [r.sums is None for r in seen] == [True, True, True, False]
+    assert seen[-1].sums.blocks == [0, 1] and seen[-1].merged["shard_commits"]  # the shards' sums, in block order
+    assert all(r.setup.scenario.mc_runs == 2 for r in seen)
+    assert not any((tmp_path / name).exists() for name in ("whole", "shard", "bank", "merged"))
+
 # -- bad input: one line, exit 2, nothing written -----------------------------------------------
 
 @pytest.mark.parametrize("change, extra, message", [

@@ -332,7 +332,7 @@ cases:
 
 
 def tiny_setup(tmp_path, text: str = TINY):
-    from pmsr_nn.harness.evaluate import load_any
+    from pmsr_nn.harness.scenario.loading import load_any
     from pmsr_nn.harness.run.runner import prepare
 
     (tmp_path / "s.yaml").write_text(text)

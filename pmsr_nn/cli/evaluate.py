@@ -168,7 +168,8 @@ def cmd_evaluate(args) -> int:
                           "new --out)")
     scenario, checkpoints, runs = args.scenario, checkpoint_overrides(args.checkpoint), args.mc_runs
     if args.methods is not None:
-        from ..harness.evaluate import RESULT_COMMANDS, load_any
+        from ..harness.run.runner import RESULT_COMMANDS
+        from ..harness.scenario.loading import load_any
         from ..outputs import check_folder_target
 
         # the scenario file is an input even when evaluate() is handed the loaded scenario
@@ -176,12 +177,11 @@ def cmd_evaluate(args) -> int:
         sc = load_any(args.scenario, runs, checkpoints, args.seed)
         scenario, checkpoints, runs = keep_methods(sc, method_names(args.methods, [m.name for m in sc.methods])), None, None
     if args.per_block:
-        from ..harness.run.block_bank import evaluate_per_block
-        from ..harness.evaluate import load_any, scenario_inputs
+        from ..harness.evaluate import execute
+        from ..harness.run.runner import open_run
 
-        sc = load_any(scenario, runs, checkpoints, args.seed)
-        evaluate_per_block(sc, args.out, shard=shard, inputs=scenario_inputs(args.scenario, sc), device=args.device,
-                           progress=not args.quiet)
+        execute(open_run(scenario, args.out, target="bank", shard=shard, mc_runs=runs, checkpoints=checkpoints,
+                         seed=args.seed, device=args.device, progress=not args.quiet, source=args.scenario))
         return 0
     res = evaluate(scenario, args.out, mc_runs=runs, checkpoints=checkpoints, shard=shard, device=args.device,
                    progress=not args.quiet, overwrite=args.overwrite, seed=args.seed)

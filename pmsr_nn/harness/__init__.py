@@ -1,5 +1,11 @@
 """The evaluation harness: scenario -> every method on the same Monte Carlo draws -> results.json,
-report.md and figures (:func:`evaluate`, :func:`merge`)."""
+report.md and figures (:func:`evaluate`, :func:`merge`).
+
+Four stages, each importing only the ones before it: :mod:`.scenario` (schema, preparation),
+:mod:`.run` (blocks of runs, per-block sums, shards, banks, the runner's :class:`~.run.runner.Run`),
+:mod:`.results` (``results.json``'s figures) and :mod:`.report` (``report.md`` and figures). The
+entry paths above them (:mod:`.evaluate`, :mod:`.dispatch`, :mod:`.demo`, :mod:`.ablation`)
+compose the stages."""
 
 from .evaluate import evaluate, merge
 from .scenario.case_spec import CaseSpec, SegmentSpec

@@ -26,9 +26,9 @@ from pathlib import Path
 from ...environment import environment
 from ...errors import ConfigError, OutputError
 from ...outputs import MARKER, atomic_folder, check_target, make_parents, output_kind, process_alive, write_marker
-from .block_sums import portable_base, read_shard, resolved_base, shard_blocks, write_shard
+from .block_sums import portable_base, read_shard, resolved_base, write_shard
 from .blocks import run_blocks
-from .runner import prepare
+from .runner import Run
 
 BANK_FORMAT = "pmsr_nn.block_bank/1"
 BANK_FILE = "bank.json"
@@ -142,18 +142,15 @@ def _complete(folder: Path, identity: dict) -> bool:
     return True
 
 
-def evaluate_per_block(sc, out: Path, *, shard: tuple[int, int], inputs: list[Path], device: str = "cpu",
-                       progress: bool = True, log=print) -> dict:
-    """Run the blocks of ``shard`` of scenario ``sc`` (loaded) that bank ``out`` lacks and no live
-    process holds, each written when done; returns the blocks it ran (``blocks``), found done
-    (``skipped``) and left to other processes (``others``), the bank's path and how many blocks of
-    ``n_blocks`` it holds now (``banked``)."""
-    out = Path(out)
-    check_target(out, inputs=inputs)
-    blocks = shard_blocks(sc.n_blocks, shard)
+def run_bank(run: Run, log=print) -> dict:
+    """Run the blocks of ``run`` (a :class:`~.runner.Run` with target ``bank``: its shard's blocks)
+    that its bank lacks and no live process holds, each written when done; returns the blocks it
+    ran (``blocks``), found done (``skipped``) and left to other processes (``others``), the bank's
+    path and how many blocks of ``n_blocks`` it holds now (``banked``)."""
+    sc, out, shard, inputs, progress = run.scenario, run.out, run.shard, list(run.inputs), run.progress
+    blocks, setup = run.blocks, run.setup
     identity = {"scenario": sc.to_dict(), "base_dir": sc.base_dir}
-    setup = prepare(sc, device)  # a method that cannot run is refused before the bank is touched
-    env = environment(device)  # the code this process runs: commits made while it works do not change it
+    env = environment(run.device)  # the code this process runs: commits made while it works do not change it
     _open_bank(out, identity)
     skipped = [b for b in blocks if _complete(block_folder(out, b), identity)]
     if progress and skipped:

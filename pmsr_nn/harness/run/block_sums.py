@@ -2,9 +2,10 @@
 
 Takes what :func:`~.blocks.run_blocks` adds per case, method and block (the sums of
 :mod:`.scoring`, seconds, run 0's estimates); gives them stacked over the blocks, written to and
-read from a shard's ``blocks.npz`` arrays (:func:`write_shard` and :func:`read_shard`: a shard folder), and shards' sums concatenated in block order (what
-:func:`~pmsr_nn.harness.results.finalise.finalise` reduces). A shard ``I/N`` runs a contiguous slice of the blocks
-(:func:`shard_blocks`).
+read from a shard's ``blocks.npz`` arrays (:func:`write_shard` and :func:`read_shard`: a shard
+folder), and shards' sums concatenated in block order (what
+:func:`~pmsr_nn.harness.results.finalise.finalise` reduces). A shard ``I/N`` runs a contiguous
+slice of the blocks (:func:`shard_blocks`).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""A paper's numbers from a scenario's JSON reference file, for the columns labelled as the paper's."""
+"""A paper's numbers from a scenario's JSON reference file, for the columns labelled as the paper's:
+one entry (:func:`reference_table`) and all a scenario names (:func:`scenario_references`)."""
 
 from __future__ import annotations
 
@@ -43,3 +44,26 @@ def paper_seconds(timing: dict | None, method: str, key: str | None):
     v = timing.get(method, {})
     v = v.get(key) if isinstance(v, dict) else None
     return v if isinstance(v, (int, float)) else None
+
+
+def scenario_references(sc) -> tuple[dict | None, dict | None, dict]:
+    """The paper's accuracy table and run-time table a scenario ``sc`` names (each may be None),
+    and what ``results.json`` records of its reference (``{}`` without one)."""
+    ref = sc.reference
+    if ref is None:
+        return None, None, {}
+    path = sc.path(ref.file)
+    name = getattr(ref, "table", None)
+    table = reference_table(path, name) if name else None
+    timing = reference_table(path, ref.timing) if ref.timing else None
+    info = {"file": str(path), "table": name, "timing": ref.timing, "label": ref.label}
+    per_target = {key: reference_table(path, getattr(ref, key)) for key in ("velocity_rmse", "anees")
+                  if getattr(ref, key, None)}
+    if per_target:  # the paper's per-target tables, shown beside ours
+        info["per_target"] = {**per_target, "methods": dict(ref.methods),
+                              **{f"{k}_key": getattr(ref, k) for k in per_target}}
+    if getattr(ref, "setup", None):  # the paper's stated set-up, shown beside the scenario's
+        info["setup"] = {"key": ref.setup, "table": reference_table(path, ref.setup)}
+    if getattr(ref, "subarea_table", None):  # a track-before-detect sub-area study's (the Remote Sensing seed's Table 2)
+        info["subarea"] = {"key": ref.subarea_table, "table": reference_table(path, ref.subarea_table)}
+    return table, timing, info
