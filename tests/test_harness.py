@@ -205,6 +205,17 @@ def test_bad_scenarios_get_one_line_errors_and_leave_nothing(tmp_path, capsys, c
     assert not list(tmp_path.glob("out.partial-*"))
 
 
+
+@pytest.mark.parametrize("extra", [[], ["--shard", "1/2"], ["--per-block"]])
+def test_a_bad_reference_entry_is_refused_before_any_run_by_every_entry_path(tmp_path, capsys, extra):
+    path = tiny(tmp_path, methods=[{"name": "EKF", "kind": "ekf"}], mc_runs=2, block_runs=1,
+                reference={"file": str(ROOT / "evaluate/reference/paper_tables.json"), "table": "no.such.table"})
+    out = tmp_path / "out"
+    assert main(["evaluate", str(path), "--out", str(out), "--quiet", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pmsr: error:") and "has no entry 'no.such.table'" in err and "\n" not in err
+    assert not out.exists()
+
 def test_a_checkpoint_for_another_geometry_is_refused(tmp_path):
     recipe = yaml.safe_load((ROOT / "datasets/fitee2023_ca.yaml").read_text())
     recipe["geometry"]["receivers"][0]["bearing_deg"] = 200.0
