@@ -2,7 +2,7 @@
 
 For each scenario the same blocks run two ways, alternately, ``--repeats`` times:
 
-* ``harness``: :func:`pmsr_nn.harness.blocks.run_blocks` (draw truth and products, call every
+* ``harness``: :func:`pmsr_nn.harness.run.blocks.run_blocks` (draw truth and products, call every
   method through its registered kind, score: point sums, set metrics, loss rule);
 * ``direct``: the products drawn beforehand (not timed), then the tracker functions called as a
   user would (``ekf`` / ``ukf`` on the target streams, those living equally long stacked as runs,
@@ -29,9 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.filters import Gaussian, ekf, si_kf, ukf  # noqa: E402
-from pmsr_nn.harness.evaluate import load_any  # noqa: E402
-from pmsr_nn.harness.blocks import draw_block, run_blocks  # noqa: E402
-from pmsr_nn.harness.runner import prepare  # noqa: E402
+from pmsr_nn.harness.scenario.loading import load_any  # noqa: E402
+from pmsr_nn.harness.run.blocks import draw_block, run_blocks  # noqa: E402
+from pmsr_nn.harness.run.runner import prepare  # noqa: E402
 from pmsr_nn.methods.msjpda import settings  # noqa: E402
 from pmsr_nn.methods import MethodCall  # noqa: E402
 from pmsr_nn.trackers.msjpda import msjpda  # noqa: E402

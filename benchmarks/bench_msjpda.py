@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
 
 from pmsr_nn.config import load_yaml  # noqa: E402
-from pmsr_nn.harness.scenario import scenario_from_dict  # noqa: E402
-from pmsr_nn.harness.blocks import call_method, draw_block  # noqa: E402
-from pmsr_nn.harness.runner import prepare  # noqa: E402
+from pmsr_nn.harness.scenario.schema import scenario_from_dict  # noqa: E402
+from pmsr_nn.harness.run.blocks import call_method, draw_block  # noqa: E402
+from pmsr_nn.harness.run.runner import prepare  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "evaluate" / "access2019_msjpda.yaml"
 PAPER_S = {"S-MSJPDA": 2.45, "P-MSJPDA": 30.12}  # Table 1 of the paper at Pd 0.8, MATLAB, s per run

@@ -48,9 +48,9 @@ from run_info import write_figures  # noqa: E402
 from pmsr_nn.config import load_yaml  # noqa: E402
 from pmsr_nn.errors import ConfigError  # noqa: E402
 from pmsr_nn.filters import Gaussian  # noqa: E402
-from pmsr_nn.harness.scenario import scenario_from_dict  # noqa: E402
-from pmsr_nn.harness.blocks import draw_block  # noqa: E402
-from pmsr_nn.harness.runner import prepare  # noqa: E402
+from pmsr_nn.harness.scenario.schema import scenario_from_dict  # noqa: E402
+from pmsr_nn.harness.run.blocks import draw_block  # noqa: E402
+from pmsr_nn.harness.run.runner import prepare  # noqa: E402
 from pmsr_nn.methods.pmht import settings as method_settings  # noqa: E402
 from pmsr_nn.methods import MethodCall  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402

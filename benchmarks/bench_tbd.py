@@ -3,7 +3,7 @@
 The set-up is evaluate/remotesensing2020_icmb.yaml's case ``mixed`` and its ``modified ICMB``
 method (three satellites, 20 frames of 2 s, map SNRs 8, 9, 10 dB, 10 Hz x 60 m cells, 2,000-10,000
 particles per component, 10,000 birth particles per frame), through the runner's own calls
-(:func:`~pmsr_nn.harness.blocks.draw_block`, :func:`~pmsr_nn.harness.blocks.call_method`). Timed,
+(:func:`~pmsr_nn.harness.run.blocks.draw_block`, :func:`~pmsr_nn.harness.run.blocks.call_method`). Timed,
 in this process, the median of ``--repeats`` calls after one warm-up:
 
 * the modified ICMB (online SNR, ascending order) on one run, for every sub-area of Table 2
@@ -35,9 +35,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import median_seconds, write_figures  # noqa: E402
 
-from pmsr_nn.harness.blocks import call_method, draw_block  # noqa: E402
-from pmsr_nn.harness.runner import prepare  # noqa: E402
-from pmsr_nn.harness.scenario import load_scenario  # noqa: E402
+from pmsr_nn.harness.run.blocks import call_method, draw_block  # noqa: E402
+from pmsr_nn.harness.run.runner import prepare  # noqa: E402
+from pmsr_nn.harness.scenario.schema import load_scenario  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -82,8 +82,8 @@ def measure(spec: FrontEndSpec, snr_db: float, lo: float, hi: float, cpis: int, 
 def study(scenario: Path, runs: int, seed: int) -> dict:
     """Range errors by kind of detection of the scenario's own front end, lobe fit and centroid."""
     from pmsr_nn.frontend import chain
-    from pmsr_nn.harness.runner import prepare
-    from pmsr_nn.harness.scenario import load_scenario
+    from pmsr_nn.harness.run.runner import prepare
+    from pmsr_nn.harness.scenario.schema import load_scenario
 
     case = next(c for c in prepare(load_scenario(scenario)).cases if c.sensing.front_end is not None)
     truth = case.truth.draw(runs, torch.Generator().manual_seed(seed))

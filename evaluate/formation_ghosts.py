@@ -30,9 +30,9 @@ import torch
 
 from pmsr_nn.cli.evaluate import keep_methods, method_names
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.blocks import call_method, draw_block
-from pmsr_nn.harness.evaluate import load_any
-from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.run.blocks import call_method, draw_block
+from pmsr_nn.harness.scenario.loading import load_any
+from pmsr_nn.harness.run.runner import prepare
 from pmsr_nn.metrics.sets import gospa, set_scores
 
 FALSE_KINDS = ("outlived", "beside", "far")

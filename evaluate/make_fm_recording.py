@@ -23,8 +23,8 @@ import torch
 from pmsr_nn import SPEED_OF_LIGHT
 from pmsr_nn.frontend.chain import true_cells
 from pmsr_nn.frontend.fm_signals import echo_snr_db, simulate_cpi
-from pmsr_nn.harness.scenario import load_scenario
-from pmsr_nn.harness.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario
+from pmsr_nn.harness.run.runner import prepare
 from pmsr_nn.rng import seeded_generator
 
 HERE = Path(__file__).resolve().parent

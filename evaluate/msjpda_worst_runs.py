@@ -21,9 +21,9 @@ import numpy as np
 import torch
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.blocks import call_method, draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.harness.run.blocks import call_method, draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario
 from pmsr_nn.methods import method_kind
 from pmsr_nn.metrics import squared_error
 

@@ -58,8 +58,8 @@ def perturbed_prior(states0: torch.Tensor, seed: int = 0):
 @pytest.fixture
 def captured(monkeypatch):
     """The figures the report functions make, laid out as they would be written and kept open
-    (``save_figure`` of :mod:`pmsr_nn.harness.figures` and of the modules that import it)."""
-    from pmsr_nn.harness import figures, track_figure, trajectory_figure
+    (``save_figure`` of :mod:`pmsr_nn.harness.report.figures` and of the modules that import it)."""
+    from pmsr_nn.harness.report import figures, track_figure, trajectory_figure
 
     figs = []
 

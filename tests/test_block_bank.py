@@ -11,14 +11,14 @@ import pytest
 from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError, OutputError
 from pmsr_nn.harness import evaluate, merge
-from pmsr_nn.harness.block_bank import bank_blocks, block_folder, evaluate_per_block
-from pmsr_nn.harness.evaluate import load_any
+from pmsr_nn.harness.evaluate import execute
+from pmsr_nn.harness.run.block_bank import bank_blocks, block_folder
+from pmsr_nn.harness.run.runner import open_run
 from test_harness import ROOT, accuracy, tiny
 
 
-def bank(path, out, shard=(1, 1), **over):
-    sc = load_any(path)
-    return evaluate_per_block(sc, out, shard=shard, inputs=[path], progress=False, **over)
+def bank(path, out, shard=(1, 1)):
+    return execute(open_run(path, out, target="bank", shard=shard, progress=False))
 
 
 def snapshot(folder):
@@ -124,7 +124,7 @@ def test_the_command_line_reports_each_block_and_merges_the_bank(tmp_path, capsy
 def test_every_block_records_the_environment_the_process_started_with(tmp_path, monkeypatch):
     """Commits made while a long bank runs do not change the code it runs: each block names the
     commit the process started at."""
-    import pmsr_nn.harness.block_bank as block_bank
+    import pmsr_nn.harness.run.block_bank as block_bank
 
     calls = []
     monkeypatch.setattr(block_bank, "environment", lambda device: calls.append(device) or {"commit": f"c{len(calls)}"})
@@ -194,8 +194,8 @@ def test_two_processes_fill_one_bank_and_run_every_block_once(tmp_path):
 def test_a_shards_blocks_filed_into_a_bank_merge_as_if_the_bank_had_run_them(tmp_path):
     """Blocks of 2, 2 and 1 runs: shard 2/2 holds the last two; filed into a bank (split per block)
     beside block 0 run by the bank, they merge to the unsharded figures bit for bit."""
-    from pmsr_nn.harness.block_bank import file_shard
-    from pmsr_nn.harness.block_sums import BlockSums, read_shard
+    from pmsr_nn.harness.run.block_bank import file_shard
+    from pmsr_nn.harness.run.block_sums import BlockSums, read_shard
 
     path = tiny(tmp_path, block_runs=2, mc_runs=5)
     evaluate(path, tmp_path / "s2", shard=(2, 2), progress=False)

@@ -56,7 +56,7 @@ def test_the_bound_rows_are_the_cases_bounds_and_order_as_the_maths_says(tmp_pat
 
 
 def test_a_bound_row_is_never_the_classical_reference_of_a_learned_tracker():
-    from pmsr_nn.harness.seeds import comparisons
+    from pmsr_nn.harness.results.seeds import comparisons
 
     methods = {"PCRB": {"kind": "pcrb", "rmse_pos_m": 1.0}, "EKF": {"kind": "ekf", "rmse_pos_m": 5.0},
                "net": {"kind": "learned", "rmse_pos_m": 4.0}}

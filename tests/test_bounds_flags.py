@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pmsr_nn.harness.flags import flag_paragraphs as _flags
-from pmsr_nn.harness.finalise import _under
+from pmsr_nn.harness.report.flags import flag_paragraphs as _flags
+from pmsr_nn.harness.results.finalise import _under
 
 
 def _case(per_run_mse: list[float], bound_m: float = 10.0, K: int = 4):

@@ -259,7 +259,7 @@ def test_evaluate_methods_runs_only_the_named_rows_on_the_same_draws(tmp_path, c
 
 def test_methods_filter_keeps_the_cases_that_run_a_named_row(tmp_path):
     from pmsr_nn.cli.evaluate import keep_methods
-    from pmsr_nn.harness.evaluate import load_any
+    from pmsr_nn.harness.scenario.loading import load_any
 
     (tmp_path / "tiny.yaml").write_text(TINY_SCENARIO)
     sc = load_any(tmp_path / "tiny.yaml")

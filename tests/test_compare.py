@@ -11,7 +11,7 @@ import pytest
 from test_results import designed, sampled
 
 from pmsr_nn.cli import main
-from pmsr_nn.harness.compare import comparison_lines, headline, other_numbers
+from pmsr_nn.harness.results.compare import comparison_lines, headline, other_numbers
 
 
 def test_verdicts_follow_the_difference_in_standard_errors():

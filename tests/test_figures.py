@@ -4,8 +4,8 @@ data, units on every axis, a zoomed inset where estimates lie metres off the tru
 import numpy as np
 import pytest
 
-from pmsr_nn.harness import figures, trajectory_figure
-from pmsr_nn.harness.trajectory_figure import INSET_BELOW, INSET_SIZE, INSET_WINDOW, estimate_distance
+from pmsr_nn.harness.report import figures, trajectory_figure
+from pmsr_nn.harness.report.trajectory_figure import INSET_BELOW, INSET_SIZE, INSET_WINDOW, estimate_distance
 from pmsr_nn.simulation.recipe import TrackRecipe
 from pmsr_nn.simulation.tracks import build_models
 

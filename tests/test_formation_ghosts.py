@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pmsr_nn.harness import evaluate
-from pmsr_nn.harness.result_rows import RUN_QUANTILES
+from pmsr_nn.harness.results.result_rows import RUN_QUANTILES
 from script_loader import load_script
 from test_one_scenario import two_drones
 

@@ -13,11 +13,11 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import CheckpointError, ConfigError, OutputError
 from pmsr_nn.filters import ekf
 from pmsr_nn.harness import evaluate, load_scenario, merge
-from pmsr_nn.harness.blocks import stream_block as draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.case_spec import FITEE2023_TRAJECTORIES, CaseSpec, SegmentSpec
-from pmsr_nn.harness.scenario import scenario_from_dict
-from pmsr_nn.harness.trajectories import design_trajectory
+from pmsr_nn.harness.run.blocks import stream_block as draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.case_spec import FITEE2023_TRAJECTORIES, CaseSpec, SegmentSpec
+from pmsr_nn.harness.scenario.schema import scenario_from_dict
+from pmsr_nn.harness.scenario.trajectories import design_trajectory
 from pmsr_nn.simulation.recipe import TrackRecipe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -157,6 +157,29 @@ def test_merge_refuses_incomplete_or_mixed_shards(tmp_path):
     assert not (tmp_path / "m").exists()
 
 
+
+def test_every_entry_path_hands_one_run_to_execute(tmp_path, monkeypatch):
+    """evaluate, a shard, ``--per-block`` and merge each build a Run (output checked, scenario
+    prepared) and hand it to the one function that writes; nothing is written before it."""
+    import importlib
+
+    entry = importlib.import_module("pmsr_nn.harness.evaluate")  # the module (the package's name is the function)
+    path = tiny(tmp_path, mc_runs=2, block_runs=1)
+    evaluate(path, tmp_path / "s1", shard=(1, 2), progress=False)
+    evaluate(path, tmp_path / "s2", shard=(2, 2), progress=False)
+    seen = []
+    monkeypatch.setattr(entry, "execute", lambda run: seen.append(run) or {})
+    evaluate(path, tmp_path / "whole", progress=False)
+    evaluate(path, tmp_path / "shard", shard=(2, 2), progress=False)
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 0
+    merge([tmp_path / "s2", tmp_path / "s1"], tmp_path / "merged")
+    assert [(r.target, list(r.blocks), r.out.name) for r in seen] == [
+        ("results", [0, 1], "whole"), ("shard", [1], "shard"), ("bank", [0, 1], "bank"), ("results", [], "merged")]
+    assert [r.sums is None for r in seen] == [True, True, True, False]
+    assert seen[-1].sums.blocks == [0, 1] and seen[-1].merged["shard_commits"]  # the shards' sums, in block order
+    assert all(r.setup.scenario.mc_runs == 2 for r in seen)
+    assert not any((tmp_path / name).exists() for name in ("whole", "shard", "bank", "merged"))
+
 # -- bad input: one line, exit 2, nothing written -----------------------------------------------
 
 @pytest.mark.parametrize("change, extra, message", [
@@ -181,6 +204,17 @@ def test_bad_scenarios_get_one_line_errors_and_leave_nothing(tmp_path, capsys, c
     assert not out.exists()
     assert not list(tmp_path.glob("out.partial-*"))
 
+
+
+@pytest.mark.parametrize("extra", [[], ["--shard", "1/2"], ["--per-block"]])
+def test_a_bad_reference_entry_is_refused_before_any_run_by_every_entry_path(tmp_path, capsys, extra):
+    path = tiny(tmp_path, methods=[{"name": "EKF", "kind": "ekf"}], mc_runs=2, block_runs=1,
+                reference={"file": str(ROOT / "evaluate/reference/paper_tables.json"), "table": "no.such.table"})
+    out = tmp_path / "out"
+    assert main(["evaluate", str(path), "--out", str(out), "--quiet", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pmsr: error:") and "has no entry 'no.such.table'" in err and "\n" not in err
+    assert not out.exists()
 
 def test_a_checkpoint_for_another_geometry_is_refused(tmp_path):
     recipe = yaml.safe_load((ROOT / "datasets/fitee2023_ca.yaml").read_text())
@@ -244,8 +278,8 @@ def test_scenario_errors_name_the_key():
         scenario_from_dict({"name": "x", "mc_run": 3, "cases": [], "methods": []})
     with pytest.raises(ConfigError, match="duplicate case"):
         c = CaseSpec("a", 5000.0, 90.0, 1.0, 0.0, (SegmentSpec(200.0),))
-        from pmsr_nn.harness.method_spec import MethodSpec
-        from pmsr_nn.harness.scenario import Scenario
+        from pmsr_nn.harness.scenario.method_spec import MethodSpec
+        from pmsr_nn.harness.scenario.schema import Scenario
 
         Scenario(name="x", cases=(c, c), methods=(MethodSpec("EKF", "ekf"),))
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from pmsr_nn.harness.blocks import call_method, draw_block, run_blocks
-from pmsr_nn.harness.finalise import finalise
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import scenario_from_dict
+from pmsr_nn.harness.run.blocks import call_method, draw_block, run_blocks
+from pmsr_nn.harness.results.finalise import finalise
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import scenario_from_dict
 from pmsr_nn.metrics import identity_switches, label_switches, optimal_assignment, persistent_assignment
 
 from test_track_mapping import _crossing
@@ -135,7 +135,7 @@ def test_the_report_shows_identity_switches_and_old_records_their_label_switches
     import copy
     import json
 
-    from pmsr_nn.harness.multitarget_tables import multi_target_tables
+    from pmsr_nn.harness.report.multitarget_tables import multi_target_tables
 
     old = json.loads((ROOT / "evaluate" / "results" / "dense_crossing" / "results.json").read_text())
     text = "\n".join(multi_target_tables(old, None, "paper"))

@@ -340,8 +340,8 @@ def _scenario_and_checkpoint(tmp_path, **noise):
     checkpoint (zero correction) for the scenario's own sensors."""
     import yaml
 
-    from pmsr_nn.harness.runner import prepare
-    from pmsr_nn.harness.scenario import load_scenario
+    from pmsr_nn.harness.run.runner import prepare
+    from pmsr_nn.harness.scenario.schema import load_scenario
 
     flight = lambda r, b, h: {"start_range_m": r, "start_bearing_deg": b, "speed_mps": 10.0, "heading_deg": h,
                               "segments": [{"duration_s": 40.0}]}

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.case_spec import CaseSpec, SegmentSpec
-from pmsr_nn.harness.trajectories import design_trajectory
+from pmsr_nn.harness.scenario.case_spec import CaseSpec, SegmentSpec
+from pmsr_nn.harness.scenario.trajectories import design_trajectory
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.flight import Schedule, integrate_manoeuvres
 from pmsr_nn.simulation.recipe import (EnvelopeSpec, EnvelopeVariantSpec, ManoeuvreSpec, TrackRecipe, load_recipe,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pmsr_nn.harness.finalise import _median_root, _rmse_se, _se
+from pmsr_nn.harness.results.finalise import _median_root, _rmse_se, _se
 
 
 def test_the_rmse_standard_error_is_the_spread_of_repeated_experiments():

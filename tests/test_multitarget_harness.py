@@ -1,4 +1,4 @@
-"""Multi-target scenarios (a scenario with a world section, pmsr_nn.harness.world) through `pmsr evaluate`."""
+"""Multi-target scenarios (a scenario with a world section, pmsr_nn.harness.scenario.world) through `pmsr evaluate`."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import yaml
 from pmsr_nn.config import load_yaml
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness import evaluate
-from pmsr_nn.harness.references import reference_table
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.harness.scenario.references import reference_table
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ["access2019_msjpda.yaml", "access2019_msjpda_pd.yaml", "access2019_msjpda_clutter.yaml",
@@ -149,7 +149,7 @@ def test_bad_multitarget_inputs_are_clear(tmp_path):
 
 def test_a_recipe_scenario_refuses_the_targets_of_a_world(tmp_path):
     """A formation (or a case's detections override) belongs to a world section: without one, one line."""
-    from pmsr_nn.harness.scenario import scenario_from_dict
+    from pmsr_nn.harness.scenario.schema import scenario_from_dict
 
     data = load_yaml(ROOT / "evaluate" / "fitee2023_three_trajectories.yaml")
     data["cases"][0] = {**data["cases"][0], "detections": {"pd": 0.5}}

@@ -15,9 +15,9 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ekf
 from pmsr_nn.harness import evaluate, merge
-from pmsr_nn.harness.blocks import call_method, draw_block, stream_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import load_scenario, scenario_from_dict
+from pmsr_nn.harness.run.blocks import call_method, draw_block, stream_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario, scenario_from_dict
 from pmsr_nn.methods import REGISTRY, MethodKind, register
 from pmsr_nn.trackers.base import Estimates
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pmsr_nn.harness.blocks import draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.harness.run.blocks import draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario
 from pmsr_nn.simulation.detections import CLUTTER
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,7 +76,7 @@ def test_every_family_is_a_row(setup):
     assert {"ekf", "ukf", "imm", "learned", "pcrb", "s_msjpda", "p_msjpda", "pmht", "pmht_3d", "smc_phd",
             "stonesoup", "bp"} <= kinds
     detection_rows = [m for m in setup.methods if setup.kinds[m.name].reads == "detections"]
-    from pmsr_nn.harness.finalise import initiation
+    from pmsr_nn.harness.results.finalise import initiation
 
     starts = {m.name: initiation(setup, m) for m in detection_rows}
     assert [n for n, s in starts.items() if s == "oracle"] == ["S-MSJPDA (oracle births)"]

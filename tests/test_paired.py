@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pmsr_nn.harness.paired import BEYOND, comparison_lines, paired_difference, set_comparisons, verdict
+from pmsr_nn.harness.results.paired import BEYOND, comparison_lines, paired_difference, set_comparisons, verdict
 
 
 def test_linear_difference_is_the_mean_difference_with_the_paired_error():

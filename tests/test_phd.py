@@ -156,7 +156,7 @@ def test_births_only_where_no_target_explains_a_detection_and_their_particles_fo
 
 
 def test_the_birth_options_of_the_kind_reach_the_filter_and_bad_ones_are_refused():
-    from pmsr_nn.harness.method_spec import MethodSpec
+    from pmsr_nn.harness.scenario.method_spec import MethodSpec
     from pmsr_nn.methods.phd_pair import phd_settings
 
     spec = phd_settings(MethodSpec("p", "smc_phd_pair"))
@@ -332,8 +332,8 @@ cases:
 
 
 def tiny_setup(tmp_path, text: str = TINY):
-    from pmsr_nn.harness.evaluate import load_any
-    from pmsr_nn.harness.runner import prepare
+    from pmsr_nn.harness.scenario.loading import load_any
+    from pmsr_nn.harness.run.runner import prepare
 
     (tmp_path / "s.yaml").write_text(text)
     return prepare(load_any(tmp_path / "s.yaml"))
@@ -383,8 +383,8 @@ def test_the_kinds_run_through_the_runner_and_the_report_has_the_studys_figures(
 
 
 def test_the_truth_in_the_bistatic_plane_is_the_measurement_models_h_and_the_bistatic_geometry(tmp_path):
-    from pmsr_nn.harness.blocks import draw_block, truth_in
-    from pmsr_nn.harness.prepared import method_space
+    from pmsr_nn.harness.run.blocks import draw_block, truth_in
+    from pmsr_nn.harness.scenario.prepared import method_space
 
     setup = tiny_setup(tmp_path)
     case = setup.cases[0]
@@ -414,8 +414,8 @@ def test_an_estimate_offset_by_d_in_range_scores_d_below_the_cut_off_and_c_above
     Below c/2 a shift keeps every estimate its own target's (in one dimension the order-preserving
     matching is optimal for |x|^p, and no pair reaches the cut-off); 100 km is beyond every range
     difference of the scene, so no estimate is within c of any target."""
-    from pmsr_nn.harness.blocks import draw_block, score, truth_in
-    from pmsr_nn.harness.prepared import method_space
+    from pmsr_nn.harness.run.blocks import draw_block, score, truth_in
+    from pmsr_nn.harness.scenario.prepared import method_space
     from pmsr_nn.trackers.base import Estimates
 
     setup = tiny_setup(tmp_path)
@@ -468,7 +468,7 @@ def test_shards_of_a_phd_scenario_merge_to_the_unsharded_results(tmp_path):
 
 
 def test_the_phd_runs_once_per_block_and_the_cache_changes_no_number(tmp_path):
-    from pmsr_nn.harness.blocks import call_method, draw_block
+    from pmsr_nn.harness.run.blocks import call_method, draw_block
     from pmsr_nn.methods import phd_pair
 
     setup = tiny_setup(tmp_path)

@@ -33,9 +33,9 @@ from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ukf
 from pmsr_nn.filters.smoothing import rts_from_predictions, unscented_rts_smoother
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
-from pmsr_nn.harness.blocks import call_method, draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.harness.run.blocks import call_method, draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario
 from pmsr_nn.measurements import LinearMeasurementModel, MeasurementModel
 from pmsr_nn.metrics import set_scores, track_scores
 from pmsr_nn.motion import ConstantVelocity, ContinuousConstantVelocity

@@ -1,4 +1,4 @@
-"""Typed results (:mod:`pmsr_nn.harness.results`): the kind read or inferred in one place, typed rows,
+"""Typed results (:mod:`pmsr_nn.harness.results.typed`): the kind read or inferred in one place, typed rows,
 one-line refusals; the report's flags and cells with their Monte Carlo error."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.flags import flag_paragraphs, warning_lines
-from pmsr_nn.harness.method_tables import summary_table
-from pmsr_nn.harness.multitarget_tables import multi_target_tables
-from pmsr_nn.harness.results import Results
+from pmsr_nn.harness.report.flags import flag_paragraphs, warning_lines
+from pmsr_nn.harness.report.method_tables import summary_table
+from pmsr_nn.harness.report.multitarget_tables import multi_target_tables
+from pmsr_nn.harness.results.typed import Results
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -82,7 +82,7 @@ def test_a_results_file_of_the_retired_multitarget_schema_still_renders(tmp_path
     import numpy as np
     from types import SimpleNamespace
 
-    from pmsr_nn.harness.report import write_report
+    from pmsr_nn.harness.report.document import write_report
 
     res = json.loads((ROOT / "evaluate" / "results" / "access2019_msjpda" / "results.json").read_text())
     assert "tracker" in res["settings"] and "components" not in res["settings"]  # the retired schema's settings
@@ -150,7 +150,7 @@ def test_the_floor_flag_and_a_flag_without_its_error():
 
 
 def _case_lines(res):
-    from pmsr_nn.harness.bound_tables import case_table
+    from pmsr_nn.harness.report.bound_tables import case_table
 
     r = Results.from_dict(res)
     return case_table("c", r.cases["c"], None, "paper", False)
@@ -180,7 +180,7 @@ def test_write_report_renders_the_same_from_the_dict_and_from_the_typed_results(
     import numpy as np
     from types import SimpleNamespace
 
-    from pmsr_nn.harness.report import write_report
+    from pmsr_nn.harness.report.document import write_report
 
     res = designed()
     res["settings"].update({"recipe": "datasets/r.yaml", "variant": "envelope", "q_psd": 0.1,

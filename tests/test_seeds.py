@@ -1,9 +1,9 @@
-"""Seed groups and paired margins of learned trackers (pmsr_nn.harness.seeds)."""
+"""Seed groups and paired margins of learned trackers (pmsr_nn.harness.results.seeds)."""
 
 import numpy as np
 import pytest
 
-from pmsr_nn.harness.seeds import comparisons, learned_units, paired_margin, seed_groups, summarise_seeds
+from pmsr_nn.harness.results.seeds import comparisons, learned_units, paired_margin, seed_groups, summarise_seeds
 
 
 def test_seed_groups_collect_only_names_of_the_seed_form():

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from pmsr_nn.harness.blocks import run_blocks
-from pmsr_nn.harness.finalise import finalise
-from pmsr_nn.harness.prepared import set_scans_after
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import scenario_from_dict
+from pmsr_nn.harness.run.blocks import run_blocks
+from pmsr_nn.harness.results.finalise import finalise
+from pmsr_nn.harness.scenario.prepared import set_scans_after
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import scenario_from_dict
 
 from test_tbd_kinds import tiny
 

@@ -30,9 +30,9 @@ from scipy.stats import chi2 as chi2_dist
 from pmsr_nn import SPEED_OF_LIGHT
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
-from pmsr_nn.harness.blocks import call_method, draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.evaluate import load_any
+from pmsr_nn.harness.run.blocks import call_method, draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.loading import load_any
 from pmsr_nn.measurements import MeasurementModel
 from pmsr_nn.metrics import set_scores, track_scores
 from pmsr_nn.trackers.gating import gate_threshold

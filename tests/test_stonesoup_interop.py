@@ -24,9 +24,9 @@ import yaml
 from pmsr_nn.config import load_yaml
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness import evaluate
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import load_scenario
-from pmsr_nn.harness.method_spec import MethodSpec
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario
+from pmsr_nn.harness.scenario.method_spec import MethodSpec
 from pmsr_nn.methods import method_kind
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -456,9 +456,9 @@ def test_without_clutter_the_trackers_are_a_sequential_ekf_over_each_life(tmp_pa
     against pmsr_nn.filters.sequential_update with our own predict, to 1e-8 deviations."""
     pytest.importorskip("stonesoup")
     from pmsr_nn.filters import Gaussian, linearised_moments, predict, sequential_update
-    from pmsr_nn.harness.blocks import call_method, draw_block
-    from pmsr_nn.harness.runner import prepare
-    from pmsr_nn.harness.scenario import load_scenario
+    from pmsr_nn.harness.run.blocks import call_method, draw_block
+    from pmsr_nn.harness.run.runner import prepare
+    from pmsr_nn.harness.scenario.schema import load_scenario
 
     setup = prepare(load_scenario(_two_targets(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {
         "tracker": tracker, "gate_probability": 1.0 - 1e-12}}])))
@@ -495,9 +495,9 @@ def test_initiation_from_detections_starts_one_track_per_target(tmp_path, tracke
     confirm_points scans of its birth, following it, deleted within delete_after_misses + 1 scans
     of its death, and no other track; unpaired estimates without loss-rule extras."""
     pytest.importorskip("stonesoup")
-    from pmsr_nn.harness.blocks import call_method, draw_block
-    from pmsr_nn.harness.runner import prepare
-    from pmsr_nn.harness.scenario import load_scenario
+    from pmsr_nn.harness.run.blocks import call_method, draw_block
+    from pmsr_nn.harness.run.runner import prepare
+    from pmsr_nn.harness.scenario.schema import load_scenario
 
     confirm, misses = 4, 3
     setup = prepare(load_scenario(_two_targets(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {
@@ -546,7 +546,7 @@ def test_harness_scores_the_tracks_stone_soup_started(tmp_path):
 def test_initiation_from_detections_needs_range_and_azimuth(tmp_path):
     """Range-Doppler detections (no azimuth) fix no position: a one-line refusal."""
     pytest.importorskip("stonesoup")
-    from pmsr_nn.harness.blocks import call_method, draw_block
+    from pmsr_nn.harness.run.blocks import call_method, draw_block
 
     path = _small_mt(tmp_path, [{"name": "SS", "kind": "stonesoup", "options": {"initiation": "detections"}}])
     refusal = "starts tracks from a pair's bistatic range \\(or delay\\) and azimuth"

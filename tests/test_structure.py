@@ -261,3 +261,57 @@ def test_no_module_uses_another_modules_private_names():
     assert not found, f"private names used across modules (make them public or move them): {found}"
     stale = {p for p in PRIVATE_IMPORTS_ALLOWED if p not in private_imports(ROOT, PACKAGE)}
     assert not stale, f"PRIVATE_IMPORTS_ALLOWED lists modules that no longer need it: {sorted(stale)}"
+
+
+HARNESS = "pmsr_nn.harness"
+STAGES = ("scenario", "run", "results", "report")
+"""The harness's stage packages, in order: a stage imports only the stages before it."""
+
+HARNESS_ENTRIES = {"evaluate", "dispatch", "demo", "ablation"}
+"""The harness's modules outside the stages: entry paths that compose all four (nothing in a stage
+imports them)."""
+
+
+def stage_violations(graph: dict[str, dict[str, int]], harness: str = HARNESS, stages=STAGES) -> list[str]:
+    """Each import of a stage module (``harness.<stage>.*``) that points at a later stage or at
+    the harness outside the stages (its ``__init__`` or an entry module), as ``a -> b (line n)``."""
+    def stage(name: str) -> int | None:  # index of the stage; len(stages) outside them; None outside the harness
+        parts = name.split(".")
+        depth = len(harness.split("."))
+        if parts[:depth] != harness.split("."):
+            return None
+        return stages.index(parts[depth]) if len(parts) > depth and parts[depth] in stages else len(stages)
+
+    out = []
+    for a, edges in graph.items():
+        sa = stage(a)
+        if sa is None or sa == len(stages):
+            continue
+        out += [f"{a} -> {b} (line {line})" for b, line in sorted(edges.items())
+                if stage(b) is not None and stage(b) > sa]
+    return out
+
+
+def test_the_stage_check_finds_made_up_backward_imports(tmp_path):
+    files = {
+        "pkg/__init__.py": "", "pkg/h/__init__.py": "from .entry import go\n", "pkg/h/entry.py": "from .b.y import f\n",
+        "pkg/h/a/__init__.py": "", "pkg/h/a/x.py": "import os\nfrom ..b import y\n",  # first stage -> second: wrong
+        "pkg/h/b/__init__.py": "", "pkg/h/b/y.py": "from ..a.x import os\nfrom .z import g\n",  # backward, own stage: fine
+        "pkg/h/b/z.py": "def g():\n    from .. import entry\n",  # a stage -> the entry above the stages: wrong
+    }
+    for rel, text in files.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    assert stage_violations(import_graph(tmp_path, "pkg"), "pkg.h", ("a", "b")) == [
+        "pkg.h.a.x -> pkg.h.b.y (line 2)", "pkg.h.b.z -> pkg.h.entry (line 2)"]
+
+
+def test_the_harness_stages_import_only_earlier_stages(graph):
+    assert {m for m in graph if m.startswith(f"{HARNESS}.results.")}, "no results stage seen: the check reads nothing"
+    found = stage_violations(graph)
+    assert not found, "a harness stage imports a later stage or an entry module: " + "; ".join(found)
+
+
+def test_every_harness_module_lives_in_a_stage_or_is_an_entry(graph):
+    loose = {m.split(".")[2] for m in graph if m.startswith(f"{HARNESS}.") and m.split(".")[2] not in STAGES}
+    assert loose == HARNESS_ENTRIES, f"harness modules outside the stages: {sorted(loose - HARNESS_ENTRIES)}"

@@ -21,9 +21,9 @@ import yaml
 from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness import evaluate, merge
-from pmsr_nn.harness.blocks import call_method, draw_block, run_blocks
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import scenario_from_dict
+from pmsr_nn.harness.run.blocks import call_method, draw_block, run_blocks
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import scenario_from_dict
 from pmsr_nn.tbd.maps import C, MapGrid, MapSpec, power_ratio, range_doppler, simulate_frame
 from pmsr_nn.tbd.multibernoulli import BirthBox
 from pmsr_nn.tbd.scene import MapScene, RangeDopplerMaps
@@ -186,7 +186,7 @@ def test_a_tbd_kind_runs_through_prepare_and_blocks_and_finds_the_target(tmp_pat
     assert case.bounds is None  # the recipe's PCRB is not the maps'
     assert setup.cases[0].sensing.rd_maps.snr_db == (25.0, 25.0)
     bs = run_blocks(setup, range(2), progress=False)
-    from pmsr_nn.harness.finalise import finalise
+    from pmsr_nn.harness.results.finalise import finalise
 
     row = finalise(setup, bs)["c"]["methods"]["m"]
     t = row["tbd"]
@@ -390,7 +390,7 @@ def test_the_shipped_scenario_is_the_seeds_set_up():
     """evaluate/remotesensing2020_icmb.yaml: a designed scenario whose case 'mixed' is the seed's
     Section 4 (satellites, 20 frames of 2 s, target present at frames 5-16 from (140, 0) km at
     (-30, 100) m/s, 8/9/10 dB) and whose other cases change the maps and run one method."""
-    from pmsr_nn.harness.scenario import load_scenario
+    from pmsr_nn.harness.scenario.schema import load_scenario
 
     sc = load_scenario(ROOT / "evaluate" / "remotesensing2020_icmb.yaml")
     setup = prepare(sc)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from pmsr_nn.harness.track_figure import classify_tracks, plot_case_tracks
+from pmsr_nn.harness.report.track_figure import classify_tracks, plot_case_tracks
 from pmsr_nn.metrics import persistent_assignment, track_scores
 
 from figure_check import assert_drawn_png
@@ -97,7 +97,7 @@ def test_the_report_links_the_figure_and_draws_it(tmp_path):
     left with its first panel (sensors and true paths) only."""
     import json
 
-    from pmsr_nn.harness.report import write_report
+    from pmsr_nn.harness.report.document import write_report
 
     res = json.loads((ROOT / "evaluate" / "results" / "dense_crossing" / "results.json").read_text())
     truth, tracks = _scene()

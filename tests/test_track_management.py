@@ -14,9 +14,9 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
 from pmsr_nn.harness import evaluate
-from pmsr_nn.harness.blocks import call_method, draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import load_scenario
+from pmsr_nn.harness.run.blocks import call_method, draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import load_scenario
 from pmsr_nn.measurements import MeasurementModel
 from pmsr_nn.metrics import set_scores, track_scores
 from pmsr_nn.filters.gaussian import Gaussian

@@ -12,10 +12,10 @@ import torch
 from test_one_scenario import two_drones
 
 from pmsr_nn.harness import evaluate
-from pmsr_nn.harness.flags import flag_paragraphs, warning_lines
-from pmsr_nn.harness.multitarget_tables import multi_target_tables
-from pmsr_nn.harness.results import Results
-from pmsr_nn.harness.scoring import track_mapping, track_sums
+from pmsr_nn.harness.report.flags import flag_paragraphs, warning_lines
+from pmsr_nn.harness.report.multitarget_tables import multi_target_tables
+from pmsr_nn.harness.results.typed import Results
+from pmsr_nn.harness.run.scoring import track_mapping, track_sums
 from pmsr_nn.methods import REGISTRY, MethodKind, register
 from pmsr_nn.simulation.products import Truth
 from pmsr_nn.trackers.base import Estimates

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from pmsr_nn.harness import scoring
-from pmsr_nn.harness.blocks import call_method, draw_block, run_blocks
-from pmsr_nn.harness.finalise import finalise
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.scenario import scenario_from_dict
+from pmsr_nn.harness.run import scoring
+from pmsr_nn.harness.run.blocks import call_method, draw_block, run_blocks
+from pmsr_nn.harness.results.finalise import finalise
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.schema import scenario_from_dict
 from pmsr_nn.simulation.products import Truth
 from pmsr_nn.trackers.base import Estimates
 
@@ -98,7 +98,7 @@ def test_the_ekf_row_holds_the_trajectory_gospa_of_its_own_assignment(tmp_path):
 def test_rows_holding_it_get_its_table_and_rows_recorded_before_it_none():
     """dense_crossing's recorded rows (no trajectory GOSPA: no table; the whole report of that
     file renders, test_track_figure) and the same rows holding the figures (their table)."""
-    from pmsr_nn.harness.multitarget_tables import multi_target_tables
+    from pmsr_nn.harness.report.multitarget_tables import multi_target_tables
 
     old = json.loads((ROOT / "evaluate" / "results" / "dense_crossing" / "results.json").read_text())
     assert "Trajectory GOSPA" not in "\n".join(multi_target_tables(old, None, "paper"))
@@ -116,7 +116,7 @@ def test_rows_holding_it_get_its_table_and_rows_recorded_before_it_none():
 def test_a_quantity_some_blocks_lack_is_left_out_not_summed_over_part_of_the_runs():
     """Blocks of a bank recorded before a quantity was kept, merged with newer ones: the figure
     built on it is absent from the row, the others as before."""
-    from pmsr_nn.harness.finalise import complete
+    from pmsr_nn.harness.results.finalise import complete
 
     sums = {"pos": np.ones((3, 5, 2)), "run_mse": np.ones((6, 2)), "tgospa_loc": np.ones(2), "tgospa_run": np.ones(4),
             "id_switches": np.ones((3, 2))}

@@ -15,13 +15,14 @@ from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, ekf
 from pmsr_nn.harness import evaluate, load_scenario
-from pmsr_nn.harness import blocks, prepare_designed, tuning
+from pmsr_nn.harness.run import blocks
+from pmsr_nn.harness.scenario import prepare_designed, tuning
 from pmsr_nn.methods.single_target import run_single as run_method
-from pmsr_nn.harness.blocks import stream_block as draw_block
-from pmsr_nn.harness.runner import prepare
-from pmsr_nn.harness.method_spec import MethodSpec
-from pmsr_nn.harness.scenario import scenario_from_dict
-from pmsr_nn.harness.trajectories import check_inside, design_trajectory
+from pmsr_nn.harness.run.blocks import stream_block as draw_block
+from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.method_spec import MethodSpec
+from pmsr_nn.harness.scenario.schema import scenario_from_dict
+from pmsr_nn.harness.scenario.trajectories import check_inside, design_trajectory
 from pmsr_nn.metrics import squared_error
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.recipe import TrackRecipe, load_recipe

@@ -1,4 +1,4 @@
-"""``pmsr compare OLD NEW``: two evaluations side by side (:mod:`pmsr_nn.harness.compare`)."""
+"""``pmsr compare OLD NEW``: two evaluations side by side (:mod:`pmsr_nn.harness.results.compare`)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ def add_compare(sub) -> None:
 
 def cmd_compare(args) -> int:
     from ..errors import ConfigError
-    from ..harness.compare import comparison_lines, load_results
+    from ..harness.results.compare import comparison_lines, load_results
 
     if not args.threshold > 0:
         raise ConfigError(f"--threshold must be > 0 standard errors, got {args.threshold}")

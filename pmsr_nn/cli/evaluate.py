@@ -108,9 +108,9 @@ def keep_methods(sc, names: list[str]):
 def print_summary(res: dict) -> None:
     """The methods x cases position-RMSE table of a results.json, the multi-target tables where
     a case has several targets, and the report's warnings."""
-    from ..harness.front_end_report import front_end_tables
-    from ..harness.method_tables import summary_table
-    from ..harness.multitarget_tables import multi_target_tables
+    from ..harness.report.front_end_report import front_end_tables
+    from ..harness.report.method_tables import summary_table
+    from ..harness.report.multitarget_tables import multi_target_tables
 
     fe = [line for line in front_end_tables(res) if line.startswith("|")]
     if fe:
@@ -123,12 +123,12 @@ def print_summary(res: dict) -> None:
     mt = [line for line in multi_target_tables(res, None, "paper") if not line.startswith("![")]
     if mt:
         print("\n" + "\n".join(mt).rstrip())
-    from ..harness.rd_maps_report import summary_lines
+    from ..harness.report.rd_maps_report import summary_lines
 
     tbd = summary_lines(res)  # the track-before-detect rows' per-frame figures
     if tbd:
         print("\n".join(tbd))
-    from ..harness.flags import warning_lines
+    from ..harness.report.flags import warning_lines
 
     warnings = warning_lines(res)  # what the report flags (below a bound beyond its error, diverged runs)
     if warnings:
@@ -138,7 +138,7 @@ def print_summary(res: dict) -> None:
 def cmd_evaluate(args) -> int:
     from ..environment import resolve_device
     from ..harness import evaluate
-    from ..harness.block_sums import parse_shard
+    from ..harness.run.block_sums import parse_shard
 
     shard = parse_shard(args.shard)
     resolve_device(args.device)
@@ -168,7 +168,8 @@ def cmd_evaluate(args) -> int:
                           "new --out)")
     scenario, checkpoints, runs = args.scenario, checkpoint_overrides(args.checkpoint), args.mc_runs
     if args.methods is not None:
-        from ..harness.evaluate import RESULT_COMMANDS, load_any
+        from ..harness.run.runner import RESULT_COMMANDS
+        from ..harness.scenario.loading import load_any
         from ..outputs import check_folder_target
 
         # the scenario file is an input even when evaluate() is handed the loaded scenario
@@ -176,12 +177,11 @@ def cmd_evaluate(args) -> int:
         sc = load_any(args.scenario, runs, checkpoints, args.seed)
         scenario, checkpoints, runs = keep_methods(sc, method_names(args.methods, [m.name for m in sc.methods])), None, None
     if args.per_block:
-        from ..harness.block_bank import evaluate_per_block
-        from ..harness.evaluate import load_any, scenario_inputs
+        from ..harness.evaluate import execute
+        from ..harness.run.runner import open_run
 
-        sc = load_any(scenario, runs, checkpoints, args.seed)
-        evaluate_per_block(sc, args.out, shard=shard, inputs=scenario_inputs(args.scenario, sc), device=args.device,
-                           progress=not args.quiet)
+        execute(open_run(scenario, args.out, target="bank", shard=shard, mc_runs=runs, checkpoints=checkpoints,
+                         seed=args.seed, device=args.device, progress=not args.quiet, source=args.scenario))
         return 0
     res = evaluate(scenario, args.out, mc_runs=runs, checkpoints=checkpoints, shard=shard, device=args.device,
                    progress=not args.quiet, overwrite=args.overwrite, seed=args.seed)

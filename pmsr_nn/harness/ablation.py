@@ -19,12 +19,12 @@ import numpy as np
 
 from ..config import from_dict
 from ..errors import ConfigError
-from .figures import pyplot as _plt
-from .references import reference_table
-from .report_cells import fmt as _f
-from .case_spec import FITEE2023_TRAJECTORIES
-from .method_spec import MethodSpec
-from .scenario import FixedNoiseSpec, Scenario
+from .report.figures import pyplot as _plt
+from .report.report_cells import fmt as _f
+from .scenario.case_spec import FITEE2023_TRAJECTORIES
+from .scenario.method_spec import MethodSpec
+from .scenario.references import reference_table
+from .scenario.schema import FixedNoiseSpec, Scenario
 
 ABLATION_MODEL = {"kind": "mdfnn", "hidden": [128, 96, 128], "filter_order": 20}
 

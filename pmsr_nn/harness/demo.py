@@ -27,9 +27,9 @@ from pathlib import Path
 
 from ..config import from_dict
 from ..errors import ConfigError, Interrupted
-from .case_spec import FITEE2023_TRAJECTORIES
-from .method_spec import MethodSpec
-from .scenario import FixedNoiseSpec, Scenario
+from .scenario.case_spec import FITEE2023_TRAJECTORIES
+from .scenario.method_spec import MethodSpec
+from .scenario.schema import FixedNoiseSpec, Scenario
 
 DEMO_MARKER = "demo.json"
 DEMO_CONTENTS = {DEMO_MARKER, ".pmsr_output.json", "data", "train", "evaluation", "one_sky"}
@@ -103,7 +103,7 @@ def demo_one_sky(mc_runs: int) -> Scenario:
     :data:`ONE_SKY_METHODS`, ``mc_runs`` runs in one block)."""
     import dataclasses
 
-    from .scenario import load_scenario
+    from .scenario.schema import load_scenario
 
     if not ONE_SKY.is_file():
         raise ConfigError(f"the demo's last stage reads {ONE_SKY}, which this installation lacks; run the demo from a "
@@ -228,10 +228,10 @@ def demo_summary(res: dict, out: Path) -> list[str]:
     """The demo's closing console lines: the three-trajectory RMSE table, a compact multi-target
     table (every column of both is in the reports) and, one line each, whatever either report
     flags (rows below their bound beyond the Monte Carlo error, diverged runs)."""
-    from .flags import warning_lines
-    from .method_tables import summary_table
-    from .report_cells import fmt, fmt_se, start_label
-    from .results import Results
+    from .report.flags import warning_lines
+    from .report.method_tables import summary_table
+    from .report.report_cells import fmt, fmt_se, start_label
+    from .results.typed import Results
 
     evaluation, sky = Results.from_dict(res), Results.from_dict(res["one_sky"])
     lines = ["", f"position RMSE (m) after the warm-up, {evaluation.mc_runs} runs per trajectory; bold: below its own "

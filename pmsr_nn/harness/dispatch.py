@@ -19,7 +19,7 @@ import shutil
 from pathlib import Path
 
 from ..errors import ConfigError, OutputError
-from ..outputs import PARTIAL_MARKER, check_folder_target, make_parents, remove_if_empty
+from ..outputs import PARTIAL_MARKER, make_parents, remove_if_empty
 
 EXECUTORS = ("local", "slurm")
 
@@ -48,23 +48,26 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
              partition: str | None = None, timeout_min: int = 60, progress: bool = True,
              seed: int | None = None) -> dict:
     """Run ``scenario`` as ``shards`` jobs on ``executor`` and merge them into ``out``; returns
-    results.json's content. ``partition`` and ``timeout_min`` (per shard) are SLURM's."""
-    from .evaluate import RESULT_COMMANDS, load_any, merge, scenario_inputs
-    from .runner import prepare
+    results.json's content. ``partition`` and ``timeout_min`` (per shard) are SLURM's. The run is
+    opened here (:func:`~.run.runner.open_run`: a method that can not run is refused before any job
+    is submitted); each job opens and executes its shard's, and the merge executes the whole."""
+    from .evaluate import merge
+    from .run.runner import open_run
 
     if executor not in EXECUTORS:
         raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     submitit = _submitit()
     out = Path(out)
     scenario = Path(scenario)
-    check_folder_target(out, overwrite=overwrite, inputs=[scenario], allow=RESULT_COMMANDS)
-    sc = load_any(scenario, mc_runs, checkpoints, seed)
-    if not 1 <= shards <= sc.n_blocks:
-        raise ConfigError(f"--shards must be in 1..{sc.n_blocks} (the scenario's blocks of runs), got {shards}")
-    if not isinstance(timeout_min, int) or timeout_min < 1:
-        raise ConfigError(f"--timeout-min must be a positive number of minutes, got {timeout_min}")
-    check_folder_target(out, overwrite=overwrite, inputs=scenario_inputs(scenario, sc), allow=RESULT_COMMANDS)
-    prepare(sc, device)  # a method that can not run is refused here, before any job is submitted
+
+    def check(sc) -> None:
+        if not 1 <= shards <= sc.n_blocks:
+            raise ConfigError(f"--shards must be in 1..{sc.n_blocks} (the scenario's blocks of runs), got {shards}")
+        if not isinstance(timeout_min, int) or timeout_min < 1:
+            raise ConfigError(f"--timeout-min must be a positive number of minutes, got {timeout_min}")
+
+    sc = open_run(scenario, out, mc_runs=mc_runs, checkpoints=checkpoints, seed=seed, device=device,
+                  overwrite=overwrite, check=check).scenario
     made = make_parents(out)
     work = out.parent / f".{out.name}.shards-{os.getpid()}"
     try:

@@ -2,7 +2,7 @@
 
 The PCRB is not an estimator, so the runner calls nothing for it: its row is filled from the
 bound the runner computes anyway for a case of designed targets (each target's own
-per-trajectory PCRB from its birth on its clean stream, :func:`~pmsr_nn.harness.case_bounds.case_bounds`),
+per-trajectory PCRB from its birth on its clean stream, :func:`~pmsr_nn.harness.scenario.case_bounds.case_bounds`),
 named and placed where the scenario lists it. Options choose which bound: ``bound`` filtering
 (what a causal tracker is held to) or smoothing (one that looks ahead), ``q`` the motion model's
 process noise or zero (the floor for an estimator that knew the designed flights have none). A

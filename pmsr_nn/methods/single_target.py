@@ -6,7 +6,7 @@ options say otherwise (``q`` of the EKF / UKF, the IMM's two CA modes); a learne
 only the measurements. :func:`run_single` runs one kind on streams ``z (B, K, m)``;
 :func:`per_target` runs it on each target over its life, targets with the same life stacked as
 runs of one call. Options set to ``tuned`` must have been replaced by numbers
-(:mod:`pmsr_nn.harness.tuning`) before a call.
+(:mod:`pmsr_nn.harness.scenario.tuning`) before a call.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ class MethodOutput:
 def _number(spec, key: str) -> float:
     value = spec.option(key)
     if isinstance(value, str):  # 'tuned' left in place: a bug of the caller, not of the scenario
-        raise RuntimeError(f"method {spec.name!r}: option {key} is still {value!r}; resolve it with harness.tuning")
+        raise RuntimeError(f"method {spec.name!r}: option {key} is still {value!r}; resolve it with "
+                           "harness.scenario.tuning")
     return float(value)
 
 

@@ -27,7 +27,7 @@ Every kind starts its own tracks: it returns the Bernoulli components as unpaire
 scenario's state (the planar CV state at the maps' altitude placed in the truth's position and
 velocity columns, acceleration 0), a track existing where its component's existence is above the
 threshold. A component slot is reused after its component died; a birth into a slot starts a new
-track. Per-frame extras for the Remote Sensing figures (:func:`~pmsr_nn.harness.scoring.tbd_sums`):
+track. Per-frame extras for the Remote Sensing figures (:func:`~pmsr_nn.harness.run.scoring.tbd_sums`):
 ``tbd_detected`` (some component above the threshold), ``tbd_best_x`` / ``tbd_best_r`` (the most
 probable component's mean and existence), ``tbd_snr_db`` (the SNR each map's update used) and
 ``tbd_particles``.

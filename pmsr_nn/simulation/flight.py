@@ -11,7 +11,7 @@ along-track acceleration, heading ``psi`` (rad, clockwise from north) with the c
 Manoeuvres (:func:`draw_schedule`, :func:`integrate_manoeuvres`): between quiet stretches a
 track flies episodes of a coordinated turn or a speed change, each episode a segment whose
 acceleration is reached through a linear ramp of ``ramp_s`` and left through another (the ramp
-of the next, quiet segment), exactly as consecutive :class:`~pmsr_nn.harness.case_spec.SegmentSpec`
+of the next, quiet segment), exactly as consecutive :class:`~pmsr_nn.harness.scenario.case_spec.SegmentSpec`
 segments are. A speed change moves the speed by exactly ``acceleration x duration``.
 """
 

@@ -1,0 +1,8 @@
+"""The harness's last stage: ``report.md`` and its figures from a ``results.json``.
+
+:mod:`.document` assembles the report from the table modules (:mod:`.method_tables`,
+:mod:`.multitarget_tables`, :mod:`.bound_tables`, :mod:`.plane_report`, :mod:`.rd_maps_report`,
+:mod:`.front_end_report`), the honesty flags (:mod:`.flags`) and the figures (:mod:`.figures`,
+:mod:`.trajectory_figure`, :mod:`.track_figure`); :mod:`.report_cells` writes the numbers.
+Imports the earlier stages only.
+"""
