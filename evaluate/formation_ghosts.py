@@ -40,10 +40,10 @@ FALSE_KINDS = ("outlived", "beside", "far")
 
 
 def false_kinds(ex: torch.Tensor, exists: torch.Tensor, tx: torch.Tensor, alive: torch.Tensor, c: float,
-                p: float) -> tuple[torch.Tensor, torch.Tensor]:
+                p: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(B, K, 3)``: per run and scan, the GOSPA^p charged for false tracks (c^p/2 each), split
-    into :data:`FALSE_KINDS`; and ``(B, K, T)`` the distance of each track charged as *beside* to
-    the nearest living target (NaN elsewhere). ``ex (B, K, T, 2)`` track positions, ``exists (B,
+    into :data:`FALSE_KINDS`; ``(B, K, T)`` the distance of each track charged as *beside* to
+    the nearest living target (NaN elsewhere); and ``(B, K, T)`` which tracks are charged as false. ``ex (B, K, T, 2)`` track positions, ``exists (B,
     K, T)``, ``tx (B, K, N, 2)`` target positions, ``alive (B, K, N)``; a track slot that stops
     existing forgets its target (slots are reused)."""
     sc = set_scores(ex, exists, tx, alive, c, p)
@@ -64,7 +64,18 @@ def false_kinds(ex: torch.Tensor, exists: torch.Tensor, tx: torch.Tensor, alive:
         out[:, k] = torch.nn.functional.one_hot(kind, 3).to(ex.dtype).mul(false[:, k, :, None]).sum(1) * c**p / 2
         beside[:, k] = torch.where(false[:, k] & (kind == 1), nearest[:, k], beside[:, k])
         last = torch.where(held[:, k], a[:, k], last)
-    return out, beside
+    return out, beside, false
+
+
+def longest_stretch(mask: torch.Tensor) -> torch.Tensor:
+    """``(B,)``: the most consecutive scans any one slot of ``mask (B, K, T)`` is set (a false
+    track's life: a slot holds one track until it is freed, and a freed slot is empty a scan)."""
+    run = torch.zeros(mask.shape[0], mask.shape[2], dtype=torch.long)
+    best = torch.zeros(mask.shape[0], dtype=torch.long)
+    for k in range(mask.shape[1]):
+        run = torch.where(mask[:, k], run + 1, 0)
+        best = torch.maximum(best, run.amax(-1) if run.shape[1] else best)
+    return best
 
 
 def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks: int | list[int]) -> dict[str, dict]:
@@ -72,7 +83,8 @@ def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks:
     distance to the nearest reported track over its scored scans (inf: never a track) and
     ``false_shares (R, 3)`` the shares of each run's GOSPA^p charged for false tracks of each of
     :data:`FALSE_KINDS`, ``beside_m (R,)`` the median distance of the run's *beside* charges to
-    the nearest living target (NaN: none). ``blocks``: the first so many blocks, or a list of block indices."""
+    the nearest living target (NaN: none), ``longest_false (R,)`` the most consecutive scored scans
+    one track is charged as false (:func:`longest_stretch`). ``blocks``: the first so many blocks, or a list of block indices."""
     sc = load_any(path, None, None)
     if methods:
         sc = keep_methods(sc, method_names(methods, [m.name for m in sc.methods]))
@@ -88,7 +100,7 @@ def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks:
     pos = list(setup.models.motion.pos_idx)
     cs = setup.cases[ci]
     scored, scans = cs.scored, cs.set_scan_mask
-    out = {m.name: {"gospa_m": [], "nearest_m": [], "false_shares": [], "beside_m": []} for m in setup.methods}
+    out = {m.name: {"gospa_m": [], "nearest_m": [], "false_shares": [], "beside_m": [], "longest_false": []} for m in setup.methods}
     with torch.no_grad():
         for block in chosen:
             truth, products = draw_block(setup, ci, block)
@@ -100,10 +112,11 @@ def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks:
                 g = gospa(torch.nan_to_num(ex), exists, torch.nan_to_num(tx), truth.alive.expand(tx.shape[:3]), c, p)
                 run_p = (g.total[:, scans] ** p).sum(1)  # (B,) the run's GOSPA^p over the scored scans
                 out[m.name]["gospa_m"].append((run_p / int(scans.sum())) ** (1 / p))
-                parts, beside = false_kinds(torch.nan_to_num(ex), exists, torch.nan_to_num(tx),
+                parts, beside, false = false_kinds(torch.nan_to_num(ex), exists, torch.nan_to_num(tx),
                                             truth.alive.expand(tx.shape[:3]), c, p)
                 out[m.name]["false_shares"].append(parts[:, scans].sum(1) / run_p.clamp(min=1e-300)[:, None])
                 out[m.name]["beside_m"].append(torch.nanmedian(beside[:, scans].flatten(1), 1).values)
+                out[m.name]["longest_false"].append(longest_stretch(false[:, scans]))
                 d = torch.cdist(torch.nan_to_num(tx, nan=1e12), torch.nan_to_num(ex, nan=-1e12))  # (B, K, N, T)
                 d = torch.where(exists[:, :, None, :], d, torch.full((), float("inf"), dtype=d.dtype)).amin(-1)
                 d = torch.where(scored, d, torch.full((), float("nan"), dtype=d.dtype))
@@ -133,20 +146,21 @@ def main() -> None:
         ghost = (near >= a.near) & np.isfinite(near)
         print(f"\n{name}: GOSPA over {len(g)} runs: mean {np.sqrt(np.mean(g ** 2)):.1f} m (root of the mean square), "
               f"median run {np.median(g):.1f} m; runs with a target held beside it ({a.near:g} m or more): "
-              f"{int(ghost.any(1).sum())}")
+              f"{int(ghost.any(1).sum())}; the longest-lived false track: {int(r['longest_false'].max())} scans")
         shares = r["false_shares"]
         weights = g ** 2 / np.sum(g ** 2)  # each run's share of the mean GOSPA^p (p = 2)
         print("share of the mean GOSPA^2 charged for false tracks: " + ", ".join(
             f"{kind} {100 * float(weights @ shares[:, i]):.0f} %" for i, kind in enumerate(FALSE_KINDS)))
-        print(f"| run | GOSPA (m) | % of the run's GOSPA^2 false: {' / '.join(FALSE_KINDS)} | beside: median distance "
-              "to the nearest target (m) | per target: median distance to the nearest track (m) |")
-        print("|---:|---:|---|---:|---|")
+        print(f"| run | GOSPA (m) | % of the run's GOSPA^2 false: {' / '.join(FALSE_KINDS)} | longest false track "
+              "(scans) | beside: median distance to the nearest target (m) | per target: median distance to the "
+              "nearest track (m) |")
+        print("|---:|---:|---|---:|---:|---|")
         for i in range(len(g)):
             cells = " / ".join("-" if not np.isfinite(v) else f"{v:.0f}" + ("*" if ghost[i, t] else "")
                                for t, v in enumerate(near[i]))
             kinds = " / ".join(f"{100 * v:.0f}" for v in shares[i])
             far = r["beside_m"][i]
-            print(f"| {run_ids[i]} | {g[i]:.1f} | {kinds} | {'-' if np.isnan(far) else f'{far:.0f}'} | {cells} |")
+            print(f"| {run_ids[i]} | {g[i]:.1f} | {kinds} | {int(r['longest_false'][i])} | {'-' if np.isnan(far) else f'{far:.0f}'} | {cells} |")
 
 
 if __name__ == "__main__":

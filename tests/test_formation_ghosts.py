@@ -39,6 +39,9 @@ def test_the_per_run_gospa_is_the_reports(tmp_path):
     assert np.sum(r["false_shares"].sum(1) * w) / np.sum(w) == pytest.approx(row["gospa_false_share"], rel=1e-9)
     assert np.all(r["false_shares"].sum(1) > 0)  # (the false tracks are there)
     assert r["beside_m"].shape == (4,)
+    # (tracks reported from existence 0.05 and kept 5 scans without a detection: a false one lives
+    # at least one scan, and none outlives the 90 scored scans: 100 steps, the first 10 the warm-up)
+    assert r["longest_false"].shape == (4,) and np.all((r["longest_false"] >= 1) & (r["longest_false"] <= 90))
 
 
 def test_false_tracks_are_classed_outlived_beside_or_far():
@@ -56,8 +59,13 @@ def test_false_tracks_are_classed_outlived_beside_or_far():
     ex = torch.tensor([[[1.0, 0.0], [1001.0, 0.0], [0.0, 0.0]], [[1.0, 0.0], [1001.0, 0.0], [1030.0, 0.0]],
                        [[1.0, 0.0], [1001.0, 0.0], [3000.0, 0.0]]])[None]
     exists = torch.tensor([[[True, True, False], [True, True, True], [True, True, True]]])
-    parts, beside = load_script("evaluate/formation_ghosts.py").false_kinds(ex, exists, tx, alive, c, p)
+    script = load_script("evaluate/formation_ghosts.py")
+    parts, beside, false = script.false_kinds(ex, exists, tx, alive, c, p)
     parts, beside = parts[0], beside[0]
+    # charged as false: track 0 at scan 2, track 2 at scans 1 and 2, the longest two scans in a row
+    assert false[0].tolist() == [[False, False, False], [False, False, True], [True, False, True]]
+    assert script.longest_stretch(false).tolist() == [2]
+    assert script.longest_stretch(torch.zeros(2, 4, 0, dtype=torch.bool)).tolist() == [0, 0]
     half = c**p / 2
     assert parts.tolist() == [[0.0, 0.0, 0.0], [0.0, half, 0.0], [half, 0.0, half]]
     assert parts.sum(-1).tolist() == gospa(ex, exists, tx, alive, c, p).false[0].tolist()
