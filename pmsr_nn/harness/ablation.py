@@ -19,8 +19,8 @@ import numpy as np
 
 from ..config import from_dict
 from ..errors import ConfigError
-from .report.figures import pyplot as _plt
-from .report.report_cells import fmt as _f
+from .report.figures import pyplot
+from .report.report_cells import fmt
 from .scenario.case_spec import FITEE2023_TRAJECTORIES
 from .scenario.method_spec import MethodSpec
 from .scenario.references import reference_table
@@ -119,13 +119,13 @@ def write_ablation(out: Path, title: str, parameter: str, rows: list[dict], budg
     for r in rows:
         cells = []
         for c in cases:
-            cells.append(_f(r["rmse_pos_m"][c]))
+            cells.append(fmt(r["rmse_pos_m"][c]))
             if per_case_paper:
-                cells.append(_f(ref(c, r["label"])))
+                cells.append(fmt(ref(c, r["label"])))
         if paper and not per_case_paper:
-            cells.append(_f(ref(None, r["label"])))
+            cells.append(fmt(ref(None, r["label"])))
         lines.append(f"| {r['label']} | " + " | ".join(cells) + f" | {r['steps']} | {r['fit_seconds']:.0f} |")
-    bounds = " / ".join(_f(rows[0]["bound_pos_m"][c]) for c in cases)
+    bounds = " / ".join(fmt(rows[0]["bound_pos_m"][c]) for c in cases)
     lines += ["", f"Position RMSE (Eq. 31, averaged over steps 100-999) over {mc_runs} Monte Carlo "
               f"runs per trajectory of the three built-in trajectories (noise 30 m, 2 m/s, 3 deg); filtering PCRB "
               f"{bounds} m. Budget per setting: {budget.describe()}. Columns marked paper are the paper's numbers "
@@ -136,7 +136,7 @@ def write_ablation(out: Path, title: str, parameter: str, rows: list[dict], budg
     (out / "results.json").write_text(json.dumps({"title": title, "parameter": parameter, "rows": rows,
                                                   "budget": budget.__dict__, "mc_runs": mc_runs,
                                                   "environment": environment()}, indent=1) + "\n")
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     labels = [r["label"] for r in rows]
     xs = np.arange(len(labels))

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..results.result_rows import MethodRow
 from ..results.typed import Case, Results
-from .figures import pyplot as _plt
+from .figures import pyplot
 from .report_cells import fmt, fmt_se, switch_column
 
 
@@ -74,7 +74,7 @@ def _points(x: np.ndarray, dt: float, labelled: bool):
 
 
 def _example_figures(out: Path, cname: str, case: Case, ex: dict, dt: float) -> list[str]:
-    plt = _plt()
+    plt = pyplot()
     names = []
     cmap = plt.get_cmap("tab20")
     for name, r in _plane_rows(case).items():
@@ -116,7 +116,7 @@ def _example_figures(out: Path, cname: str, case: Case, ex: dict, dt: float) -> 
 
 
 def _time_figure(path: Path, t: np.ndarray, series: dict, ylabel: str, title: str, thick: str | None = None) -> None:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(9, 4.2))
     for name, y in series.items():
         ax.plot(t, y, color="k" if name == thick else None, lw=2 if name == thick else 1, label=name)
@@ -154,7 +154,7 @@ def _time_figures(out: Path, cname: str, case: Case, dt: float) -> list[str]:
 
 def _sweeps(results: Results, out: Path) -> list[str]:
     """OSPA, switches and fragmentations vs clutter (at the scenario's Pd) and vs Pd (at its clutter)."""
-    plt = _plt()
+    plt = pyplot()
     st = results.settings.sections
     if "pd" not in st:
         return []

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..results.result_rows import MethodRow
 from ..results.typed import Case, Results
-from .figures import pyplot as _plt
+from .figures import pyplot
 
 
 def _fmt(v, digits=1) -> str:
@@ -34,7 +34,7 @@ def _fmt(v, digits=1) -> str:
 
 
 def _curves(path: Path, frames: np.ndarray, series: dict, ylabel: str, title: str, present=None, dashed=None, log=False):
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
     for name, y in series.items():
         ax.plot(frames, np.asarray(y, dtype=float), marker="o", ms=3, label=name)
@@ -59,7 +59,7 @@ def _maps_figure(path: Path, ex: dict, maps: dict) -> bool:
     frames = sorted(int(k.rsplit("_f", 1)[1]) for k in ex if k.startswith("@rd_maps_power_f"))
     if not frames:
         return False
-    plt = _plt()
+    plt = pyplot()
     P = np.asarray(ex[f"@rd_maps_power_f{frames[0]}"]).shape[0]
     fig, axes = plt.subplots(P, len(frames), figsize=(3.2 * len(frames), 2.6 * P), squeeze=False)
     im = None
@@ -185,7 +185,7 @@ def report_lines(res: Results | dict, out: Path, examples: dict) -> list[str]:
                                                        "the energy)": r.tbd.detected_frame_rate for r in sub.values()})
         for key, (ylabel, series) in figs.items():
             _curves(out / f"{cname}_{key}.png", frames, series, ylabel, f"{case.title}: {ylabel}", present)
-        plt = _plt()
+        plt = pyplot()
         fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
         for ax, key, ylabel in ((axes[0], "rms_pos_m", "position error (m): RMS, median dotted"),
                                 (axes[1], "rms_vel_mps", "RMS velocity error (m/s)")):
@@ -224,7 +224,7 @@ def order_study(cases: dict[str, Case], out: Path) -> list[str]:
             if r.tbd.snr == "true" and r.tbd.update in ("ascending", "descending")]
     if len({id(case) for _, case, _ in rows}) < 2:
         return []
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.4))
     for label, case, r in rows:
         frames = np.arange(1, len(case.rd_maps["present"]) + 1)
