@@ -21,7 +21,9 @@ one sky, dense_crossing and shared_drones; evaluate/RESULTS.md, "Belief propagat
 in every scenario: ``survival`` 0.9975 (a 400-scan expected life, the drones'), so a track that
 misses at every pair of a scan is no longer reported, and ``birth_velocity_sd_mps`` 10 (a drone's
 speed per axis), so a newly seeded target's position does not spread onto its neighbours'
-detections before its velocity is known.
+detections before its velocity is known, and ``delete_existence`` 1e-6, so the new potential
+target of a detection that a track (perhaps a ghost of a formation, a mix of its members'
+detections) may explain is kept and can win the detections over the scans that follow.
 
 The clutter rate and Pd are the scenario's (the detection list's clutter per scan, floored as the
 JPDA's). ``bp`` reads the per-pair lists (the illuminator given); ``bp_3d`` reads, where the
@@ -105,7 +107,7 @@ def run_bp(call: MethodCall) -> Estimates:
 OPTIONS = {"gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
            "survival": Option(0.9975, float, 1e-6, 1.0),
            "birth_rate": Option(0.01, float, 0.0, 1e3), "initial_targets": Option(0.01, float, 0.0, 1e3),
-           "confirm_existence": Option(0.9, **EXISTENCE), "delete_existence": Option(1e-4, **EXISTENCE),
+           "confirm_existence": Option(0.9, **EXISTENCE), "delete_existence": Option(1e-6, **EXISTENCE),
            "report_existence": Option(0.5, **EXISTENCE), "initial_existence": Option(0.1, **EXISTENCE),
            "birth_velocity_sd_mps": Option(10.0, float, 1e-3, 1e5),
            "init_pairs": Option(None, int, 1, 64, nullable=True, null="every pair (the multi-pair initiator, without "

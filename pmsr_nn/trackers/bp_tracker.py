@@ -64,7 +64,7 @@ class BPSettings:
     birth_rate: float = 0.01
     initial_targets: float = 0.01
     confirm_existence: float = 0.9
-    delete_existence: float = 1e-4
+    delete_existence: float = 1e-6
     report_existence: float = 0.5
     initial_existence: float = 0.1
     iterations: int = 100
