@@ -101,6 +101,7 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
     rows = [comps.index("range"), comps.index("azimuth")]
     # sigma points of (range, azimuth) at +-sqrt(3) deviations (the unscented transform's kappa = 1)
     steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=dtype)
+    moves = [(c, sign * step) for c, step in zip(rows, steps) for sign in (1.0, -1.0)]
 
     def seed(pair: int, z: torch.Tensor, valid: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
         B, M = valid.shape
@@ -108,15 +109,15 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
         pos, cov, ok = initiator.fixes(zs, subs[pair], n)
         # the fix's covariance about it from its sigma points: the ellipse's curvature, tens of
         # metres across the range where the azimuth spreads a fix over hundreds, counts too
+        moved = zs.expand(len(moves), *zs.shape).clone()  # the sigma points, fixed in one call
+        for i, (c, step) in enumerate(moves):
+            moved[i, ..., c] = moved[i, ..., c] + step
+        p, fine = range_azimuth_fix(moved, subs[pair])
         spread = torch.zeros_like(cov)
-        for c, step in zip(rows, steps):
-            for sign in (1.0, -1.0):
-                moved = zs.clone()
-                moved[..., c] = moved[..., c] + sign * step
-                p, fine = range_azimuth_fix(moved, subs[pair])
-                d = p - pos
-                spread = spread + d.unsqueeze(-1) * d.unsqueeze(-2) / 6.0
-                ok = ok & fine
+        for i in range(len(moves)):
+            d = p[i] - pos
+            spread = spread + d.unsqueeze(-1) * d.unsqueeze(-2) / 6.0
+            ok = ok & fine[i]
         ok = ok[:, 0] & valid
         groups = torch.where(ok, torch.arange(M), -1).unsqueeze(-1)  # (B, M, 1): a group per detection
         g, real = initiator.states(zs, groups, pos, spread, subs[pair], n, other_sd)
