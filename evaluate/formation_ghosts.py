@@ -18,21 +18,31 @@ a ghost) and a track *far* from every living target (started on clutter, or drif
 
     python evaluate/formation_ghosts.py evaluate/dense_crossing.yaml --methods S-MSJPDA --blocks 2
     python evaluate/formation_ghosts.py evaluate/one_sky.yaml --methods S-MSJPDA --only-blocks 0-24
+
+Choosing a setting on draws no recorded study uses: ``--seed`` re-draws with another seed, and
+``--options`` sets options of the chosen rows (a YAML mapping over the row's own). The scenario
+``demo`` is the demo's one sky (:func:`pmsr_nn.harness.demo.demo_one_sky`, 2 runs a block):
+
+    python evaluate/formation_ghosts.py evaluate/dense_crossing_bp.yaml --methods BP --seed 1000 --blocks 2 --options "{delete_existence: 1.0e-4}"
+    python evaluate/formation_ghosts.py demo --methods BP --seed 1001
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 
 from pmsr_nn.cli.evaluate import keep_methods, method_names
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness.run.blocks import call_method, draw_block
 from pmsr_nn.harness.scenario.loading import load_any
 from pmsr_nn.harness.run.runner import prepare
+from pmsr_nn.harness.scenario.method_spec import MethodSpec
 from pmsr_nn.metrics.sets import gospa, set_scores
 
 FALSE_KINDS = ("outlived", "beside", "far")
@@ -78,16 +88,37 @@ def longest_stretch(mask: torch.Tensor) -> torch.Tensor:
     return best
 
 
-def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks: int | list[int]) -> dict[str, dict]:
+def scenario_of(path: Path | str, seed: int | None = None, options: dict | None = None, methods: str | None = None):
+    """The scenario to diagnose: the YAML at ``path`` (or ``demo``, the demo's one sky), re-drawn
+    with ``seed`` (None: its own), with only the rows ``methods`` (comma-separated; None: all),
+    each row's options updated by ``options`` (None: as given; checked as the row's own are)."""
+    if str(path) == "demo":
+        from pmsr_nn.harness.demo import ONE_SKY_RUNS, demo_one_sky
+
+        sc = demo_one_sky(ONE_SKY_RUNS)
+    else:
+        sc = load_any(path, None, None)
+    sc = sc.with_seed(seed)
+    if methods:
+        sc = keep_methods(sc, method_names(methods, [m.name for m in sc.methods]))
+    if options:
+        if not isinstance(options, dict):
+            raise ConfigError(f"--options must be a YAML mapping of option: value, got {options!r}")
+        sc = sc.replace(methods=tuple(MethodSpec(m.name, m.kind, m.checkpoint, {**m.options, **options})
+                                      for m in sc.methods))
+    return sc
+
+
+def run_figures(path: Path, methods: list[str] | None, case: str | None, blocks: int | list[int],
+                seed: int | None = None, options: dict | None = None) -> dict[str, dict]:
     """Per row: ``gospa_m (R,)`` each run's GOSPA, ``nearest_m (R, N)`` each target's median
     distance to the nearest reported track over its scored scans (inf: never a track) and
     ``false_shares (R, 3)`` the shares of each run's GOSPA^p charged for false tracks of each of
     :data:`FALSE_KINDS`, ``beside_m (R,)`` the median distance of the run's *beside* charges to
     the nearest living target (NaN: none), ``longest_false (R,)`` the most consecutive scored scans
-    one track is charged as false (:func:`longest_stretch`). ``blocks``: the first so many blocks, or a list of block indices."""
-    sc = load_any(path, None, None)
-    if methods:
-        sc = keep_methods(sc, method_names(methods, [m.name for m in sc.methods]))
+    one track is charged as false (:func:`longest_stretch`). ``blocks``: the first so many blocks, or a list of block indices;
+    ``seed``, ``options``: :func:`scenario_of`."""
+    sc = scenario_of(path, seed, options, methods)
     names = [c.name for c in sc.cases]
     ci = names.index(case) if case in names else 0
     if case is not None and case not in names:
@@ -131,6 +162,9 @@ def main() -> None:
     ap.add_argument("--case", help="case name (default the first)")
     ap.add_argument("--blocks", type=int, default=1, help="first blocks of the case to draw (default 1)")
     ap.add_argument("--only-blocks", help="these blocks instead (e.g. 0-24 or 3,7,12: a block of one run is that run)")
+    ap.add_argument("--seed", type=int, help="draw with this seed instead of the scenario's (e.g. 1000: no recorded "
+                                             "study uses it)")
+    ap.add_argument("--options", help="options of the chosen rows, a YAML mapping (e.g. \"{delete_existence: 1.0e-4}\")")
     ap.add_argument("--near", type=float, default=100.0, help="a nearest track this far or farther is beside its "
                                                                "target, not on it (m; default 100)")
     a = ap.parse_args()
@@ -138,8 +172,12 @@ def main() -> None:
     if a.only_blocks:
         blocks = [i for part in a.only_blocks.split(",") for i in (
             range(int(part.split("-")[0]), int(part.split("-")[1]) + 1) if "-" in part else [int(part)])]
-    res = run_figures(a.scenario, a.methods, a.case, blocks)
-    sc = load_any(a.scenario, None, None)
+    try:
+        options = yaml.safe_load(a.options) if a.options else None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"--options is not YAML: {exc}".splitlines()[0]) from None
+    res = run_figures(a.scenario, a.methods, a.case, blocks, a.seed, options)
+    sc = scenario_of(a.scenario, a.seed)
     run_ids = [i for b in (range(blocks) if isinstance(blocks, int) else blocks) for i in sc.block_runs_range(b)]
     for name, r in res.items():
         g, near = r["gospa_m"], r["nearest_m"]
@@ -164,4 +202,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except ConfigError as exc:  # a bad scenario, row or option: one line, exit 2
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
