@@ -9,7 +9,7 @@ import pytest
 
 from pmsr_nn.harness import evaluate
 from pmsr_nn.harness.results.result_rows import RUN_QUANTILES
-from script_loader import load_script
+from script_loader import ROOT, load_script
 from test_one_scenario import two_drones
 
 
@@ -70,3 +70,35 @@ def test_false_tracks_are_classed_outlived_beside_or_far():
     assert parts.tolist() == [[0.0, 0.0, 0.0], [0.0, half, 0.0], [half, 0.0, half]]
     assert parts.sum(-1).tolist() == gospa(ex, exists, tx, alive, c, p).false[0].tolist()
     assert beside[1, 2].item() == 30.0 and int(beside.isfinite().sum()) == 1  # the duplicate, 30 m from target 1
+
+
+def test_seed_and_options_re_draw_and_re_run_as_the_scenario_with_them_would(tmp_path, capsys):
+    """``--seed`` and ``--options`` give the report's GOSPA of the scenario with that seed and the
+    chosen rows' options changed (``pmsr evaluate`` on an edited copy), and differ from the
+    scenario's own; a bad option is one line and exit 2."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    clutter = {"per_scan": 30, "range_m": [0.0, 25000.0], "range_rate_mps": [-40.0, 40.0]}
+    methods = [{"name": "S", "kind": "s_msjpda", "options": {"initiation": "detections"}},
+               {"name": "O", "kind": "s_msjpda"}]
+    path = two_drones(tmp_path, methods=methods, mc_runs=2, block_runs=2, detections={"pd": 0.9, "clutter": clutter})
+    changed = {"confirm_m": 1, "confirm_n": 1, "report_existence": 0.05, "delete_misses": 5}
+    edited = yaml.safe_load(path.read_text())
+    edited.update(seed=11, methods=[{**methods[0], "options": {**methods[0]["options"], **changed}}])
+    copy = tmp_path / "edited.yaml"
+    copy.write_text(yaml.safe_dump(edited))
+    row = evaluate(copy, tmp_path / "out", progress=False)["cases"]["c"]["methods"]["S"]
+    script = load_script("evaluate/formation_ghosts.py")
+    r = script.run_figures(path, "S", None, 1, seed=11, options=changed)
+    assert list(r) == ["S"]
+    assert np.sqrt(np.mean(r["S"]["gospa_m"] ** 2)) == pytest.approx(row["gospa_m"], rel=1e-9)
+    own = script.run_figures(path, "S", None, 1)["S"]["gospa_m"]
+    assert not np.allclose(own, r["S"]["gospa_m"], rtol=1e-3)
+    bad = subprocess.run([sys.executable, str(ROOT / "evaluate/formation_ghosts.py"), str(path), "--methods", "S",
+                          "--options", "{delete_misses: -1}"], capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stdout == ""
+    lines = bad.stderr.strip().splitlines()
+    assert len(lines) == 1 and "delete_misses" in lines[0], bad.stderr
