@@ -1,0 +1,299 @@
+"""The documents' tables that come from a record, written from it: one command regenerates them.
+
+A generated table sits between two marker lines in a Markdown document::
+
+    <!-- table: NAME from evaluate/results/STUDY/results.json -->
+    | ... the table, written by TABLES[NAME] ... |
+    <!-- end table: NAME -->
+
+``TABLES`` maps each NAME to its record (a path relative to the repository root, which the
+opening marker must name) and a function of the loaded record that returns the table's lines.
+Everything between the markers is the generator's; the prose around them is the document's.
+
+    python -m pmsr_nn.harness.report.record_tables           # rewrite every marked table
+    python -m pmsr_nn.harness.report.record_tables --check   # exit 1, naming each table that differs
+
+``tests/test_record_tables.py`` runs the check in the default test tier.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import statistics
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[3]
+DOCUMENTS = ("README.md", "evaluate/RESULTS.md", "benchmarks/RESULTS.md")
+"""The documents searched for markers, relative to the repository root."""
+
+PAPER_TABLES = "evaluate/reference/paper_tables.json"
+
+_OPEN = re.compile(r"^<!-- table: (?P<name>[\w.-]+) from (?P<record>\S+) -->$")
+_CLOSE = "<!-- end table: {name} -->"
+
+
+class TableError(ValueError):
+    """A marker without its end, an unknown table name, or a marker naming another record."""
+
+
+@dataclass(frozen=True)
+class Table:
+    record: str
+    """The record's path, relative to the repository root."""
+    lines: Callable[[dict], list[str]]
+    """The table's Markdown lines from the loaded record (and, for the paper's columns, PAPER_TABLES)."""
+
+
+# ---------------------------------------------------------------- cells
+
+
+def fixed(x: float, decimals: int) -> str:
+    return f"{x:.{decimals}f}"
+
+
+def significant(x: float, digits: int) -> str:
+    """``x`` to ``digits`` significant figures, without an exponent (48.3 -> "48", 1.416 -> "1.4")."""
+    decimals = max(digits - 1 - math.floor(math.log10(abs(x))), 0)
+    return f"{x:.{decimals}f}"
+
+
+def pm(x: float, se: float, decimals: int = 1) -> str:
+    return f"{x:.{decimals}f} ± {se:.{decimals}f}"
+
+
+def row(cells: list[str]) -> str:
+    """A Markdown table row; an empty cell is written ``| |``, as the documents do."""
+    return "|" + "|".join(f" {c} " if c else " " for c in cells) + "|"
+
+
+def _paper(record_ref: dict) -> dict:
+    """The paper's table the record names (``reference.table``: ``file_key.table_key``), from the
+    repository's copy of the reference file."""
+    book, table = record_ref["table"].split(".", 1)
+    return json.loads((ROOT / PAPER_TABLES).read_text())[book][table]
+
+
+# ---------------------------------------------------------------- the three-trajectory study
+
+THREE = "evaluate/results/fitee2023_three_trajectories/results.json"
+
+
+def _cases(rec: dict) -> list[tuple[str, dict]]:
+    return list(rec["cases"].items())
+
+
+def _ms_per_run(rec: dict, method: str) -> float:
+    """Median over the cases of the method's ``seconds_per_run``, in ms."""
+    return 1e3 * statistics.median(case["methods"][method]["seconds_per_run"] for _, case in _cases(rec))
+
+
+def _diverged_cell(value: str, m: dict, first: bool) -> str:
+    if not m.get("diverged_runs"):
+        return value
+    if first:
+        return (f"{value} ({m['diverged_runs']} of {m['runs']} runs diverged; median run "
+                f"{m['median_run_rmse_pos_m']:.1f})")
+    return f"{value} ({m['diverged_runs']} diverged; median {m['median_run_rmse_pos_m']:.1f})"
+
+
+def readme_three_trajectories(rec: dict) -> list[str]:
+    """README's main table: RMSE per trajectory (``*`` below the per-trajectory PCRB), the paper's
+    Table 6 beside it, seed groups as the mean of their seeds, the PCRB and its q = 0 floor."""
+    paper = _paper(rec["reference"])
+    cases = _cases(rec)
+    out = ["| method | traj. 1 | paper | traj. 2 | paper | traj. 3 | paper |",
+           "|---|---:|---:|---:|---:|---:|---:|"]
+    singles = [("EKF", "EKF"), ("UKF", "UKF"), ("SI+KF", "SI+KF"), ("particle filter, 5000 particles", "PF"),
+               ("DFNN", "DFNN"), ("MDFNN", "MDFNN"), ("RNN", "RNN")]
+    for label, name in singles:
+        cells, first = [label], True
+        for cname, case in cases:
+            m = case["methods"][name]
+            value = fixed(m["rmse_pos_m"], 2) + ("*" if m.get("below_bound") else "")
+            cells.append(_diverged_cell(value, m, first))
+            first = first and not m.get("diverged_runs")
+            p = paper.get(cname, {}).get(name)
+            cells.append("-" if p is None else f"{p:.2f}")
+        out.append(row(cells))
+    groups = [("MDFNN local/residual (compact), mean of 3 seeds", "MDFNN local"),
+              ("KalmanNet-style, mean of 3 seeds", "KalmanNet"),
+              ("KalmanNet-style trained on 300-scan windows, whole sequence, mean of 3 seeds",
+               "KalmanNet 300-scan training, whole sequence")]
+    for label, group in groups:
+        cells = [label]
+        for _, case in cases:
+            g = case["seed_groups"][group]
+            assert g["seeds"] == 3, (group, g["seeds"])
+            cells += [fixed(g["rmse_pos_m"]["mean"], 2), "-"]
+        out.append(row(cells))
+    for label, key in (("PCRB, filtering, per trajectory", "pos_m"),
+                       ("PCRB with q = 0 (the floor for flights without process noise)", "q0_pos_m")):
+        cells = [label]
+        for _, case in cases:
+            cells += [fixed(case["pcrb"][key], 2), ""]
+        out.append(row(cells))
+    return out
+
+
+def results_three_trajectories(rec: dict) -> list[str]:
+    """evaluate/RESULTS.md's Table 6 analogue: RMSE per trajectory beside the paper's, RMSE over the
+    own PCRB per trajectory and ms per run (median over the trajectories)."""
+    paper = _paper(rec["reference"])
+    cases = _cases(rec)
+    out = ["| method | traj. 1 | paper | traj. 2 | paper | traj. 3 | paper | RMSE / own PCRB | ms per run |",
+           "|---|---:|---:|---:|---:|---:|---:|---|---:|"]
+    two_decimals, one_decimal = (lambda x: fixed(x, 2)), (lambda x: fixed(x, 1))
+    rows = [("EKF", "EKF", two_decimals), ("UKF", "UKF", two_decimals),
+            ("SI+KF (plain SI fixes)", "SI+KF", one_decimal),
+            ("PF, 5000 particles, roughening 0.2", "PF", lambda x: significant(x, 2)),
+            ("DFNN", "DFNN", one_decimal), ("MDFNN", "MDFNN", one_decimal), ("RNN", "RNN", one_decimal)]
+    for label, name, ratio in rows:
+        cells = [label]
+        for cname, case in cases:
+            p = paper.get(cname, {}).get(name)
+            cells += [fixed(case["methods"][name]["rmse_pos_m"], 2), "" if p is None else f"{p:.2f}"]
+        cells.append(" / ".join(ratio(case["methods"][name]["over_bound"]) for _, case in cases))
+        cells.append(fixed(_ms_per_run(rec, name), 1))
+        out.append(row(cells))
+    for label, key in (("PCRB filtering, per trajectory", "pos_m"), ("PCRB with q = 0 (floor)", "q0_pos_m")):
+        cells = [label]
+        for _, case in cases:
+            cells += [fixed(case["pcrb"][key], 2), ""]
+        out.append(row(cells + ["", ""]))
+    return out
+
+
+# ---------------------------------------------------------------- one sky
+
+ONE_SKY = "evaluate/results/one_sky/results.json"
+
+_ONE_SKY_ROWS = [  # (row, what it reads): the reads column is the scenario's wiring, not a figure
+    ("EKF", "own stream"), ("UKF", "own stream"), ("IMM", "own stream"),
+    ("KalmanNet [seed 0]", "own stream"), ("MDFNN local [seed 0]", "own stream"), ("PCRB", "own stream"),
+    ("S-MSJPDA (oracle births)", "per pair, oracle births"), ("S-MSJPDA", "per pair"), ("P-MSJPDA", "per pair"),
+    ("PMHT", "per pair"), ("PMHT-3D", "**pooled per receiver**"), ("SMC-PHD + GTDA", "per pair"),
+    ("modified ICMB", "maps"), ("detect-then-track (OS-CFAR 1e-4)", "maps"), ("Stone Soup JPDA", "per pair"),
+]
+
+
+def one_sky(rec: dict) -> list[str]:
+    """evaluate/RESULTS.md's one_sky table: set and track figures of every row, one line each."""
+    (_, case), = _cases(rec)
+    dt = rec["settings"]["dt_s"]
+    out = ["| row | reads | GOSPA (m) ± s.e. | median run's GOSPA (m) | % localisation / missed / false | OSPA (m) ± s.e. "
+           "| pos RMSE, matched (m) ± s.e. | confirmed tracks / target | false tracks / run | track loss "
+           "| label switches / run | first track after birth (s) | s / run |",
+           "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for name, reads in _ONE_SKY_ROWS:
+        m = case["methods"][name]
+        if m["kind"] == "pcrb":
+            out.append(row([name, reads, "-", "-", "-", "-", fixed(m["rmse_pos_m"], 1)] + ["-"] * 6))
+            continue
+        shares = " / ".join(f"{100 * m[f'gospa_{k}_share']:.0f}" for k in ("localisation", "missed", "false"))
+        out.append(row([
+            name, reads, pm(m["gospa_m"], m["gospa_se_m"]), fixed(m["gospa_median_run_m"], 1), shares,
+            pm(m["ospa_m"], m["ospa_se_m"]), pm(m["rmse_pos_m"], m["rmse_pos_se_m"]),
+            fixed(m["confirmed_tracks_per_target"], 2), fixed(m["false_tracks_per_run"], 2),
+            fixed(m["track_loss_probability"], 2), fixed(m["label_switches_per_run"], 2),
+            fixed(m["scans_to_first_track"] * dt, 2), fixed(m["seconds_per_run"], 1)]))
+    return out
+
+
+# ---------------------------------------------------------------- registry and markers
+
+TABLES: dict[str, Table] = {
+    "readme_three_trajectories": Table(THREE, readme_three_trajectories),
+    "three_trajectories": Table(THREE, results_three_trajectories),
+    "one_sky": Table(ONE_SKY, one_sky),
+}
+
+
+def load_record(path: str, root: Path = ROOT) -> dict:
+    return json.loads((root / path).read_text())
+
+
+def regenerate(text: str, root: Path = ROOT, records: dict[str, dict] | None = None) -> tuple[str, list[str]]:
+    """``text`` with every marked table rewritten from its record, and the names of the tables found.
+    ``records``: loaded records by path (a cache shared across documents; filled as needed)."""
+    records = {} if records is None else records
+    lines = text.split("\n")
+    out, names, i = [], [], 0
+    while i < len(lines):
+        match = _OPEN.match(lines[i])
+        out.append(lines[i])
+        i += 1
+        if not match:
+            continue
+        name, record = match["name"], match["record"]
+        if name not in TABLES:
+            raise TableError(f"unknown table {name!r} (known: {', '.join(sorted(TABLES))})")
+        if TABLES[name].record != record:
+            raise TableError(f"table {name!r} comes from {TABLES[name].record}, its marker names {record}")
+        close = _CLOSE.format(name=name)
+        try:
+            end = lines.index(close, i)
+        except ValueError:
+            raise TableError(f"table {name!r}: no line {close!r} after its marker") from None
+        if record not in records:
+            records[record] = load_record(record, root)
+        out += TABLES[name].lines(records[record])
+        out.append(close)
+        names.append(name)
+        i = end + 1
+    return "\n".join(out), names
+
+
+def differing(root: Path = ROOT) -> list[str]:
+    """``document: table`` for every generated table whose text differs from its record's."""
+    records: dict[str, dict] = {}
+    bad = []
+    for doc in DOCUMENTS:
+        text = (root / doc).read_text()
+        new, names = regenerate(text, root, records)
+        if new == text:
+            continue
+        old_blocks, new_blocks = blocks(text), blocks(new)
+        bad += [f"{doc}: {n}" for n in names if old_blocks.get(n) != new_blocks.get(n)]
+    return bad
+
+
+def blocks(text: str) -> dict[str, str]:
+    """Each marked table's text by name."""
+    return {m["name"]: m["body"] for m in re.finditer(
+        r"^<!-- table: (?P<name>[\w.-]+) from \S+ -->\n(?P<body>.*?)^<!-- end table: (?P=name) -->$", text,
+        re.S | re.M)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m pmsr_nn.harness.report.record_tables",
+                                description="Rewrite the documents' tables from their records (or check them).")
+    p.add_argument("--check", action="store_true", help="write nothing; exit 1 naming each table that differs")
+    args = p.parse_args(argv)
+    try:
+        if args.check:
+            bad = differing()
+            for b in bad:
+                print(f"differs from its record: {b}", file=sys.stderr)
+            return 1 if bad else 0
+        records: dict[str, dict] = {}
+        for doc in DOCUMENTS:
+            path = ROOT / doc
+            text = path.read_text()
+            new, names = regenerate(text, ROOT, records)
+            if new != text:
+                path.write_text(new)
+            print(f"{doc}: {len(names)} table(s){' rewritten' if new != text else ''}")
+    except (TableError, OSError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
