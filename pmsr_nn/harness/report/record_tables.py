@@ -205,12 +205,74 @@ def one_sky(rec: dict) -> list[str]:
     return out
 
 
+# ---------------------------------------------------------------- benchmarks (benchmarks/results/*.json)
+
+SIMULATE = "benchmarks/results/simulate_throughput.json"
+FILTERS = "benchmarks/results/bench_filters.json"
+SI_KF = "benchmarks/results/bench_si_kf.json"
+PARTICLE = "benchmarks/results/bench_particle.json"
+
+
+def simulate_throughput(rec: dict) -> list[str]:
+    """`pmsr simulate` throughput and memory per variant and size (benchmarks/simulate_throughput.py)."""
+    out = ["| variant | tracks x 1000 s | track-steps/s | wall s | MB on disk | raw write of same bytes, s "
+           "| ratio to raw write | acceptance | left envelope | peak RSS MiB |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rec["rows"]:
+        out.append(row([r["variant"], str(r["tracks"]), f"{r['track_steps_per_s'] / 1e6:.2f} M", fixed(r["seconds"], 2),
+                        f"{r['bytes'] / 1e6:.0f}", fixed(r["raw_write_seconds"], 2),
+                        f"{r['seconds'] / r['raw_write_seconds']:.1f}x", f"{100 * r['acceptance']:.1f}%",
+                        f"{100 * r['fraction_left_envelope']:.1f}%", f"{r['peak_rss_mib']:.0f}"]))
+    return out
+
+
+def bench_filters(rec: dict) -> list[str]:
+    """The batched EKF / UKF against filterpy, as benchmarks/bench_filters.py prints it."""
+    out = ["```"]
+    for f in ("ekf", "ukf"):
+        out.append(f"{f}: {rec['tracks']} tracks x {rec['steps']} steps in {rec[f + '_seconds']:.2f} s = "
+                   f"{rec[f + '_track_steps_per_s'] / 1e6:.2f} M track-steps/s; filterpy "
+                   f"{rec[f + '_filterpy_ms_per_track']:.1f} ms/track -> speed-up {rec[f + '_speedup_vs_filterpy']:.0f}x; "
+                   f"max |diff| {rec[f + '_max_abs_diff_vs_filterpy']:.2e}")
+    return out + ["```"]
+
+
+def bench_si_kf(rec: dict) -> list[str]:
+    """SI fixes and SI+KF, plain and with two Gauss-Newton steps (benchmarks/bench_si_kf.py)."""
+    out = ["```"]
+    for key in ("si", "si_gn2"):
+        r = rec[key]
+        out.append(f"{key + ':':<7} position RMSE fixes {r['fix_rmse_m']:5.1f} m, SI+KF {r['kf_rmse_m']:5.1f} m "
+                   f"(mean NIS {r['kf_mean_nis']:.2f}); fixes {r['fix_track_steps_per_s'] / 1e6:.2f} M track-steps/s, "
+                   f"SI+KF {r['si_kf_track_steps_per_s'] / 1e3:.0f} k track-steps/s")
+    return out + ["```"]
+
+
+def bench_particle(rec: dict) -> list[str]:
+    """The bootstrap particle filter beside the UKF on the same tracks (benchmarks/bench_particle.py)."""
+    n = f"{rec['tracks']} tracks x {rec['steps']} steps"
+    return ["```",
+            f"ukf: {n} in {rec['ukf_seconds']:.2f} s = {rec['ukf_track_steps_per_s']:,.0f} track-steps/s; "
+            f"RMSE pos {rec['ukf_rmse_pos_m']:.2f} m, vel {rec['ukf_rmse_vel_mps']:.3f} m/s",
+            f"pf ({rec['particles']} particles): {rec['pf_seconds']:.2f} s = {rec['pf_track_steps_per_s']:,.0f} "
+            f"track-steps/s ({rec['pf_particle_steps_per_s'] / 1e6:.2f} M particle-steps/s, "
+            f"{rec['pf_seconds'] / rec['ukf_seconds']:.0f}x the UKF's time); RMSE pos {rec['pf_rmse_pos_m']:.2f} m, "
+            f"vel {rec['pf_rmse_vel_mps']:.3f} m/s",
+            f"pf: mean ESS {100 * rec['pf_mean_ess_fraction']:.1f}% of the particles, resampled at "
+            f"{100 * rec['pf_resampled_fraction']:.1f}% of track-steps, lost {rec['pf_lost_tracks']} of {rec['tracks']} tracks",
+            "```"]
+
+
 # ---------------------------------------------------------------- registry and markers
 
 TABLES: dict[str, Table] = {
     "readme_three_trajectories": Table(THREE, readme_three_trajectories),
     "three_trajectories": Table(THREE, results_three_trajectories),
     "one_sky": Table(ONE_SKY, one_sky),
+    "simulate_throughput": Table(SIMULATE, simulate_throughput),
+    "bench_filters": Table(FILTERS, bench_filters),
+    "bench_si_kf": Table(SI_KF, bench_si_kf),
+    "bench_particle": Table(PARTICLE, bench_particle),
 }
 
 
