@@ -68,5 +68,10 @@ def test_significant_figures(x, digits, text):
     assert rt.significant(x, digits) == text
 
 
+@pytest.mark.parametrize("x, text", [(15593.03, "1.56e4"), (38814.2, "3.88e4"), (0.000123, "1.23e-4")])
+def test_scientific(x, text):
+    assert rt.scientific(x) == text
+
+
 def test_an_empty_cell_is_written_as_the_documents_write_it():
     assert rt.row(["a", "", "b"]) == "| a | | b |"

@@ -63,6 +63,12 @@ def significant(x: float, digits: int) -> str:
     return f"{x:.{decimals}f}"
 
 
+def scientific(x: float, decimals: int = 2) -> str:
+    """``1.56e4``: the mantissa to ``decimals``, the exponent without sign padding."""
+    mantissa, exponent = f"{x:.{decimals}e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
 def pm(x: float, se: float, decimals: int = 1) -> str:
     return f"{x:.{decimals}f} ± {se:.{decimals}f}"
 
@@ -263,6 +269,27 @@ def bench_particle(rec: dict) -> list[str]:
             "```"]
 
 
+LEARNED = "benchmarks/results/bench_learned.json"
+_LEARNED_ROWS = [("MDFNN (Table 2, paper inputs)", "MDFNN"),
+                 ("MDFNN (Table 2, local inputs, residual output, per-channel taps)", "MDFNN-local"),
+                 ("MDFNN local, compact 128 / 96 / 128 (`models/mdfnn_local.yaml`)", "MDFNN-local-compact"),
+                 ("KalmanNet-style, GRU 64 (`models/kalmannet.yaml`)", "KalmanNet"),
+                 ("DFNN", "DFNN"), ("LSTM-256", "LSTM-256")]
+
+
+def bench_learned(rec: dict) -> list[str]:
+    """Training windows/s of each network and the MDFNN's inference beside the UKF's
+    (benchmarks/bench_learned.py, one precision)."""
+    out = ["| network | windows/s | vs Table-2 MDFNN |", "| --- | ---: | ---: |"]
+    for label, key in _LEARNED_ROWS:
+        out.append(row([label, f"{rec['training_windows_per_s'][key]:.0f}",
+                        f"{rec['training_speed_over_mdfnn_fp32'][key]:.1f}x"]))
+    inf = rec["inference"]
+    out.append(row([f"inference: MDFNN {scientific(inf['mdfnn_track_steps_per_s'])} track-steps/s against the UKF's "
+                    f"{scientific(inf['ukf_track_steps_per_s'])} in the same run", "", f"{inf['mdfnn_over_ukf_speed']:.2f}x"]))
+    return out
+
+
 # ---------------------------------------------------------------- registry and markers
 
 TABLES: dict[str, Table] = {
@@ -273,6 +300,7 @@ TABLES: dict[str, Table] = {
     "bench_filters": Table(FILTERS, bench_filters),
     "bench_si_kf": Table(SI_KF, bench_si_kf),
     "bench_particle": Table(PARTICLE, bench_particle),
+    "bench_learned": Table(LEARNED, bench_learned),
 }
 
 
