@@ -290,6 +290,23 @@ def bench_learned(rec: dict) -> list[str]:
     return out
 
 
+PMHT_BENCH = "benchmarks/results/bench_pmht.json"
+_PMHT_ROWS = [("PMHT-3D (pooled lists, illuminator unknown)", "PMHT-3D"), ("PMHT (per-pair lists)", "PMHT")]
+
+
+def bench_pmht(rec: dict) -> list[str]:
+    """Seconds per 200-scan run against EM iterations, the paper's Table 3 in brackets, and the
+    batched time per run (benchmarks/bench_pmht.py)."""
+    iterations = list(rec["methods"][_PMHT_ROWS[0][1]]["serial_s_per_run_vs_em"])
+    out = ["| tracker | " + " | ".join(iterations) + " | batched, 10 runs per call, 6 EM (s / run) |",
+           "|---|" + "---:|" * (len(iterations) + 1)]
+    for label, key in _PMHT_ROWS:
+        m = rec["methods"][key]
+        out.append(row([label] + [f"{m['serial_s_per_run_vs_em'][i]:.2f} ({m['paper_s_per_run_vs_em'][i]})"
+                                  for i in iterations] + [fixed(m["batched_s_per_run_6em"], 2)]))
+    return out
+
+
 # ---------------------------------------------------------------- registry and markers
 
 TABLES: dict[str, Table] = {
@@ -301,6 +318,7 @@ TABLES: dict[str, Table] = {
     "bench_si_kf": Table(SI_KF, bench_si_kf),
     "bench_particle": Table(PARTICLE, bench_particle),
     "bench_learned": Table(LEARNED, bench_learned),
+    "bench_pmht": Table(PMHT_BENCH, bench_pmht),
 }
 
 
