@@ -175,6 +175,71 @@ def results_three_trajectories(rec: dict) -> list[str]:
     return out
 
 
+def _group_cell(case: dict, group: str, bold: bool = False) -> str:
+    """``mean (min-max)`` of a seed group's RMSE, the mean in bold if asked."""
+    r = case["seed_groups"][group]["rmse_pos_m"]
+    mean = f"**{r['mean']:.2f}**" if bold else f"{r['mean']:.2f}"
+    return f"{mean} ({r['min']:.2f}-{r['max']:.2f})"
+
+
+def results_learned_rows(rec: dict) -> list[str]:
+    """evaluate/RESULTS.md's issue-17 table: the learned rows (seed groups: mean (min-max)) beside the
+    EKF, over the filtering PCRB and over their finite-memory bound."""
+    cases = [c for _, c in _cases(rec)]
+    out = ["| method | traj. 1 | traj. 2 | traj. 3 | / filtering PCRB | scans read | / finite-memory bound |",
+           "|---|---:|---:|---:|---|---:|---|"]
+    ekf = [c["methods"]["EKF"] for c in cases]
+    out.append(row(["EKF (matched model)"] + [fixed(m["rmse_pos_m"], 2) for m in ekf]
+                   + [" / ".join(fixed(m["over_bound"], 2) for m in ekf), "all", ""]))
+    for label, group, bold in (("**KalmanNet-style**, 3 seeds", "KalmanNet", True),
+                               ("MDFNN local/residual (compact), 3 seeds", "MDFNN local", False)):
+        gs = [c["seed_groups"][group] for c in cases]
+        assert all(g["seeds"] == 3 for g in gs), group
+        ratio = " / ".join(fixed(g["over_bound"]["mean"], 2) for g in gs)
+        scans = {c["methods"][m]["memory_scans"] for c in cases for m in c["seed_groups"][group]["methods"]}
+        assert len(scans) == 1, (group, scans)
+        out.append(row([label] + [_group_cell(c, group, bold) for c in cases]
+                       + [f"**{ratio}**" if bold else ratio, str(scans.pop()),
+                          " / ".join(fixed(g["over_memory_bound"]["mean"], 2) for g in gs)]))
+    for label, name, memory_decimals in (("MDFNN, paper-literal (released)", "MDFNN", 2),
+                                         ("RNN, paper-literal (released)", "RNN", 1)):
+        ms = [c["methods"][name] for c in cases]
+        assert len({m["memory_scans"] for m in ms}) == 1, name
+        out.append(row([label] + [fixed(m["rmse_pos_m"], 2) for m in ms]
+                       + [" / ".join(fixed(m["over_bound"], 1) for m in ms), str(ms[0]["memory_scans"]),
+                          " / ".join(fixed(m["over_memory_bound"], memory_decimals) for m in ms)]))
+    out.append(row(["PCRB filtering, per trajectory"] + [fixed(c["pcrb"]["pos_m"], 2) for c in cases] + ["", "", ""]))
+    return out
+
+
+def _paired(case: dict, group: str) -> str:
+    (c,) = [c for c in case["comparisons"] if c["learned"] == group]
+    return f"{c['margin_m']:.2f} +- {c['se_m']:.2f}"
+
+
+def results_whole_sequence(rec: dict) -> list[str]:
+    """evaluate/RESULTS.md's whole-sequence table: the three KalmanNet-style seed groups, RMSE mean
+    (min-max), over the PCRB, paired against the best classical row, seconds per run (the seeds'
+    medians over the trajectories, min-max)."""
+    cases = [c for _, c in _cases(rec)]
+    out = ["| KalmanNet-style, 3 seeds | traj. 1 | traj. 2 | traj. 3 | / filtering PCRB "
+           "| paired against the best classical (m) | s / run |",
+           "|---|---:|---:|---:|---|---|---:|"]
+    for label, group, bold in (("100-scan training, 100-scan windows (stride 50)", "KalmanNet", False),
+                               ("100-scan training, whole sequence", "KalmanNet, whole sequence", False),
+                               ("**300-scan training, whole sequence**", "KalmanNet 300-scan training, whole sequence",
+                                True)):
+        gs = [c["seed_groups"][group] for c in cases]
+        assert all(g["seeds"] == 3 for g in gs), group
+        ratio = " / ".join(fixed(g["over_bound"]["mean"], 2) for g in gs)
+        seconds = [statistics.median(c["methods"][m]["seconds_per_run"] for c in cases) for m in gs[0]["methods"]]
+        out.append(row([label] + [_group_cell(c, group, bold) for c in cases]
+                       + [f"**{ratio}**" if bold else ratio, " / ".join(_paired(c, group) for c in cases),
+                          f"{min(seconds):.3f}-{max(seconds):.3f}"]))
+    out.append(row(["PCRB, filtering, per trajectory"] + [fixed(c["pcrb"]["pos_m"], 2) for c in cases] + ["", "", ""]))
+    return out
+
+
 # ---------------------------------------------------------------- one sky
 
 ONE_SKY = "evaluate/results/one_sky/results.json"
@@ -312,6 +377,8 @@ def bench_pmht(rec: dict) -> list[str]:
 TABLES: dict[str, Table] = {
     "readme_three_trajectories": Table(THREE, readme_three_trajectories),
     "three_trajectories": Table(THREE, results_three_trajectories),
+    "three_trajectories_learned": Table(THREE, results_learned_rows),
+    "three_trajectories_whole_sequence": Table(THREE, results_whole_sequence),
     "one_sky": Table(ONE_SKY, one_sky),
     "simulate_throughput": Table(SIMULATE, simulate_throughput),
     "bench_filters": Table(FILTERS, bench_filters),
