@@ -276,6 +276,33 @@ def one_sky(rec: dict) -> list[str]:
     return out
 
 
+# ---------------------------------------------------------------- PMHT (JEIT 2021)
+
+JEIT = "evaluate/results/jeit2021_pmht/results.json"
+_JEIT_ROWS = [("PMHT-3D", "pooled, illuminator unknown"), ("PMHT", "per pair (labels given)"),
+              ("PMHT-3D (no annealing)", "pooled, illuminator unknown"), ("S-MSJPDA", "per pair (labels given)"),
+              ("UKF smoother (true assignment)", "each target's own detections")]
+
+
+def jeit_pmht(rec: dict) -> list[str]:
+    """evaluate/RESULTS.md's PMHT table: position RMSE ± s.e., velocity RMSE, OSPA, ANEES, label
+    switches and seconds per run of each row, and the PCRB (filtering / smoothing / q = 0 floor)."""
+    (_, case), = _cases(rec)
+    out = ["| method | lists it reads | pos RMSE (m) | vel RMSE (m/s) | OSPA (m, c = 2 km) | NEES / 6 (ANEES) "
+           "| label switches / run | s / run |",
+           "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for name, reads in _JEIT_ROWS:
+        m = case["methods"][name]
+        out.append(row([name, reads, f"{m['rmse_pos_m']:.0f} ± {m['rmse_pos_se_m']:.0f}", fixed(m["rmse_vel_mps"], 2),
+                        f"{m['ospa_m']:.0f}", fixed(m["anees"], 2), fixed(m["label_switches_per_run"], 2),
+                        fixed(m["seconds_per_run"], 2)]))
+    b = case["pcrb"]
+    out.append(row(["PCRB filtering / smoothing / q = 0 floor", "",
+                    f"{b['pos_m']:.0f} / {b['smoothing_pos_m']:.0f} / {b['q0_pos_m']:.0f}",
+                    f"{b['vel_mps']:.2f} / {b['smoothing_vel_mps']:.2f}", "", "", "", ""]))
+    return out
+
+
 # ---------------------------------------------------------------- track-before-detect
 
 TBD = "evaluate/results/remotesensing2020_icmb/results.json"
@@ -411,6 +438,7 @@ TABLES: dict[str, Table] = {
     "three_trajectories_whole_sequence": Table(THREE, results_whole_sequence),
     "one_sky": Table(ONE_SKY, one_sky),
     "tbd_mixed": Table(TBD, tbd_mixed),
+    "jeit_pmht": Table(JEIT, jeit_pmht),
     "simulate_throughput": Table(SIMULATE, simulate_throughput),
     "bench_filters": Table(FILTERS, bench_filters),
     "bench_si_kf": Table(SI_KF, bench_si_kf),
