@@ -276,6 +276,75 @@ def one_sky(rec: dict) -> list[str]:
     return out
 
 
+# ---------------------------------------------------------------- learned trackers on detections (issue 36)
+
+ONE_SKY_HYBRID = "evaluate/results/one_sky_hybrid/results.json"
+SHARED_HYBRID = "evaluate/results/shared_drones_hybrid/results.json"
+DENSE = "evaluate/results/dense_crossing/results.json"
+
+
+def _shares(m: dict) -> str:
+    return " / ".join(f"{100 * m[f'gospa_{k}_share']:.0f}" for k in ("localisation", "missed", "false"))
+
+
+def one_sky_hybrid(rec: dict) -> list[str]:
+    """The hybrid on one_sky's 50 runs: GOSPA, its run quantiles, paired against the best row
+    (``set_comparisons``), matched RMSE, false tracks, seconds per run."""
+    (_, case), = _cases(rec)
+    (cmp,) = case["set_comparisons"]
+    out = ["| row | GOSPA (m) ± s.e. | median run (m) | 75 % / 90 % / worst run (m) | minus the best row, paired (m) "
+           "| matched RMSE (m) | false tracks / run | s / run |",
+           "|---|---:|---:|---|---:|---:|---:|---:|"]
+    for name, m in case["methods"].items():
+        if name == cmp["reference"]:
+            paired = "best"
+        else:
+            d = cmp["rows"][name]["gospa_m"]
+            paired = f"{d['difference']:+.1f} ± {d['se']:.1f} ({d['verdict']})"
+        out.append(row([name, pm(m["gospa_m"], m["gospa_se_m"]), fixed(m["gospa_median_run_m"], 1),
+                        " / ".join(fixed(q, 1) for q in m["gospa_run_quantiles_m"][2:]), paired,
+                        pm(m["rmse_pos_m"], m["rmse_pos_se_m"]), fixed(m["false_tracks_per_run"], 2),
+                        fixed(m["seconds_per_run"], 1)]))
+    return out
+
+
+def shared_drones_hybrid(rec: dict) -> list[str]:
+    """The hybrid on shared_drones' 50 runs beside S-MSJPDA from detections (its GOSPA the ratio's
+    denominator)."""
+    (_, case), = _cases(rec)
+    methods = case["methods"]
+    base = methods["S-MSJPDA from detections"]["gospa_m"]
+    out = ["| method | pos RMSE (m) | GOSPA (m) | % loc. / missed / false | GOSPA / S-MSJPDA's | tracks / target "
+           "| false tracks / run | fragm. / run | ANEES | s / run |",
+           "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
+    for name, m in methods.items():
+        out.append(row([name.replace(" from detections", ""), pm(m["rmse_pos_m"], m["rmse_pos_se_m"]),
+                        pm(m["gospa_m"], m["gospa_se_m"]), _shares(m), fixed(m["gospa_m"] / base, 2),
+                        fixed(m["confirmed_tracks_per_target"], 2), fixed(m["false_tracks_per_run"], 2),
+                        fixed(m["fragmentations_per_run"], 2), significant(m["anees"], 3),
+                        fixed(m["seconds_per_run"], 2)]))
+    return out
+
+
+def dense_crossing(rec: dict) -> list[str]:
+    """dense_crossing's 10 runs: every row's GOSPA (the lowest of the rows that start their own
+    tracks in bold), its shares, tracks, false tracks, matched RMSE and seconds per run."""
+    (_, case), = _cases(rec)
+    methods = case["methods"]
+    best = min(m["gospa_m"] for m in methods.values() if m["initiation"] != "oracle")
+    out = ["| method | tracks start | GOSPA (m) ± s.e. | % loc. / missed / false | tracks / target "
+           "| false tracks / run | pos RMSE (m) | s / run |",
+           "|---|---|---:|---|---:|---:|---:|---:|"]
+    for name, m in methods.items():
+        gospa = pm(m["gospa_m"], m["gospa_se_m"])
+        seconds = m["seconds_per_run"]
+        out.append(row([name, "oracle" if m["initiation"] == "oracle" else "detections",
+                        f"**{gospa}**" if m["gospa_m"] == best else gospa, _shares(m),
+                        fixed(m["confirmed_tracks_per_target"], 2), fixed(m["false_tracks_per_run"], 2),
+                        fixed(m["rmse_pos_m"], 1), fixed(seconds, 2 if seconds < 10 else 1)]))
+    return out
+
+
 # ---------------------------------------------------------------- PMHT (JEIT 2021)
 
 JEIT = "evaluate/results/jeit2021_pmht/results.json"
@@ -439,6 +508,9 @@ TABLES: dict[str, Table] = {
     "one_sky": Table(ONE_SKY, one_sky),
     "tbd_mixed": Table(TBD, tbd_mixed),
     "jeit_pmht": Table(JEIT, jeit_pmht),
+    "one_sky_hybrid": Table(ONE_SKY_HYBRID, one_sky_hybrid),
+    "shared_drones_hybrid": Table(SHARED_HYBRID, shared_drones_hybrid),
+    "dense_crossing": Table(DENSE, dense_crossing),
     "simulate_throughput": Table(SIMULATE, simulate_throughput),
     "bench_filters": Table(FILTERS, bench_filters),
     "bench_si_kf": Table(SI_KF, bench_si_kf),
