@@ -1,0 +1,100 @@
+"""The tables of benchmarks/RESULTS.md written from a benchmark's JSON (benchmarks/results/): one
+function per table, of the loaded record, returning its lines (:mod:`.record_tables` places them)."""
+
+from __future__ import annotations
+
+from .record_cells import fixed, row, scientific
+
+
+SIMULATE = "benchmarks/results/simulate_throughput.json"
+FILTERS = "benchmarks/results/bench_filters.json"
+SI_KF = "benchmarks/results/bench_si_kf.json"
+PARTICLE = "benchmarks/results/bench_particle.json"
+
+
+def simulate_throughput(rec: dict) -> list[str]:
+    """`pmsr simulate` throughput and memory per variant and size (benchmarks/simulate_throughput.py)."""
+    out = ["| variant | tracks x 1000 s | track-steps/s | wall s | MB on disk | raw write of same bytes, s "
+           "| ratio to raw write | acceptance | left envelope | peak RSS MiB |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rec["rows"]:
+        out.append(row([r["variant"], str(r["tracks"]), f"{r['track_steps_per_s'] / 1e6:.2f} M", fixed(r["seconds"], 2),
+                        f"{r['bytes'] / 1e6:.0f}", fixed(r["raw_write_seconds"], 2),
+                        f"{r['seconds'] / r['raw_write_seconds']:.1f}x", f"{100 * r['acceptance']:.1f}%",
+                        f"{100 * r['fraction_left_envelope']:.1f}%", f"{r['peak_rss_mib']:.0f}"]))
+    return out
+
+
+def bench_filters(rec: dict) -> list[str]:
+    """The batched EKF / UKF against filterpy, as benchmarks/bench_filters.py prints it."""
+    out = ["```"]
+    for f in ("ekf", "ukf"):
+        out.append(f"{f}: {rec['tracks']} tracks x {rec['steps']} steps in {rec[f + '_seconds']:.2f} s = "
+                   f"{rec[f + '_track_steps_per_s'] / 1e6:.2f} M track-steps/s; filterpy "
+                   f"{rec[f + '_filterpy_ms_per_track']:.1f} ms/track -> speed-up {rec[f + '_speedup_vs_filterpy']:.0f}x; "
+                   f"max |diff| {rec[f + '_max_abs_diff_vs_filterpy']:.2e}")
+    return out + ["```"]
+
+
+def bench_si_kf(rec: dict) -> list[str]:
+    """SI fixes and SI+KF, plain and with two Gauss-Newton steps (benchmarks/bench_si_kf.py)."""
+    out = ["```"]
+    for key in ("si", "si_gn2"):
+        r = rec[key]
+        out.append(f"{key + ':':<7} position RMSE fixes {r['fix_rmse_m']:5.1f} m, SI+KF {r['kf_rmse_m']:5.1f} m "
+                   f"(mean NIS {r['kf_mean_nis']:.2f}); fixes {r['fix_track_steps_per_s'] / 1e6:.2f} M track-steps/s, "
+                   f"SI+KF {r['si_kf_track_steps_per_s'] / 1e3:.0f} k track-steps/s")
+    return out + ["```"]
+
+
+def bench_particle(rec: dict) -> list[str]:
+    """The bootstrap particle filter beside the UKF on the same tracks (benchmarks/bench_particle.py)."""
+    n = f"{rec['tracks']} tracks x {rec['steps']} steps"
+    return ["```",
+            f"ukf: {n} in {rec['ukf_seconds']:.2f} s = {rec['ukf_track_steps_per_s']:,.0f} track-steps/s; "
+            f"RMSE pos {rec['ukf_rmse_pos_m']:.2f} m, vel {rec['ukf_rmse_vel_mps']:.3f} m/s",
+            f"pf ({rec['particles']} particles): {rec['pf_seconds']:.2f} s = {rec['pf_track_steps_per_s']:,.0f} "
+            f"track-steps/s ({rec['pf_particle_steps_per_s'] / 1e6:.2f} M particle-steps/s, "
+            f"{rec['pf_seconds'] / rec['ukf_seconds']:.0f}x the UKF's time); RMSE pos {rec['pf_rmse_pos_m']:.2f} m, "
+            f"vel {rec['pf_rmse_vel_mps']:.3f} m/s",
+            f"pf: mean ESS {100 * rec['pf_mean_ess_fraction']:.1f}% of the particles, resampled at "
+            f"{100 * rec['pf_resampled_fraction']:.1f}% of track-steps, lost {rec['pf_lost_tracks']} of {rec['tracks']} tracks",
+            "```"]
+
+
+LEARNED = "benchmarks/results/bench_learned.json"
+_LEARNED_ROWS = [("MDFNN (Table 2, paper inputs)", "MDFNN"),
+                 ("MDFNN (Table 2, local inputs, residual output, per-channel taps)", "MDFNN-local"),
+                 ("MDFNN local, compact 128 / 96 / 128 (`models/mdfnn_local.yaml`)", "MDFNN-local-compact"),
+                 ("KalmanNet-style, GRU 64 (`models/kalmannet.yaml`)", "KalmanNet"),
+                 ("DFNN", "DFNN"), ("LSTM-256", "LSTM-256")]
+
+
+def bench_learned(rec: dict) -> list[str]:
+    """Training windows/s of each network and the MDFNN's inference beside the UKF's
+    (benchmarks/bench_learned.py, one precision)."""
+    out = ["| network | windows/s | vs Table-2 MDFNN |", "| --- | ---: | ---: |"]
+    for label, key in _LEARNED_ROWS:
+        out.append(row([label, f"{rec['training_windows_per_s'][key]:.0f}",
+                        f"{rec['training_speed_over_mdfnn_fp32'][key]:.1f}x"]))
+    inf = rec["inference"]
+    out.append(row([f"inference: MDFNN {scientific(inf['mdfnn_track_steps_per_s'])} track-steps/s against the UKF's "
+                    f"{scientific(inf['ukf_track_steps_per_s'])} in the same run", "", f"{inf['mdfnn_over_ukf_speed']:.2f}x"]))
+    return out
+
+
+PMHT_BENCH = "benchmarks/results/bench_pmht.json"
+_PMHT_ROWS = [("PMHT-3D (pooled lists, illuminator unknown)", "PMHT-3D"), ("PMHT (per-pair lists)", "PMHT")]
+
+
+def bench_pmht(rec: dict) -> list[str]:
+    """Seconds per 200-scan run against EM iterations, the paper's Table 3 in brackets, and the
+    batched time per run (benchmarks/bench_pmht.py)."""
+    iterations = list(rec["methods"][_PMHT_ROWS[0][1]]["serial_s_per_run_vs_em"])
+    out = ["| tracker | " + " | ".join(iterations) + " | batched, 10 runs per call, 6 EM (s / run) |",
+           "|---|" + "---:|" * (len(iterations) + 1)]
+    for label, key in _PMHT_ROWS:
+        m = rec["methods"][key]
+        out.append(row([label] + [f"{m['serial_s_per_run_vs_em'][i]:.2f} ({m['paper_s_per_run_vs_em'][i]})"
+                                  for i in iterations] + [fixed(m["batched_s_per_run_6em"], 2)]))
+    return out
