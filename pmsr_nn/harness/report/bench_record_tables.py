@@ -98,3 +98,40 @@ def bench_pmht(rec: dict) -> list[str]:
         out.append(row([label] + [f"{m['serial_s_per_run_vs_em'][i]:.2f} ({m['paper_s_per_run_vs_em'][i]})"
                                   for i in iterations] + [fixed(m["batched_s_per_run_6em"], 2)]))
     return out
+
+
+MSJPDA = "benchmarks/results/bench_msjpda.json"
+_MSJPDA_ROWS = [("S-MSJPDA", "S-MSJPDA"), ("P-MSJPDA (m = 10)", "P-MSJPDA"), ("P-MSJPDA (m = 100)", "P-MSJPDA m=100"),
+                ("true-assignment UKF", "true assignment")]
+
+
+def bench_msjpda_nominal(rec: dict) -> list[str]:
+    """S- and P-MSJPDA seconds per run, serial and batched, and P/S beside the paper's: the
+    2026-11-22 run every tracker was timed in, kept as ``previous_record`` of the file."""
+    prev = rec["previous_record"]
+    out = ["| tracker | serial s / run (mean, median) | batched s / run (10 runs per call) | paper s / run (MATLAB) |",
+           "|---|---:|---:|---:|"]
+    for label, key in _MSJPDA_ROWS:
+        m = prev["methods"][key]
+        paper = m["paper_s_per_run"]
+        out.append(row([label, f"{m['serial_s_per_run_mean']:.3f}, {m['serial_s_per_run_median']:.3f}",
+                        fixed(m["batched_s_per_run"], 3), "" if paper is None else fixed(paper, 2)]))
+    for label, key in (("P (m = 10) / S", "P-MSJPDA"), ("P (m = 100) / S", "P-MSJPDA m=100")):
+        r = prev["p_over_s"][key]
+        out.append(row([label, f"{r['serial_s_per_run_mean']:.1f}x", f"{r['batched_s_per_run']:.1f}x",
+                        f"{prev['paper_p_over_s']:.1f}x"]))
+    return out
+
+
+def bench_msjpda_rounds(rec: dict) -> list[str]:
+    """S-MSJPDA's batched seconds per run in a block of 100, per round and the rounds' median,
+    before (the file's ``before_6b20c70``) and after (issue 37's batched association)."""
+    rounds = rec["rounds_batched_s_per_run"]
+    before, after = sorted(rounds["before"])[1], sorted(rounds["after"])[1]
+    assert after == rec["methods"]["S-MSJPDA"]["batched_s_per_run"], "the file's figures are its median round's"
+    return ["| S-MSJPDA, block of 100 runs | before (6b20c70) | after |",
+            "|---|---:|---:|",
+            row(["batched s / run, per round", ", ".join(fixed(x, 3) for x in rounds["before"]),
+                 ", ".join(fixed(x, 3) for x in rounds["after"])]),
+            row(["batched s / run, median of the rounds", fixed(before, 3),
+                 f"{after:.3f} ({before / after:.0f}x faster)"])]
