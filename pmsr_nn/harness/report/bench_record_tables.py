@@ -135,3 +135,21 @@ def bench_msjpda_rounds(rec: dict) -> list[str]:
                  ", ".join(fixed(x, 3) for x in rounds["after"])]),
             row(["batched s / run, median of the rounds", fixed(before, 3),
                  f"{after:.3f} ({before / after:.0f}x faster)"])]
+
+
+MSJPDA_EXACT = "benchmarks/results/bench_msjpda_exact.json"
+_EXACT_ROWS = [("S-MSJPDA", "S-MSJPDA"), ("P-MSJPDA (m = 10, exact)", "P-MSJPDA"),
+               ("P-MSJPDA (m = 10, relaxation)", "P-MSJPDA relaxation"), ("P-MSJPDA (m = 100, exact)", "P-MSJPDA m=100"),
+               ("true-assignment UKF", "true assignment")]
+
+
+def bench_msjpda_exact(rec: dict) -> list[str]:
+    """S-MSJPDA and P-MSJPDA with exactly ranked events or the relaxation: seconds per run, serial
+    (mean) and batched (median of the passes)."""
+    out = [f"| tracker | serial s / run (mean of {rec['serial_runs']}) "
+           f"| batched s / run ({rec['block']} runs per call, median of {rec['repeats']}) |",
+           "|---|---:|---:|"]
+    for label, key in _EXACT_ROWS:
+        m = rec["methods"][key]
+        out.append(row([label, fixed(m["serial_s_per_run_mean"], 3), fixed(m["batched_s_per_run"], 3)]))
+    return out

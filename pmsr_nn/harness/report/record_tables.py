@@ -68,6 +68,7 @@ TABLES: dict[str, Table] = {
     "bench_pmht": Table(bench.PMHT_BENCH, bench.bench_pmht),
     "bench_msjpda_nominal": Table(bench.MSJPDA, bench.bench_msjpda_nominal),
     "bench_msjpda_rounds": Table(bench.MSJPDA, bench.bench_msjpda_rounds),
+    "bench_msjpda_exact": Table(bench.MSJPDA_EXACT, bench.bench_msjpda_exact),
 }
 
 
