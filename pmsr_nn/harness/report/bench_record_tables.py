@@ -3,7 +3,12 @@ function per table, of the loaded record, returning its lines (:mod:`.record_tab
 
 from __future__ import annotations
 
-from .record_cells import fixed, row, scientific
+import json
+from pathlib import Path
+
+from .record_cells import fixed, row, scientific, significant
+
+PAPER_TABLES = Path(__file__).resolve().parents[3] / "evaluate/reference/paper_tables.json"
 
 
 SIMULATE = "benchmarks/results/simulate_throughput.json"
@@ -152,4 +157,22 @@ def bench_msjpda_exact(rec: dict) -> list[str]:
     for label, key in _EXACT_ROWS:
         m = rec["methods"][key]
         out.append(row([label, fixed(m["serial_s_per_run_mean"], 3), fixed(m["batched_s_per_run"], 3)]))
+    return out
+
+
+TBD_BENCH = "benchmarks/results/bench_tbd.json"
+
+
+def bench_tbd(rec: dict) -> list[str]:
+    """Seconds per run of the modified ICMB per sub-area beside the seed's Table 2 (its MATLAB
+    times, from the paper's tables) and their ratio (two significant figures, whole from 100)."""
+    seed = json.loads(PAPER_TABLES.read_text())["remotesensing2020_icmb"]["table2_subarea"]
+    theirs = dict(zip(seed["size"], seed["computation_time_s"]))
+    out = ["| sub-area | ours, s per run | the seed (MATLAB), s per run | seed / ours |", "|---|---:|---:|---:|"]
+    for size, ours in rec["subarea_seconds_per_run"].items():
+        label = f"whole map ({rec['map_cells'][0]} rows x 11 columns the triangle reaches)" if size == "full" else size
+        cell = fixed(ours, 2 if ours < 10 else 1)
+        ratio = theirs[size] / ours
+        out.append(row([label, f"**{cell}**" if size == "5x5" else cell, fixed(theirs[size], 2),
+                        significant(ratio, 2) if ratio < 100 else fixed(ratio, 0)]))
     return out
