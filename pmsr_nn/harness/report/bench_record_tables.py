@@ -176,3 +176,23 @@ def bench_tbd(rec: dict) -> list[str]:
         out.append(row([label, f"**{cell}**" if size == "5x5" else cell, fixed(theirs[size], 2),
                         significant(ratio, 2) if ratio < 100 else fixed(ratio, 0)]))
     return out
+
+
+HARNESS = "benchmarks/results/bench_harness_overhead.json"
+_HARNESS_LABELS = {"fitee2023_three_trajectories.yaml": "fitee2023_three_trajectories, trajectory_1",
+                   "shared_drones.yaml": "shared_drones (3 drones, 520 scans)"}
+
+
+def bench_harness_overhead(rec: dict) -> list[str]:
+    """The runner against direct tracker calls on the same draws: every repeat's seconds both ways
+    and the ratio of the medians."""
+    first = rec["scenarios"][0]
+    n = len(first["harness_s"])
+    out = [f"| scenario ({first['runs']} runs in {first['runs'] // first['block_runs']} blocks) | methods "
+           f"| harness s ({n} repeats) | direct s ({n} repeats) | ratio of medians |",
+           "|---|---|---|---|---:|"]
+    for sc in rec["scenarios"]:
+        methods = ", ".join(m.replace(" [seed ", " s").replace("]", "") for m in sc["methods"])
+        out.append(row([_HARNESS_LABELS[sc["scenario"]], methods, " ".join(fixed(x, 2) for x in sc["harness_s"]),
+                        " ".join(fixed(x, 2) for x in sc["direct_s"]), fixed(sc["ratio_of_medians"], 3)]))
+    return out
