@@ -196,3 +196,22 @@ def bench_harness_overhead(rec: dict) -> list[str]:
         out.append(row([_HARNESS_LABELS[sc["scenario"]], methods, " ".join(fixed(x, 2) for x in sc["harness_s"]),
                         " ".join(fixed(x, 2) for x in sc["direct_s"]), fixed(sc["ratio_of_medians"], 3)]))
     return out
+
+
+ONNX = "benchmarks/results/bench_onnx.json"
+_ONNX_LABELS = {"mdfnn": "mdfnn (Table 2)", "rnn": "rnn (LSTM 256)", "mdfnn_local_s0": "mdfnn_local_s0 (fixes as input)"}
+
+
+def bench_onnx(rec: dict) -> list[str]:
+    """Each released tracker in torch and in onnxruntime: scans per second, their ratio and the
+    largest difference of the estimates (of a column's span)."""
+    out = ["| checkpoint | torch (scans/s) | onnxruntime (scans/s) | onnxruntime / torch "
+           "| largest difference (of a column's span) |",
+           "|---|---:|---:|---:|---:|"]
+    for r in rec["rows"]:
+        label = _ONNX_LABELS.get(r["checkpoint"], r["checkpoint"])
+        if r["kind"] == "kalmannet":
+            label = f"{r['checkpoint']} (step graph, {r['scans'] - 1} calls)"
+        out.append(row([label, f"{r['torch_scans_per_s']:,.0f}", f"{r['onnxruntime_scans_per_s']:,.0f}",
+                        fixed(r["onnxruntime_over_torch"], 2), scientific(r["max_diff_over_span"], 1)]))
+    return out

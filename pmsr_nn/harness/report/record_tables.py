@@ -71,6 +71,7 @@ TABLES: dict[str, Table] = {
     "bench_msjpda_exact": Table(bench.MSJPDA_EXACT, bench.bench_msjpda_exact),
     "bench_tbd": Table(bench.TBD_BENCH, bench.bench_tbd),
     "bench_harness_overhead": Table(bench.HARNESS, bench.bench_harness_overhead),
+    "bench_onnx": Table(bench.ONNX, bench.bench_onnx),
 }
 
 
