@@ -215,3 +215,20 @@ def bench_onnx(rec: dict) -> list[str]:
         out.append(row([label, f"{r['torch_scans_per_s']:,.0f}", f"{r['onnxruntime_scans_per_s']:,.0f}",
                         fixed(r["onnxruntime_over_torch"], 2), scientific(r["max_diff_over_span"], 1)]))
     return out
+
+
+PHD = "benchmarks/results/bench_phd.json"
+
+
+def bench_phd(rec: dict) -> list[str]:
+    """The SMC-PHD's seconds per run of the benchmark scene, one run, batched and with GTDA
+    labelling, against the real-time target."""
+    out = [f"| | s per {rec['scans']}-scan run | ms per scan | x real time | target (< {rec['target_seconds_per_run']:.0f} s) |",
+           "|---|---:|---:|---:|---|"]
+    for label, key in (("SMC-PHD, one run", "single"),
+                       (f"SMC-PHD, {rec['batched']['runs_per_call']} runs batched in one call (per run)", "batched"),
+                       ("SMC-PHD + GTDA labelling, one run", "with_gtda")):
+        r = rec[key]
+        out.append(row([label, fixed(r["seconds_per_run"], 2), fixed(1e3 * r["seconds_per_scan"], 1),
+                        fixed(r["real_time_factor"], 1), "met" if r["target_met"] else "not met"]))
+    return out

@@ -72,6 +72,7 @@ TABLES: dict[str, Table] = {
     "bench_tbd": Table(bench.TBD_BENCH, bench.bench_tbd),
     "bench_harness_overhead": Table(bench.HARNESS, bench.bench_harness_overhead),
     "bench_onnx": Table(bench.ONNX, bench.bench_onnx),
+    "bench_phd": Table(bench.PHD, bench.bench_phd),
 }
 
 
