@@ -339,3 +339,63 @@ def tbd_mixed(rec: dict) -> list[str]:
                         f"{t['median_pos_err_last_present_m']:.0f} / {t['rms_pos_last_present_m']:.0f}",
                         f"{t['ospa_mean_m']:.0f}", fixed(methods[name]["seconds_per_run"], 2)]))
     return out
+
+
+# ---------------------------------------------------------------- ablations (the MDFNN paper's Tables 3, 4, 5, 7)
+
+DFNN_VS_MDFNN = "evaluate/results/ablation_dfnn_vs_mdfnn/results.json"
+SEQUENCE_SIZE = "evaluate/results/ablation_sequence_size/results.json"
+FILTER_ORDER = "evaluate/results/ablation_filter_order/results.json"
+ALTITUDE = "evaluate/results/ablation_altitude/results.json"
+_TRAJECTORIES = ("trajectory_1", "trajectory_2", "trajectory_3")
+
+
+def _paper_table(key: str) -> dict:
+    return json.loads((ROOT / PAPER_TABLES).read_text())["fitee2023_mdfnn"][key]
+
+
+def ablation_dfnn_vs_mdfnn(rec: dict) -> list[str]:
+    """Table 3: DFNN and MDFNN at the same budget, RMSE per trajectory, the paper's beside."""
+    paper = _paper_table("table3_ablation_rmse_pos_m")
+    out = ["| network | traj. 1 | traj. 2 | traj. 3 | paper (its own test data) |", "|---|---:|---:|---:|---:|"]
+    for r in rec["rows"]:
+        out.append(row([r["label"]] + [fixed(r["rmse_pos_m"][t], 2) for t in _TRAJECTORIES]
+                       + [fixed(paper[r["label"]], 2)]))
+    return out
+
+
+def ablation_sequence_size(rec: dict) -> list[str]:
+    """Table 4: the sequence size epsilon, RMSE per trajectory, the paper's one-trajectory column."""
+    paper = _paper_table("table4_sequence_size_rmse_pos_m")
+    out = ["| epsilon | traj. 1 | traj. 2 | traj. 3 | paper |", "|---:|---:|---:|---:|---:|"]
+    for r in rec["rows"]:
+        out.append(row([r["label"]] + [fixed(r["rmse_pos_m"][t], 2) for t in _TRAJECTORIES]
+                       + [fixed(paper[r["label"]], 2)]))
+    return out
+
+
+def ablation_filter_order(rec: dict) -> list[str]:
+    """Table 5: the filter order M, RMSE per trajectory beside the paper's."""
+    paper = _paper_table("table5_filter_order_rmse_pos_m")
+    out = ["| M | traj. 1 | paper | traj. 2 | paper | traj. 3 | paper |", "|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rec["rows"]:
+        cells = [r["label"]]
+        for t in _TRAJECTORIES:
+            cells += [fixed(r["rmse_pos_m"][t], 2), fixed(paper[t][r["label"]], 2)]
+        out.append(row(cells))
+    return out
+
+
+def ablation_altitude(rec: dict) -> list[str]:
+    """Table 7: the planar EKF on targets at altitude h: RMSE, its increase over h = 0, ANEES, the
+    paper's RMSE."""
+    paper = _paper_table("table7_altitude_ekf_rmse_pos_m")
+    out = ["| h (m) | RMSE (m) | RMSE - RMSE_0 (m) | increase | ANEES | paper RMSE |", "|---:|---:|---:|---:|---:|---:|"]
+    for case in rec["cases"].values():
+        (m,) = case["methods"].values()
+        h = f"{m['altitude_m']:.0f}"
+        increase = m["relative_increase_pct"]
+        out.append(row([h, fixed(m["rmse_pos_m"], 2), fixed(m["abs_diff_rmse0_m"], 2),
+                        f"{fixed(increase, 2 if 0 < increase < 1 else 1)} %",
+                        fixed(m["anees"], 2), fixed(paper[h], 2)]))
+    return out
