@@ -10,6 +10,7 @@ import pytest
 
 from pmsr_nn.harness.report import record_cells as cells
 from pmsr_nn.harness.report import record_tables as rt
+from pmsr_nn.harness.report import fitee_record_tables as fitee
 from pmsr_nn.harness.report import study_record_tables as study
 
 
@@ -39,10 +40,10 @@ def test_a_changed_figure_is_found_and_rewritten():
 
 def test_markers_must_name_the_tables_record_and_close():
     text = (rt.ROOT / "README.md").read_text()
-    marker = f"<!-- table: readme_three_trajectories from {study.THREE} -->"
+    marker = f"<!-- table: readme_three_trajectories from {fitee.THREE} -->"
     assert marker in text
     with pytest.raises(rt.TableError, match="comes from"):
-        rt.regenerate(text.replace(marker, marker.replace(study.THREE, study.ONE_SKY)))
+        rt.regenerate(text.replace(marker, marker.replace(fitee.THREE, study.ONE_SKY)))
     with pytest.raises(rt.TableError, match="no line"):
         rt.regenerate(text.replace("<!-- end table: readme_three_trajectories -->", ""))
     with pytest.raises(rt.TableError, match="unknown table"):
@@ -52,15 +53,15 @@ def test_markers_must_name_the_tables_record_and_close():
 def test_the_generated_cells_read_the_record_fields_they_name():
     """Against the record read here directly: the EKF's RMSE with its below-bound star, the PF's
     diverged runs, the median over the trajectories of the seconds per run."""
-    rec = json.loads((rt.ROOT / study.THREE).read_text())
-    lines = study.readme_three_trajectories(rec)
+    rec = json.loads((rt.ROOT / fitee.THREE).read_text())
+    lines = fitee.readme_three_trajectories(rec)
     ekf = next(line for line in lines if line.startswith("| EKF |"))
     t1 = rec["cases"]["trajectory_1"]["methods"]["EKF"]
     assert t1["below_bound"] and ekf.split(" | ")[1] == f"{round(t1['rmse_pos_m'], 2):.2f}*"
     pf = next(line for line in lines if line.startswith("| particle filter"))
     assert f"({rec['cases']['trajectory_1']['methods']['PF']['diverged_runs']} of 100 runs diverged" in pf
     seconds = sorted(c["methods"]["UKF"]["seconds_per_run"] for c in rec["cases"].values())
-    ukf = next(line for line in study.results_three_trajectories(rec) if line.startswith("| UKF |"))
+    ukf = next(line for line in fitee.results_three_trajectories(rec) if line.startswith("| UKF |"))
     assert ukf.endswith(f"| {round(seconds[1] * 1000, 1)} |")
 
 

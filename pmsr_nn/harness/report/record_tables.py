@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Callable
 
 from . import bench_record_tables as bench
+from . import fitee_record_tables as fitee
 from . import study_record_tables as study
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -50,20 +51,20 @@ class Table:
 
 
 TABLES: dict[str, Table] = {
-    "readme_three_trajectories": Table(study.THREE, study.readme_three_trajectories),
-    "three_trajectories": Table(study.THREE, study.results_three_trajectories),
-    "three_trajectories_learned": Table(study.THREE, study.results_learned_rows),
-    "three_trajectories_whole_sequence": Table(study.THREE, study.results_whole_sequence),
+    "readme_three_trajectories": Table(fitee.THREE, fitee.readme_three_trajectories),
+    "three_trajectories": Table(fitee.THREE, fitee.results_three_trajectories),
+    "three_trajectories_learned": Table(fitee.THREE, fitee.results_learned_rows),
+    "three_trajectories_whole_sequence": Table(fitee.THREE, fitee.results_whole_sequence),
     "one_sky": Table(study.ONE_SKY, study.one_sky),
     "tbd_mixed": Table(study.TBD, study.tbd_mixed),
     "jeit_pmht": Table(study.JEIT, study.jeit_pmht),
     "one_sky_hybrid": Table(study.ONE_SKY_HYBRID, study.one_sky_hybrid),
     "shared_drones_hybrid": Table(study.SHARED_HYBRID, study.shared_drones_hybrid),
     "dense_crossing": Table(study.DENSE, study.dense_crossing),
-    "ablation_dfnn_vs_mdfnn": Table(study.DFNN_VS_MDFNN, study.ablation_dfnn_vs_mdfnn),
-    "ablation_sequence_size": Table(study.SEQUENCE_SIZE, study.ablation_sequence_size),
-    "ablation_filter_order": Table(study.FILTER_ORDER, study.ablation_filter_order),
-    "ablation_altitude": Table(study.ALTITUDE, study.ablation_altitude),
+    "ablation_dfnn_vs_mdfnn": Table(fitee.DFNN_VS_MDFNN, fitee.ablation_dfnn_vs_mdfnn),
+    "ablation_sequence_size": Table(fitee.SEQUENCE_SIZE, fitee.ablation_sequence_size),
+    "ablation_filter_order": Table(fitee.FILTER_ORDER, fitee.ablation_filter_order),
+    "ablation_altitude": Table(fitee.ALTITUDE, fitee.ablation_altitude),
     "simulate_throughput": Table(bench.SIMULATE, bench.simulate_throughput),
     "bench_filters": Table(bench.FILTERS, bench.bench_filters),
     "bench_si_kf": Table(bench.SI_KF, bench.bench_si_kf),
