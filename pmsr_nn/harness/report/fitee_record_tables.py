@@ -239,3 +239,35 @@ def ablation_altitude(rec: dict) -> list[str]:
                         f"{fixed(increase, 2 if 0 < increase < 1 else 1)} %",
                         fixed(m["anees"], 2), fixed(paper[h], 2)]))
     return out
+
+
+# ---------------------------------------------------------------- classical baselines against the PCRB
+
+BASELINES = "evaluate/results/baselines_vs_bounds/results.json"
+_BASELINE_LABELS = {"UKF + URTS": "UKF + unscented RTS", "SI+GN+KF": "SI (2 Gauss-Newton steps) + KF",
+                    "PF 20000 rough.": "bootstrap PF, 20,000 particles, roughening 0.2"}
+
+
+def _baselines(rec: dict, variant: str) -> list[str]:
+    """One variant's filters, smoothers and bounds: RMSE, MSE over each track's own bound, seconds."""
+    (res,) = [r for r in rec["results"] if r["variant"] == variant]
+    out = ["| method | pos RMSE (m) | vel RMSE (m/s) | MSE / own bound | time (s) |", "|---|---:|---:|---:|---:|"]
+    for r in res["rows"]:
+        label = _BASELINE_LABELS.get(r["method"], r["method"]).replace(" (filtering)", ", filtering") \
+            .replace(" (smoothing)", ", smoothing")
+        if r["kind"] == "bound":
+            out.append(row([label, fixed(r["position_rmse_m"], 2), fixed(r["velocity_rmse_mps"], 3), "", ""]))
+            continue
+        ratio, decimals = r["mse_over_per_track_bound"], 2 if r["mse_over_per_track_bound"] < 10 else 1
+        out.append(row([label, fixed(r["position_rmse_m"], 2), fixed(r["velocity_rmse_mps"], 3),
+                        f"{fixed(ratio, decimals)} +- {fixed(r['mse_over_per_track_bound_se'], decimals)}",
+                        fixed(r["seconds"], 2 if r["seconds"] < 10 else 0)]))
+    return out
+
+
+def baselines_envelope(rec: dict) -> list[str]:
+    return _baselines(rec, "envelope")
+
+
+def baselines_literal(rec: dict) -> list[str]:
+    return _baselines(rec, "literal")

@@ -51,6 +51,8 @@ class Table:
 
 
 TABLES: dict[str, Table] = {
+    "baselines_envelope": Table(fitee.BASELINES, fitee.baselines_envelope),
+    "baselines_literal": Table(fitee.BASELINES, fitee.baselines_literal),
     "readme_three_trajectories": Table(fitee.THREE, fitee.readme_three_trajectories),
     "three_trajectories": Table(fitee.THREE, fitee.results_three_trajectories),
     "three_trajectories_learned": Table(fitee.THREE, fitee.results_learned_rows),
