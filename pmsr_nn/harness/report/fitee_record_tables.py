@@ -271,3 +271,26 @@ def baselines_envelope(rec: dict) -> list[str]:
 
 def baselines_literal(rec: dict) -> list[str]:
     return _baselines(rec, "literal")
+
+
+LEARNED_BOUNDS = "evaluate/results/learned_vs_bounds/results.json"
+
+
+def learned_vs_bounds(rec: dict) -> list[str]:
+    """The test split's learned and classical rows against the filtering / smoothing PCRB and the
+    learned rows' finite-memory bound."""
+    out = ["| method | causal | pos RMSE (m) | vel RMSE (m/s) | / own PCRB | MSE / own PCRB per track | scans read "
+           "| finite-memory bound (m) | / finite-memory bound |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rec["rows"]:
+        memory = [str(r["memory_scans"]), fixed(r["memory_bound_position_m"], 2), fixed(r["over_memory_bound"], 2)] \
+            if "memory_scans" in r else ["all", "-", "-"]
+        out.append(row([r["method"], "yes" if r["causal"] else "no", fixed(r["position_rmse_m"], 2),
+                        fixed(r["velocity_rmse_mps"], 3), fixed(r["over_bound"], 2),
+                        f"{r['mse_over_bound']:.2f} +- {r['mse_over_bound_se']:.2f}"] + memory))
+    filtering, smoothing = rec["bounds"]["filtering"], rec["bounds"]["smoothing"]
+    out.append(row(["PCRB filtering (per trajectory)", "", fixed(filtering["position_m"], 2),
+                    fixed(filtering["velocity_mps"], 3), "1.00", "", "all", "", ""]))  # the bound over itself
+    out.append(row(["PCRB smoothing (per trajectory)", "", fixed(smoothing["position_m"], 2),
+                    fixed(smoothing["velocity_mps"], 3), "", "", "all", "", ""]))
+    return out

@@ -53,6 +53,7 @@ class Table:
 TABLES: dict[str, Table] = {
     "baselines_envelope": Table(fitee.BASELINES, fitee.baselines_envelope),
     "baselines_literal": Table(fitee.BASELINES, fitee.baselines_literal),
+    "learned_vs_bounds": Table(fitee.LEARNED_BOUNDS, fitee.learned_vs_bounds),
     "readme_three_trajectories": Table(fitee.THREE, fitee.readme_three_trajectories),
     "three_trajectories": Table(fitee.THREE, fitee.results_three_trajectories),
     "three_trajectories_learned": Table(fitee.THREE, fitee.results_learned_rows),
