@@ -58,6 +58,7 @@ TABLES: dict[str, Table] = {
     "three_trajectories": Table(fitee.THREE, fitee.results_three_trajectories),
     "three_trajectories_learned": Table(fitee.THREE, fitee.results_learned_rows),
     "three_trajectories_whole_sequence": Table(fitee.THREE, fitee.results_whole_sequence),
+    "shared_drones": Table(study.SHARED, study.shared_drones),
     "one_sky": Table(study.ONE_SKY, study.one_sky),
     "tbd_mixed": Table(study.TBD, study.tbd_mixed),
     "jeit_pmht": Table(study.JEIT, study.jeit_pmht),

@@ -173,3 +173,24 @@ def tbd_mixed(rec: dict) -> list[str]:
                         f"{t['median_pos_err_last_present_m']:.0f} / {t['rms_pos_last_present_m']:.0f}",
                         f"{t['ospa_mean_m']:.0f}", fixed(methods[name]["seconds_per_run"], 2)]))
     return out
+
+
+# ---------------------------------------------------------------- shared drones (issue 34)
+
+SHARED = "evaluate/results/shared_drones/results.json"
+
+
+def shared_drones(rec: dict) -> list[str]:
+    """shared_drones' 50 runs: every row's how tracks start, matched RMSE, GOSPA and its shares,
+    track counts, first track after birth, track loss, fragmentations, seconds per run."""
+    (_, case), = _cases(rec)
+    dt = rec["settings"]["dt_s"]
+    out = ["| method | tracks start | pos RMSE (m) | GOSPA (m) | % loc. / missed / false | tracks / target "
+           "| false tracks / run | first track after birth (s) | track loss prob. | fragm. / run | s / run |",
+           "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
+    for name, m in case["methods"].items():
+        out.append(row([name, m["initiation"], fixed(m["rmse_pos_m"], 1), pm(m["gospa_m"], m["gospa_se_m"]),
+                        _shares(m), fixed(m["confirmed_tracks_per_target"], 2), fixed(m["false_tracks_per_run"], 2),
+                        fixed(m["scans_to_first_track"] * dt, 2), fixed(m["track_loss_probability"], 3),
+                        fixed(m["fragmentations_per_run"], 2), fixed(m["seconds_per_run"], 2)]))
+    return out
