@@ -60,6 +60,7 @@ TABLES: dict[str, Table] = {
     "three_trajectories_whole_sequence": Table(fitee.THREE, fitee.results_whole_sequence),
     "shared_drones": Table(study.SHARED, study.shared_drones),
     "one_sky": Table(study.ONE_SKY, study.one_sky),
+    "daniyan_smcphd": Table(study.SMCPHD, study.daniyan_smcphd),
     "tbd_mixed": Table(study.TBD, study.tbd_mixed),
     "jeit_pmht": Table(study.JEIT, study.jeit_pmht),
     "one_sky_hybrid": Table(study.ONE_SKY_HYBRID, study.one_sky_hybrid),

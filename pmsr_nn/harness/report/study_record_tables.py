@@ -194,3 +194,30 @@ def shared_drones(rec: dict) -> list[str]:
                         fixed(m["scans_to_first_track"] * dt, 2), fixed(m["track_loss_probability"], 3),
                         fixed(m["fragmentations_per_run"], 2), fixed(m["seconds_per_run"], 2)]))
     return out
+
+
+# ---------------------------------------------------------------- SMC-PHD with GTDA labelling (Daniyan et al.)
+
+SMCPHD = "evaluate/results/daniyan_smcphd/results.json"
+_SMCPHD_ROWS = {"smcphd": "SMC-PHD estimates (unlabelled)",
+                "known_association_kf": "Kalman filter per aircraft on its own detections, births known",
+                "smcphd_gtda": "SMC-PHD + GTDA", "smcphd_hungarian": "SMC-PHD + Hungarian"}
+
+
+def daniyan_smcphd(rec: dict) -> list[str]:
+    """Every case and row of the SMC-PHD study: OSPA and GOSPA ± s.e., cardinality error, pooled RMS
+    range and range-rate; label figures for the labelled rows, GTDA's repairs for its own."""
+    out = ["| case | method | OSPA m (± s.e.) | GOSPA m (± s.e.) | abs. card. error | RMS range m | RMS range-rate m/s "
+           "| switches / run | fragmentations / run | labels / run | GTDA repairs / run |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for _, case in _cases(rec):
+        for key, label in _SMCPHD_ROWS.items():
+            m = case["methods"][key]
+            labelled = m.get("labels_per_run") is not None
+            labels = [fixed(m[k], 1) for k in ("label_switches_per_run", "fragmentations_per_run", "labels_per_run")] \
+                if labelled else ["-"] * 3
+            repairs = m.get("conflicts_repaired_per_run")
+            out.append(row([case["title"], label, pm(m["ospa_m"], m["ospa_se_m"], 0), pm(m["gospa_m"], m["gospa_se_m"], 0),
+                            fixed(m["cardinality_mean_abs_error"], 2), fixed(m["rmse_pos_pooled_m"], 1),
+                            fixed(m["rmse_vel_pooled_mps"], 2)] + labels + ["-" if repairs is None else fixed(repairs, 1)]))
+    return out
