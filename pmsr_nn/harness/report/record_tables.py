@@ -61,6 +61,7 @@ TABLES: dict[str, Table] = {
     "shared_drones": Table(study.SHARED, study.shared_drones),
     "one_sky": Table(study.ONE_SKY, study.one_sky),
     "daniyan_smcphd": Table(study.SMCPHD, study.daniyan_smcphd),
+    "access2019_msjpda": Table(study.MSJPDA, study.access2019_msjpda),
     "tbd_mixed": Table(study.TBD, study.tbd_mixed),
     "jeit_pmht": Table(study.JEIT, study.jeit_pmht),
     "one_sky_hybrid": Table(study.ONE_SKY_HYBRID, study.one_sky_hybrid),

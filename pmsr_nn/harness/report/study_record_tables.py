@@ -221,3 +221,31 @@ def daniyan_smcphd(rec: dict) -> list[str]:
                             fixed(m["cardinality_mean_abs_error"], 2), fixed(m["rmse_pos_pooled_m"], 1),
                             fixed(m["rmse_vel_pooled_mps"], 2)] + labels + ["-" if repairs is None else fixed(repairs, 1)]))
     return out
+
+
+# ---------------------------------------------------------------- S-MSJPDA against P-MSJPDA (IEEE Access 2019)
+
+MSJPDA = "evaluate/results/access2019_msjpda/results.json"
+_MSJPDA_CASES = {"nominal": "nominal (2 km apart)", "close_500m": "500 m apart",
+                 "loose_prior": "initiation 500 m / 20 m/s"}
+_MSJPDA_ROWS = {"S-MSJPDA": "S-MSJPDA", "P-MSJPDA": "P-MSJPDA (m = 10)",
+                "P-MSJPDA relaxation": "P-MSJPDA (m = 10, relaxation)", "P-MSJPDA m=100": "P-MSJPDA (m = 100)",
+                "true assignment": "true assignment"}
+
+
+def access2019_msjpda(rec: dict) -> list[str]:
+    """The three cases of the MSJPDA study: RMSE after the warm-up (over every scan in brackets),
+    over the true-assignment reference, ANEES, loss and swap probabilities, P-MSJPDA's largest
+    duality gap, seconds per run."""
+    out = ["| case | method | pos RMSE (m) | / reference | ANEES | loss prob. | swap prob. | max gap | s / run |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for key, case in _cases(rec):
+        reference = case["methods"]["true assignment"]["rmse_pos_m"]
+        for i, (name, label) in enumerate(_MSJPDA_ROWS.items()):
+            m = case["methods"][name]
+            gap = m.get("max_duality_gap")
+            out.append(row([_MSJPDA_CASES[key] if i == 0 else "", label,
+                            f"{m['rmse_pos_m']:.1f} ({m['rmse_pos_all_scans_m']:.1f})", fixed(m["rmse_pos_m"] / reference, 2),
+                            fixed(m["anees"], 2), fixed(m["loss_probability"], 3), fixed(m["swap_probability"], 3),
+                            "" if gap is None else fixed(gap, 1), fixed(m["seconds_per_run"], 3)]))
+    return out
