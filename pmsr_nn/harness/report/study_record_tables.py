@@ -26,6 +26,42 @@ _ONE_SKY_ROWS = [  # (row, what it reads): the reads column is the scenario's wi
 ]
 
 
+def _paired_rows(group: dict, header: str) -> list[str]:
+    """A ``set_comparisons`` group: each row minus the group's best, GOSPA and OSPA, with verdicts."""
+    out = [f"| {header}, minus {group['reference']} | GOSPA difference (m) | verdict | OSPA difference (m) | verdict |",
+           "|---|---:|---|---:|---|"]
+    for name, r in group["rows"].items():
+        g, o = r["gospa_m"], r["ospa_m"]
+        out.append(row([name, f"{g['difference']:+.1f} ± {g['se']:.1f}", g["verdict"],
+                        f"{o['difference']:+.1f} ± {o['se']:.1f}", o["verdict"]]))
+    return out
+
+
+def one_sky_paired_own_tracks(rec: dict) -> list[str]:
+    """one_sky's rows that start their own tracks, paired against the best of them."""
+    (_, case), = _cases(rec)
+    (group,) = [g for g in case["set_comparisons"] if g["group"] == "start their own tracks"]
+    return _paired_rows(group, "rows that start their own tracks")
+
+
+def one_sky_paired_handed(rec: dict) -> list[str]:
+    """one_sky's rows handed their targets, paired against the best of them."""
+    (_, case), = _cases(rec)
+    (group,) = [g for g in case["set_comparisons"] if g["group"].startswith("are handed their targets")]
+    return _paired_rows(group, "rows handed their targets (own streams, oracle births)")
+
+
+def one_sky_quantiles(rec: dict) -> list[str]:
+    """The quantiles of each run's GOSPA for the rows that start their own tracks."""
+    (_, case), = _cases(rec)
+    (group,) = [g for g in case["set_comparisons"] if g["group"] == "start their own tracks"]
+    names = [n for n in case["methods"] if n == group["reference"] or n in group["rows"]]
+    out = ["| row | 25 % | median | 75 % | 90 % | worst |", "|---|---:|---:|---:|---:|---:|"]
+    for name in names:
+        out.append(row([name] + [fixed(q, 1) for q in case["methods"][name]["gospa_run_quantiles_m"]]))
+    return out
+
+
 def one_sky(rec: dict) -> list[str]:
     """evaluate/RESULTS.md's one_sky table: set and track figures of every row, one line each."""
     (_, case), = _cases(rec)
