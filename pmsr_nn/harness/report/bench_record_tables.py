@@ -232,3 +232,21 @@ def bench_phd(rec: dict) -> list[str]:
         out.append(row([label, fixed(r["seconds_per_run"], 2), fixed(1e3 * r["seconds_per_scan"], 1),
                         fixed(r["real_time_factor"], 1), "met" if r["target_met"] else "not met"]))
     return out
+
+
+FRONT_END = "benchmarks/results/bench_front_end.json"
+
+
+def bench_front_end(rec: dict) -> list[str]:
+    """One CPI through the FM chain: ms per CPI and times real time, one pair and batched, and the
+    stages alone."""
+    o = rec["ours"]
+    st = o["stages_seconds"]
+    stages = (f"stages alone: ECA {1e3 * st['eca']:.1f}, 2D-CCF {1e3 * st['ccf_batches']:.1f}, "
+              f"OS-CFAR {1e3 * st['os_cfar']:.1f}, centroids {1e3 * st['centroids']:.1f}")
+    return ["| | ms per CPI (one pair) | x real time |", "|---|---:|---:|",
+            row(["ours, whole chain, one pair per call", fixed(1e3 * o["seconds_per_cpi_one_pair"], 1),
+                 fixed(o["x_real_time_one_pair"], 1)]),
+            row(["ours, whole chain, 6 pairs per call (per pair)", fixed(1e3 * o["seconds_per_cpi_batch_of_6"], 1),
+                 fixed(o["x_real_time_batched"], 1)]),
+            row([stages, "", ""])]

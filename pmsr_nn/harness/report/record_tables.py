@@ -65,6 +65,9 @@ TABLES: dict[str, Table] = {
     "one_sky_quantiles": Table(study.ONE_SKY, study.one_sky_quantiles),
     "daniyan_smcphd": Table(study.SMCPHD, study.daniyan_smcphd),
     "access2019_msjpda": Table(study.MSJPDA, study.access2019_msjpda),
+    "fm_front_end": Table(study.FM, study.fm_front_end),
+    "fm_range_by_kind": Table(study.FM, study.fm_range_by_kind),
+    "fm_tracking": Table(study.FM, study.fm_tracking),
     "tbd_mixed": Table(study.TBD, study.tbd_mixed),
     "jeit_pmht": Table(study.JEIT, study.jeit_pmht),
     "one_sky_hybrid": Table(study.ONE_SKY_HYBRID, study.one_sky_hybrid),
@@ -87,6 +90,7 @@ TABLES: dict[str, Table] = {
     "bench_harness_overhead": Table(bench.HARNESS, bench.bench_harness_overhead),
     "bench_onnx": Table(bench.ONNX, bench.bench_onnx),
     "bench_phd": Table(bench.PHD, bench.bench_phd),
+    "bench_front_end": Table(bench.FRONT_END, bench.bench_front_end),
 }
 
 

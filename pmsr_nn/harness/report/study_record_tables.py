@@ -285,3 +285,52 @@ def access2019_msjpda(rec: dict) -> list[str]:
                             fixed(m["anees"], 2), fixed(m["loss_probability"], 3), fixed(m["swap_probability"], 3),
                             "" if gap is None else fixed(gap, 1), fixed(m["seconds_per_run"], 3)]))
     return out
+
+
+# ---------------------------------------------------------------- FM front end (Daniyan et al., Section II)
+
+FM = "evaluate/results/fm_front_end/results.json"
+
+
+def fm_front_end(rec: dict) -> list[str]:
+    """What the FM chain measured on the signals case: Pd, false alarms, detection errors against
+    their reported deviations, cancellation depth, seconds per CPI."""
+    f = rec["cases"]["signals"]["front_end"]
+    per_target = " / ".join(fixed(p, 2) for p in f["pd_measured_per_target"])
+    return ["| Pd (per target) | false alarms per map and pair (nominal Pfa x cells) | range RMSE of detections / "
+            "their reported sd | Doppler RMSE / reported sd | cancellation depth | chain s / CPI |",
+            "|---|---|---|---|---|---|",
+            row([f"{f['pd_measured']:.3f} ({per_target})",
+                 f"{f['false_alarms_per_map']:.2f} ({f['nominal_false_alarms_per_map']:.2f})",
+                 f"{f['rmse_range_m']:.0f} m / {f['reported_sd_range_m']:.0f} m",
+                 f"{f['rmse_doppler_hz']:.3f} Hz / {f['reported_sd_doppler_hz']:.3f} Hz",
+                 f"{f['cancellation_depth_db']:.1f} dB",
+                 f"{f['processing_seconds_per_cpi']:.2f} ({f['faster_than_real_time']:.0f}x real time)"])]
+
+
+def fm_range_by_kind(rec: dict) -> list[str]:
+    """The chain's range errors by kind of detection (clear, edge, crowded)."""
+    kinds = rec["cases"]["signals"]["front_end"]["range_by_kind"]
+    out = ["| kind | detections | range RMSE / reported sd |", "|---|---|---|"]
+    for kind in ("clear", "edge", "crowded"):
+        k = kinds[kind]
+        out.append(row([kind, f"{k['detections']:,}", f"{k['rmse_range_m']:.0f} m / {k['reported_sd_range_m']:.0f} m "
+                        f"({k['rmse_range_m'] / k['reported_sd_range_m']:.2f}x)"]))
+    return out
+
+
+_FM_ROWS = {"S-MSJPDA": "S-MSJPDA", "PMHT": "PMHT, marginal E-step (a smoother)",
+            "true assignment": "true assignment (UKF on each target's labelled detections)"}
+
+
+def fm_tracking(rec: dict) -> list[str]:
+    """The trackers on the chain's detections beside the same trackers on model detections."""
+    out = ["| method | signal-chain detections | model detections |", "|---|---|---|"]
+    for name, label in _FM_ROWS.items():
+        cells = [label]
+        for case in ("signals", "model"):
+            m = rec["cases"][case]["methods"][name]
+            cells.append(f"{m['rmse_pos_m']:.1f} m, {m['rmse_vel_mps']:.2f} m/s, ANEES {m['anees']:.2f}, "
+                         f"OSPA {m['ospa_m']:.1f}")
+        out.append(row(cells))
+    return out
