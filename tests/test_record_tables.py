@@ -97,3 +97,4 @@ def test_a_bad_marker_writes_nothing(tmp_path, monkeypatch, capsys):
     (tmp_path / "b.md").write_text("")
     assert rt.main(["--check"]) == 1 and rt.main([]) == 0
     assert "ekf: 10000 tracks" in (tmp_path / "a.md").read_text() and rt.main(["--check"]) == 0
+
