@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from ...errors import ConfigError
 from . import bench_record_tables as bench
 from . import fitee_record_tables as fitee
 from . import study_record_tables as study
@@ -38,7 +39,7 @@ _OPEN = re.compile(r"^<!-- table: (?P<name>[\w.-]+) from (?P<record>\S+) -->$")
 _CLOSE = "<!-- end table: {name} -->"
 
 
-class TableError(ValueError):
+class TableError(ConfigError):
     """A marker without its end, an unknown table name, or a marker naming another record."""
 
 
