@@ -22,7 +22,9 @@ TIMINGS: dict[str, dict] = {
         "date": "2026-11-26",
         "machine": "2-core Intel Xeon (AVX-512), torch 2.13.0 CPU",
         "conditions": "after the one-time set-up of about a minute",
-        "source": "`make test` (the default tier, two xdist workers); pytest's closing line, not kept.",
+        "source": "`make test` (the default tier, two xdist workers); pytest's closing line, not kept. "
+                  "`python benchmarks/time_tests.py --json benchmarks/results/test_suite_time.json` records one "
+                  "(on a quiet machine: a run at nice 19 beside other jobs took 17.5 min, 2026-12-06).",
     },
     "first_hour": {
         "minutes": 2.7,
