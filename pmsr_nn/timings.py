@@ -24,7 +24,7 @@ TIMINGS: dict[str, dict] = {
         "conditions": "after the one-time set-up of about a minute",
         "source": "`make test` (the default tier, two xdist workers); pytest's closing line, not kept. "
                   "`python benchmarks/time_tests.py --json benchmarks/results/test_suite_time.json` records one "
-                  "(on a quiet machine: a run at nice 19 beside other jobs took 17.5 min, 2026-12-06).",
+                  "(on a quiet machine, to be quoted here).",
     },
     "first_hour": {
         "minutes": 2.7,
