@@ -49,8 +49,9 @@ Track length (``--steps``, default 1000)
     the recipe's default is 1000 samples at T = 1 s, so we use 1000. One timing run on this
     project's 2-core CPU (idle, 2 torch threads; 500 tracks x 1000 steps x 5 altitudes) took
     7.7 s of compute (EKF 5.9 s, PCRB 1.0 s, truth 0.24 s); time is linear in tracks x steps,
-    so the full 10 000 tracks take about 2.6 minutes, well inside a 10-15 minute budget and no
-    reason to shorten the tracks. On a CPU shared with another multi-threaded job, use
+    so the full 10 000 tracks take a few minutes (the recorded full run: 128 s of wall-clock,
+    ``environment.wall_seconds`` in evaluate/results/ablation_altitude/results.json), well inside a
+    10-15 minute budget and no reason to shorten the tracks. On a CPU shared with another multi-threaded job, use
     ``--threads 1``: with another 2-thread job holding both cores, a small run with 2 torch
     threads was measured about 50x slower than on the idle machine.
 

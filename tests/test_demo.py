@@ -86,7 +86,7 @@ def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeyp
 
 @pytest.mark.slow
 def test_the_real_demo(tmp_path):
-    """The README's first command with its real budget (about 2.5 minutes on 2 cores)."""
+    """The README's first command with its real budget (timings.TIMINGS["demo"] on 2 cores)."""
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out)]) == 0
     check_demo_folder(out, 20)

@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 
 from pmsr_nn.cli import DEMO_EXPECTED, build_parser, main
+from pmsr_nn.timings import TIMINGS
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "evaluate" / "README.md"]
@@ -292,7 +293,15 @@ def test_the_readme_states_the_demo_time_the_demo_promises():
     assert not re.search(r"\d\s*(min|minutes|s)\b", paragraph.replace(DEMO_EXPECTED, "")
                          .replace("2026-11-26", "")), paragraph
     make_test = next(line for line in README.splitlines() if line.startswith("make test "))
-    assert len(re.findall(r"\d+(?:\.\d+)? minutes", make_test)) == 1, make_test
+    assert re.findall(r"\d+(?:\.\d+)? minutes", make_test) == [f"{TIMINGS['make_test']['minutes']} minutes"], make_test
+    assert TIMINGS["make_test"]["date"] in make_test and TIMINGS["demo"]["date"] in paragraph
+
+
+def test_the_first_hour_time_is_the_recorded_one():
+    """The 'Your first hour' block's total is the one of pmsr_nn/timings.py, with its date."""
+    block = README[README.index("## Your first hour"):README.index("## Documentation")]
+    assert re.findall(r"(\d+(?:\.\d+)?) minutes in all", block) == [f"{TIMINGS['first_hour']['minutes']}"], block
+    assert f"Measured once, {TIMINGS['first_hour']['date']}" in block
 
 
 def test_the_readme_is_short():

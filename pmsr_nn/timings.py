@@ -1,0 +1,46 @@
+"""The recorded wall-clock times the documents and the CLI quote: one entry per claim, read by
+``pmsr demo`` (its header), and checked against README.md by ``tests/test_readme.py``.
+
+Each entry: ``minutes`` (the figure quoted, rounded as quoted), ``date`` and ``machine`` of the
+measurement, ``conditions`` (load, threads) and ``source`` (what measured it and what is kept of it).
+A re-measurement replaces the entry; the documents follow through the tests that read it.
+"""
+
+from __future__ import annotations
+
+TIMINGS: dict[str, dict] = {
+    "demo": {
+        "minutes": 2.6,
+        "date": "2026-11-26",
+        "machine": "2-core Intel Xeon (AVX-512), torch 2.13.0 CPU",
+        "conditions": "beside other jobs",
+        "source": "`pmsr demo` on its default, wall-clock of the whole command; the run's demo.json "
+                  "(total_seconds) was not kept. Stage times: harness.demo.REFERENCE_SECONDS.",
+    },
+    "make_test": {
+        "minutes": 3.8,
+        "date": "2026-11-26",
+        "machine": "2-core Intel Xeon (AVX-512), torch 2.13.0 CPU",
+        "conditions": "after the one-time set-up of about a minute",
+        "source": "`make test` (the default tier, two xdist workers); pytest's closing line, not kept. "
+                  "`python benchmarks/time_tests.py --json benchmarks/results/test_suite_time.json` records one "
+                  "(on a quiet machine, to be quoted here).",
+    },
+    "first_hour": {
+        "minutes": 2.7,
+        "date": "2026-11-26",
+        "machine": "2-core Intel Xeon (AVX-512), torch 2.13.0 CPU",
+        "conditions": "loaded by other jobs (load average 5-8)",
+        "source": "every command of README.md's 'Your first hour' block, one after the other; the "
+                  "per-command times are quoted in the README beside it.",
+    },
+}
+
+
+def quoted_minutes(name: str) -> str:
+    """The figure as the documents quote it: ``"2.6 min"``-style text, one decimal."""
+    return f"{TIMINGS[name]['minutes']:.1f} min"
+
+
+DEMO_EXPECTED = f"about {quoted_minutes('demo')} on 2 CPU cores"
+"""What ``pmsr demo`` promises in its header and help, and README.md says once."""
