@@ -10,12 +10,13 @@ from __future__ import annotations
 
 TIMINGS: dict[str, dict] = {
     "demo": {
-        "minutes": 2.6,
-        "date": "2026-11-26",
-        "machine": "2-core Intel Xeon (AVX-512), torch 2.13.0 CPU",
-        "conditions": "beside other jobs",
-        "source": "`pmsr demo` on its default, wall-clock of the whole command; the run's demo.json "
-                  "(total_seconds) was not kept. Stage times: harness.demo.REFERENCE_SECONDS.",
+        "minutes": 4.1,
+        "date": "2026-12-06",
+        "machine": "2-core AMD EPYC, torch 2.13.0 CPU",
+        "conditions": "no other job on the machine (load average 0.8 before)",
+        "source": "`python benchmarks/time_demo.py --json benchmarks/results/demo_time.json` (the whole `pmsr demo` "
+                  "command on its default, commit d8bc8ed; its stage times are in the record). The earlier 2.6 "
+                  "minutes (2-core Intel Xeon, 2026-11-26) kept no record. Stage hints: harness.demo.REFERENCE_SECONDS.",
     },
     "make_test": {
         "minutes": 6.6,
