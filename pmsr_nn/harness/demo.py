@@ -143,11 +143,13 @@ def _fresh(out: Path) -> None:
 
 
 DEMO_STAGES = 5
-REFERENCE_SECONDS = {"batch": {"mdfnn": 0.11, "kalmannet": 0.23}, "run": {"evaluation": 1.0, "one_sky": 16.0}}
-"""Seconds per training batch and per Monte Carlo run of each stage on the 2-core reference machine
-(the default demo, 2026-11-24: 33 s for 300 MDFNN batches, 28 s for 120 KalmanNet batches, 20 s
-for 20 runs of the three trajectories; 2026-11-26: 32 s for the 2 runs of the one-sky stage, its
-untimed warm-up run included): each stage line says what it took there."""
+REFERENCE_SECONDS = {"batch": {"mdfnn": 0.30, "kalmannet": 0.44}, "run": {"evaluation": 1.0, "one_sky": 35.5}}
+"""Seconds per training batch and per Monte Carlo run of each stage, so that each stage line says
+what it took on 2 CPU cores: training and the one-sky stage from the demo's record
+(``benchmarks/results/demo_time.json``, the quiet 2-core AMD EPYC, 2026-12-06: 90 s for 300 MDFNN
+batches, 53 s for 120 KalmanNet batches, 71 s for the 2 runs of the one-sky stage, its untimed
+warm-up run included); the three-trajectory evaluation from the 2-core Intel Xeon, 2026-11-24 (20 s
+for 20 runs; the record keeps no time of that stage alone)."""
 
 
 def _about(seconds: float) -> str:
