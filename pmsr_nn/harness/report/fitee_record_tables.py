@@ -194,24 +194,26 @@ def _paper_table(key: str) -> dict:
     return json.loads((ROOT / PAPER_TABLES).read_text())["fitee2023_mdfnn"][key]
 
 
-def ablation_dfnn_vs_mdfnn(rec: dict) -> list[str]:
-    """Table 3: DFNN and MDFNN at the same budget, RMSE per trajectory, the paper's beside."""
-    paper = _paper_table("table3_ablation_rmse_pos_m")
-    out = ["| network | traj. 1 | traj. 2 | traj. 3 | paper (its own test data) |", "|---|---:|---:|---:|---:|"]
+def _per_trajectory_and_paper(rec: dict, paper_key: str, header: list[str]) -> list[str]:
+    """An ablation's rows: its label, the RMSE per trajectory and the paper's one figure for the label."""
+    paper = _paper_table(paper_key)
+    out = list(header)
     for r in rec["rows"]:
         out.append(row([r["label"]] + [fixed(r["rmse_pos_m"][t], 2) for t in _TRAJECTORIES]
                        + [fixed(paper[r["label"]], 2)]))
     return out
+
+
+def ablation_dfnn_vs_mdfnn(rec: dict) -> list[str]:
+    """Table 3: DFNN and MDFNN at the same budget, RMSE per trajectory, the paper's beside."""
+    return _per_trajectory_and_paper(rec, "table3_ablation_rmse_pos_m", [
+        "| network | traj. 1 | traj. 2 | traj. 3 | paper (its own test data) |", "|---|---:|---:|---:|---:|"])
 
 
 def ablation_sequence_size(rec: dict) -> list[str]:
     """Table 4: the sequence size epsilon, RMSE per trajectory, the paper's one-trajectory column."""
-    paper = _paper_table("table4_sequence_size_rmse_pos_m")
-    out = ["| epsilon | traj. 1 | traj. 2 | traj. 3 | paper |", "|---:|---:|---:|---:|---:|"]
-    for r in rec["rows"]:
-        out.append(row([r["label"]] + [fixed(r["rmse_pos_m"][t], 2) for t in _TRAJECTORIES]
-                       + [fixed(paper[r["label"]], 2)]))
-    return out
+    return _per_trajectory_and_paper(rec, "table4_sequence_size_rmse_pos_m", [
+        "| epsilon | traj. 1 | traj. 2 | traj. 3 | paper |", "|---:|---:|---:|---:|---:|"])
 
 
 def ablation_filter_order(rec: dict) -> list[str]:
