@@ -9,7 +9,10 @@ unsharded run, bit for bit, timings aside.
 
 The shards and the engine's logs live in a staging folder beside ``out``
 (``.<out>.shards-<pid>``) that this command creates and removes; nothing is written to ``out``
-unless every shard succeeded (the merge is atomic like every results folder).
+unless every shard succeeded (the merge is atomic like every results folder). A shard that fails
+or is killed, or a signal to this command, stops every job (local ones killed, SLURM ones
+cancelled) before the staging folder goes: no orphan writes on. The call is not resumable: run it
+again (``--per-block`` is the resumable way to fill one result from several processes).
 """
 
 from __future__ import annotations
@@ -76,6 +79,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
         remove_if_empty(made)
         raise OutputError(f"--out {out}: cannot create the staging folder {work} ({exc.strerror})") from None
     (work / PARTIAL_MARKER).touch()  # proves the folder is ours when it is removed
+    jobs: list = []
     try:
         engine = submitit.AutoExecutor(folder=work / "logs", cluster=executor)
         params = {"timeout_min": timeout_min, "name": f"pmsr-{sc.name}"}
@@ -94,11 +98,54 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
             try:
                 job.result()
             except Exception as exc:  # the job's own error, re-raised by submitit with its traceback
-                text = str(exc).strip().splitlines()
-                last = next((ln.strip() for ln in reversed(text) if ln.strip()), type(exc).__name__)
-                raise ConfigError(f"shard {i}/{shards} (job {job.job_id}) failed: {last[:300]}") from None
+                raise ConfigError(f"shard {i}/{shards} (job {job.job_id}) {_failure(exc)}") from None
+        jobs = []  # all done: nothing to stop
         return merge([Path(f) for f in folders], out, device=device, overwrite=overwrite)
     finally:
+        _stop(jobs, work, cluster=executor == "slurm")  # a failed or interrupted call leaves no job running on
         if (work / PARTIAL_MARKER).is_file():  # only the staging folder this call created
             shutil.rmtree(work, ignore_errors=True)
         remove_if_empty(made)  # parents made for the output, when the merge left nothing in them
+
+
+def _failure(exc: BaseException) -> str:
+    """What became of a shard job, from the error submitit re-raises: its own last error line, or,
+    where it ended without a result (killed, out of memory), that."""
+    if type(exc).__name__ == "UncompletedJobError":
+        return "ended without a result: its process was killed or died (out of memory, a signal, the node)"
+    text = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip() and not ln.startswith("submitit ")]
+    return f"failed: {(text[-1] if text else type(exc).__name__)[:300]}"
+
+
+def _stop(jobs: list, work: Path, cluster: bool, wait_s: float = 10.0) -> None:
+    """Stop what still runs of ``jobs``: on a cluster, cancel them (scancel); on this machine, kill
+    (SIGKILL, which prints nothing: their output is discarded with the staging folder) every
+    process with the staging folder ``work`` on its command line, each job's controller and its
+    task alike (a task whose controller was killed lives on as an orphan that would write into
+    ``work``), and wait until they are gone."""
+    import signal
+    import time
+
+    if cluster:
+        for job in jobs:
+            try:
+                job.cancel(check=False)
+            except Exception:  # noqa: BLE001 - a job that is already gone, or a cluster that can not be reached
+                pass
+    mine, deadline = str(work).encode(), time.time() + wait_s
+    while time.time() < deadline:
+        alive = []
+        for proc in Path("/proc").glob("[0-9]*"):
+            try:
+                if mine in proc.joinpath("cmdline").read_bytes() and int(proc.name) != os.getpid():
+                    alive.append(int(proc.name))
+            except (OSError, ValueError):
+                continue  # gone meanwhile, or not ours to read
+        if not alive:
+            return
+        for pid in alive:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+        time.sleep(0.05)
