@@ -123,7 +123,7 @@ def test_a_fault_inside_a_plugin_kind_names_its_module_not_pmsr_nn(site, tmp_pat
     assert main(["evaluate", str(one_target(tmp_path, "my_gnn")), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     err = capsys.readouterr().err
     assert err == (f"pmsr: error: unexpected RuntimeError: the gate is empty, raised in method kind 'my_gnn' of module "
-                   f"{MODULE} ({WHO}): rerun with --debug for the traceback and report it to that package's authors\n")
+                   f"{MODULE} ({WHO}): rerun with --debug for the traceback and report it to that code's authors\n")
     assert not (tmp_path / "out").exists()
 
 
@@ -143,7 +143,30 @@ def test_only_a_fault_on_a_plugins_code_is_laid_at_its_door(site):
     with pytest.raises(KeyError) as outside:
         {}["x"]  # raised with no plugin's code on the traceback
     assert describe_error(inside.value)[1].endswith(f"raised in method kind 'my_gnn' of module {MODULE} ({WHO}): rerun "
-                                                    "with --debug for the traceback and report it to that package's "
+                                                    "with --debug for the traceback and report it to that code's "
                                                     "authors")
     assert describe_error(outside.value) == (1, "unexpected KeyError: 'x'; this is a bug in pmsr_nn: rerun with --debug "
                                                 "for the traceback and report it")
+
+
+def test_a_fault_inside_a_users_own_kind_names_its_module_not_pmsr_nn(site, tmp_path, capsys):
+    """A kind a user's own code registered (no entry point: their script calls ``register`` and then
+    ``pmsr_nn.cli.main``) that raises is laid at that module's door, not called a bug of pmsr_nn."""
+    from pmsr_nn.methods import MethodKind, register
+
+    source = site / "my_script_kinds.py"
+    source.write_text("def run(call):\n    raise ValueError('my gate is empty')\n")
+    sys.modules.pop("my_script_kinds", None)
+    import my_script_kinds
+
+    register(MethodKind("my_own", "measurements", my_script_kinds.run, description="a user's kind"))
+    try:
+        assert main(["evaluate", str(one_target(tmp_path, "my_own")), "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    finally:
+        del REGISTRY["my_own"]
+        sys.modules.pop("my_script_kinds", None)
+    err = capsys.readouterr().err
+    assert err == ("pmsr: error: unexpected ValueError: my gate is empty, raised in method kind 'my_own' of module "
+                   "my_script_kinds (registered by that module, not by pmsr_nn): rerun with --debug for the "
+                   "traceback and report it to that code's authors\n")
+    assert not (tmp_path / "out").exists()

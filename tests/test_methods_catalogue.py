@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_every_kind_is_listed_with_its_product_description_and_options(capsys):
     assert main(["methods"]) == 0
     out = capsys.readouterr().out
-    blocks = {b.splitlines()[0].split()[0]: b for b in out.split("\n\n")[1:] if b and not b.startswith("Not")}
+    blocks = {b.splitlines()[0].split()[0]: b for b in out.split("\n\n")[1:] if b and not b.startswith("Names")}
     kinds = registry()
     assert sorted(blocks) == sorted(kinds)
     for name, k in kinds.items():
@@ -34,38 +34,50 @@ def test_every_kind_is_listed_with_its_product_description_and_options(capsys):
         shown = [ln.strip() for ln in lines[2:] if not ln.strip().startswith("needs:")]
         assert [_read_option(line) for line in shown] == [_expected(n, o) for n, o in k.options.items()], name
         assert ("needs: checkpoint" in blocks[name]) == k.needs_checkpoint
-    for _, where in ELSEWHERE:
-        assert where in out
+    # the closing list names what is not a kind (each name unknown) and the kinds it means (each known)
+    tail = out.split("Names that are not method kinds, and the kinds they mean:\n", 1)[1].splitlines()
+    assert len(tail) == len(ELSEWHERE)
+    for line, (names, where) in zip(tail, ELSEWHERE):
+        said, meant = line.removeprefix("  - ").split(": ", 1)
+        assert said.split(", ") == list(names) and meant == where
+        assert not set(names) & set(kinds)
+        assert {w.strip(",;()") for w in where.split()} & set(kinds), where
 
 
 def _read_option(line: str) -> tuple:
     """A printed option line read back into ``(name, default, kind, lo, hi, hi_included, nullable,
-    tunable)`` (``kind``: ``integer`` / ``number`` / the choices; ``lo, hi`` None for choices)."""
+    tunable, read_when)`` (``kind``: ``integer`` / ``number`` / the choices; ``lo, hi`` None for
+    choices; ``read_when`` the text after "read only with", or None)."""
     name, rest = line.split(": ", 1)
     default, _, spec = rest.partition(" (")
     assert spec.endswith(")"), line
-    spec = spec[:-1]
+    spec, _, when = spec[:-1].partition(", read only with ")
+    when = when or None
     if spec.startswith("one of "):
-        return name, default, tuple(spec[len("one of "):].split(" | ")), None, None, None, False, False
+        return name, default, tuple(spec[len("one of "):].split(" | ")), None, None, None, False, False, when
     m = re.fullmatch(r"(integer|number) in \[([^,]+), ([^\])]+)([\])])(, or null: .+?)?(, tunable)?", spec)
     assert m, line
     value = None if default == "null" else float(default)
-    return name, value, m[1], float(m[2]), float(m[3]), m[4] == "]", m[5] is not None, m[6] is not None
+    return name, value, m[1], float(m[2]), float(m[3]), m[4] == "]", m[5] is not None, m[6] is not None, when
 
 
 def _expected(name: str, o: Option) -> tuple:
     """What :func:`_read_option` should read for option ``o`` (``:g`` prints 6 significant digits)."""
+    when = None if o.read_when is None else str(o.read_when)
     if o.choices:
-        return name, str(o.default), tuple(o.choices), None, None, None, False, False
+        return name, str(o.default), tuple(o.choices), None, None, None, False, False, when
     six = lambda v: float(f"{v:.6g}")  # noqa: E731
     default = None if o.default is None else six(o.default)
     return (name, default, "integer" if o.kind is int else "number", six(o.lo), six(o.hi), six(o.hi) == o.hi,
-            o.nullable, o.tunable)
+            o.nullable, o.tunable, when)
 
 
 def test_one_kind_and_its_options():
     o = method_kind("s_msjpda").options
-    assert describe_option("confirm_m", o["confirm_m"]) == "confirm_m: 2 (integer in [1, 62])"
+    assert describe_option("confirm_m", o["confirm_m"]) == \
+        "confirm_m: 2 (integer in [1, 62], read only with initiation: detections)"
+    assert describe_option("bias_burn_in", o["bias_burn_in"]) == \
+        "bias_burn_in: 10 (integer in [0, 10000], read only with bias_window not null)"
     assert describe_option("gate_probability", o["gate_probability"]) == "gate_probability: 0.999 (number in [0.5, 1))"
     assert describe_option("initiation", o["initiation"]) == "initiation: oracle (one of oracle | detections)"
     q = method_kind("ekf").options["q"]

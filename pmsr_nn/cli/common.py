@@ -9,6 +9,7 @@ and module of another package where its code raised it.
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..errors import PmsrError
 
@@ -21,13 +22,21 @@ def int_at_least(minimum: int, what: str, maximum: int | None = None):
             value = int(text)
         except ValueError:
             value = None
+        if value is None and text.strip().isdigit():  # Python reads at most sys.get_int_max_str_digits() digits
+            raise argparse.ArgumentTypeError(f"expected a {what} integer of at most {sys.get_int_max_str_digits():,} "
+                                             f"digits, got {shown(text)}")
         if value is None or value < minimum:
-            raise argparse.ArgumentTypeError(f"expected a {what} integer, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected a {what} integer, got {shown(text)}")
         if maximum is not None and value > maximum:
-            raise argparse.ArgumentTypeError(f"at most {maximum:,}, got {value:,}")
+            raise argparse.ArgumentTypeError(f"at most {maximum:,}, got {shown(text)}")
         return value
 
     return parse
+
+
+def shown(text: str, limit: int = 40) -> str:
+    """``text`` quoted as the user typed it, or its start and its length where longer than ``limit``."""
+    return repr(text) if len(text) <= limit else f"{text[:limit - 20]!r}... ({len(text):,} characters)"
 
 
 positive_int = int_at_least(1, "positive")
@@ -68,19 +77,17 @@ def describe_error(exc: BaseException) -> tuple[int, str]:
     first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ""
     said = f"unexpected {type(exc).__name__}" + (f": {first}" if first else "")
     plugin = plugin_at_fault(exc)
-    if plugin is not None:  # raised in a method kind another package registered: not pmsr_nn's bug
+    if plugin is not None:  # raised in a method kind registered outside pmsr_nn: not pmsr_nn's bug
         return 1, one_line(f"{said}, raised in {plugin}: rerun with --debug for the traceback and report it to "
-                           "that package's authors")
+                           "that code's authors")
     return 1, said + "; this is a bug in pmsr_nn: rerun with --debug for the traceback and report it"
 
 
 def plugin_at_fault(exc: BaseException) -> str | None:
     """The method kind of another package whose code raised ``exc`` (:func:`pmsr_nn.methods.plugin_at_fault`);
     None when none did, or when no method kind was ever consulted (the registry not imported)."""
-    import sys
-
-    methods = sys.modules.get("pmsr_nn.methods")  # not imported: no plugin kind can have run
-    return None if methods is None or not methods.PLUGINS else methods.plugin_at_fault(exc)
+    methods = sys.modules.get("pmsr_nn.methods")  # not imported: no method kind can have run
+    return None if methods is None else methods.plugin_at_fault(exc)
 
 
 def one_line(text: str, limit: int = 400) -> str:

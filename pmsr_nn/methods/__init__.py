@@ -76,11 +76,28 @@ positive clutter density (as the JPDA's density floor)."""
 
 
 @dataclass(frozen=True)
+class ReadWhen:
+    """When an option is read at all: only while option ``key`` is one of ``values`` (``values``
+    empty: while ``key`` is not null). A row that sets an option its other options leave unread is
+    refused (:meth:`MethodSpec`), since results.json would record it as a setting of the row."""
+
+    key: str
+    values: tuple = ()
+
+    def holds(self, value) -> bool:
+        return value is not None if not self.values else value in self.values
+
+    def __str__(self) -> str:
+        return f"{self.key} not null" if not self.values else f"{self.key}: {' | '.join(map(str, self.values))}"
+
+
+@dataclass(frozen=True)
 class Option:
     """An option: ``default``, ``kind`` (int or float), inclusive range; ``nullable``: null means
     a default taken elsewhere; ``tunable``: may be ``tuned`` (a grid search picks it); ``choices``:
     a string option, one of these names (``kind`` str; the range does not apply); ``null``: what
-    null means, for ``pmsr methods``."""
+    null means, for ``pmsr methods``; ``read_when``: the other option's setting without which this
+    one is not read (:class:`ReadWhen`; None: always read)."""
 
     default: Any
     kind: type = float
@@ -90,6 +107,7 @@ class Option:
     tunable: bool = False
     choices: tuple[str, ...] = ()
     null: str = ""
+    read_when: ReadWhen | None = None
 
     def __post_init__(self) -> None:
         if self.choices and (self.kind is not str or self.tunable or self.default not in self.choices):
@@ -302,21 +320,38 @@ def forget_plugins() -> None:
     _plugins_loaded = False
 
 
+def _foreign_kinds() -> dict[str, str]:
+    """Kind name -> the module of its ``run``, for kinds registered by code outside pmsr_nn that
+    is not an installed plugin (e.g. a user's script that calls :func:`register`)."""
+    out = {}
+    for name, kind in REGISTRY.items():
+        module = getattr(kind.run, "__module__", None) or ""
+        if name not in PLUGINS and module and module != __name__.split(".")[0] and \
+                not module.startswith(__name__.split(".")[0] + "."):
+            out[name] = module
+    return out
+
+
 def plugin_at_fault(exc: BaseException) -> str | None:
-    """Where on ``exc``'s traceback a plugin's code raised it: ``method kind 'K' of module M
-    (entry point ... of distribution ...)`` (M the innermost frame in a plugin's modules, K the
-    kind whose ``run`` is on the traceback, else the kinds of that plugin); None when no frame is a
-    plugin's."""
+    """Where on ``exc``'s traceback code of a kind from outside pmsr_nn raised it: ``method kind
+    'K' of module M (entry point ... of distribution ...)`` for a plugin, ``... (registered by
+    that module, not by pmsr_nn)`` for a kind a user's own code registered (M the innermost frame
+    in such a kind's modules, K the kind whose ``run`` is on the traceback, else the kinds of that
+    plugin); None when no frame is such code."""
     import traceback
 
-    owners: dict[str, set[str]] = {}  # a plugin's modules -> its kinds
-    runs = {}  # code object of each plugin kind's run -> its name
+    owners: dict[str, set[str]] = {}  # a plugin's (or a user's) modules -> its kinds
+    runs = {}  # code object of each such kind's run -> its name
+    foreign = _foreign_kinds()
     for name, plugin in PLUGINS.items():
         run = REGISTRY[name].run if name in REGISTRY else None
         for module in {plugin.module, getattr(run, "__module__", None) or plugin.module}:
             owners.setdefault(module, set()).add(name)
         if run is not None:
             runs[getattr(run, "__code__", None)] = name
+    for name, module in foreign.items():
+        owners.setdefault(module, set()).add(name)
+        runs[getattr(REGISTRY[name].run, "__code__", None)] = name
     where, kind = None, None
     for frame, _ in traceback.walk_tb(exc.__traceback__):
         module = frame.f_globals.get("__name__", "")
@@ -329,7 +364,8 @@ def plugin_at_fault(exc: BaseException) -> str | None:
     module, owner = where
     names = sorted(owners[owner]) if kind is None else [kind]
     what = f"method kind {names[0]!r}" if len(names) == 1 else "method kinds " + ", ".join(map(repr, names))
-    return f"{what} of module {module} ({PLUGINS[names[0]]})"
+    origin = PLUGINS[names[0]] if names[0] in PLUGINS else "registered by that module, not by pmsr_nn"
+    return f"{what} of module {module} ({origin})"
 
 
 PRODUCTS = {"measurements": "each target's own measurement stream (association known)",
@@ -374,14 +410,16 @@ def describe_option(name: str, o: Option) -> str:
     """``name: default`` and its range, choices or null meaning, in one line."""
     if o.choices:
         allowed = " | ".join(o.choices)
-        return f"{name}: {o.default} (one of {allowed})"
+        when = f", read only with {o.read_when}" if o.read_when is not None else ""
+        return f"{name}: {o.default} (one of {allowed}{when})"
     default = "null" if o.default is None else f"{o.default:g}" if isinstance(o.default, float) else str(o.default)
     kind = "integer" if o.kind is int else "number"
     # an open end (e.g. a probability below 1) shows as ")": "1" alone would read as allowed
     close = "]" if float(f"{o.hi:g}") == o.hi else ")"
     text = f"{name}: {default} ({kind} in [{o.lo:g}, {o.hi:g}{close}"
     text += f", or null: {o.null or 'a default taken elsewhere'}" if o.nullable else ""
-    text += ", tunable)" if o.tunable else ")"
+    text += ", tunable" if o.tunable else ""
+    text += f", read only with {o.read_when})" if o.read_when is not None else ")"
     return text
 
 
@@ -402,8 +440,8 @@ def catalogue(names: list[str] | None = None) -> list[str]:
         lines.extend(f"    {describe_option(n, o)}" for n, o in k.options.items())
         lines.append("")
     if not names:
-        lines.append("Not method kinds:")
-        lines.extend(f"  - {where}" for _, where in ELSEWHERE)
+        lines.append("Names that are not method kinds, and the kinds they mean:")
+        lines.extend(f"  - {', '.join(names)}: {where}" for names, where in ELSEWHERE)
     return lines
 
 

@@ -23,7 +23,7 @@ from ..trackers.gating import gate_threshold
 from ..trackers.learned_gain import GainCorrection
 from ..trackers.msjpda import msjpda
 from ..trackers.msjpda_managed import managed_msjpda
-from . import MethodCall, MethodKind, Option, register
+from . import MethodCall, MethodKind, Option, ReadWhen, register
 from .msjpda import OPTIONS, settings
 from .track_management import check_initiation, management
 
@@ -73,7 +73,7 @@ def run_learned_gain(call: MethodCall) -> Estimates:
 register(MethodKind("jpda_learned_gain", "detections", run_learned_gain,
                     {**OPTIONS, "association": Option("jpda", str, choices=("jpda", "pda")),
                      "memory": Option("training_window", str, choices=("training_window", "unbounded")),
-                     "bias_action": Option("delete", str, choices=("delete", "learn")),
+                     "bias_action": Option("delete", str, choices=("delete", "learn"), read_when=ReadWhen("bias_window")),
                      "consistency_probability": Option(0.99, float, 0.5, 1.0 - 1e-12, nullable=True,
                                                        null="the learned gain acts at every step")},
                     needs_checkpoint=True, load=_load, check_sensing=check_initiation,

@@ -38,13 +38,15 @@ Options:
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ..errors import ConfigError
 from ..trackers.fix_initiator import FixInitiator
 from ..trackers.jpda import floored_clutter_density
 from ..trackers.coalescence import Coalescence
 from ..trackers.management import EXPLAINED_BY, MERGE_SCANS, BiasTest, Confirmer, Deleter, Management
 from ..trackers.spherical_initiator import SphericalInitiator
-from . import Option, method_kind
+from . import Option, ReadWhen, method_kind
 
 INITIATIONS = ("oracle", "detections")
 
@@ -64,18 +66,20 @@ OWN_TRACK_OPTIONS = {"init_pairs": Option(None, int, 1, 64, nullable=True,
                      "existence": Option("ipda", str, choices=EXISTENCE_UPDATES),
                      "explained_by": Option("gate", str, choices=EXPLAINED_BY),
                      "merge_scans": Option(None, int, 0, 10_000, nullable=True, null="no merging"),
-                     "merge_probability": Option(0.99, float, 1e-6, 1.0 - 1e-12)}
+                     "merge_probability": Option(0.99, float, 1e-6, 1.0 - 1e-12, read_when=ReadWhen("merge_scans"))}
 """The management options of a kind that always starts its own tracks."""
 
 DUPLICATE_FREE = {"existence": "jipda", "explained_by": "association", "merge_scans": MERGE_SCANS}
 """The duplicate-free management's options (module docstring): a row's ``options`` with these."""
 
-MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS), **OWN_TRACK_OPTIONS}
-"""How tracks start and, with ``initiation: detections``, the track management."""
+MANAGEMENT_OPTIONS = {"initiation": Option("oracle", str, choices=INITIATIONS),
+                      **{k: replace(o, read_when=o.read_when or ReadWhen("initiation", ("detections",)))
+                         for k, o in OWN_TRACK_OPTIONS.items()}}
+"""How tracks start and, with ``initiation: detections`` (read only then), the track management."""
 
 BIAS_OPTIONS = {"bias_window": Option(None, float, 1.0, 1e4, nullable=True, null="no innovation bias test"),
-                "bias_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
-                "bias_burn_in": Option(10, int, 0, 10_000)}
+                "bias_probability": Option(0.999, float, 0.5, 1.0 - 1e-12, read_when=ReadWhen("bias_window")),
+                "bias_burn_in": Option(10, int, 0, 10_000, read_when=ReadWhen("bias_window"))}
 """The innovation bias test (:mod:`pmsr_nn.trackers.innovation_bias`), for sequential trackers."""
 
 

@@ -1503,7 +1503,6 @@ def _check() -> None:
             assert c.signal[0] in ("SIGTERM", "SIGHUP", "SIGINT"), c.id
 
 
-_check()
 TBD_YAML = """\
 name: tbd_tiny
 mc_runs: 1
@@ -1615,3 +1614,38 @@ case("evaluate/phd-study-file", "evaluate p.yaml --out out",
 case("evaluate/phd-aircraft-never-seen", "evaluate p.yaml --out out",
      setup=yaml_edit(PHD_YAML, "p.yaml", lambda d: d["cases"][0]["aircraft"][0].update(altitude_m=50.0)),
      message="aircraft 'a' is never seen", klass="refusal")
+
+# ---------------------------------------------------------------------------------------------
+# issue 59 round three: evaluate's refusals that now name what the user asked for
+# ---------------------------------------------------------------------------------------------
+WITH_BOUND = SCENARIO_YAML + "  - {name: PCRB, kind: pcrb}\n"
+case("evaluate/bound-row-alone", "evaluate b.yaml --methods PCRB --out out", expect="ok",
+     setup=write("b.yaml", WITH_BOUND), outputs=("out",),
+     note="--methods PCRB: the bound's row alone (it reads no product, so no random_streams question)")
+case("evaluate/seed-of-5000-digits", ("evaluate", "sc.yaml", "--seed", "9" * 5000, "--out", "out"),
+     message="expected a non-negative integer of at most 4,300 digits, got '99999999999999999999'... (5,000 characters)",
+     klass="refusal", note="the line quotes the start of the argument and its length, not 5,000 digits")
+case("evaluate/mc-runs-of-5000-characters", ("evaluate", "sc.yaml", "--mc-runs", "x" * 5000, "--out", "out"),
+     message="expected a positive integer, got 'xxxxxxxxxxxxxxxxxxxx'... (5,000 characters)", klass="refusal")
+case("evaluate/management-options-on-a-row-handed-its-births", "evaluate m.yaml --out out",
+     setup=scenario_method("m.yaml", {"name": "J", "kind": "s_msjpda", "options": {"confirm_m": 9, "confirm_n": 3}}),
+     message="option(s) confirm_m, confirm_n are read only with initiation: detections, and this row has "
+             "initiation: oracle", klass="silent_wrong",
+     note="ignored, they were recorded in results.json as the row's settings")
+case("evaluate/bias-options-without-the-bias-test", "evaluate m.yaml --out out",
+     setup=scenario_method("m.yaml", {"name": "J", "kind": "s_msjpda",
+                                      "options": {"initiation": "detections", "bias_burn_in": 5}}),
+     message="option(s) bias_burn_in are read only with bias_window not null", klass="silent_wrong")
+case("evaluate/merge-probability-without-merging", "evaluate m.yaml --out out",
+     setup=scenario_method("m.yaml", {"name": "J", "kind": "s_msjpda",
+                                      "options": {"initiation": "detections", "merge_probability": 0.9}}),
+     message="option(s) merge_probability are read only with merge_scans not null", klass="silent_wrong")
+case("evaluate/targets-empty", "evaluate e.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "e.yaml", lambda d: d["cases"][0].update(targets=[])),
+     message="case 'steady': targets: [] lists no target; give at least one", klass="refusal",
+     note="was a single-target hint (needs start_range_m, ...) for a case that asked for no target")
+case("evaluate/states-empty", "evaluate e.yaml --out out",
+     setup=yaml_edit(SCENARIO_YAML, "e.yaml", lambda d: d["cases"][0].update(states=[])),
+     message="case 'steady': states: [] lists no target", klass="refusal")
+
+_check()

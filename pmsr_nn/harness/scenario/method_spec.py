@@ -71,6 +71,16 @@ class MethodSpec:
                              f"(valid: {sorted(kind.options) or 'none'})")
         for key, value in self.options.items():
             _check_option(self.name, key, value, kind.options[key])
+        unread = [(k, kind.options[k].read_when) for k in self.options
+                  if kind.options[k].read_when is not None
+                  and not kind.options[k].read_when.holds(self.option(kind.options[k].read_when.key))]
+        if unread:
+            when = unread[0][1]
+            keys = ", ".join(k for k, w in unread if w == when)
+            now = self.option(when.key)
+            require(False, f"method {self.name!r}: option(s) {keys} are read only with {when}, and this row has "
+                           f"{when.key}: {'null' if now is None else now}: remove them (they would be recorded as "
+                           "settings the row never used)")
 
     def option(self, key: str):
         return self.options.get(key, method_kind(self.kind).options[key].default)

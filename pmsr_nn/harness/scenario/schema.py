@@ -244,7 +244,7 @@ class Scenario(StudyFile):
                     f"method {m.name!r} (kind {m.kind}) reads detections, which this scenario does not make: add a "
                     "detections section (pd, clutter)")
         products = sorted({method_kind(m.kind).reads for m in self.methods if not method_kind(m.kind).bound})
-        require(len(products) == 1 or self.random_streams == "per_product",
+        require(len(products) <= 1 or self.random_streams == "per_product",
                 f"the methods read {len(products)} products ({', '.join(products)}); set random_streams: per_product "
                 "(each product its own random stream, one initiation prior shared by all)")
         for m in self.methods:
@@ -419,6 +419,12 @@ def scenario_from_dict(data: dict, base_dir: str | Path = ".", where: str = "sce
     """A checked :class:`Scenario` from plain data (a retired ``kind`` refused in one line)."""
     if isinstance(data, dict) and data.get("kind") in RETIRED_KINDS:
         raise ConfigError(f"{where}: {RETIRED_KINDS[data['kind']]}")
+    cases = data.get("cases") if isinstance(data, dict) else None
+    for i, c in enumerate(cases if isinstance(cases, list) else []):
+        empty = [k for k in ("targets", "states", "aircraft") if isinstance(c, dict) and c.get(k) == []]
+        if empty:  # else the case reads as one inline flight with its fields missing
+            raise ConfigError(f"{where}.cases[{i}]: case {c.get('name', '?')!r}: {empty[0]}: [] lists no target; "
+                              "give at least one")
     sc = from_dict(Scenario, data, where=where)
     object.__setattr__(sc, "base_dir", str(Path(base_dir).resolve()))
     return sc
