@@ -161,8 +161,17 @@ def test_the_birth_options_of_the_kind_reach_the_filter_and_bad_ones_are_refused
 
     spec = phd_settings(MethodSpec("p", "smc_phd_pair"))
     assert spec.adaptive_birth and spec.birth_particles_min == 100  # the defaults: adaptive births on
-    spec = phd_settings(MethodSpec("p", "smc_phd_pair", options={"births": "every_detection", "birth_particles_min": 50}))
-    assert not spec.adaptive_birth and spec.birth_particles_min == 50
+    spec = phd_settings(MethodSpec("p", "smc_phd_pair", options={"births": "every_detection"}))
+    assert not spec.adaptive_birth
+    spec = phd_settings(MethodSpec("p", "smc_phd_pair", options={"birth_particles_min": 50}))
+    assert spec.adaptive_birth and spec.birth_particles_min == 50
+    # every_detection births put particles_per_birth on each detection: a minimum there is never read
+    with pytest.raises(ConfigError, match="option.s. birth_particles_min are read only with births: adaptive, and "
+                                          "this row has births: every_detection"):
+        MethodSpec("p", "smc_phd_pair", options={"births": "every_detection", "birth_particles_min": 50})
+    with pytest.raises(ConfigError, match="option.s. forgetting, conflict are read only with labelling: gtda, and "
+                                          "this row has labelling: hungarian"):
+        MethodSpec("p", "smc_phd_pair", options={"labelling": "hungarian", "forgetting": 0.5, "conflict": 2.0})
     with pytest.raises(ConfigError, match="option births must be one of adaptive, every_detection"):
         MethodSpec("p", "smc_phd_pair", options={"births": "some"})
     with pytest.raises(ConfigError, match="option birth_particles_min must be an integer"):

@@ -30,7 +30,7 @@ from ..trackers.base import Estimates
 from ..trackers.jpda import M_BEST_SEARCHES
 from ..trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
 from ..trackers.msjpda_managed import managed_msjpda
-from . import MethodCall, MethodKind, Option, register
+from . import MethodCall, MethodKind, Option, ReadWhen, register
 from .track_management import BIAS_OPTIONS, MANAGEMENT_OPTIONS, check_initiation, clutter_density, management
 
 ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
@@ -82,7 +82,7 @@ def _all_from_start(spec, alive: torch.Tensor, resource, case: str) -> None:
 
 OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
            # P-MSJPDA's (S+1)-D events (S-MSJPDA's 2-D events are always exact)
-           "relaxation_iterations": Option(20, int, 1, 10_000),
+           "relaxation_iterations": Option(20, int, 1, 10_000, read_when=ReadWhen("m_best_search", ("relaxation",))),
            "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS,
            **BIAS_OPTIONS}  # the innovation bias test: S-MSJPDA from detections only
 register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,

@@ -54,7 +54,7 @@ from ..trackers.base import Estimates
 from ..trackers.gtda import GameSpec
 from ..trackers.labelling import LabelSpec, label_tracks
 from ..trackers.phd import PHDSpec, SMCPHD, cv_matrices
-from . import MIN_CLUTTER_PER_SCAN, EstimateSpace, MethodCall, MethodKind, Option, method_stream, register
+from . import MIN_CLUTTER_PER_SCAN, EstimateSpace, MethodCall, MethodKind, Option, ReadWhen, method_stream, register
 
 PHD_STREAM = method_stream("smcphd")
 """Last seed word of the PHD filter's generator (the former study's, so its draws are the same)."""
@@ -256,6 +256,10 @@ def check_pair_sensing(spec, sensing) -> None:
 
 
 PROBABILITY = dict(lo=0.5, hi=1.0 - 1e-12)
+LABELLED = ReadWhen("labelling", ("gtda", "hungarian"))
+"""The track labelling's options: unread with ``labelling: none``."""
+GTDA = ReadWhen("labelling", ("gtda",))
+"""The regret-matching game's options: read by GTDA only."""
 PAIR = Option(0, int, 0, 1_000_000)
 PROCESS_SD = Option(20.0, float, 0.0, 1.0e4)
 OPTIONS = {
@@ -265,7 +269,7 @@ OPTIONS = {
     # adaptive: births only where the persistent PHD explains no detection, particles following their mass
     # (PHDSpec.adaptive_birth); every_detection: particles_per_birth on every detection (before issue 37)
     "births": Option("adaptive", str, choices=("adaptive", "every_detection")),
-    "birth_particles_min": Option(100, int, 10, 1_000_000),
+    "birth_particles_min": Option(100, int, 10, 1_000_000, read_when=ReadWhen("births", ("adaptive",))),
     "survival": Option(0.99, float, 1e-6, 1.0),
     "birth_rate": Option(0.05, float, 1e-9, 100.0),
     "process_sd_mps2": PROCESS_SD,
@@ -273,13 +277,13 @@ OPTIONS = {
     "kmeans_iterations": Option(1, int, 0, 100),
     "phd_gate_probability": Option(0.999, float, **PROBABILITY),
     "labelling": Option("gtda", str, choices=("gtda", "hungarian", "none")),
-    "label_gate_probability": Option(0.999, float, **PROBABILITY),
-    "max_missed": Option(3, int, 0, 10_000),
-    "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),
-    "forgetting": Option(0.9, float, 1e-6, 1.0),
-    "game_iterations": Option(50, int, 1, 100_000),
-    "conflict": Option(1.0, float, 1e-6, 1.0e6),
-    "alpha_scale": Option(2.0, float, 1.0, 1.0e6),  # above 1: GameSpec refuses 1 itself
+    "label_gate_probability": Option(0.999, float, **PROBABILITY, read_when=LABELLED),
+    "max_missed": Option(3, int, 0, 10_000, read_when=LABELLED),
+    "confirm_m": Option(2, int, 1, 62, read_when=LABELLED), "confirm_n": Option(3, int, 1, 62, read_when=LABELLED),
+    "forgetting": Option(0.9, float, 1e-6, 1.0, read_when=GTDA),
+    "game_iterations": Option(50, int, 1, 100_000, read_when=GTDA),
+    "conflict": Option(1.0, float, 1e-6, 1.0e6, read_when=GTDA),
+    "alpha_scale": Option(2.0, float, 1.0, 1.0e6, read_when=GTDA),  # above 1: GameSpec refuses 1 itself
 }
 register(MethodKind("smc_phd_pair", "detections", run_smc_phd_pair, OPTIONS, check_sensing=check_pair_sensing,
                     starts_tracks=True, space=pair_space,

@@ -1641,11 +1641,11 @@ case("evaluate/merge-probability-without-merging", "evaluate m.yaml --out out",
                                       "options": {"initiation": "detections", "merge_probability": 0.9}}),
      message="option(s) merge_probability are read only with merge_scans not null", klass="silent_wrong")
 case("evaluate/targets-empty", "evaluate e.yaml --out out",
-     setup=yaml_edit(SCENARIO_YAML, "e.yaml", lambda d: d["cases"][0].update(targets=[])),
+     setup=yaml_edit(SCENARIO_YAML, "e.yaml", lambda d: d["cases"].__setitem__(0, {"name": "steady", "targets": []})),
      message="case 'steady': targets: [] lists no target; give at least one", klass="refusal",
      note="was a single-target hint (needs start_range_m, ...) for a case that asked for no target")
 case("evaluate/states-empty", "evaluate e.yaml --out out",
-     setup=yaml_edit(SCENARIO_YAML, "e.yaml", lambda d: d["cases"][0].update(states=[])),
+     setup=yaml_edit(SCENARIO_YAML, "e.yaml", lambda d: d["cases"].__setitem__(0, {"name": "steady", "states": []})),
      message="case 'steady': states: [] lists no target", klass="refusal")
 
 _check()

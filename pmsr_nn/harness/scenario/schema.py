@@ -421,8 +421,12 @@ def scenario_from_dict(data: dict, base_dir: str | Path = ".", where: str = "sce
         raise ConfigError(f"{where}: {RETIRED_KINDS[data['kind']]}")
     cases = data.get("cases") if isinstance(data, dict) else None
     for i, c in enumerate(cases if isinstance(cases, list) else []):
-        empty = [k for k in ("targets", "states", "aircraft") if isinstance(c, dict) and c.get(k) == []]
-        if empty:  # else the case reads as one inline flight with its fields missing
+        if not isinstance(c, dict):
+            continue
+        empty = [k for k in ("targets", "states", "aircraft") if c.get(k) == []]
+        given = any(c.get(k) for k in ("targets", "states", "aircraft", "formation")) or \
+            any(c.get(k) is not None for k in FLIGHT_FIELDS)
+        if empty and not given:  # else the case reads as one inline flight with its fields missing
             raise ConfigError(f"{where}.cases[{i}]: case {c.get('name', '?')!r}: {empty[0]}: [] lists no target; "
                               "give at least one")
     sc = from_dict(Scenario, data, where=where)
