@@ -53,6 +53,17 @@ class SeedGroup:
     over_bound: Spread
     over_memory_bound: Spread | None = None
 
+    @classmethod
+    def from_dict(cls, g: dict, at: str) -> "SeedGroup":
+        """The group of results.json's dict ``g`` (at ``at`` in the file); a missing key or one of
+        the wrong type is a :class:`ConfigError` naming it."""
+        for key in ("seeds", "rmse_pos_m", "over_bound"):
+            if key not in table(g, at):
+                raise ConfigError(f"{at}: lacks the key {key!r}")
+        return pick(cls, g, at, rmse_pos_m=pick(Spread, g["rmse_pos_m"], key_path(at, "rmse_pos_m")),
+                    over_bound=pick(Spread, g["over_bound"], key_path(at, "over_bound")),
+                    over_memory_bound=pick(Spread, g.get("over_memory_bound"), key_path(at, "over_memory_bound")))
+
 
 @dataclass(frozen=True)
 class Comparison:
@@ -145,20 +156,11 @@ class Case:
             if "rmse_pos_m" not in cv:
                 raise ConfigError(f"case {name!r} has no curves.rmse_pos_m: a results.json of an older layout "
                                   "(re-run the scenario to report it)")
-            sets = cv.get("set")
-            where = key_path(at, "curves")
-            curves = pick(Curves, cv, where, set=None if sets is None else {
-                m: pick(SetCurves, s, key_path(key_path(where, "set"), m)) for m, s in table(sets, key_path(where, "set")).items()})
-        groups = {}
-        for b, g in (c.get("seed_groups") or {}).items():
-            w = key_path(key_path(at, "seed_groups"), b)
-            table(g, w)
-            if "seeds" not in g:
-                raise ConfigError(f"{w}: lacks the key 'seeds'")
-            check_value(g["seeds"], "int", key_path(w, "seeds"))
-            groups[b] = SeedGroup(seeds=g["seeds"], rmse_pos_m=pick(Spread, g.get("rmse_pos_m") or {}, key_path(w, "rmse_pos_m")),
-                                  over_bound=pick(Spread, g.get("over_bound") or {}, key_path(w, "over_bound")),
-                                  over_memory_bound=pick(Spread, g.get("over_memory_bound"), key_path(w, "over_memory_bound")))
+            sets, where = cv.get("set"), key_path(key_path(at, "curves"), "set")
+            curves = pick(Curves, cv, key_path(at, "curves"), set=None if sets is None else {
+                m: pick(SetCurves, s, key_path(where, m)) for m, s in table(sets, where).items()})
+        groups = {b: SeedGroup.from_dict(g, key_path(key_path(at, "seed_groups"), b))
+                  for b, g in (c.get("seed_groups") or {}).items()}
         rows = key_path(at, "methods")
         return cls(name=name, title=c.get("title", name), steps=c.get("steps"), targets=list(c.get("targets", [])),
                    methods={m: MethodRow.from_dict(r, key_path(rows, m)) for m, r in c.get("methods", {}).items()},
