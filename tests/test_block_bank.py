@@ -131,6 +131,21 @@ def test_a_bank_that_lost_its_bank_json_gets_it_back_from_its_blocks_or_is_refus
     assert accuracy(merge([tmp_path / "bank"], tmp_path / "merged")) == accuracy(whole)
 
 
+def test_a_bank_with_neither_bank_json_nor_blocks_is_opened_again(tmp_path, capsys):
+    """Only the marker left (it says --per-block made the folder): nothing can disagree with the command."""
+    import shutil
+
+    path = tiny(tmp_path, block_runs=1, mc_runs=1)
+    bank(path, tmp_path / "bank")
+    held = (tmp_path / "bank" / "bank.json").read_bytes()
+    (tmp_path / "bank" / "bank.json").unlink()
+    shutil.rmtree(block_folder(tmp_path / "bank", 0))
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == (f"bank {tmp_path / 'bank'}: bank.json was missing; written "
+                                                      "again (the bank holds no block yet)")
+    assert (tmp_path / "bank" / "bank.json").read_bytes() == held and len(bank_blocks(tmp_path / "bank")) == 1
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--overwrite"], "--per-block continues the bank at --out and never replaces it"),
     (["--executor", "local"], "--per-block banks the blocks of one process"),

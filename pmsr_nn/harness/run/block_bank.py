@@ -129,6 +129,8 @@ def _rebuild(out: Path, identity: dict) -> str:
                               "not this scenario's; give another --out") from None
     finally:
         tmp.unlink(missing_ok=True)
+    if not blocks:
+        return f"bank {out}: {BANK_FILE} was missing; written again (the bank holds no block yet)"
     return (f"bank {out}: {BANK_FILE} was missing; rebuilt from its {len(blocks)} block(s), which name this "
             "command's scenario and settings")
 
