@@ -96,6 +96,56 @@ def test_a_bank_refuses_another_scenario_and_never_replaces_what_is_not_a_block(
     assert sorted(os.listdir(plain)) == ["data.csv"]
 
 
+def test_a_bank_that_lost_its_bank_json_gets_it_back_from_its_blocks_or_is_refused(tmp_path, capsys):
+    """Every block's shard.json names the scenario and its folder, as bank.json did: the same command
+    writes bank.json again (the bytes its first command wrote) and runs what is missing; a command
+    of other settings, or a bank.json that is not a bank's, is refused in one line with nothing changed."""
+    path = tiny(tmp_path, block_runs=1, mc_runs=2)
+    whole = evaluate(path, tmp_path / "whole", progress=False)
+    bank(path, tmp_path / "bank", shard=(1, 2))
+    held = (tmp_path / "bank" / "bank.json").read_bytes()
+    (tmp_path / "bank" / "bank.json").unlink()
+    (tmp_path / "other").mkdir()
+    other = tiny(tmp_path / "other", block_runs=1, mc_runs=2, seed=9)
+    before = snapshot(tmp_path / "bank")
+    assert main(["evaluate", str(other), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"pmsr: error: --out {tmp_path / 'bank'} has 1 block(s) of 'pmsr evaluate --per-block' but no "
+                   "bank.json, and block-0000 is not a complete block of this scenario and settings, so the bank's "
+                   "file cannot be rebuilt: give the scenario file and options of the bank's first command, or "
+                   "another --out"]
+    assert snapshot(tmp_path / "bank") == before
+    (tmp_path / "bank" / "bank.json").write_text("my notes\n")  # not a bank's: never replaced
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 2
+    assert "bank.json that is not a bank's" in capsys.readouterr().err
+    assert (tmp_path / "bank" / "bank.json").read_text() == "my notes\n"
+    (tmp_path / "bank" / "bank.json").unlink()
+    merged = merge([tmp_path / "bank"], tmp_path / "early", runs=1)  # merge reads the blocks, not bank.json
+    assert merged["mc_runs"] == 1 and not (tmp_path / "bank" / "bank.json").exists()
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == (f"bank {tmp_path / 'bank'}: bank.json was missing; rebuilt "
+                                                      "from its 1 block(s), which name this command's scenario and "
+                                                      "settings")
+    assert (tmp_path / "bank" / "bank.json").read_bytes() == held
+    assert [p.name for p in bank_blocks(tmp_path / "bank")] == ["block-0000", "block-0001"]
+    assert accuracy(merge([tmp_path / "bank"], tmp_path / "merged")) == accuracy(whole)
+
+
+def test_a_bank_with_neither_bank_json_nor_blocks_is_opened_again(tmp_path, capsys):
+    """Only the marker left (it says --per-block made the folder): nothing can disagree with the command."""
+    import shutil
+
+    path = tiny(tmp_path, block_runs=1, mc_runs=1)
+    bank(path, tmp_path / "bank")
+    held = (tmp_path / "bank" / "bank.json").read_bytes()
+    (tmp_path / "bank" / "bank.json").unlink()
+    shutil.rmtree(block_folder(tmp_path / "bank", 0))
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == (f"bank {tmp_path / 'bank'}: bank.json was missing; written "
+                                                      "again (the bank holds no block yet)")
+    assert (tmp_path / "bank" / "bank.json").read_bytes() == held and len(bank_blocks(tmp_path / "bank")) == 1
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--overwrite"], "--per-block continues the bank at --out and never replaces it"),
     (["--executor", "local"], "--per-block banks the blocks of one process"),

@@ -68,3 +68,32 @@ def test_the_command_prints_the_table_and_refuses_what_is_not_a_results_file(tmp
         assert says in err and len(err.splitlines()) == 1
     assert main(["compare", str(a), str(b), "--threshold", "0"]) == 2
     assert sorted(p.name for p in tmp_path.rglob("*")) == sorted([*before, "x.json"])  # compare writes nothing
+
+
+@pytest.mark.parametrize("edit, says", [
+    (lambda r: r["cases"]["c"]["methods"]["EKF"].update(rmse_pos_m="10.9"),
+     "cases.c.methods.EKF.rmse_pos_m: expected a number or null, got \"10.9\""),
+    (lambda r: r["cases"]["c"]["methods"]["EKF"].update(rmse_pos_m=False),
+     "cases.c.methods.EKF.rmse_pos_m: expected a number or null, got false"),
+    (lambda r: r.update(cases=[r["cases"]["c"]]), "cases: expected a table, got [{"),
+    (lambda r: r["cases"]["c"].update(methods="EKF"), "cases.c.methods: expected a table, got \"EKF\""),
+    (lambda r: r["cases"]["c"]["methods"].update({"EKF (2)": 3}), "cases.c.methods['EKF (2)']: expected a table, got 3"),
+    (lambda r: r["cases"]["c"]["methods"]["EKF"].update(mse_over_bound_se=-0.5),
+     "cases.c.methods.EKF.mse_over_bound_se: expected a non-negative number, got -0.5"),
+    (lambda r: r["cases"]["c"]["methods"]["EKF"].update(runs=5.5), "cases.c.methods.EKF.runs: expected an integer"),
+    (lambda r: r["cases"]["c"]["methods"]["EKF"].pop("rmse_pos_m"), "cases.c.methods.EKF: lacks the key 'rmse_pos_m'"),
+    (lambda r: r["cases"]["c"].pop("methods"), "cases.c: lacks the key 'methods'"),
+    (lambda r: r["cases"]["c"]["pcrb"].pop("pos_m"), "cases.c.pcrb: lacks the key 'pos_m'"),
+])
+def test_a_hand_edited_value_is_one_line_naming_the_file_and_the_key(tmp_path, capsys, edit, says):
+    """Read through the typed results: a figure that is a string or a boolean was 'only old', a table
+    that is a list a bug, a negative standard error 'within error', a missing figure 'only old'."""
+    good, bad = tmp_path / "old.json", tmp_path / "new.json"
+    good.write_text(json.dumps(designed()))
+    res = designed()
+    edit(res)
+    bad.write_text(json.dumps(res))
+    for argv in ([str(good), str(bad)], [str(bad), str(good)]):
+        assert main(["compare", *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"pmsr: error: {bad}: {says}"), err

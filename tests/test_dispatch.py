@@ -69,8 +69,37 @@ def test_an_executor_that_is_not_installed_is_one_line(tmp_path, capsys, monkeyp
     monkeypatch.setattr(builtins, "__import__", no_submitit)
     path = _ekf_ukf(tmp_path)
     before = sorted(p.name for p in tmp_path.iterdir())
-    assert main(["evaluate", str(path), "--out", str(tmp_path / "jobs"), "--executor", "slurm"]) == 2
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "jobs"), "--executor", "local"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == ("pmsr: error: --executor needs submitit, which this installation lacks: pip install "
                    "'pmsr_nn[cluster]' (or pip install submitit)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("installed", [True, False])
+def test_slurm_off_a_cluster_is_one_line_whether_or_not_submitit_is_installed(tmp_path, capsys, monkeypatch,
+                                                                              installed):
+    """Off a cluster submitit raised 'Could not detect "srun"', reported as a bug in pmsr_nn."""
+    real = builtins.__import__
+
+    def no_submitit(name, *args, **kw):
+        if name == "submitit" or name.startswith("submitit."):
+            raise ImportError(name)
+        return real(name, *args, **kw)
+    if not installed:
+        monkeypatch.setattr(builtins, "__import__", no_submitit)
+    tools = tmp_path / "bin"
+    tools.mkdir()
+    monkeypatch.setenv("PATH", str(tools))  # neither srun nor sbatch
+    path = _ekf_ukf(tmp_path)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "jobs"), "--executor", "slurm"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("pmsr: error: --executor slurm: no SLURM cluster found (srun and sbatch not on PATH); run on this "
+                   "machine with --executor local, or without --executor")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    (tools / "srun").write_text("#!/bin/sh\nexit 1\n")  # half a cluster: the line names what is missing
+    (tools / "srun").chmod(0o755)
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "jobs"), "--executor", "slurm"]) == 2
+    assert "(sbatch not on PATH)" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == before

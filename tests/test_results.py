@@ -201,3 +201,17 @@ def test_write_report_renders_the_same_from_the_dict_and_from_the_typed_results(
     assert texts[0] == texts[1]
     assert "| EKF | yes | **10.90** (below its bound!) | 0.200 | 12.34 (filtering) |" in texts[0]
     assert "4.0 s.e. below 1: RMSE 10.90 m against the bound 12.34 m" in texts[0]
+
+
+def test_every_recorded_results_json_reads_through_the_typed_results():
+    """The strict reading (types, non-negative standard errors) refuses none of the recorded studies."""
+    import json
+
+    read = 0
+    for path in sorted((ROOT / "evaluate" / "results").rglob("results.json")):
+        res = json.loads(path.read_text())
+        if "cases" in res:  # the ablations' and the bound studies' tables are not a scenario's results
+            r = Results.from_dict(res, source=str(path))
+            assert all(row.rmse_pos_m is not None for _, _, row in r.rows()), path
+            read += 1
+    assert read >= 20

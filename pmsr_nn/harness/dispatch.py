@@ -36,6 +36,15 @@ def _submitit():
     return submitit
 
 
+def check_cluster(executor: str) -> None:
+    """Refuse ``slurm`` in one line where no SLURM cluster is reachable (``srun`` / ``sbatch`` not
+    on PATH): submitit would fail with a traceback of its own, and the user needs ``local``."""
+    missing = [tool for tool in ("srun", "sbatch") if shutil.which(tool) is None]
+    if executor == "slurm" and missing:
+        raise ConfigError(f"--executor slurm: no SLURM cluster found ({' and '.join(missing)} not on PATH); run on "
+                          "this machine with --executor local, or without --executor")
+
+
 def run_shard(scenario: str, out: str, shard: tuple[int, int], mc_runs: int | None, checkpoints: dict | None,
               device: str, seed: int | None = None) -> str:
     """One job: shard ``shard`` of ``scenario`` into ``out`` (what ``pmsr evaluate --shard`` does)."""
@@ -59,6 +68,7 @@ def dispatch(scenario: str | Path, out: Path, *, shards: int, executor: str = "l
 
     if executor not in EXECUTORS:
         raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    check_cluster(executor)  # before submitit is asked: off a cluster it is the cluster that is missing
     submitit = _submitit()
     out = Path(out)
     scenario = Path(scenario)

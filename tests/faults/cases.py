@@ -1437,6 +1437,55 @@ case("compare/missing", "compare ev nothing-here", message="no results.json", kl
 case("compare/a-shard-is-not-results", "compare ev shard1", message="shard1", klass="refusal")
 case("compare/not-json", "compare ev z.csv", message="z.csv", klass="refusal")
 case("compare/threshold-zero", "compare ev ev --threshold 0", message="--threshold", klass="refusal")
+
+# issue 59 round three: compare, banks, executor
+def results_edit(dst: str, fn: Callable[[dict], None]) -> Callable[[Path], None]:
+    """``dst``: a copy of the fixture's ev/results.json, changed in place by ``fn``."""
+    return steps(copy("ev/results.json", dst), edit_json(dst, lambda r: (fn(r), None)[1]))
+
+
+def _row(res: dict) -> dict:
+    return res["cases"]["steady"]["methods"]["EKF"]
+
+
+def v_bank_rebuilt(root: Path) -> str | None:
+    """The bank's bank.json back, byte for byte the one its first command wrote, and both blocks there."""
+    got, was = root / "bank" / "bank.json", root / "bank.json.was"
+    if not got.is_file() or got.read_bytes() != was.read_bytes():
+        return "bank/bank.json not rebuilt as the bank's first command wrote it"
+    return None if (root / "bank" / "block-0001" / "blocks.npz").is_file() else "bank/block-0001 not run again"
+
+
+LOSE_BANK_FILE = steps(copy("bank/bank.json", "bank.json.was"), remove("bank/bank.json"))
+case("compare/figure-a-string", "compare ev new.json", setup=results_edit("new.json", lambda r: _row(r).update(
+    rmse_pos_m="10.5")), message="new.json: cases.steady.methods.EKF.rmse_pos_m: expected a number", klass="silent_wrong",
+     note="was exit 0, the figure reported as 'only old'")
+case("compare/figure-a-boolean", "compare new.json ev", setup=results_edit("new.json", lambda r: _row(r).update(
+    rmse_pos_m=True)), message="new.json: cases.steady.methods.EKF.rmse_pos_m: expected a number", klass="silent_wrong")
+case("compare/cases-a-list", "compare ev new.json", setup=results_edit("new.json", lambda r: r.update(
+    cases=list(r["cases"]))), message="new.json: cases: expected a table", klass="traceback")
+case("compare/methods-a-list", "compare ev new.json", setup=results_edit("new.json", lambda r: r["cases"]["steady"].update(
+    methods=["EKF", "UKF"])), message="new.json: cases.steady.methods: expected a table", klass="traceback")
+case("compare/negative-standard-error", "compare ev new.json", setup=results_edit("new.json", lambda r: _row(r).update(
+    rmse_pos_se_m=-1.0)), message="new.json: cases.steady.methods.EKF.rmse_pos_se_m: expected a non-negative number",
+     klass="silent_wrong", note="was accepted, verdict 'within error'")
+case("compare/missing-figure", "compare ev new.json", setup=results_edit("new.json", lambda r: _row(r).pop(
+    "rmse_pos_m")), message="new.json: cases.steady.methods.EKF: lacks the key 'rmse_pos_m'", klass="silent_wrong")
+case("compare/missing-methods", "compare ev new.json", setup=results_edit("new.json", lambda r: r["cases"]["steady"].pop(
+    "methods")), message="new.json: cases.steady: lacks the key 'methods'", klass="silent_wrong")
+case("evaluate/bank-without-bank-json-resumes", "evaluate sc.yaml --quiet --per-block --out bank", "ok",
+     setup=steps(LOSE_BANK_FILE, remove("bank/block-0001")), outputs=("bank",), verify=v_bank_rebuilt,
+     klass="refusal", note="was 'holds the output of pmsr evaluate, not blocks of ...'; every block names the scenario")
+case("evaluate/bank-without-bank-json-other-seed", "evaluate sc.yaml --quiet --per-block --out bank --seed 4",
+     setup=LOSE_BANK_FILE, message="bank has 2 block(s) of 'pmsr evaluate --per-block' but no bank.json",
+     klass="refusal")
+case("evaluate/bank-json-garbage", "evaluate sc.yaml --quiet --per-block --out bank",
+     setup=write("bank/bank.json", "{{{"), message="bank.json that is not a bank's", klass="refusal")
+case("merge/bank-without-bank-json", "merge bank --out m", "ok", setup=LOSE_BANK_FILE, outputs=("m",),
+     verify=v_results("m"), klass="refusal", note="was 'not a shard folder'; the blocks name their scenario")
+case("evaluate/executor-slurm-off-cluster", f"{EV} --out jobs --executor slurm", message="no SLURM cluster found",
+     klass="traceback", note="was 'unexpected RuntimeError: Could not detect srun ... a bug'; "
+     "assumes srun/sbatch are not on PATH (the tests run off a cluster)")
 case("merge/not-a-shard", "merge shard1 user --out m", message="user", klass="refusal")
 case("merge/shard-folder-missing", "merge shard1 nope --out m", message="nope", klass="refusal")
 case("merge/full-result-not-a-shard", "merge ev --out m", message="ev", klass="refusal")

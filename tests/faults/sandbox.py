@@ -18,6 +18,7 @@ folder; every case then gets a fresh copy of them. Layout of a sandbox::
         run/                 ``pmsr train train.yaml --out run`` (tracker.pt, checkpoints/last.ckpt)
         shard1/, shard2/     ``pmsr evaluate sc.yaml --shard 1/2`` and ``2/2``
         ev/                  ``pmsr evaluate sc.yaml --out ev`` (a complete evaluation)
+        bank/                ``pmsr evaluate sc.yaml --out bank --per-block`` (bank.json, block-0000, block-0001)
 
 Only the standard library is imported here (PyYAML is optional: the configs are written as text).
 """
@@ -33,7 +34,7 @@ import sys
 import time
 from pathlib import Path
 
-FIXTURE_FORMAT = 4
+FIXTURE_FORMAT = 5
 """Bump when the fixtures change: the cache key includes it."""
 
 USER_FILES = {
@@ -167,11 +168,12 @@ BUILD_STEPS: tuple[tuple[tuple[str, ...], ...], ...] = (
      ("evaluate", "sc.yaml", "--out", "shard1", "--shard", "1/2", "--quiet")),
     (("train", "train.yaml", "--out", "run"),
      ("evaluate", "sc.yaml", "--out", "shard2", "--shard", "2/2", "--quiet")),
-    (("evaluate", "sc.yaml", "--out", "ev", "--quiet"),),
+    (("evaluate", "sc.yaml", "--out", "ev", "--quiet"),
+     ("evaluate", "sc.yaml", "--out", "bank", "--per-block", "--quiet")),
 )
 EXPECTED = ("ds/manifest.json", "ds/tracks.h5", "z.csv", "run/tracker.pt", "run/checkpoints/last.ckpt",
             "run/config.yaml", "shard1/shard.json", "shard1/blocks.npz", "shard2/shard.json", "shard2/blocks.npz",
-            "ev/results.json")
+            "ev/results.json", "bank/bank.json", "bank/block-0000/blocks.npz", "bank/block-0001/blocks.npz")
 
 
 # -- running the command of a checkout --------------------------------------------------------

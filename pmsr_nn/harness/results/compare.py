@@ -18,6 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...errors import ConfigError
+from .result_rows import key_path
+from .typed import Results
 
 FIGURES = (("rmse_pos_m", "rmse_pos_se_m"), ("ospa_m", "ospa_se_m"), ("gospa_m", "gospa_se_m"))
 """The headline figures and the field holding each one's Monte Carlo standard error."""
@@ -59,8 +61,10 @@ def _same(a: float, b: float) -> bool:
 
 
 def load_results(path: str | Path) -> dict:
-    """A ``results.json`` (or a folder holding one) as written by ``pmsr evaluate`` / ``pmsr merge``;
-    a one-line error for anything else."""
+    """A ``results.json`` (or a folder holding one) as written by ``pmsr evaluate`` / ``pmsr merge``,
+    read through the typed results (:meth:`~.typed.Results.from_dict`); a one-line error for
+    anything else, naming the file and the key at fault (a figure that is not a number, a table
+    that is not a table, a negative standard error, a missing key)."""
     path = Path(path)
     file = path / "results.json" if path.is_dir() else path
     try:
@@ -69,8 +73,18 @@ def load_results(path: str | Path) -> dict:
         raise ConfigError(f"{path}: no results.json (give a results.json or the folder pmsr evaluate wrote)") from None
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(f"{file}: not a readable results.json ({type(exc).__name__})") from None
-    if not isinstance(res, dict) or not isinstance(res.get("cases"), dict):
+    if not isinstance(res, dict) or "cases" not in res:
         raise ConfigError(f"{file}: not the results of pmsr evaluate (no 'cases')")
+    typed = Results.from_dict(res, source=str(file))
+    # what every case and row pmsr evaluate writes holds (the typed results also read hand-made ones without)
+    for case, c in res["cases"].items():
+        if "methods" not in c:
+            raise ConfigError(f"{file}: {key_path('cases', case)}: lacks the key 'methods'")
+    for case, method, row in typed.rows():
+        if row.rmse_pos_m is None:  # a bound's row has it too
+            at = key_path(key_path(key_path("cases", case), "methods"), method)
+            raise ConfigError(f"{file}: {at}: lacks the key 'rmse_pos_m' (or it is null): every row of a results.json "
+                              "has its position RMSE")
     return res
 
 

@@ -9,16 +9,79 @@ Carlo standard errors over the runs.
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
 from dataclasses import dataclass
 
+from ...errors import ConfigError
 
-def pick(cls, d: dict | None, **given):
+_TYPES = {"float": ("a number", lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)),
+          "int": ("an integer", lambda v: isinstance(v, int) and not isinstance(v, bool)),
+          "bool": ("true or false", lambda v: isinstance(v, bool)),
+          "str": ("a string", lambda v: isinstance(v, str)),
+          "list": ("a list", lambda v: isinstance(v, (list, tuple))),
+          "dict": ("a table", lambda v: isinstance(v, dict))}
+"""What a field's annotation admits, in words and as a test (a bool is not a number)."""
+
+STANDARD_ERROR = re.compile(r"(^|_)se(_|$)")
+"""Names of the fields holding a Monte Carlo standard error (never negative)."""
+
+
+def key_path(at: str, key) -> str:
+    """Where entry ``key`` of the part at ``at`` sits in results.json: ``cases['c'].methods``."""
+    key = key if isinstance(key, str) and key.isidentifier() else f"[{key!r}]"
+    return key if not at else f"{at}{key}" if key.startswith("[") else f"{at}.{key}"
+
+
+def shown(value) -> str:
+    """``value`` as JSON writes it, cut to 40 characters (an error line stays one short line)."""
+    try:
+        text = json.dumps(value, allow_nan=True)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def check_value(value, annotation: str, at: str) -> None:
+    """Refuse (:class:`ConfigError`, one line naming ``at``) a ``value`` that is not of
+    ``annotation`` (a field's, e.g. ``"float | None"``; a dataclass part is checked where it is
+    built), or a negative standard error."""
+    names = [a.strip() for a in str(annotation).split("|")]
+    known = [n for n in names if n in _TYPES]
+    if (value is None and "None" in names) or not known:
+        return
+    if not any(_TYPES[n][1](value) for n in known):
+        words = " or ".join([_TYPES[n][0] for n in known] + (["null"] if "None" in names else []))
+        raise ConfigError(f"{at}: expected {words}, got {shown(value)}")
+    if known == ["float"] and STANDARD_ERROR.search(at.rsplit(".", 1)[-1]) and value < 0:
+        raise ConfigError(f"{at}: expected a non-negative number, got {shown(value)}")
+
+
+def table(d, at: str) -> dict:
+    """``d`` when it is a table (a JSON object), else a one-line :class:`ConfigError` naming ``at``."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"{at}: expected a table, got {shown(d)}")
+    return d
+
+
+def pick(cls, d: dict | None, at: str = "", **given):
     """``cls`` from the entries of ``d`` named like its fields (absent ones take their default),
-    with ``given`` fields set as passed; None for a missing ``d``."""
+    with ``given`` fields set as passed; None for a missing ``d``. ``at``: where ``d`` sits in
+    results.json; an entry of the wrong type, or a field without default that ``d`` lacks, is a
+    :class:`ConfigError` naming it."""
     if d is None:
         return None
-    names = {f.name for f in dataclasses.fields(cls)}
-    return cls(**{k: v for k, v in d.items() if k in names and k not in given}, **given)
+    table(d, at)
+    kept = {}
+    for f in dataclasses.fields(cls):
+        if f.name in given:
+            continue
+        if f.name in d:
+            check_value(d[f.name], f.type, key_path(at, f.name))
+            kept[f.name] = d[f.name]
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ConfigError(f"{at or 'results'}: lacks the key {f.name!r}")
+    return cls(**kept, **given)
 
 
 @dataclass(frozen=True)
@@ -173,7 +236,20 @@ class MethodRow:
     tbd: TbdFigures | None = None
 
     @classmethod
-    def from_dict(cls, r: dict) -> "MethodRow":
+    def from_dict(cls, r: dict, at: str = "") -> "MethodRow":
+        """The row of results.json's dict ``r`` (at ``at`` in the file): an entry of the wrong
+        type or a negative standard error is a :class:`ConfigError` (a hand-made row may lack
+        any figure; :mod:`.compare` asks for the position RMSE every written row has)."""
+        table(r, at)
+        for key, annotation in ROW_KEYS.items():
+            if key in r:
+                check_value(r[key], annotation, key_path(at, key))
+
+        def need(key, part):  # a part's other keys, where its first one is there
+            if key not in r:
+                raise ConfigError(f"{at or 'results'}: lacks the key {key!r} (it has {part!r})")
+            return r[key]
+
         bound = None
         if "bound" in r:
             bound = BoundComparison(
@@ -188,17 +264,20 @@ class MethodRow:
                                     below_q0=bool(r.get("below_q0_bound")))
         memory = None
         if "memory_bound_pos_m" in r:
-            memory = MemoryBound(scans=r["memory_scans"], pos_m=r["memory_bound_pos_m"], over=r["over_memory_bound"],
-                                 mse_ratio=r["mse_over_memory_bound"], mse_ratio_se=r["mse_over_memory_bound_se"],
-                                 below=bool(r["below_memory_bound"]))
+            m = "memory_bound_pos_m"
+            memory = MemoryBound(scans=need("memory_scans", m), pos_m=r[m], over=need("over_memory_bound", m),
+                                 mse_ratio=need("mse_over_memory_bound", m),
+                                 mse_ratio_se=need("mse_over_memory_bound_se", m),
+                                 below=bool(need("below_memory_bound", m)))
         space = None
         if r.get("space_key"):
-            space = PlaneSpace(title=r["space"], key=r["space_key"], position=r["position"], velocity=r["velocity"],
+            space = PlaneSpace(title=need("space", "space_key"), key=r["space_key"],
+                               position=need("position", "space_key"), velocity=need("velocity", "space_key"),
                                rmse_vel_pooled_mps=r.get("rmse_vel_pooled_mps"))
-        tracks = pick(TrackFigures, r) if "confirmed_tracks_per_target" in r else None
-        return pick(cls, r, bound=bound, memory=memory, space=space, tracks=tracks,
-                     sets=pick(SetFigures, r) if "ospa_m" in r else None,
-                     tbd=pick(TbdFigures, r.get("tbd")))
+        tracks = pick(TrackFigures, r, at) if "confirmed_tracks_per_target" in r else None
+        return pick(cls, r, at, bound=bound, memory=memory, space=space, tracks=tracks,
+                    sets=pick(SetFigures, r, at) if "ospa_m" in r else None,
+                    tbd=pick(TbdFigures, r.get("tbd"), key_path(at, "tbd")))
 
     @property
     def below_bound(self) -> bool:
@@ -209,3 +288,17 @@ class MethodRow:
     def below_bound_unsure(self) -> bool:
         """Flagged under its bound by results that hold no standard error for it (written before it was kept)."""
         return self.below_bound and self.bound.mse_ratio_se is None
+
+ROW_KEYS = {
+    **{f.name: f.type for part in (SetFigures, TrackFigures) for f in dataclasses.fields(part)},
+    **{f.name: f.type for f in dataclasses.fields(MethodRow)
+       if f.name not in ("bound", "memory", "sets", "tracks", "space", "tbd")},
+    "bound": "str", "bound_pos_m": "float | None", "over_bound": "float | None", "mse_over_bound": "float | None",
+    "mse_over_bound_se": "float | None", "below_bound": "bool", "bound_q0_pos_m": "float | None",
+    "mse_over_q0_bound": "float | None", "mse_over_q0_bound_se": "float | None", "below_q0_bound": "bool",
+    "memory_scans": "int", "memory_bound_pos_m": "float", "over_memory_bound": "float",
+    "mse_over_memory_bound": "float", "mse_over_memory_bound_se": "float", "below_memory_bound": "bool",
+    "space": "str", "space_key": "str", "position": "str", "velocity": "str", "rmse_vel_pooled_mps": "float | None",
+    "tbd": "dict | None",
+}
+"""Every key of a row that the typed row reads, with the type it admits (results.json's names)."""

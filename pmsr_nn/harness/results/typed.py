@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from ...errors import ConfigError
-from .result_rows import MethodRow, pick
+from .result_rows import MethodRow, check_value, key_path, pick, table
 
 KINDS = ("designed", "sampled")
 """``designed``: designed flights, a PCRB in every case; ``sampled``: truth sampled from a recipe."""
@@ -52,6 +52,17 @@ class SeedGroup:
     rmse_pos_m: Spread
     over_bound: Spread
     over_memory_bound: Spread | None = None
+
+    @classmethod
+    def from_dict(cls, g: dict, at: str) -> "SeedGroup":
+        """The group of results.json's dict ``g`` (at ``at`` in the file); a missing key or one of
+        the wrong type is a :class:`ConfigError` naming it."""
+        for key in ("seeds", "rmse_pos_m", "over_bound"):
+            if key not in table(g, at):
+                raise ConfigError(f"{at}: lacks the key {key!r}")
+        return pick(cls, g, at, rmse_pos_m=pick(Spread, g["rmse_pos_m"], key_path(at, "rmse_pos_m")),
+                    over_bound=pick(Spread, g["over_bound"], key_path(at, "over_bound")),
+                    over_memory_bound=pick(Spread, g.get("over_memory_bound"), key_path(at, "over_memory_bound")))
 
 
 @dataclass(frozen=True)
@@ -131,26 +142,41 @@ class Case:
     set_comparisons: list | None = None  # :func:`~.paired.set_comparisons`
 
     @classmethod
-    def from_dict(cls, name: str, c: dict) -> "Case":
+    def from_dict(cls, name: str, c: dict, at: str = "") -> "Case":
+        """Case ``name`` of results.json's dict ``c`` (at ``at`` in the file); an entry of the wrong
+        type is a :class:`ConfigError` naming it (a hand-made case may lack any part, ``methods`` too)."""
+        at = at or key_path("cases", name)
+        table(c, at)
+        for key, annotation in CASE_KEYS.items():
+            if key in c:
+                check_value(c[key], annotation, key_path(at, key))
         cv = c.get("curves")
         curves = None
         if cv is not None:
             if "rmse_pos_m" not in cv:
-                raise ConfigError(f"results: case {name!r} has no curves.rmse_pos_m: a results.json of an older layout "
+                raise ConfigError(f"case {name!r} has no curves.rmse_pos_m: a results.json of an older layout "
                                   "(re-run the scenario to report it)")
-            sets = cv.get("set")
-            curves = pick(Curves, cv, set=None if sets is None else {m: pick(SetCurves, s) for m, s in sets.items()})
-        groups = {b: SeedGroup(seeds=g["seeds"], rmse_pos_m=pick(Spread, g["rmse_pos_m"]),
-                               over_bound=pick(Spread, g["over_bound"]),
-                               over_memory_bound=pick(Spread, g.get("over_memory_bound")))
+            sets, where = cv.get("set"), key_path(key_path(at, "curves"), "set")
+            curves = pick(Curves, cv, key_path(at, "curves"), set=None if sets is None else {
+                m: pick(SetCurves, s, key_path(where, m)) for m, s in table(sets, where).items()})
+        groups = {b: SeedGroup.from_dict(g, key_path(key_path(at, "seed_groups"), b))
                   for b, g in (c.get("seed_groups") or {}).items()}
+        rows = key_path(at, "methods")
         return cls(name=name, title=c.get("title", name), steps=c.get("steps"), targets=list(c.get("targets", [])),
-                   methods={m: MethodRow.from_dict(r) for m, r in c.get("methods", {}).items()},
-                   lives=[pick(Life, t) for t in c.get("lives", [])], pcrb=pick(Pcrb, c.get("pcrb")),
-                   curves=curves, seed_groups=groups,
-                   comparisons=[pick(Comparison, k) for k in c.get("comparisons") or []],
-                   study=pick(StudyCase, c) if "pd" in c else None, rd_maps=c.get("rd_maps"),
+                   methods={m: MethodRow.from_dict(r, key_path(rows, m)) for m, r in c.get("methods", {}).items()},
+                   lives=[pick(Life, t, f"{key_path(at, 'lives')}[{i}]") for i, t in enumerate(c.get("lives", []))],
+                   pcrb=pick(Pcrb, c.get("pcrb"), key_path(at, "pcrb")), curves=curves, seed_groups=groups,
+                   comparisons=[pick(Comparison, k, f"{key_path(at, 'comparisons')}[{i}]")
+                                for i, k in enumerate(c.get("comparisons") or [])],
+                   study=pick(StudyCase, c, at) if "pd" in c else None, rd_maps=c.get("rd_maps"),
                    front_end=c.get("front_end"), set_comparisons=c.get("set_comparisons"))
+
+
+CASE_KEYS = {"title": "str", "steps": "int | None", "targets": "list", "methods": "dict", "lives": "list",
+             "pcrb": "dict | None", "curves": "dict | None", "seed_groups": "dict | None",
+             "comparisons": "list | None", "rd_maps": "dict | None", "front_end": "dict | None",
+             "set_comparisons": "list | None"}
+"""The keys of a case that the typed case reads, with the type each admits."""
 
 
 @dataclass(frozen=True)
@@ -209,13 +235,27 @@ class Settings:
     sections: dict
 
     @classmethod
-    def from_dict(cls, st: dict) -> "Settings":
-        methods = {m: MethodSettings(kind=s.get("kind"), reads=s.get("reads"), tuning=pick(Tuning, s.get("tuning")),
-                                     options=s, lists=s.get("lists")) for m, s in st.get("methods", {}).items()}
+    def from_dict(cls, st: dict, at: str = "settings") -> "Settings":
+        table(st, at)
+        for key, annotation in (("dt_s", "float"), ("warmup_steps", "int"), ("block_runs", "int | None"),
+                                ("sweep", "str"), ("divergence_m", "float | None"), ("state_dim", "int | None"),
+                                ("methods", "dict")):
+            if key in st:
+                check_value(st[key], annotation, key_path(at, key))
+        where = key_path(at, "methods")
+        methods = {}
+        for m, s in st.get("methods", {}).items():
+            w = key_path(where, m)
+            table(s, w)
+            for key in ("kind", "reads", "lists"):
+                if key in s:
+                    check_value(s[key], "str | None", key_path(w, key))
+            methods[m] = MethodSettings(kind=s.get("kind"), reads=s.get("reads"), options=s, lists=s.get("lists"),
+                                        tuning=pick(Tuning, s.get("tuning"), key_path(w, "tuning")))
         return cls(dt_s=st.get("dt_s", 1.0), warmup_steps=st.get("warmup_steps", 0), block_runs=st.get("block_runs"),
                    sweep=st.get("sweep", "none"), divergence_m=st.get("divergence_m"),
-                   set_metrics=pick(SetMetric, st.get("set_metrics")), methods=methods, state_dim=st.get("state_dim"),
-                   sections=st)
+                   set_metrics=pick(SetMetric, st.get("set_metrics"), key_path(at, "set_metrics")), methods=methods,
+                   state_dim=st.get("state_dim"), sections=st)
 
 
 @dataclass(frozen=True)
@@ -235,26 +275,40 @@ class Results:
     environment: dict = field(default_factory=dict)
 
     @classmethod
-    def from_dict(cls, res: dict) -> "Results":
+    def from_dict(cls, res: dict, source: str = "results") -> "Results":
         """The typed results of a ``results.json`` dict; a ``kind`` that is none of :data:`KINDS`
-        (or a ``designed`` one with a case lacking its PCRB) is refused in one line."""
-        if not isinstance(res, dict) or not isinstance(res.get("cases"), dict):
-            raise ConfigError("results: not a scenario's results.json (no 'cases' table)")
+        (or a ``designed`` one with a case lacking its PCRB), an entry of the wrong type, a negative
+        standard error or a missing ``cases`` is refused in one line, ``source: path.in.the.file:
+        what``."""
+        try:
+            return cls._read(res)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+
+    @classmethod
+    def _read(cls, res: dict) -> "Results":
+        if not isinstance(res, dict) or "cases" not in res:
+            raise ConfigError("not a scenario's results.json (no 'cases' table)")
+        for key, annotation in (("cases", "dict"), ("scenario", "str"), ("seed", "int | None"), ("mc_runs", "int"),
+                                ("settings", "dict | None"), ("description", "str | None"),
+                                ("definitions", "dict | None"), ("reference", "dict | None"),
+                                ("environment", "dict | None")):
+            if key in res:
+                check_value(res[key], annotation, key)
+        cases = {n: Case.from_dict(n, c) for n, c in res["cases"].items()}
         kind = res.get("kind")
-        cases = res["cases"]
         if kind in (None, "multitarget"):  # written before the key (or when it named the schema)
-            kind = "designed" if all(c.get("pcrb") is not None for c in cases.values()) else "sampled"
+            kind = "designed" if all(c.pcrb is not None for c in cases.values()) else "sampled"
         elif kind not in KINDS:
-            raise ConfigError(f"results: kind {kind!r} is none of {', '.join(KINDS)}")
-        elif kind == "designed" and any(c.get("pcrb") is None for c in cases.values()):
-            bare = next(n for n, c in cases.items() if c.get("pcrb") is None)
-            raise ConfigError(f"results: kind 'designed' but case {bare!r} has no PCRB")
+            raise ConfigError(f"kind {kind!r} is none of {', '.join(KINDS)}")
+        elif kind == "designed" and any(c.pcrb is None for c in cases.values()):
+            bare = next(n for n, c in cases.items() if c.pcrb is None)
+            raise ConfigError(f"kind 'designed' but case {bare!r} has no PCRB")
         settings = res.get("settings") or {}
         return cls(scenario=res.get("scenario", "?"), kind=kind, seed=res.get("seed"),
-                   mc_runs=res.get("mc_runs", 0), settings=Settings.from_dict(settings),
-                   cases={n: Case.from_dict(n, c) for n, c in cases.items()}, description=res.get("description"),
-                   definitions=res.get("definitions") or {}, reference=res.get("reference") or {},
-                   environment=res.get("environment") or {})
+                   mc_runs=res.get("mc_runs", 0), settings=Settings.from_dict(settings), cases=cases,
+                   description=res.get("description"), definitions=res.get("definitions") or {},
+                   reference=res.get("reference") or {}, environment=res.get("environment") or {})
 
     @classmethod
     def of(cls, res: "Results | dict") -> "Results":

@@ -13,7 +13,11 @@ of a process that is gone is taken over.
 
 ``OUT/bank.json`` names the scenario (its settings and folder) the bank holds blocks of: a
 command with another scenario or other settings is refused before anything runs, and a block
-folder that is not a complete shard of the bank's scenario is reported, never replaced.
+folder that is not a complete shard of the bank's scenario is reported, never replaced. A bank
+whose ``bank.json`` was deleted (its marker still says ``--per-block`` made it) gets it back when
+every block's ``shard.json`` names the command's scenario and settings (a block holds what
+``bank.json`` held); otherwise it is refused in one line. ``pmsr merge`` needs no ``bank.json``:
+it reads the blocks, which name their scenario themselves.
 """
 
 from __future__ import annotations
@@ -47,20 +51,34 @@ def is_bank(path: Path) -> bool:
         return False
 
 
+def made_per_block(path: Path) -> bool:
+    """True when our marker says ``pmsr evaluate --per-block`` made folder ``path`` (a bank, with
+    its ``bank.json`` or without it)."""
+    if output_kind(path) != "evaluate":
+        return False
+    try:
+        return json.loads((Path(path) / MARKER).read_text(encoding="utf-8")).get("per_block") is True
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def bank_blocks(bank: Path) -> list[Path]:
     """The block folders of a bank, in block order (complete ones: a killed block leaves only a
     hidden temporary, which is not listed)."""
     return sorted(p for p in Path(bank).glob("block-[0-9][0-9][0-9][0-9]") if p.is_dir())
 
 
-def _open_bank(out: Path, identity: dict) -> None:
+def _open_bank(out: Path, identity: dict) -> str | None:
     """Create bank ``out`` for ``identity`` (scenario and base folder), or check an existing one is
-    a bank of the same identity; anything else at ``out`` is refused."""
+    a bank of the same identity (one that lost its ``bank.json`` gets it back from its blocks:
+    returns the line that says so); anything else at ``out`` is refused."""
     if out.is_symlink():
         raise OutputError(f"--out {out} is a symbolic link; give the real folder or a new path")
     if out.exists() and not out.is_dir():
         raise OutputError(f"--out {out} exists and is a file, not a folder")
     if out.is_dir() and any(out.iterdir()):
+        if not is_bank(out) and made_per_block(out):  # a bank whose bank.json is gone
+            return _rebuild(out, identity)
         if not is_bank(out):
             kind = output_kind(out)
             what = f"the output of 'pmsr {kind}'" if kind else "files pmsr did not write"
@@ -69,15 +87,52 @@ def _open_bank(out: Path, identity: dict) -> None:
         if _identity(json.loads((out / BANK_FILE).read_text(encoding="utf-8")), out) != identity:
             raise ConfigError(f"--out {out} holds blocks of another scenario or other settings; give another --out "
                               "(or the same scenario file and options as the bank's first command)")
-        return
+        return None
     make_parents(out)
     out.mkdir(exist_ok=True)
     # renamed into place, then marked: a process starting beside this one sees no bank or a whole one
+    tmp = _bank_file(out, identity)
+    os.replace(tmp, out / BANK_FILE)
+    write_marker(out, "evaluate", per_block=True)  # lists no contents: the bank grows block by block
+    return None
+
+
+def _bank_file(out: Path, identity: dict) -> Path:
+    """``bank.json`` of ``identity`` for bank ``out``, written to a hidden temporary beside it (returned)."""
     tmp = out / f".{BANK_FILE}.{os.getpid()}"
     held = {"format": BANK_FORMAT, **identity, "base_dir": portable_base(identity["base_dir"], out)}
     tmp.write_text(json.dumps(held, indent=1) + "\n", encoding="utf-8")
-    os.replace(tmp, out / BANK_FILE)
-    write_marker(out, "evaluate", per_block=True)  # lists no contents: the bank grows block by block
+    return tmp
+
+
+def _rebuild(out: Path, identity: dict) -> str:
+    """Write the ``bank.json`` that bank ``out`` lost, when every block it holds is a complete
+    block of ``identity`` (each block's ``shard.json`` names the scenario and its folder, as
+    ``bank.json`` did); refused in one line otherwise. Never written over a file that is there."""
+    blocks = bank_blocks(out)
+    have = f"--out {out} has {len(blocks)} block(s) of 'pmsr evaluate --per-block'"
+    if (out / BANK_FILE).exists() or (out / BANK_FILE).is_symlink():
+        raise OutputError(f"{have} and a {BANK_FILE} that is not a bank's (unreadable, or of another format); "
+                          "move that file away and run again: the bank's file is then rebuilt from its blocks")
+    bad = [b.name for b in blocks if not _matches(b, identity)]
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise ConfigError(f"{have} but no {BANK_FILE}, and {bad[0]}{more} is not a complete block of this "
+                          "scenario and settings, so the bank's file cannot be rebuilt: give the scenario file and "
+                          "options of the bank's first command, or another --out")
+    tmp = _bank_file(out, identity)
+    try:
+        os.link(tmp, out / BANK_FILE)  # never over a file put there since the look above
+    except FileExistsError:
+        if not is_bank(out) or _identity(json.loads((out / BANK_FILE).read_text(encoding="utf-8")), out) != identity:
+            raise ConfigError(f"--out {out}: a {BANK_FILE} appeared while this command was rebuilding it, and it is "
+                              "not this scenario's; give another --out") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    if not blocks:
+        return f"bank {out}: {BANK_FILE} was missing; written again (the bank holds no block yet)"
+    return (f"bank {out}: {BANK_FILE} was missing; rebuilt from its {len(blocks)} block(s), which name this "
+            "command's scenario and settings")
 
 
 def _identity(meta: dict, folder: Path) -> dict:
@@ -125,18 +180,22 @@ def _claim(bank: Path, block: int) -> Path | None:
         mine.unlink(missing_ok=True)
 
 
+def _matches(folder: Path, identity: dict) -> bool:
+    """Whether ``folder`` holds a complete one-block shard of the scenario ``identity`` names."""
+    try:
+        meta = json.loads((folder / "shard.json").read_text(encoding="utf-8"))
+        return (_identity(meta, folder) == identity and (folder / "blocks.npz").is_file()
+                and (folder / MARKER).is_file())
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return False
+
+
 def _complete(folder: Path, identity: dict) -> bool:
     """Whether ``folder`` holds a complete one-block shard of the bank's scenario; a folder that is
     there but is not one is an error (it is never replaced)."""
     if not folder.exists():
         return False
-    try:
-        meta = json.loads((folder / "shard.json").read_text(encoding="utf-8"))
-        ok = (_identity(meta, folder) == identity and (folder / "blocks.npz").is_file()
-              and (folder / MARKER).is_file())
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        ok = False
-    if not ok:
+    if not _matches(folder, identity):
         raise OutputError(f"{folder} is not a complete block of this bank's scenario (no readable shard.json, "
                           "blocks.npz or marker); move it away and run again")
     return True
@@ -151,7 +210,9 @@ def run_bank(run: Run, log=print) -> dict:
     blocks, setup = run.blocks, run.setup
     identity = {"scenario": sc.to_dict(), "base_dir": sc.base_dir}
     env = environment(run.device)  # the code this process runs: commits made while it works do not change it
-    _open_bank(out, identity)
+    note = _open_bank(out, identity)
+    if note:
+        log(note)
     skipped = [b for b in blocks if _complete(block_folder(out, b), identity)]
     if progress and skipped:
         log(f"bank {out}: {len(skipped)} of shard {shard[0]}/{shard[1]}'s {len(blocks)} block(s) already there")

@@ -13,7 +13,7 @@ from pathlib import Path
 from ...errors import ConfigError
 from ...outputs import check_folder_target
 from ..scenario.schema import Scenario, scenario_from_dict
-from .block_bank import bank_blocks, is_bank
+from .block_bank import bank_blocks, is_bank, made_per_block
 from .block_sums import BlockSums, read_shard
 from .runner import RESULT_COMMANDS, Run, prepare
 
@@ -26,7 +26,8 @@ def open_merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite:
     out), a preview of a recording still running, marked as one in the results and report."""
     shards = [Path(d) for d in shards]
     check_folder_target(out, overwrite=overwrite, inputs=shards, allow=RESULT_COMMANDS)
-    shards = [part for d in shards for part in (bank_blocks(d) if is_bank(d) else [d])]
+    # a bank stands for its blocks, also one whose bank.json is gone (each block names its scenario)
+    shards = [part for d in shards for part in (bank_blocks(d) if is_bank(d) or made_per_block(d) else [d])]
     if not shards:
         raise ConfigError("the block bank(s) given hold no block yet; run 'pmsr evaluate --per-block' first")
     seen: dict[str, Path] = {}
