@@ -26,15 +26,18 @@ from pathlib import Path
 import numpy as np
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.run.block_bank import BANK_FILE, bank_blocks, is_bank
+from pmsr_nn.harness.run.block_bank import BANK_FILE, bank_blocks, is_bank, made_per_block
 
 
 def run_powers(bank: Path, case: str | None, row: str) -> tuple[dict[int, float], float]:
     """``{run index: GOSPA^p}`` of ``row`` in ``case`` (None: the bank's only case) over the blocks
     ``bank`` holds, and the order ``p`` of its scenario's set metrics."""
-    if not is_bank(bank):
+    if is_bank(bank):
+        scenario = json.loads((Path(bank) / BANK_FILE).read_text(encoding="utf-8"))["scenario"]
+    elif made_per_block(bank) and bank_blocks(bank):  # bank.json deleted: every block names the scenario too
+        scenario = json.loads((bank_blocks(bank)[0] / "shard.json").read_text(encoding="utf-8"))["scenario"]
+    else:
         raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
-    scenario = json.loads((Path(bank) / BANK_FILE).read_text(encoding="utf-8"))["scenario"]
     p, runs_per_block = float(scenario["set_metrics"]["p"]), int(scenario["block_runs"])
     cases = [c["name"] for c in scenario["cases"]]
     if case is None and len(cases) != 1:

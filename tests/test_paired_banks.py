@@ -39,6 +39,9 @@ def test_the_paired_figures_are_the_reports_and_the_re_drawn_runs(tmp_path):
     # a row against itself: no difference, ratio 1 with no spread
     same = script.compare(own, own, p)
     assert same["largest_relative_difference"] == 0.0 and same["ratio_a_over_b"] == 1.0 and same["ratio_se"] == 0.0
+    # a bank whose bank.json was deleted reads its scenario from its blocks: the same runs
+    (tmp_path / "bank" / "bank.json").unlink()
+    assert script.run_powers(tmp_path / "bank", None, "own") == (own, p)
 
 
 def test_the_ratios_error_is_the_delta_methods():
