@@ -362,6 +362,71 @@ def test_resume_with_no_readable_checkpoint_is_refused_and_changes_nothing(run, 
     assert _files(out) == files
 
 
+def _one_more_epoch(out: Path) -> None:
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    cfg["trainer"]["max_epochs"] += 1  # the run's own config, as a user may not: something left to train
+    (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+
+
+def _results(out: Path) -> dict[str, bytes]:
+    """The run's files but its TensorBoard logs (a resumed session starts a new log file)."""
+    return {k: v for k, v in _files(out).items() if not k.startswith("tb/")}
+
+
+def test_a_full_disk_during_training_gives_one_line_and_loses_nothing(run, tmp_path, capsys, monkeypatch):
+    """The disk fills while a resumed session writes its first checkpoint (half the bytes land, then
+    ENOSPC): one line, exit 2, every earlier file byte-identical, no temporary left; a new run that
+    hits it before its first checkpoint leaves no folder at all. (Slow tier: a real tmpfs.)"""
+    import errno
+
+    out = tmp_path / "run"
+    shutil.copytree(run / "run", out)
+    _one_more_epoch(out)
+    write_bytes = Path.write_bytes
+
+    def full(self, data):
+        if out in self.parents or tmp_path / "new" in self.parents:
+            write_bytes(self, bytes(data)[: len(data) // 2])
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return write_bytes(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full)
+    before = _results(out)
+    capsys.readouterr()
+    assert main(["train", "--resume", "--out", str(out)]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("pmsr: error")]
+    assert err == [f"pmsr: error: no space left on the device: {out / 'checkpoints' / 'last.ckpt'}"]
+    assert _results(out) == before
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data")
+    assert main(["train", str(cfg), "--out", str(tmp_path / "new")]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"no space left on the device: {tmp_path / 'new' / 'checkpoints' / 'last.ckpt'}")
+    assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.slow  # mounts a tmpfs (root only)
+def test_a_full_tmpfs_during_training_gives_one_line_and_loses_nothing(run, tmp_path):
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=512k", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    try:
+        out = mnt / "run"
+        shutil.copytree(run / "run", out)
+        _one_more_epoch(out)
+        free = os.statvfs(mnt).f_bavail * os.statvfs(mnt).f_frsize
+        (mnt / "filler").write_bytes(bytes(free - 12 * 1024))  # room for the logs, not for a checkpoint
+        before = _results(out)
+        p = _run_cli(["train", "--resume", "--out", str(out)])
+        text, _ = p.communicate(timeout=300)
+        assert p.returncode == 2, text
+        errors = [ln for ln in text.splitlines() if ln.startswith("pmsr: error")]
+        assert errors == [f"pmsr: error: no space left on the device: {out / 'checkpoints' / 'last.ckpt'}"], text
+        assert _results(out) == before
+    finally:
+        subprocess.run(["umount", str(mnt)], check=True)
+
+
 def _run_cli(args, **kw):
     return subprocess.Popen([sys.executable, "-m", "pmsr_nn.cli", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, **kw)

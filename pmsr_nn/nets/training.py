@@ -42,13 +42,14 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from lightning.fabric.plugins import TorchCheckpointIO
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 
 from .. import interrupts
 from ..config import from_dict, load_yaml, to_dict
 from ..errors import ConfigError
-from ..outputs import atomic_file, write_marker
-from .checkpoint import save_tracker, tracker_metadata
+from ..outputs import write_marker
+from .checkpoint import save_atomically, save_tracker, tracker_metadata, write_atomically
 from .train_config import DataConfig, TrainConfig, TrainerConfig, resolve_recipe
 
 _CHILD_ENV = "PMSR_TRAIN_RUN"  # set before fit: DDP worker processes re-run the command and must not refuse the folder
@@ -161,6 +162,18 @@ def recorded_best(out: Path) -> dict | None:
     return old
 
 
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint writer, atomic on any file system (:func:`~.checkpoint.save_atomically`;
+    Lightning's own writes a temporary file in the system's temporary folder and copies it over
+    the checkpoint, which a full disk leaves half-written): a failed write keeps the earlier checkpoint."""
+
+    def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
+        if storage_options is not None:
+            raise TypeError("storage_options are not supported")
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        save_atomically(checkpoint, path)
+
+
 class BestCheckpoint(ModelCheckpoint):
     """Lightning's best-checkpoint callback with a bar: a validation score no better than
     ``bar`` (the recorded best's, m) never replaces ``best.ckpt``, whatever state was restored."""
@@ -259,7 +272,8 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
                           save_top_k=1, auto_insert_metric_name=False, enable_version_counter=False,
                           bar=before and float(before["val"]["pos_rmse_m"]))
     last = ModelCheckpoint(dirpath=ckpt_dir, filename="last", save_top_k=0, save_last=True,
-                           every_n_train_steps=tc.checkpoint_every_n_steps)
+                           every_n_train_steps=tc.checkpoint_every_n_steps,
+                           enable_version_counter=False)  # a run moved to another folder rewrites its last.ckpt
     history = ValidationHistory()
     callbacks = [best, last, history, LearningRateMonitor(logging_interval="epoch")]
     if console in ("lines", "bar"):
@@ -276,7 +290,7 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
             accelerator=tc.accelerator, devices=tc.devices, strategy=tc.strategy, num_nodes=tc.num_nodes,
             precision=resolve_precision(tc.precision, tc.accelerator), deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
             logger=TensorBoardLogger(save_dir=out, name="tb", version="", default_hp_metric=False),
-            callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps,
+            callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps, plugins=[AtomicCheckpointIO()],
             enable_progress_bar=console == "lightning", enable_model_summary=console == "lightning",
         )
     except (MisconfigurationException, ValueError, RuntimeError) as exc:
@@ -327,8 +341,7 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
         if not keep:
             save_tracker(out / "tracker.pt", meta, {f"net.{k}": v for k, v in module.net.state_dict().items()})
         _merge_history(out / "metrics.json", metrics)
-        with atomic_file(out / "metrics.json", overwrite=True, what="metrics") as tmp:
-            tmp.write_text(json.dumps(metrics, indent=2) + "\n")
+        write_atomically(out / "metrics.json", (json.dumps(metrics, indent=2) + "\n").encode(), "metrics")
         write_marker(out, "train", state="finished")
     return metrics
 
