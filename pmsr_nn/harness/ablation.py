@@ -10,10 +10,12 @@ whole table trains in minutes on a CPU; ``--hidden`` widens them.
 The command line every ablation script under ``evaluate/`` shares (:func:`ablation_main`; the
 altitude one uses :class:`ScriptParser` and :func:`pmsr_nn.outputs.atomic_folder`): ``--out`` is
 required; an existing ``--out`` is replaced only with ``--overwrite``, and only where an ablation
-wrote it (our marker) and it holds nothing else (pmsr's rule: never delete what it did not
-write). A training ablation writes as it goes, so an interrupted one continues in its own folder
-(a setting whose run holds ``tracker.pt`` is not retrained); a replaced folder is moved aside
-until the new one is complete. Bad input is one line ``error: ...``, exit code 2.
+wrote it (our marker) and it holds nothing beyond what the marker lists (pmsr's rule,
+:func:`pmsr_nn.outputs.check_folder_target`: never delete what it did not write). A training
+ablation writes as it goes, so an interrupted one continues in its own folder (a setting whose
+run holds ``tracker.pt`` is not retrained) and its marker lists what it wrote once it finishes; a
+replaced folder is moved aside until the new one is complete. Bad input is one line
+``error: ...``, exit code 2.
 """
 
 from __future__ import annotations
