@@ -27,6 +27,13 @@ def test_filter_order_ablation_trains_evaluates_and_tabulates(tmp_path):
     table = (out / "table.md").read_text()
     assert "| 5 |" in table and "1.45" in table  # the paper's M = 10 on trajectory 1, in its labelled column
     assert (out / "rmse.png").is_file()
+    rows = [ln for ln in table.splitlines() if ln.startswith("| 5 |") or ln.startswith("| 10 |")]
+    assert all(float(ln.split("|")[-2]) > 0 for ln in rows)  # the real training time, never "train s 0"
+    # finished: refused without --overwrite; replaced whole with it, nothing left aside
+    assert script("ablation_filter_order").main(["--values", "5", "--out", str(out), *TINY]) == 2
+    assert script("ablation_filter_order").main(["--values", "5", "--out", str(out), "--overwrite", *TINY]) == 0
+    assert [r["label"] for r in json.loads((out / "results.json").read_text())["rows"]] == ["5"]
+    assert not (out / "runs" / "10").exists() and sorted(p.name for p in tmp_path.iterdir()) == ["abl"]
 
 
 def test_sequence_size_sets_the_window_and_keeps_samples_per_batch(tmp_path):
