@@ -339,6 +339,17 @@ def test_a_resumed_session_never_replaces_a_better_recorded_best(run, tmp_path, 
     assert (out / "checkpoints" / "last.ckpt").is_file()
 
 
+@pytest.mark.parametrize("val, bar", [(308.6, 308.6), (float("nan"), None), ("x", None), (None, None)])
+def test_the_bar_of_a_resumed_session_is_the_recorded_finite_best(tmp_path, val, bar):
+    from pmsr_nn.nets.training import recorded_best
+
+    if val is not None:
+        (tmp_path / "metrics.json").write_text(json.dumps({"val": {"pos_rmse_m": val}, "test": {},
+                                                           "best_checkpoint": "checkpoints/best.ckpt"}))
+    got = recorded_best(tmp_path)
+    assert (got and got["val"]["pos_rmse_m"]) == bar
+
+
 @pytest.mark.parametrize("left", [("tracker.pt",), ("metrics.json",), ("checkpoints/best.ckpt",)])
 def test_resume_with_no_readable_checkpoint_is_refused_and_changes_nothing(run, tmp_path, capsys, left):
     """A run that holds a result but no checkpoint to continue from: starting afresh would replace

@@ -153,13 +153,17 @@ def resume_point(out: Path) -> tuple[Path | None, str]:
 
 def recorded_best(out: Path) -> dict | None:
     """The metrics of the kept best of an earlier session (``metrics.json``), or None where there is
-    none readable: a dict with ``val`` and ``test`` (``pos_rmse_m`` in m, ...) and ``best_checkpoint``."""
+    none readable or its validation position RMSE is not finite (a diverged run sets no bar): a dict
+    with ``val`` and ``test`` (``pos_rmse_m`` in m, ...) and ``best_checkpoint``."""
+    import math
+
     try:
         old = json.loads((out / "metrics.json").read_text())
-        float(old["val"]["pos_rmse_m"]), old["test"], old["best_checkpoint"]
-    except (OSError, ValueError, KeyError, TypeError):
+        finite = math.isfinite(float(old["val"]["pos_rmse_m"]))
+        old["test"], old["best_checkpoint"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    return old
+    return old if finite else None
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
