@@ -55,11 +55,14 @@ Track length (``--steps``, default 1000)
     ``--threads 1``: with another 2-thread job holding both cores, a small run with 2 torch
     threads was measured about 50x slower than on the idle machine.
 
-Outputs (``--out DIR``, written into a temporary folder beside DIR and renamed at the end, so a
-failed run leaves no DIR): ``results.json`` (per altitude: RMSE, |RMSE - RMSE_0|, pooled,
+Outputs (``--out DIR``, required; written into a temporary folder beside DIR and renamed at the
+end, so a failed run leaves no DIR; an existing DIR is replaced only with ``--overwrite`` and only
+where an ablation wrote it and it holds nothing else, the rule of every ablation script,
+:mod:`pmsr_nn.harness.ablation`): ``results.json`` (per altitude: RMSE, |RMSE - RMSE_0|, pooled,
 diverged count, seconds; settings, environment), ``table.md`` (ours beside the paper's Table 7,
 the paper's column labelled as a reference) and ``rmse_vs_time.png`` (the Fig. 11 analogue).
-Bad input is one line ``error: ...`` and exit code 2, with nothing written.
+Nothing is trained: the table's time column is the EKF's. Bad input is one line ``error: ...``
+and exit code 2, with nothing written.
 """
 
 from __future__ import annotations
@@ -68,11 +71,8 @@ import argparse
 import datetime
 import json
 import math
-import os
 import platform
-import shutil
 import sys
-import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -84,7 +84,9 @@ import pmsr_nn
 from pmsr_nn.bounds import pcrb
 from pmsr_nn.errors import PmsrError
 from pmsr_nn.filters import FilterError, Gaussian, ekf
+from pmsr_nn.harness.ablation import OVERWRITE_HELP, ScriptParser
 from pmsr_nn.metrics import squared_error
+from pmsr_nn.outputs import atomic_folder, check_folder_target
 from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.recipe import TrackRecipe, load_recipe
 from pmsr_nn.simulation.tracks import build_models, generate_tracks
@@ -367,25 +369,12 @@ def plot(res: dict, path: Path) -> None:
 
 def write_outputs(res: dict, out: Path, overwrite: bool = False) -> None:
     """Write results.json, table.md and rmse_vs_time.png into a temporary folder beside ``out``,
-    then rename it to ``out`` (replacing an existing ``out`` only with ``overwrite``)."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
-    try:
+    then rename it to ``out`` (:func:`pmsr_nn.outputs.atomic_folder`: an existing ``out`` is
+    replaced only with ``overwrite``, and only where an ablation wrote it and it holds nothing else)."""
+    with atomic_folder(out, command="ablation", overwrite=overwrite, allow=("ablation",)) as tmp:
         (tmp / "results.json").write_text(json.dumps(res, indent=1, allow_nan=True) + "\n")
         (tmp / "table.md").write_text(table_markdown(res))
         plot(res, tmp / "rmse_vs_time.png")
-        if out.exists():
-            if not overwrite:
-                raise InputError(f"{out} already exists (use --overwrite to replace it)")
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-            os.replace(out, old / out.name)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def print_table(res: dict) -> None:
@@ -402,21 +391,15 @@ def print_table(res: dict) -> None:
     print(f"per-trajectory filtering PCRB (h = 0, planar): {res['cases']['h=0 m']['pcrb']['pos_m']:.2f} m")
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit code 2 (argparse prints the usage too)
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", required=True, help="output folder (must not exist unless --overwrite)")
+    p = ScriptParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", required=True, help="output folder (required): new, or with --overwrite an earlier ablation")
     p.add_argument("--tracks", type=int, default=10_000, help="Monte Carlo tracks per altitude (default 10000)")
     p.add_argument("--steps", type=int, default=1000, help="samples per track at T = 1 s (default 1000)")
     p.add_argument("--altitudes", type=float, nargs="+", default=list(DEFAULT_ALTITUDES), help="altitudes in m, must include 0")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--warmup", type=int, default=100, help="first step of the averaged RMSE (default 100)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.add_argument("--no-progress", action="store_true")
     return p
@@ -430,8 +413,7 @@ def main(argv=None) -> int:
         check_inputs(args.tracks, args.steps, args.altitudes, args.seed, args.warmup)
         if args.threads is not None and args.threads < 1:
             raise InputError(f"--threads must be at least 1, got {args.threads}")
-        if out.exists() and not args.overwrite:
-            raise InputError(f"{out} already exists (use --overwrite to replace it)")
+        check_folder_target(out, overwrite=args.overwrite, allow=("ablation",))  # before the work, not after
         if args.threads:
             torch.set_num_threads(args.threads)
         t0 = time.perf_counter()

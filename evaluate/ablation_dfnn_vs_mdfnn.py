@@ -30,8 +30,7 @@ def main(argv=None) -> int:
         argv, doc=__doc__, title="DFNN vs MDFNN (Table 3)", parameter="network",
         values=["DFNN", "MDFNN"], settings=settings,
         paper_file=HERE / "reference" / "paper_tables.json", paper_key="fitee2023_mdfnn.table3_ablation_rmse_pos_m",
-        paper_note="The paper's Table 3 is on its own test data, not on these trajectories.",
-        default_out="runs/ablation_dfnn_vs_mdfnn")
+        paper_note="The paper's Table 3 is on its own test data, not on these trajectories.")
 
 
 if __name__ == "__main__":

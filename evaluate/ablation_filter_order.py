@@ -29,7 +29,7 @@ def main(argv=None) -> int:
         argv, doc=__doc__, title="Filter order M (Table 5)", parameter="M",
         values=["10", "20", "30", "40", "50"], settings=settings,
         paper_file=HERE / "reference" / "paper_tables.json", paper_key="fitee2023_mdfnn.table5_filter_order_rmse_pos_m",
-        paper_note="", default_out="runs/ablation_filter_order")
+        paper_note="")
 
 
 if __name__ == "__main__":

@@ -30,8 +30,7 @@ def main(argv=None) -> int:
         argv, doc=__doc__, title="Sequence size epsilon (Table 4)", parameter="epsilon",
         values=["10", "50", "100", "150", "200", "300", "400", "500", "600", "700"], settings=settings,
         paper_file=HERE / "reference" / "paper_tables.json", paper_key="fitee2023_mdfnn.table4_sequence_size_rmse_pos_m",
-        paper_note="The paper gives one trajectory (its caption says the first, its text the second).",
-        default_out="runs/ablation_sequence_size")
+        paper_note="The paper gives one trajectory (its caption says the first, its text the second).")
 
 
 if __name__ == "__main__":

@@ -221,6 +221,29 @@ def test_every_command_is_listed_in_order_and_has_its_help(capsys):
         assert exc.value.code == 0 and capsys.readouterr().out.startswith(f"usage: pmsr {name} [-h] [--debug]")
 
 
+def test_a_recipe_without_sensors_is_refused_naming_the_file(tmp_path, capsys):
+    recipe = small_recipe_dict()
+    recipe["geometry"] = {"receivers": []}
+    rc, err = run(tmp_path, capsys, recipe)
+    assert rc == 2 and err == (f"pmsr: error: {tmp_path / 'recipe.yaml'}: recipe: need at least one transmitter "
+                               "and one receiver")
+
+
+def test_the_train_help_names_every_kind_train_trains(capsys):
+    """``pmsr --help`` once said "DFNN / MDFNN / RNN"; every model kind of the training config and
+    both trackers on detections (the kinds ``pmsr train`` hands to their own trainers) must be named."""
+    from typing import get_args, get_type_hints
+
+    from pmsr_nn.nets.config import ModelConfig
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    line = " ".join(re.search(r"^    train +(.*?)\n    select", capsys.readouterr().out, re.M | re.S)[1].split())
+    kinds = get_args(get_type_hints(ModelConfig)["kind"])
+    assert set(kinds) == {"mdfnn", "dfnn", "rnn", "kalmannet"}
+    assert all(k in line.lower() for k in kinds) and "jpda_gain" in line and "set_tracker" in line
+
+
 TINY_SCENARIO = """\
 name: tiny
 seed: 3

@@ -225,6 +225,21 @@ def test_a_checkpoint_for_another_geometry_is_refused(tmp_path):
         prepare(sc)
 
 
+def test_a_checkpoint_for_another_pair_count_is_refused_in_one_readable_line(tmp_path, capsys):
+    """The released MDFNN reads 1 transmitter x 3 receivers; a recipe with 2 receivers gives 2 pairs.
+    The line names the row and the checkpoint and says what differs, uncut (it once ended mid-word)."""
+    recipe = yaml.safe_load((ROOT / "datasets/fitee2023_ca.yaml").read_text())
+    recipe["geometry"]["receivers"] = recipe["geometry"]["receivers"][:2]
+    (tmp_path / "recipe.yaml").write_text(yaml.safe_dump(recipe))
+    path = tiny(tmp_path, recipe=str(tmp_path / "recipe.yaml"))
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and not err.endswith("...") and not (tmp_path / "out").exists()
+    assert err.startswith("pmsr: error: scenario 'tiny', row 'MDFNN': the checkpoint ")
+    assert str(ROOT / "models/released/mdfnn.pt") in err
+    assert err.endswith("expects 3 pairs (9 columns: range, range_rate, azimuth); "
+                        "the scenario gives 2 pairs (6 columns: range, range_rate, azimuth)")
+
 def test_overwrite_replaces_only_what_evaluate_wrote(tmp_path):
     user = tmp_path / "out"
     user.mkdir()

@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -274,6 +275,167 @@ def test_overrides_and_model_files_resolve(tmp_path):
     cfg.write_text(yaml.safe_dump(raw))
     c = load_train_config(cfg, ["model.rnn_cell=gru", "trainer.max_epochs=7"])
     assert (c.model.kind, c.model.rnn_cell, c.model.rnn_hidden, c.trainer.max_epochs) == ("rnn", "gru", 16, 7)
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(f.relative_to(folder)): f.read_bytes() for f in sorted(folder.rglob("*")) if f.is_file()}
+
+
+def _lose_last(run_dir: Path, how: str, elsewhere: Path) -> None:
+    last = run_dir / "checkpoints" / "last.ckpt"
+    if how == "deleted":
+        last.unlink()
+    elif how == "moved":  # tidied away, out of the run folder
+        last.rename(elsewhere / "last.ckpt")
+    else:  # truncated: a copy cut short
+        last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])
+
+
+@pytest.mark.parametrize("how", ["deleted", pytest.param("moved", marks=pytest.mark.slow),
+                                 pytest.param("truncated", marks=pytest.mark.slow)])
+def test_resume_without_a_readable_last_checkpoint_continues_from_best(run, tmp_path, capsys, how):
+    """The issue's data loss: without last.ckpt, --resume trained afresh from epoch 0 and replaced
+    best.ckpt, tracker.pt and metrics.json by worse ones. Now it continues from best.ckpt, says so
+    in one line, and the epochs after the best are trained again to the same validation scores."""
+    out = tmp_path / "run"
+    shutil.copytree(run / "run", out)
+    before = json.loads((out / "metrics.json").read_text())
+    best_bytes = (out / "checkpoints" / "best.ckpt").read_bytes()
+    _lose_last(out, how, tmp_path)
+    capsys.readouterr()
+    assert main(["train", "--resume", "--out", str(out)]) == 0
+    said = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("pmsr:")]
+    last = out / "checkpoints" / "last.ckpt"
+    why = "no checkpoint at" if how != "truncated" else "not a readable torch checkpoint"
+    assert len(said) == 1 and said[0].startswith(f"pmsr: resuming from {out / 'checkpoints' / 'best.ckpt'} (")
+    assert str(last) in said[0] and why in said[0]
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["resumed_from"] == str(out / "checkpoints" / "best.ckpt")
+    scores = [(r["epoch"], r["step"], r["val_pos_rmse_m"]) for r in m["history"]]
+    assert scores == [(r["epoch"], r["step"], r["val_pos_rmse_m"]) for r in before["history"]]  # not from scratch
+    assert m["val"]["pos_rmse_m"] == before["val"]["pos_rmse_m"]
+    assert (out / "checkpoints" / "best.ckpt").read_bytes() == best_bytes
+
+
+def test_a_resumed_session_never_replaces_a_better_recorded_best(run, tmp_path, capsys):
+    """metrics.json decides: with a recorded best better than anything this session reaches
+    (1 m), best.ckpt, tracker.pt and the recorded metrics stay, and the history is merged."""
+    out = tmp_path / "run"
+    shutil.copytree(run / "run", out)
+    m = json.loads((out / "metrics.json").read_text())
+    m["val"]["pos_rmse_m"] = 1.0
+    (out / "metrics.json").write_text(json.dumps(m))
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    cfg["trainer"]["max_epochs"] = 3  # one more epoch to train (the run's own config, as a user may not)
+    (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    (out / "checkpoints" / "last.ckpt").unlink()
+    kept = {k: v for k, v in _files(out).items() if k in ("tracker.pt", "checkpoints/best.ckpt")}
+    assert main(["train", "--resume", "--out", str(out)]) == 0
+    after = json.loads((out / "metrics.json").read_text())
+    assert after["val"] == m["val"] and after["test"] == m["test"] and after["epochs"] == 3
+    assert [r["epoch"] for r in after["history"]] == [0, 1, 2]  # the earlier epochs and the new one
+    assert after["history"][-1]["val_pos_rmse_m"] > 1.0
+    assert {k: v for k, v in _files(out).items() if k in kept} == kept
+    assert (out / "checkpoints" / "last.ckpt").is_file()
+
+
+@pytest.mark.parametrize("val, bar", [(308.6, 308.6), (float("nan"), None), ("x", None), (None, None)])
+def test_the_bar_of_a_resumed_session_is_the_recorded_finite_best(tmp_path, val, bar):
+    from pmsr_nn.nets.training import recorded_best
+
+    if val is not None:
+        (tmp_path / "metrics.json").write_text(json.dumps({"val": {"pos_rmse_m": val}, "test": {},
+                                                           "best_checkpoint": "checkpoints/best.ckpt"}))
+    got = recorded_best(tmp_path)
+    assert (got and got["val"]["pos_rmse_m"]) == bar
+
+
+@pytest.mark.parametrize("left", [("tracker.pt",), ("metrics.json",), ("checkpoints/best.ckpt",)])
+def test_resume_with_no_readable_checkpoint_is_refused_and_changes_nothing(run, tmp_path, capsys, left):
+    """A run that holds a result but no checkpoint to continue from: starting afresh would replace
+    the result, so it is refused (one line, exit 2) and nothing in the folder changes."""
+    out = tmp_path / "run"
+    shutil.copytree(run / "run", out)
+    for f in (out / "checkpoints").glob("*.ckpt"):
+        if f"checkpoints/{f.name}" not in left:
+            f.unlink()
+        else:
+            f.write_bytes(b"")  # an unreadable checkpoint file is a result too
+    for name in ("tracker.pt", "metrics.json"):
+        if name not in left:
+            (out / name).unlink()
+    files = _files(out)
+    capsys.readouterr()
+    assert main(["train", "--resume", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pmsr: error: cannot resume {out}: no readable checkpoint")
+    assert left[0].split("/")[-1] in err[0]
+    assert _files(out) == files
+
+
+def _one_more_epoch(out: Path) -> None:
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    cfg["trainer"]["max_epochs"] += 1  # the run's own config, as a user may not: something left to train
+    (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+
+
+def _results(out: Path) -> dict[str, bytes]:
+    """The run's files but its TensorBoard logs (a resumed session starts a new log file)."""
+    return {k: v for k, v in _files(out).items() if not k.startswith("tb/")}
+
+
+def test_a_full_disk_during_training_gives_one_line_and_loses_nothing(run, tmp_path, capsys, monkeypatch):
+    """The disk fills while a resumed session writes its first checkpoint (half the bytes land, then
+    ENOSPC): one line, exit 2, every earlier file byte-identical, no temporary left; a new run that
+    hits it before its first checkpoint leaves no folder at all. (Slow tier: a real tmpfs.)"""
+    import errno
+
+    out = tmp_path / "run"
+    shutil.copytree(run / "run", out)
+    _one_more_epoch(out)
+    write_bytes = Path.write_bytes
+
+    def full(self, data):
+        if out in self.parents or tmp_path / "new" in self.parents:
+            write_bytes(self, bytes(data)[: len(data) // 2])
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return write_bytes(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full)
+    before = _results(out)
+    capsys.readouterr()
+    assert main(["train", "--resume", "--out", str(out)]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("pmsr: error")]
+    assert err == [f"pmsr: error: no space left on the device: {out / 'checkpoints' / 'last.ckpt'}"]
+    assert _results(out) == before
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "data")
+    assert main(["train", str(cfg), "--out", str(tmp_path / "new")]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"no space left on the device: {tmp_path / 'new' / 'checkpoints' / 'last.ckpt'}")
+    assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.slow  # mounts a tmpfs (root only)
+def test_a_full_tmpfs_during_training_gives_one_line_and_loses_nothing(run, tmp_path):
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=512k", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    try:
+        out = mnt / "run"
+        shutil.copytree(run / "run", out)
+        _one_more_epoch(out)
+        free = os.statvfs(mnt).f_bavail * os.statvfs(mnt).f_frsize
+        (mnt / "filler").write_bytes(bytes(free - 12 * 1024))  # room for the logs, not for a checkpoint
+        before = _results(out)
+        p = _run_cli(["train", "--resume", "--out", str(out)])
+        text, _ = p.communicate(timeout=300)
+        assert p.returncode == 2, text
+        errors = [ln for ln in text.splitlines() if ln.startswith("pmsr: error")]
+        assert errors == [f"pmsr: error: no space left on the device: {out / 'checkpoints' / 'last.ckpt'}"], text
+        assert _results(out) == before
+    finally:
+        subprocess.run(["umount", str(mnt)], check=True)
 
 
 def _run_cli(args, **kw):

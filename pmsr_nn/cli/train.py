@@ -11,8 +11,11 @@ from .common import positive_int
 def add_train(sub) -> None:
     t = sub.add_parser(
         "train",
-        help="train a learned tracker (DFNN / MDFNN / RNN)",
-        description="Train a tracker from a YAML config (train/*.yaml) into a run folder: checkpoints "
+        help="train a learned tracker (DFNN / MDFNN / RNN / KalmanNet-style filter on measurement streams; "
+        "jpda_gain / set_tracker on detections)",
+        description="Train a tracker from a YAML config (train/*.yaml) into a run folder: a network on "
+        "measurement streams (model.kind mdfnn, dfnn, rnn or kalmannet), or a tracker on detections "
+        "(kind: jpda_gain or set_tracker, trained on scenes drawn on the fly). Checkpoints "
         "(best and last), TensorBoard logs (RUN/tb), the resolved config, tracker.pt for inference and "
         "metrics.json. KEY=VALUE overrides change any config entry, e.g. trainer.max_epochs=5 "
         "model.filter_order=10. A missing dataset is simulated once into the config's cache_dir.",
@@ -20,7 +23,10 @@ def add_train(sub) -> None:
     t.add_argument("config", nargs="?", help="training config YAML (optional with --resume)")
     t.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides (YAML values)")
     t.add_argument("--out", type=Path, required=True, help="run folder (new, or the run to --resume)")
-    t.add_argument("--resume", action="store_true", help="continue an interrupted run from RUN/checkpoints/last.ckpt")
+    t.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from RUN/checkpoints/last.ckpt, or where that is missing or "
+                   "unreadable from the newest readable checkpoint (one line says which); a run with results but "
+                   "no readable checkpoint is refused, and a worse session never replaces the recorded best")
     t.add_argument("--verbose", action="store_true",
                    help="Lightning's own progress bars, model summary and messages instead of one line per epoch")
     t.set_defaults(run=cmd_train)

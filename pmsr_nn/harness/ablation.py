@@ -6,11 +6,24 @@ envelope variant) for a fixed number of optimiser steps. The batch holds a fixed
 scan samples (``samples_per_batch`` / window windows), so a longer sequence size does not
 buy more data per step. Networks are narrower than the paper's (``ABLATION_MODEL``) so that a
 whole table trains in minutes on a CPU; ``--hidden`` widens them.
+
+The command line every ablation script under ``evaluate/`` shares (:func:`ablation_main`; the
+altitude one uses :class:`ScriptParser` and :func:`pmsr_nn.outputs.atomic_folder`): ``--out`` is
+required; an existing ``--out`` is replaced only with ``--overwrite``, and only where an ablation
+wrote it (our marker) and it holds nothing beyond what the marker lists (pmsr's rule,
+:func:`pmsr_nn.outputs.check_folder_target`: never delete what it did not write). A training
+ablation writes as it goes, so an interrupted one continues in its own folder (a setting whose
+run holds ``tracker.pt`` is not retrained) and its marker lists what it wrote once it finishes; a
+replaced folder is moved aside until the new one is complete. Bad input is one line
+``error: ...``, exit code 2.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +32,7 @@ import numpy as np
 
 from ..config import from_dict
 from ..errors import ConfigError
+from ..outputs import folder_contents
 from .report.figures import pyplot
 from .report.report_cells import fmt
 from .scenario.case_spec import FITEE2023_TRAJECTORIES
@@ -58,27 +72,63 @@ def train_config(name: str, model: dict, window: int, budget: Budget, cache_dir:
     return from_dict(TrainConfig, raw, where=f"ablation {name}")
 
 
+class ScriptParser(argparse.ArgumentParser):
+    """argparse with its errors as one line ``error: ...`` and exit code 2 (the ablation scripts)."""
+
+    def error(self, message):
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def check_ablation_folder(out: Path, overwrite: bool) -> bool:
+    """Refuse (one line) an ``--out`` a training ablation may not write; True where it replaces an
+    earlier ablation (``overwrite``), False for a new or empty folder or one to continue (an
+    unfinished ablation of ours, without ``overwrite``)."""
+    from ..outputs import check_folder_target, check_target, output_kind
+
+    check_target(out)
+    if not out.exists() or (out.is_dir() and not out.is_symlink() and not any(out.iterdir())):
+        return False
+    if overwrite:
+        check_folder_target(out, overwrite=True, allow=("ablation",))
+        return True
+    if output_kind(out) != "ablation":
+        raise ConfigError(f"--out {out} exists and is not an ablation folder this package wrote; an ablation only "
+                          "continues in its own folder: choose another --out")
+    if _marker(out).get("state") == "finished":
+        raise ConfigError(f"--out {out} holds a finished ablation; pass --overwrite to replace it, or choose another --out")
+    return False
+
+
+def _marker(out: Path) -> dict:
+    from ..outputs import MARKER
+
+    try:
+        m = json.loads((out / MARKER).read_text())
+    except (OSError, ValueError):
+        return {}
+    return m if isinstance(m, dict) else {}
+
+
 def run_ablation(settings: dict[str, tuple[dict, int]], out: Path, budget: Budget, mc_runs: int,
                  log=print) -> list[dict]:
-    """Train and evaluate every setting ``label -> (model config, window)`` under ``out``.
+    """Train and evaluate every setting ``label -> (model config, window)`` under ``out`` (checked
+    by :func:`check_ablation_folder`).
 
     A setting whose run folder already holds ``tracker.pt`` is not retrained (re-running a long
     ablation after an interruption continues where it stopped)."""
     from ..nets.training import train
-    from ..outputs import check_target, output_kind, write_marker
+    from ..outputs import write_marker
     from .evaluate import evaluate
 
-    check_target(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and output_kind(out) != "ablation":
-        raise ConfigError(f"--out {out} exists and is not an ablation folder this package wrote; an ablation only "
-                          "continues in its own folder: choose another --out")
     out.mkdir(parents=True, exist_ok=True)
-    write_marker(out, "ablation")
+    write_marker(out, "ablation", state="running")
     rows = []
     for label, (model, window) in settings.items():
         run = out / "runs" / label
         t0 = time.perf_counter()
-        if not (run / "tracker.pt").is_file():
+        trained_now = not (run / "tracker.pt").is_file()
+        if trained_now:
             log(f"[ablation] training {label} (window {window}, {model})")
             train(train_config(label, model, window, budget, out / "data"), run)
         metrics = json.loads((run / "metrics.json").read_text())
@@ -90,6 +140,7 @@ def run_ablation(settings: dict[str, tuple[dict, int]], out: Path, budget: Budge
         cases = {c: v["methods"]["net"] for c, v in res["cases"].items()}
         rows.append({"label": label, "window": window, "model": model, "epochs": metrics["epochs"],
                      "steps": metrics["global_step"], "fit_seconds": metrics.get("fit_seconds_this_session", seconds),
+                     "trained_now": trained_now,
                      "val_pos_rmse_m": metrics["val"]["pos_rmse_m"],
                      "rmse_pos_m": {c: r["rmse_pos_m"] for c, r in cases.items()},
                      "bound_pos_m": {c: r["bound_pos_m"] for c, r in cases.items()},
@@ -112,10 +163,11 @@ def write_ablation(out: Path, title: str, parameter: str, rows: list[dict], budg
         row = paper.get(case, {}) if per_case_paper else paper
         return row.get(label)
 
+    timed = any((r.get("fit_seconds") or 0) > 0 for r in rows)  # no column of zeros where nothing was trained
     head = f"| {parameter} | " + " | ".join(f"{c} (m)" + (f" | {c} paper" if per_case_paper else "") for c in cases)
-    head += (" | paper (m) |" if paper and not per_case_paper else " |") + " train steps | train s |"
+    head += (" | paper (m) |" if paper and not per_case_paper else " |") + " train steps |" + (" train s |" if timed else "")
     lines = [f"## {title}", "", head, "|---|" + "---:|" * (len(cases) * (2 if per_case_paper else 1)
-                                                          + (1 if paper and not per_case_paper else 0) + 2)]
+                                                          + (1 if paper and not per_case_paper else 0) + 1 + timed)]
     for r in rows:
         cells = []
         for c in cases:
@@ -124,7 +176,8 @@ def write_ablation(out: Path, title: str, parameter: str, rows: list[dict], budg
                 cells.append(fmt(ref(c, r["label"])))
         if paper and not per_case_paper:
             cells.append(fmt(ref(None, r["label"])))
-        lines.append(f"| {r['label']} | " + " | ".join(cells) + f" | {r['steps']} | {r['fit_seconds']:.0f} |")
+        lines.append(f"| {r['label']} | " + " | ".join(cells) + f" | {r['steps']} |"
+                     + (f" {seconds(r.get('fit_seconds'))} |" if timed else ""))
     bounds = " / ".join(fmt(rows[0]["bound_pos_m"][c]) for c in cases)
     lines += ["", f"Position RMSE (Eq. 31, averaged over steps 100-999) over {mc_runs} Monte Carlo "
               f"runs per trajectory of the three built-in trajectories (noise 30 m, 2 m/s, 3 deg); filtering PCRB "
@@ -159,37 +212,67 @@ def write_ablation(out: Path, title: str, parameter: str, rows: list[dict], budg
     return table
 
 
+def seconds(s: float | None) -> str:
+    """A training time (s) for a table: whole seconds from 10 s, one decimal below, '-' where none."""
+    if s is None:
+        return "-"
+    return f"{s:.0f}" if s >= 10 else f"{s:.1f}"
+
+
+OUT_HELP = ("output folder (required): new, or an unfinished ablation of this script's to continue, or, with "
+            "--overwrite, an earlier ablation to replace")
+OVERWRITE_HELP = ("replace an existing --out, only where an ablation wrote it and it holds nothing else "
+                  "(pmsr never deletes what it did not write)")
+
+
 def ablation_main(argv, *, doc: str, title: str, parameter: str, values: list[str], settings, paper_file: Path,
-                  paper_key: str, paper_note: str, default_out: str) -> int:
-    """The command line shared by the ablation scripts under ``evaluate/``.
+                  paper_key: str, paper_note: str) -> int:
+    """The command line shared by the training ablation scripts under ``evaluate/`` (see the module
+    docstring for the ``--out`` / ``--overwrite`` rule).
 
     ``settings(values, hidden) -> {label: (model config, window)}``."""
-    import argparse
-    import sys
+    import shutil
 
     from ..errors import PmsrError
+    from ..outputs import write_marker
 
-    p = argparse.ArgumentParser(description=doc.split("\n\n")[0])
-    p.add_argument("--out", type=Path, default=Path(default_out), help=f"output folder (default {default_out})")
+    p = ScriptParser(description=doc.split("\n\n")[0])
+    p.add_argument("--out", type=Path, required=True, help=OUT_HELP)
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--values", nargs="+", default=values, help=f"{parameter} values (default: the paper's, {' '.join(values)})")
     p.add_argument("--mc-runs", type=int, default=20, help="Monte Carlo runs per trajectory (default 20)")
     p.add_argument("--tracks", type=int, default=Budget.tracks, help=f"training tracks (default {Budget.tracks})")
-    p.add_argument("--epochs", type=int, default=Budget.epochs, help=f"epochs of {Budget.batches_per_epoch} batches (default {Budget.epochs})")
-    p.add_argument("--batches", type=int, default=Budget.batches_per_epoch, help=f"batches per epoch (default {Budget.batches_per_epoch})")
+    p.add_argument("--epochs", type=int, default=Budget.epochs,
+                   help=f"training epochs of --batches batches each (default {Budget.epochs})")
+    p.add_argument("--batches", type=int, default=Budget.batches_per_epoch,
+                   help=f"batches per epoch, each of {Budget.samples_per_batch} scan samples (default {Budget.batches_per_epoch})")
     p.add_argument("--hidden", type=int, nargs=3, default=ABLATION_MODEL["hidden"], help="hidden layer widths")
     a = p.parse_args(argv)
+    old = None
     try:
         if a.mc_runs < 1 or a.tracks < 12 or a.epochs < 1 or a.batches < 1:
             raise PmsrError("--mc-runs, --epochs and --batches must be positive and --tracks at least 12")
         budget = Budget(tracks=a.tracks, epochs=a.epochs, batches_per_epoch=a.batches)
         chosen = settings(a.values, list(a.hidden))
         paper = reference_table(paper_file, paper_key)
+        if check_ablation_folder(a.out, a.overwrite):  # the earlier ablation, aside until the new one is complete
+            old = a.out.parent / f".{a.out.name}.old-{os.getpid()}"
+            a.out.rename(old)
+        print(f"[ablation] budget per setting: {budget.describe()}")
         rows = run_ablation(chosen, a.out, budget, a.mc_runs)
         table = write_ablation(a.out, title, parameter, rows, budget, a.mc_runs, paper, paper_note,
                                f"{paper_file.name}: {paper_key}")
-    except PmsrError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        write_marker(a.out, "ablation", state="finished", contents=folder_contents(a.out))
+    except BaseException as exc:
+        if old is not None:  # the earlier ablation comes back
+            shutil.rmtree(a.out, ignore_errors=True)
+            old.rename(a.out)
+        if isinstance(exc, PmsrError):
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
     print(table)
     print(f"\nwrote {a.out / 'table.md'}, {a.out / 'results.json'}, {a.out / 'rmse.png'}")
     return 0

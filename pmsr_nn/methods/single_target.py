@@ -128,7 +128,7 @@ def _load_learned(spec, context):
     from ..nets.inference import Tracker
 
     t = Tracker.load(context.path(spec.checkpoint), device=context.device)
-    t.check_compatible(context.geometry, context.labels, context.dt, where=context.where)
+    t.check_compatible(context.geometry, context.labels, context.dt, where=context.where, row=spec.name)
     stride = spec.option("stride")
     if spec.option("inference") == "whole_sequence" and t.net.context[0] is not None:
         raise ConfigError(f"method {spec.name!r}: inference whole_sequence is for recurrent networks; "

@@ -168,12 +168,31 @@ def read_blob(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
 
 
 def save_blob(path: str | Path, meta: dict, state_dict: dict) -> Path:
-    """Write ``{'pmsr': meta, 'state_dict': ...}`` atomically (:func:`~pmsr_nn.outputs.atomic_file`:
-    a temporary file of ours, synced, then renamed; a temporary name someone else holds is refused,
-    never overwritten or removed)."""
+    """Write ``{'pmsr': meta, 'state_dict': ...}`` atomically (:func:`save_atomically`)."""
+    return save_atomically({"pmsr": meta, "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}, path)
+
+
+def save_atomically(obj, path: str | Path, what: str = "checkpoint") -> Path:
+    """``torch.save(obj)`` into ``path`` atomically (:func:`write_atomically`), serialised in memory
+    first: torch's own file writer reports a full disk as a RuntimeError."""
+    import io
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    return write_atomically(path, buf.getbuffer(), what)
+
+
+def write_atomically(path: str | Path, data: bytes | memoryview, what: str) -> Path:
+    """Write ``data`` to ``path`` atomically (:func:`~pmsr_nn.outputs.atomic_file`: a temporary file
+    of ours beside it, synced, then renamed; a temporary name someone else holds is refused, never
+    overwritten or removed). A failed write (a full disk: an OSError naming ``path``) leaves the
+    earlier file whole and no temporary behind."""
     path = Path(path)
-    with atomic_file(path, overwrite=True, what="checkpoint") as tmp:
-        torch.save({"pmsr": meta, "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}, tmp)
+    with atomic_file(path, overwrite=True, what=what) as tmp:
+        try:
+            tmp.write_bytes(data)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(path)) from None
     return path
 
 

@@ -68,6 +68,17 @@ def fill_missing(z: torch.Tensor, policy: str) -> torch.Tensor:
     return hold_last_valid(z, bad)
 
 
+def column_layout(columns: list[str]) -> str:
+    """``columns`` in words: ``"4 pairs (12 columns: range, range_rate, azimuth)"`` for the
+    ``COMPONENT_PAIR`` names of :attr:`pmsr_nn.measurements.MeasurementModel.labels`, else the count."""
+    parts = [str(c).rpartition("_") for c in columns]
+    if not columns or not all(sep and n.isdigit() for _, sep, n in parts):
+        return f"{len(columns)} columns"
+    components = list(dict.fromkeys(c for c, _, _ in parts))
+    pairs = len({n for _, _, n in parts})
+    return f"{pairs} pair{'s' * (pairs != 1)} ({len(columns)} columns: {', '.join(components)})"
+
+
 class Tracker:
     """A trained network with its normalisation, window and geometry: measurements in, states out."""
 
@@ -139,22 +150,27 @@ class Tracker:
             return max(1, self.window // 2)
         return max(1, self.window - behind - ahead)
 
-    def check_compatible(self, geometry: dict, columns: list[str], dt_s: float | None = None, where: str = "input") -> None:
-        """Refuse measurements from another geometry, column layout or sampling interval."""
+    def check_compatible(self, geometry: dict, columns: list[str], dt_s: float | None = None, where: str = "input",
+                         row: str | None = None) -> None:
+        """Refuse measurements from another geometry, column layout or sampling interval (``dt_s``, s):
+        one line naming the input (``where``, e.g. ``scenario 'x'``), the row that reads it (``row``,
+        a method label, if any) and this checkpoint, and saying what differs."""
+        at = f"{where}, row {row!r}: " if row else ""
         if list(columns) != self.measurement_columns:
-            raise CheckpointError(f"{where} has measurement columns {list(columns)}; the checkpoint expects "
-                                  f"{self.measurement_columns}")
+            raise CheckpointError(f"{at}the checkpoint {self.source} expects {column_layout(self.measurement_columns)}; "
+                                  f"the {where.split()[0]} gives {column_layout(columns)}")
         mine, theirs = self.geometry, Geometry.from_dict(geometry)
         same = (mine.pairs == theirs.pairs and len(mine.transmitters) == len(theirs.transmitters)
                 and len(mine.receivers) == len(theirs.receivers)
                 and all(_close(a.position_m, b.position_m) for a, b in zip(mine.transmitters, theirs.transmitters))
                 and all(_close(a.position_m, b.position_m) for a, b in zip(mine.receivers, theirs.receivers)))
         if not same:
-            raise CheckpointError(f"the checkpoint was trained for another sensor geometry than the {where}'s "
-                                  f"(receivers {[list(r.position_m) for r in mine.receivers]} vs "
+            raise CheckpointError(f"{at}the checkpoint {self.source} was trained for another sensor geometry than the "
+                                  f"{where}'s (receivers {[list(r.position_m) for r in mine.receivers]} vs "
                                   f"{[list(r.position_m) for r in theirs.receivers]}); retrain for this geometry")
         if dt_s is not None and abs(dt_s - self.meta["dt_s"]) > 1e-9:
-            raise CheckpointError(f"the checkpoint was trained at dt = {self.meta['dt_s']} s; the {where} is sampled at {dt_s} s")
+            raise CheckpointError(f"{at}the checkpoint {self.source} was trained at dt = {self.meta['dt_s']} s; the "
+                                  f"{where} is sampled at {dt_s} s")
 
     @torch.no_grad()
     def track(self, z: torch.Tensor, *, stride: int | None = None, nan: str = "error",

@@ -10,15 +10,24 @@ Run folder::
     RUN/tracker.pt           the best weights as a slim, self-contained inference checkpoint
     RUN/metrics.json         final validation and test metrics, validation history, throughput
 
-An interrupted run continues from ``last.ckpt`` with ``--resume`` (same config). Every
-Lightning checkpoint carries the ``pmsr`` block, so any of them serves ``pmsr track``.
+An interrupted run continues with ``--resume`` (same config) from ``last.ckpt``, or, where that
+is missing or unreadable (deleted, moved, truncated), from the newest readable other checkpoint
+in ``checkpoints/`` (``best.ckpt``); one line on stderr says which (:func:`resume_point`). A run
+with a result (a checkpoint file, ``tracker.pt`` or ``metrics.json``) but no readable checkpoint
+is refused: starting it afresh would replace that result. A resumed session never replaces a
+better best with a worse one: the validation position RMSE that ``metrics.json`` records for the
+kept best is the bar a new ``best.ckpt`` must beat, and a session whose best is worse keeps the
+earlier ``tracker.pt`` and the earlier metrics (the validation history of both sessions merged).
+Every Lightning checkpoint carries the ``pmsr`` block, so any of them serves ``pmsr track``.
 
 Nothing is written before the whole config, the data, the window and the accelerator have been
 checked, so a refused run leaves no folder behind. The folder carries our output marker; a run
 that fails or is interrupted before its first checkpoint is removed again (nothing in it could be
 resumed), one that has a checkpoint is kept for ``--resume``. A run killed outright before its
-first checkpoint leaves a marked folder holding only its config: ``--resume`` starts it afresh.
-Every checkpoint is read with ``weights_only=True``, Lightning's resume included.
+first checkpoint leaves a marked folder holding only its config (no checkpoint, tracker.pt or
+metrics.json): ``--resume`` starts it afresh. tracker.pt and metrics.json are replaced atomically,
+so a failed write (a full disk) leaves the earlier ones whole. Every checkpoint is read with
+``weights_only=True``, Lightning's resume included.
 """
 
 from __future__ import annotations
@@ -27,18 +36,20 @@ import functools
 import hashlib
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import yaml
-from lightning.pytorch.callbacks import Callback
+from lightning.fabric.plugins import TorchCheckpointIO
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 
 from .. import interrupts
 from ..config import from_dict, load_yaml, to_dict
 from ..errors import ConfigError
 from ..outputs import write_marker
-from .checkpoint import save_tracker, tracker_metadata
+from .checkpoint import save_atomically, save_tracker, tracker_metadata, write_atomically
 from .train_config import DataConfig, TrainConfig, TrainerConfig, resolve_recipe
 
 _CHILD_ENV = "PMSR_TRAIN_RUN"  # set before fit: DDP worker processes re-run the command and must not refuse the folder
@@ -96,11 +107,7 @@ def check_run_folder(out: Path, resume: bool, inputs=()) -> None:
             raise ConfigError(f"cannot resume: {out} is not a pmsr training run (no config.yaml)")
         if output_kind(out) not in (None, "train"):
             raise ConfigError(f"cannot resume: {out} holds the output of 'pmsr {output_kind(out)}', not a training run")
-        last = out / "checkpoints" / "last.ckpt"
-        if last.exists():
-            from .checkpoint import read_checkpoint
-
-            read_checkpoint(last)  # truncated, foreign or pickled: refused here, before Lightning sees it
+        resume_point(out)  # no readable checkpoint in a run with a result: refused here, before anything is written
         return
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise ConfigError(f"--out {out} exists and is not a folder; give a new run folder")
@@ -109,6 +116,84 @@ def check_run_folder(out: Path, resume: bool, inputs=()) -> None:
             raise ConfigError(f"--out {out} holds a training run: pass --resume to continue it, or choose another --out")
         raise ConfigError(f"--out {out} exists and holds files that are not a training run; pmsr never writes into "
                           "them: choose a new or empty folder")
+
+
+def resume_point(out: Path) -> tuple[Path | None, str]:
+    """Where ``--resume`` continues the run ``out``: ``(checkpoint or None, one line saying which)``.
+
+    ``checkpoints/last.ckpt``; where it is missing or unreadable (empty, truncated, foreign, pickled),
+    the newest (by modification time) readable other ``checkpoints/*.ckpt``. None (start afresh) only
+    for a run that never wrote a result: no checkpoint file, tracker.pt or metrics.json. Refused
+    (ConfigError): a folder at last.ckpt (the run could not write its checkpoint there), and a run
+    with a result but no readable checkpoint (starting afresh would replace the result)."""
+    from ..errors import CheckpointError
+    from .checkpoint import read_checkpoint
+
+    ckpt_dir = out / "checkpoints"
+    last = ckpt_dir / "last.ckpt"
+    if last.is_dir():
+        raise ConfigError(f"cannot resume: {last} is a folder, where the run writes its checkpoint; move it away")
+    others = sorted((p for p in ckpt_dir.glob("*.ckpt") if p != last and p.is_file()),
+                    key=lambda p: p.stat().st_mtime, reverse=True) if ckpt_dir.is_dir() else []
+    why = None
+    for path in [last, *others]:
+        try:
+            read_checkpoint(path)  # truncated, foreign or pickled: passed over here, before Lightning sees it
+        except CheckpointError as exc:
+            why = why or str(exc)
+            continue
+        return path, f"resuming from {path}" + (f" ({why})" if path != last else "")
+    results = [p.name for p in (*([last] if last.exists() else []), *others, out / "tracker.pt", out / "metrics.json")
+               if p.exists()]
+    if results:
+        raise ConfigError(f"cannot resume {out}: no readable checkpoint in {ckpt_dir} ({why}); starting afresh would "
+                          f"replace its {', '.join(results)}: train into a new --out")
+    return None, f"resuming {out}: it has no checkpoint yet (stopped before its first), so training starts afresh"
+
+
+def recorded_best(out: Path) -> dict | None:
+    """The metrics of the kept best of an earlier session (``metrics.json``), or None where there is
+    none readable or its validation position RMSE is not finite (a diverged run sets no bar): a dict
+    with ``val`` and ``test`` (``pos_rmse_m`` in m, ...) and ``best_checkpoint``."""
+    import math
+
+    try:
+        old = json.loads((out / "metrics.json").read_text())
+        finite = math.isfinite(float(old["val"]["pos_rmse_m"]))
+        old["test"], old["best_checkpoint"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return old if finite else None
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint writer, atomic on any file system (:func:`~.checkpoint.save_atomically`;
+    Lightning's own writes a temporary file in the system's temporary folder and copies it over
+    the checkpoint, which a full disk leaves half-written): a failed write keeps the earlier checkpoint."""
+
+    def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
+        if storage_options is not None:
+            raise TypeError("storage_options are not supported")
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        save_atomically(checkpoint, path)
+
+
+class BestCheckpoint(ModelCheckpoint):
+    """Lightning's best-checkpoint callback with a bar: a validation score no better than
+    ``bar`` (the recorded best's, m) never replaces ``best.ckpt``, whatever state was restored."""
+
+    def __init__(self, *args, bar: float | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.bar = bar
+
+    @property
+    def state_key(self) -> str:  # ModelCheckpoint's: the state in a checkpoint written by either restores into both
+        return super().state_key.replace(type(self).__qualname__, ModelCheckpoint.__qualname__, 1)
+
+    def check_monitor_top_k(self, trainer, current=None) -> bool:
+        if self.bar is not None and current is not None and not float(current) < self.bar:
+            return False
+        return super().check_monitor_top_k(trainer, current)
 
 
 def _check_accelerator(tc: "TrainerConfig") -> None:
@@ -143,7 +228,7 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False, con
 def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label: str) -> dict:
     import lightning as L
     import torch
-    from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
+    from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from ..data.datamodule import TrackWindowDataModule
@@ -185,10 +270,14 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
                                dtype=next(module.net.parameters()).dtype))
 
     ckpt_dir = out / "checkpoints"
-    best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor="val/pos_rmse_m", mode="min",
-                           save_top_k=1, auto_insert_metric_name=False, enable_version_counter=False)
+    start, said = resume_point(out) if resume else (None, "")
+    before = recorded_best(out) if resume else None
+    best = BestCheckpoint(dirpath=ckpt_dir, filename="best", monitor="val/pos_rmse_m", mode="min",
+                          save_top_k=1, auto_insert_metric_name=False, enable_version_counter=False,
+                          bar=before and float(before["val"]["pos_rmse_m"]))
     last = ModelCheckpoint(dirpath=ckpt_dir, filename="last", save_top_k=0, save_last=True,
-                           every_n_train_steps=tc.checkpoint_every_n_steps)
+                           every_n_train_steps=tc.checkpoint_every_n_steps,
+                           enable_version_counter=False)  # a run moved to another folder rewrites its last.ckpt
     history = ValidationHistory()
     callbacks = [best, last, history, LearningRateMonitor(logging_interval="epoch")]
     if console in ("lines", "bar"):
@@ -205,7 +294,7 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
             accelerator=tc.accelerator, devices=tc.devices, strategy=tc.strategy, num_nodes=tc.num_nodes,
             precision=resolve_precision(tc.precision, tc.accelerator), deterministic=tc.deterministic, gradient_clip_val=tc.gradient_clip_val,
             logger=TensorBoardLogger(save_dir=out, name="tb", version="", default_hp_metric=False),
-            callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps,
+            callbacks=callbacks, log_every_n_steps=tc.log_every_n_steps, plugins=[AtomicCheckpointIO()],
             enable_progress_bar=console == "lightning", enable_model_summary=console == "lightning",
         )
     except (MisconfigurationException, ValueError, RuntimeError) as exc:
@@ -213,7 +302,9 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
 
     # Everything is checked: only now is the run folder written.
     created = _start_run_folder(out, cfg, write=trainer.is_global_zero and not resume)
-    resumed_from = str(ckpt_dir / "last.ckpt") if resume and (ckpt_dir / "last.ckpt").is_file() else None
+    resumed_from = str(start) if start is not None else None
+    if said and trainer.is_global_zero:
+        print(f"pmsr: {said}", file=sys.stderr)
     os.environ[_CHILD_ENV] = str(out.resolve())
     t0 = time.perf_counter()
     try:
@@ -225,7 +316,8 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
         os.environ.pop(_CHILD_ENV, None)  # workers have inherited it; this process must check again next time
     fit_seconds = time.perf_counter() - t0
 
-    best_path = best.best_model_path or str(ckpt_dir / "last.ckpt")
+    # best.ckpt by its fixed name (a restored best_model_path names the folder the run was in when saved)
+    best_path = str(ckpt_dir / "best.ckpt") if (ckpt_dir / "best.ckpt").is_file() else str(ckpt_dir / "last.ckpt")
     val = trainer.validate(module, datamodule=dm, ckpt_path=best_path, verbose=False, weights_only=True)
     test = trainer.test(module, datamodule=dm, ckpt_path=best_path, verbose=False, weights_only=True)
     metrics = {
@@ -246,12 +338,14 @@ def _train(cfg: TrainConfig | None, out: Path, resume: bool, console: str, label
         "world_size": trainer.world_size,
         "global_rank": trainer.global_rank,
     }
+    keep = before is not None and not metrics["val"]["pos_rmse_m"] <= before["val"]["pos_rmse_m"]
+    if keep:  # this session's best is worse than the recorded one: the earlier tracker.pt and its metrics stay
+        metrics.update(val=before["val"], test=before["test"], best_checkpoint=before["best_checkpoint"])
     if trainer.is_global_zero:
-        save_tracker(out / "tracker.pt", meta, {f"net.{k}": v for k, v in module.net.state_dict().items()})
+        if not keep:
+            save_tracker(out / "tracker.pt", meta, {f"net.{k}": v for k, v in module.net.state_dict().items()})
         _merge_history(out / "metrics.json", metrics)
-        tmp = out / ".metrics.json.partial"
-        tmp.write_text(json.dumps(metrics, indent=2) + "\n")
-        os.replace(tmp, out / "metrics.json")
+        write_atomically(out / "metrics.json", (json.dumps(metrics, indent=2) + "\n").encode(), "metrics")
         write_marker(out, "train", state="finished")
     return metrics
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -378,9 +379,22 @@ class TrackRecipe:
         return d
 
 
+@contextmanager
+def _naming_file(path):
+    """Prefix the one-line ConfigError of a check of the recipe file ``path`` with the file's name
+    (where the line does not name it already): ``r.yaml: recipe: need at least one ...``."""
+    try:
+        yield
+    except ConfigError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ConfigError(f"{path}: {exc}") from None
+
+
 def load_recipe(path) -> TrackRecipe:
     """Load and validate a recipe YAML file."""
-    return from_dict(TrackRecipe, load_yaml(path), where="recipe")
+    with _naming_file(path):
+        return from_dict(TrackRecipe, load_yaml(path), where="recipe")
 
 
 def load_recipe_for_simulation(path, *, tracks: int | None = None, seed: int | None = None,
@@ -390,15 +404,16 @@ def load_recipe_for_simulation(path, *, tracks: int | None = None, seed: int | N
     (:data:`NO_SPLITS`, every track in 'test') when ``no_splits`` or when the tracks are too few
     to put one in every split the recipe asks for. Returns ``(recipe, note)``; ``note`` says why a
     recipe that asks for splits got none (None otherwise)."""
-    data = load_yaml(path)
-    if not isinstance(data, dict):
-        return from_dict(TrackRecipe, data, where="recipe"), None  # raises: a recipe is a mapping
-    own = from_dict(SplitSpec, data["splits"], where="recipe.splits") if "splits" in data else SplitSpec()
-    try:
-        own.validate()
-    except ConfigError as exc:
-        raise ConfigError(f"recipe: {exc}") from None
-    unsplit = from_dict(TrackRecipe, {**data, "splits": to_dict(NO_SPLITS)}, where="recipe")
+    with _naming_file(path):
+        data = load_yaml(path)
+        if not isinstance(data, dict):
+            return from_dict(TrackRecipe, data, where="recipe"), None  # raises: a recipe is a mapping
+        own = from_dict(SplitSpec, data["splits"], where="recipe.splits") if "splits" in data else SplitSpec()
+        try:
+            own.validate()
+        except ConfigError as exc:
+            raise ConfigError(f"recipe: {exc}") from None
+        unsplit = from_dict(TrackRecipe, {**data, "splits": to_dict(NO_SPLITS)}, where="recipe")
     recipe = unsplit.with_overrides(tracks=tracks, seed=seed, variant=variant)
     if no_splits or own.is_none:
         return recipe, None

@@ -831,15 +831,21 @@ case("train/seed-huge", f"{TR} --out run2 seed=99999999999999999999", message="s
 case("train/resume-missing-run", "train --out nope --resume", message="nope", klass="refusal")
 case("train/resume-with-other-config", f"{TR} --out run --resume trainer.max_epochs=9", message="config",
      klass="refusal")
-case("train/resume-truncated-checkpoint", "train --out run --resume", setup=truncate("run/checkpoints/last.ckpt", 0.5),
-     message="last.ckpt", klass="traceback")
-case("train/resume-empty-checkpoint", "train --out run --resume", setup=write_bytes("run/checkpoints/last.ckpt", b""),
-     message="last.ckpt", klass="traceback")
-case("train/resume-foreign-checkpoint", "train --out run --resume",
-     setup=torch_edit("run/checkpoints/last.ckpt", "run/checkpoints/last.ckpt", _foreign), message="last.ckpt",
-     klass="traceback")
-case("train/resume-pickle-payload", "train --out run --resume", setup=pickle_payload("run/checkpoints/last.ckpt"),
-     message="last.ckpt", klass="traceback", note="unpickling would create PWNED")
+# an unreadable last.ckpt is passed over for the newest readable checkpoint (issue 59: was refused)
+case("train/resume-truncated-checkpoint", "train --out run --resume", "ok", setup=truncate("run/checkpoints/last.ckpt", 0.5),
+     outputs=("run",), message="resuming from run/checkpoints/best.ckpt (run/checkpoints/last.ckpt is not a readable",
+     verify=v_run("run"), klass="data_loss")
+case("train/resume-empty-checkpoint", "train --out run --resume", "ok",
+     setup=write_bytes("run/checkpoints/last.ckpt", b""), outputs=("run",),
+     message="resuming from run/checkpoints/best.ckpt (run/checkpoints/last.ckpt is empty", verify=v_run("run"),
+     klass="data_loss")
+case("train/resume-foreign-checkpoint", "train --out run --resume", "ok",
+     setup=torch_edit("run/checkpoints/last.ckpt", "run/checkpoints/last.ckpt", _foreign), outputs=("run",),
+     message="resuming from run/checkpoints/best.ckpt (run/checkpoints/last.ckpt is not a pmsr_nn tracker checkpoint",
+     verify=v_run("run"), klass="data_loss")
+case("train/resume-pickle-payload", "train --out run --resume", "ok", setup=pickle_payload("run/checkpoints/last.ckpt"),
+     outputs=("run",), message="last.ckpt holds objects other than tensors", verify=v_run("run"), klass="data_loss",
+     note="unpickling would create PWNED (a file outside the outputs)")
 case("train/resume-checkpoint-is-directory", "train --out run --resume",
      setup=steps(remove("run/checkpoints/last.ckpt"), mkdir("run/checkpoints/last.ckpt")), message="last.ckpt",
      klass="refusal")
@@ -1510,6 +1516,69 @@ case("merge/json-wrong-format", f"{MG} --out m", setup=edit_json("shard2/shard.j
 case("merge/json-other-scenario", f"{MG} --out m",
      setup=edit_json("shard2/shard.json", lambda m: m["scenario"].update(seed=99)), message="scenario", klass="refusal")
 case("merge/no-shards", "merge --out m", message="shards", klass="refusal")
+
+# ---------------------------------------------------------------------------------------------
+# issue 59 round three: train
+# ---------------------------------------------------------------------------------------------
+def move(src: str, dst: str) -> Callable[[Path], None]:
+    def f(root: Path) -> None:
+        (root / dst).parent.mkdir(parents=True, exist_ok=True)
+        os.replace(root / src, root / dst)
+    return f
+
+
+def v_resumed(rel: str, ckpt: str | None) -> Callable[[Path], str | None]:
+    """A finished run (:func:`v_run`) whose metrics.json says it was resumed from ``ckpt`` (None: started afresh)."""
+    def v(root: Path) -> str | None:
+        bad = v_run(rel)(root)
+        if bad:
+            return bad
+        said = json.loads((root / rel / "metrics.json").read_text())["resumed_from"]
+        return None if said == ckpt else f"resumed_from {said!r}, expected {ckpt!r}"
+    return v
+
+
+NO_CKPT = steps(remove("run/checkpoints/last.ckpt"), remove("run/checkpoints/best.ckpt"))
+NEVER_CHECKPOINTED = steps(mkdir("fresh"), copy("run/config.yaml", "fresh/config.yaml"),
+                           copy("run/.pmsr_output.json", "fresh/.pmsr_output.json"))
+TWO_RX = [{"baseline_m": 7560.0, "bearing_deg": 240.0}, {"baseline_m": 8120.0, "bearing_deg": 270.0}]
+case("train/resume-last-deleted-ok", "train --out run --resume", "ok", setup=remove("run/checkpoints/last.ckpt"),
+     outputs=("run",), message="resuming from run/checkpoints/best.ckpt (no checkpoint at run/checkpoints/last.ckpt)",
+     verify=v_resumed("run", "run/checkpoints/best.ckpt"), klass="data_loss",
+     note="was: exit 0, trained afresh from epoch 0 and replaced best.ckpt, tracker.pt and metrics.json")
+case("train/resume-last-moved-away-ok", "train --out run --resume", "ok",
+     setup=move("run/checkpoints/last.ckpt", "tidy/last.ckpt"), outputs=("run",),
+     message="resuming from run/checkpoints/best.ckpt (no checkpoint at run/checkpoints/last.ckpt)",
+     verify=v_resumed("run", "run/checkpoints/best.ckpt"), klass="data_loss")
+case("train/resume-last-renamed-ok", "train --out run --resume", "ok",
+     setup=steps(move("run/checkpoints/last.ckpt", "run/checkpoints/kept.ckpt"),
+                 lambda root: os.utime(root / "run/checkpoints/kept.ckpt")), outputs=("run",),
+     message="resuming from run/checkpoints/kept.ckpt (no checkpoint at run/checkpoints/last.ckpt)",
+     verify=v_resumed("run", "run/checkpoints/kept.ckpt"), klass="data_loss",
+     note="the newest readable checkpoint of the run's checkpoints/ folder")
+case("train/resume-no-checkpoint", "train --out run --resume", setup=NO_CKPT,
+     message="cannot resume run: no readable checkpoint in run/checkpoints", klass="data_loss",
+     note="starting afresh would replace tracker.pt and metrics.json")
+case("train/resume-no-readable-checkpoint", "train --out run --resume",
+     setup=steps(truncate("run/checkpoints/last.ckpt", 0.5), write_bytes("run/checkpoints/best.ckpt", b"")),
+     message="replace its last.ckpt, best.ckpt, tracker.pt, metrics.json", klass="data_loss")
+case("train/resume-never-checkpointed-ok", "train --out fresh --resume", "ok", setup=NEVER_CHECKPOINTED,
+     outputs=("fresh",), message="it has no checkpoint yet", verify=v_resumed("fresh", None), klass="refusal",
+     note="a run killed outright before its first checkpoint: nothing to lose, it starts afresh")
+case("evaluate/learned-row-other-pair-count", "evaluate s.yaml --quiet --out out",
+     setup=steps(recipe_set("r2.yaml", geometry__receivers=TWO_RX),
+                 scenario_set("s.yaml", SCENARIO_LEARNED_YAML, recipe="r2.yaml")),
+     message="row 'MDFNN': the checkpoint", klass="refusal",
+     note="the line says 'expects 3 pairs (9 columns: ...); the scenario gives 2 pairs (6 columns: ...)'")
+case("simulate/recipe-without-receivers", "simulate r.yaml --out new --quiet",
+     setup=recipe_set(geometry__receivers=[]), message="r.yaml: recipe: need at least one transmitter",
+     klass="refusal")
+case("evaluate/recipe-without-receivers", "evaluate s.yaml --quiet --out out",
+     setup=steps(recipe_set("r0.yaml", geometry__receivers=[]), scenario_set("s.yaml", recipe="r0.yaml")),
+     message="r0.yaml: recipe: need at least one transmitter", klass="refusal")
+case("train/recipe-without-receivers", f"{TR} --out run2 data.path=null data.recipe=r0.yaml",
+     setup=recipe_set("r0.yaml", geometry__receivers=[]), message="r0.yaml: recipe: need at least one transmitter",
+     klass="refusal")
 
 # ---------------------------------------------------------------------------------------------
 # demo (only cases that must be refused before any training starts)
