@@ -250,3 +250,21 @@ def bench_front_end(rec: dict) -> list[str]:
             row(["ours, whole chain, 6 pairs per call (per pair)", fixed(1e3 * o["seconds_per_cpi_batch_of_6"], 1),
                  fixed(o["x_real_time_batched"], 1)]),
             row([stages, "", ""])]
+
+
+FAULT_CENSUS = "benchmarks/results/fault_census_round3.json"
+CENSUS_CLASSES = ("data_loss", "hang", "traceback", "silent_wrong", "leftover", "messy_refusal", "clean_refusal", "ok")
+
+
+def fault_census(rec: dict) -> list[str]:
+    """The fault census's outcomes per command (benchmarks/fault_census.py: every case of
+    tests/faults/cases.py as a subprocess), one column per class, '.' for none."""
+    out = ["| command | " + " | ".join(c.replace("_", " ") for c in CENSUS_CLASSES) + " | cases |",
+           "|---|" + "---:|" * (len(CENSUS_CLASSES) + 1)]
+    by = rec["meta"]["by_command"]
+    for command, counts in [*by.items(), ("**all**", rec["meta"]["counts"])]:
+        cells = [str(counts.get(c, ".")) for c in CENSUS_CLASSES] + [str(sum(counts.values()))]
+        if command == "**all**":
+            cells = [c if c == "." else f"**{c}**" for c in cells]
+        out.append(row([command, *cells]))
+    return out

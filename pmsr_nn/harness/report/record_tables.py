@@ -92,6 +92,7 @@ TABLES: dict[str, Table] = {
     "bench_onnx": Table(bench.ONNX, bench.bench_onnx),
     "bench_phd": Table(bench.PHD, bench.bench_phd),
     "bench_front_end": Table(bench.FRONT_END, bench.bench_front_end),
+    "fault_census_round3": Table(bench.FAULT_CENSUS, bench.fault_census),
 }
 
 
