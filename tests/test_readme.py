@@ -14,6 +14,7 @@ its tiny configuration here. Long studies run with one Monte Carlo run in the sl
 from __future__ import annotations
 
 import os
+import json
 import re
 import shlex
 import subprocess
@@ -302,6 +303,15 @@ def test_the_first_hour_time_is_the_recorded_one():
     block = README[README.index("## Your first hour"):README.index("## Documentation")]
     assert re.findall(r"(\d+(?:\.\d+)?) minutes in all", block) == [f"{TIMINGS['first_hour']['minutes']}"], block
     assert f"Measured once, {TIMINGS['first_hour']['date']}" in block
+
+
+@pytest.mark.parametrize("name, record", [("demo", "demo_time.json"), ("make_test", "test_suite_time.json"),
+                                          ("first_hour", "first_hour_time.json")])
+def test_each_quoted_time_is_its_records(name, record):
+    """pmsr_nn/timings.py quotes each time as its benchmark recorded it (minutes to one decimal, date)."""
+    rec = json.loads((ROOT / "benchmarks" / "results" / record).read_text())
+    assert TIMINGS[name]["minutes"] == round(rec["minutes"], 1) and TIMINGS[name]["date"] == rec["info"]["date"]
+    assert f"benchmarks/results/{record}" in TIMINGS[name]["source"]
 
 
 def test_the_readme_is_short():
