@@ -13,8 +13,8 @@ its tiny configuration here. Long studies run with one Monte Carlo run in the sl
 
 from __future__ import annotations
 
-import os
 import json
+import os
 import re
 import shlex
 import subprocess
