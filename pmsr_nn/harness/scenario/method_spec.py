@@ -78,9 +78,9 @@ class MethodSpec:
             when = unread[0][1]
             keys = ", ".join(k for k, w in unread if w == when)
             now = self.option(when.key)
-            require(False, f"method {self.name!r}: option(s) {keys} are read only with {when}, and this row has "
-                           f"{when.key}: {'null' if now is None else now}: remove them (they would be recorded as "
-                           "settings the row never used)")
+            raise ConfigError(f"method {self.name!r}: option(s) {keys} are read only with {when}, and this row has "
+                              f"{when.key}: {'null' if now is None else now}: remove them (they would be recorded as "
+                              "settings the row never used)")
 
     def option(self, key: str):
         return self.options.get(key, method_kind(self.kind).options[key].default)
