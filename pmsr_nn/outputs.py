@@ -113,10 +113,18 @@ def write_marker(folder: Path, command: str, **facts) -> None:
 
 
 def _write_synced(path: Path, text: str) -> None:
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
+    """Write ``text`` to ``path`` whole or not at all: a temporary beside it, synced, then renamed
+    (a full disk leaves the earlier marker as it was, not an empty one)."""
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 def check_target(out: Path, *, inputs: Iterable[Path] = (), what: str = "--out") -> Path:

@@ -14,7 +14,7 @@ from pmsr_nn.config import MAX_YAML_DEPTH, MAX_YAML_NODES, load_yaml, parse_yaml
 from pmsr_nn.errors import ConfigError, GeometryError, MeasurementError, OutputError
 from pmsr_nn.geometry import Geometry, Receiver, Transmitter
 from pmsr_nn.outputs import (MARKER, atomic_file, atomic_folder, check_folder_target, check_target, clean_stale,
-                             is_ours, output_kind, virtual_file_system)
+                             is_ours, output_kind, virtual_file_system, write_marker)
 from pmsr_nn.plausibility import check_measurements
 
 
@@ -105,6 +105,29 @@ def test_a_failure_inside_leaves_nothing_and_removes_created_parents(cwd):
             (tmp / "half.txt").write_text("x")
             raise RuntimeError("boom")
     assert sorted(p.name for p in cwd.iterdir()) == ["user"]
+
+
+def test_a_marker_that_can_not_be_written_whole_leaves_the_earlier_one(cwd, monkeypatch):
+    """A full disk while the marker is rewritten (e.g. a bank's, or a run's 'finished') keeps the
+    earlier marker byte for byte and leaves no temporary."""
+    import errno
+
+    folder = cwd / "res"
+    folder.mkdir()
+    write_marker(folder, "evaluate", per_block=True)
+    before = (folder / MARKER).read_bytes()
+    real_fsync = os.fsync
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OSError, match="No space"):
+        write_marker(folder, "evaluate", state="finished")
+    monkeypatch.setattr(os, "fsync", real_fsync)
+    assert (folder / MARKER).read_bytes() == before and sorted(p.name for p in folder.iterdir()) == [MARKER]
+    write_marker(folder, "evaluate", state="finished")
+    assert json.loads((folder / MARKER).read_text())["state"] == "finished"
 
 
 def test_a_killed_writer_leaves_a_partial_that_the_next_write_removes(cwd):
