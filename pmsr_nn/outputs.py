@@ -117,14 +117,17 @@ def _write_synced(path: Path, text: str) -> None:
     (a full disk leaves the earlier marker as it was, not an empty one)."""
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     try:
-        with open(tmp, "w", encoding="utf-8") as f:
+        f = open(tmp, "x", encoding="utf-8")  # created here or refused: a file of that name is never ours to remove
+    except FileExistsError:
+        raise OutputError(f"{path}: the temporary name {tmp} is taken; remove it if it is not yours") from None
+    try:
+        with f:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        tmp.unlink(missing_ok=True)  # ours: created above, gone already where the rename took it
 
 
 def check_target(out: Path, *, inputs: Iterable[Path] = (), what: str = "--out") -> Path:

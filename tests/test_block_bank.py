@@ -122,6 +122,11 @@ def test_a_bank_that_lost_its_bank_json_gets_it_back_from_its_blocks_or_is_refus
     (tmp_path / "bank" / "bank.json").unlink()
     merged = merge([tmp_path / "bank"], tmp_path / "early", runs=1)  # merge reads the blocks, not bank.json
     assert merged["mc_runs"] == 1 and not (tmp_path / "bank" / "bank.json").exists()
+    taken = tmp_path / "bank" / f".bank.json.{os.getpid()}"  # the temporary's name, taken by a file not ours
+    taken.write_text("my draft\n")
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 2
+    assert "is taken" in capsys.readouterr().err and taken.read_text() == "my draft\n"
+    taken.unlink()
     assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--quiet"]) == 0
     assert capsys.readouterr().out.splitlines()[0] == (f"bank {tmp_path / 'bank'}: bank.json was missing; rebuilt "
                                                       "from its 1 block(s), which name this command's scenario and "

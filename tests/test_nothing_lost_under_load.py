@@ -35,6 +35,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from test_harness import accuracy
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
 rng = random.Random(20261207)
@@ -65,9 +67,7 @@ def finish(args, cwd, timeout=600) -> str:
 
 def figures(results: Path) -> dict:
     """results.json without the timings and the environment: what must be bit-identical."""
-    res = json.loads(results.read_text())
-    return {c: {"methods": {m: {k: v for k, v in r.items() if k != "seconds_per_run"} for m, r in v["methods"].items()},
-                "pcrb": v["pcrb"], "curves": v["curves"]} for c, v in res["cases"].items()}
+    return accuracy(json.loads(results.read_text()))
 
 
 def wait_for(condition, proc, timeout=120.0) -> None:

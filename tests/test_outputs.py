@@ -130,6 +130,18 @@ def test_a_marker_that_can_not_be_written_whole_leaves_the_earlier_one(cwd, monk
     assert json.loads((folder / MARKER).read_text())["state"] == "finished"
 
 
+def test_a_marker_never_writes_or_removes_a_taken_temporary_name(cwd):
+    folder = cwd / "res"
+    folder.mkdir()
+    write_marker(folder, "evaluate")
+    before = (folder / MARKER).read_bytes()
+    taken = folder / f".{MARKER}.partial-{os.getpid()}"
+    taken.write_text("someone else's file\n")
+    with pytest.raises(OutputError, match="is taken"):
+        write_marker(folder, "evaluate", state="finished")
+    assert taken.read_text() == "someone else's file\n" and (folder / MARKER).read_bytes() == before
+
+
 def test_a_killed_writer_leaves_a_partial_that_the_next_write_removes(cwd):
     code = ("import os, sys; from pmsr_nn.outputs import atomic_folder\n"
             "with atomic_folder('res', command='evaluate') as t:\n"

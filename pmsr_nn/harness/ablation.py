@@ -234,7 +234,7 @@ def ablation_main(argv, *, doc: str, title: str, parameter: str, values: list[st
     import shutil
 
     from ..errors import PmsrError
-    from ..outputs import write_marker
+    from ..outputs import output_kind, write_marker
 
     p = ScriptParser(description=doc.split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True, help=OUT_HELP)
@@ -256,17 +256,25 @@ def ablation_main(argv, *, doc: str, title: str, parameter: str, values: list[st
         chosen = settings(a.values, list(a.hidden))
         paper = reference_table(paper_file, paper_key)
         if check_ablation_folder(a.out, a.overwrite):  # the earlier ablation, aside until the new one is complete
-            old = a.out.parent / f".{a.out.name}.old-{os.getpid()}"
-            a.out.rename(old)
+            aside = a.out.parent / f".{a.out.name}.old-{os.getpid()}"
+            if aside.exists() or aside.is_symlink():
+                raise PmsrError(f"--out {a.out}: the name {aside} is taken; remove it if it is not yours")
+            a.out.rename(aside)
+            old = aside
         print(f"[ablation] budget per setting: {budget.describe()}")
         rows = run_ablation(chosen, a.out, budget, a.mc_runs)
         table = write_ablation(a.out, title, parameter, rows, budget, a.mc_runs, paper, paper_note,
                                f"{paper_file.name}: {paper_key}")
         write_marker(a.out, "ablation", state="finished", contents=folder_contents(a.out))
     except BaseException as exc:
-        if old is not None:  # the earlier ablation comes back
-            shutil.rmtree(a.out, ignore_errors=True)
-            old.rename(a.out)
+        if old is not None:  # the earlier ablation comes back, in place of the new one (only if that is ours)
+            if a.out.exists() and output_kind(a.out) == "ablation":
+                shutil.rmtree(a.out, ignore_errors=True)
+            if not a.out.exists():
+                old.rename(a.out)
+            else:
+                print(f"note: the earlier ablation is kept at {old} ({a.out} holds what this package did not "
+                      "write)", file=sys.stderr)
         if isinstance(exc, PmsrError):
             print(f"error: {exc}", file=sys.stderr)
             return 2

@@ -101,7 +101,11 @@ def _bank_file(out: Path, identity: dict) -> Path:
     """``bank.json`` of ``identity`` for bank ``out``, written to a hidden temporary beside it (returned)."""
     tmp = out / f".{BANK_FILE}.{os.getpid()}"
     held = {"format": BANK_FORMAT, **identity, "base_dir": portable_base(identity["base_dir"], out)}
-    tmp.write_text(json.dumps(held, indent=1) + "\n", encoding="utf-8")
+    try:
+        with open(tmp, "x", encoding="utf-8") as f:  # created here or refused: the caller removes only ours
+            f.write(json.dumps(held, indent=1) + "\n")
+    except FileExistsError:
+        raise OutputError(f"--out {out}: the temporary name {tmp} is taken; remove it if it is not yours") from None
     return tmp
 
 
