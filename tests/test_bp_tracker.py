@@ -36,15 +36,18 @@ def test_a_new_potential_target_from_one_detection_holds_the_truth_within_its_co
     truth = torch.stack([ca_state(3000.0 + 500 * i, 5.0, 2000.0 - 300 * i, -3.0) for i in range(4)])  # (4, 6)
     seed = one_detection_seed(m, 6, OTHER_SD, 20.0)
     z = m.h(truth).unflatten(-1, (m.n_pairs, -1))  # (4, S, d)
+    g, ok = seed(z.transpose(0, 1)[None], torch.ones(1, m.n_pairs, 4, dtype=torch.bool))  # every pair at once
+    assert ok.all()
     for s in range(m.n_pairs):
-        g, ok = seed(s, z[None, :, s], torch.ones(1, 4, dtype=torch.bool))
-        assert ok.all()
-        torch.testing.assert_close(g.x[0][:, [0, 3]], truth[:, [0, 3]], rtol=0, atol=1e-6)
+        torch.testing.assert_close(g.x[0, s][:, [0, 3]], truth[:, [0, 3]], rtol=0, atol=1e-6)
     gen = seeded_generator(7)
     draws = 2000
     x = truth[0].expand(draws, 6)
     noisy = z[0, 0] + torch.randn(draws, 3, generator=gen, dtype=torch.float64) * torch.tensor(m.noise_std[:3])
-    g, ok = seed(0, noisy[None], torch.ones(1, draws, dtype=torch.bool))
+    at_pair_0 = torch.zeros(1, m.n_pairs, draws, dtype=torch.bool)
+    at_pair_0[:, 0] = True
+    g, ok = seed(noisy.expand(m.n_pairs, draws, 3)[None], at_pair_0)  # pair 0's list (the others' not valid)
+    g, ok = Gaussian(g.x[:, 0], g.P[:, 0]), ok[:, 0]
     e = (g.x[0] - x)[ok[0]][:, [0, 3]]
     P = g.P[0][ok[0]][:, [0, 3]][:, :, [0, 3]]
     nees = float((e.unsqueeze(-2) @ torch.linalg.solve(P, e.unsqueeze(-1))).sum())
@@ -233,7 +236,8 @@ def test_a_target_seeded_at_one_pair_is_a_track_for_the_next_in_closed_form():
     step = bp.associate(empty, z, valid, torch.zeros(1, 0, dtype=torch.bool))
     mu0 = mu_u * pd / count
     r = mu0 / (1 + mu0)
-    g0, _ = seed(0, z[:, 0], valid[:, 0])
+    g0, _ = seed(z, valid)
+    g0 = G(g0.x[:, 0], g0.P[:, 0])
     sub = m.for_pairs([1])
     R1 = m.R()[3:, 3:]
     mom = unscented_moments(g0, sub, R1)

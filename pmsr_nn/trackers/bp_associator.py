@@ -55,9 +55,10 @@ class Births:
     gives the undetected targets' expected number ``mu_u (B,)`` at this scan (after its
     prediction), ``pd`` the detection probability of an undetected target (no gate: it has no
     prediction), ``clutter_count`` ``Lambda_c``, the expected clutter detections of one pair per
-    scan, ``seed(pair, z (B, M, d), valid (B, M)) -> Gaussian (B, M, n)`` the state of the new
-    potential target behind each detection of ``pair`` given that detection alone, and ``keep``
-    the existence below which a new potential target is dropped."""
+    scan, ``seed(z (B, S, M, d), valid (B, S, M)) -> (Gaussian (B, S, M, n), real (B, S, M))`` the
+    state of the new potential target behind each detection given that detection alone, for
+    every pair ``s`` from its view ``z[:, s]`` of its list (called once per scan), and ``keep`` the
+    existence below which a new potential target is dropped."""
 
     undetected: Callable[[], torch.Tensor]
     pd: float
@@ -140,6 +141,8 @@ class BPAssociator(Associator):
         births = self.births
         mu_u = births.undetected().to(dtype).clone() if births is not None else None
         per_pair, explained, passes = {}, torch.zeros(valid.shape, dtype=torch.bool), 0
+        if births is not None:  # every pair's seeds at once: they read the detections alone
+            seeds, seedable = births.seed(z[:, self.lists], valid[:, self.lists])
         for pairs in self.groups:
             l = self.lists[pairs[0]]
             zl, vl = z[:, l], valid[:, l]
@@ -178,8 +181,8 @@ class BPAssociator(Associator):
                     new_existence = bp.new_existence / J
                     kept = vl & (new_existence >= births.keep)
                     if bool(kept.any()):
-                        seeded, ok = births.seed(j, zl, vl)
-                        kept = kept & ok
+                        seeded = Gaussian(seeds.x[:, j], seeds.P[:, j])
+                        kept = kept & seedable[:, j]
                         g = Gaussian(torch.cat([g.x, seeded.x], 1), torch.cat([g.P, seeded.P], 1))
                         r = torch.cat([r, torch.where(kept, new_existence, 0.0)], 1)
                         active = torch.cat([active, kept], 1)

@@ -38,6 +38,7 @@ from ..motion import KinematicModel
 from ..simulation.detections import Scans
 from .bp_associator import Births, BPAssociator, BPStep
 from .fix_initiator import FixInitiator, list_of_pairs, range_azimuth_fix
+from .initiators import rate_component
 from .loop import run_tracker
 from .management import TENTATIVE, TableTracks, TrackReport, parked_state
 from .msjpda import check_scans
@@ -85,44 +86,77 @@ class BPSettings:
         require(self.clutter_count > 0.0 and self.clutter_density > 0.0,
                 "the BP tracker needs a positive clutter count and density")
 
-
 def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, velocity_sd_mps: float,
                        dtype=torch.float64):
-    """A :attr:`~.bp_associator.Births.seed`: the state behind each detection of one pair given
-    that detection alone, where it measures (bistatic range, azimuth): the position fix of
-    :func:`~.fix_initiator.range_azimuth_fix`, with the covariance about it of the fixes of the
-    detection's (range, azimuth) sigma points (the unscented transform, ``kappa = 1``), and the velocity fit of the one rate under the prior
-    ``N(0, velocity_sd_mps^2)`` per axis (:meth:`~.fix_initiator.FixInitiator.states` with one
-    member per group); other entries as ``other_sd (n,)``."""
+    """A :attr:`~.bp_associator.Births.seed`: the state behind each detection given that detection
+    alone, for every pair of a scan at once, where the detections measure (bistatic range,
+    azimuth): the position fix of :func:`~.fix_initiator.range_azimuth_fix`, with the covariance
+    about it of the fixes of the detection's (range, azimuth) sigma points (the unscented
+    transform, ``kappa = 1``), and the velocity fit of its one rate under the prior
+    ``N(0, velocity_sd_mps^2)`` per axis (:func:`~.initiators.velocity_fit`); other entries as
+    ``other_sd (n,)``.
+
+    The returned ``seed(z (B, S, M, d), valid (B, S, M)) -> (Gaussian (B, S, M, n), real (B, S,
+    M))`` reads pair ``s``'s view of its list in ``z[:, s]``. It computes every pair of the scan in
+    one call (the seeds do not depend on the association), in the arithmetic of
+    :meth:`~.fix_initiator.FixInitiator.states` for groups of one member, so it gives the same
+    numbers as a call per pair."""
     initiator = FixInitiator(velocity_sd_mps, min_pairs=1)
-    subs = [model.for_pairs([s]) for s in range(model.n_pairs)]
     park = parked_state(model, n, dtype)
     comps = model.components
+    d = len(comps)
     rows = [comps.index("range"), comps.index("azimuth")]
     # sigma points of (range, azimuth) at +-sqrt(3) deviations (the unscented transform's kappa = 1)
     steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=dtype)
     moves = [(c, sign * step) for c, step in zip(rows, steps) for sign in (1.0, -1.0)]
+    pi, vi = list(model.pos_idx), list(model.vel_idx)
+    rate = rate_component(model)
+    eye2 = torch.eye(2, dtype=dtype)
+    precision = eye2 / velocity_sd_mps**2
+    base_P = torch.diag_embed(other_sd.to(dtype) ** 2)
+    base_P[pi, :] = 0.0
+    base_P[:, pi] = 0.0
+    base_P[vi, :] = 0.0
+    base_P[:, vi] = 0.0
 
-    def seed(pair: int, z: torch.Tensor, valid: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
-        B, M = valid.shape
-        zs = z.unsqueeze(1)  # (B, 1, M, d): the one pair's list
-        pos, cov, ok = initiator.fixes(zs, subs[pair], n)
+    def seed(z: torch.Tensor, valid: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
+        B, S, M = valid.shape
+        pos, _, ok = initiator.fixes(z, model, n)
         # the fix's covariance about it from its sigma points: the ellipse's curvature, tens of
         # metres across the range where the azimuth spreads a fix over hundreds, counts too
-        moved = zs.expand(len(moves), *zs.shape).clone()  # the sigma points, fixed in one call
+        moved = z.expand(len(moves), *z.shape).clone()  # the sigma points, fixed in one call
         for i, (c, step) in enumerate(moves):
             moved[i, ..., c] = moved[i, ..., c] + step
-        p, fine = range_azimuth_fix(moved, subs[pair])
-        spread = torch.zeros_like(cov)
+        p, fine = range_azimuth_fix(moved, model)
+        spread = torch.zeros(B, S, M, 2, 2, dtype=z.dtype)
         for i in range(len(moves)):
-            d = p[i] - pos
-            spread = spread + d.unsqueeze(-1) * d.unsqueeze(-2) / 6.0
+            dp = p[i] - pos
+            spread = spread + dp.unsqueeze(-1) * dp.unsqueeze(-2) / 6.0
             ok = ok & fine[i]
-        ok = ok[:, 0] & valid
-        groups = torch.where(ok, torch.arange(M), -1).unsqueeze(-1)  # (B, M, 1): a group per detection
-        g, real = initiator.states(zs, groups, pos, spread, subs[pair], n, other_sd)
-        x = torch.where(real[..., None], g.x, park)
-        P = torch.where(real[..., None, None], g.P, torch.eye(n, dtype=g.P.dtype))
+        real = ok & valid
+        # FixInitiator.states for one member: the information-weighted mean of one fix
+        info = torch.where(real[..., None, None], torch.linalg.inv(torch.where(real[..., None, None], spread, eye2)),
+                           torch.zeros((), dtype=z.dtype))
+        Pp = torch.linalg.inv(info + torch.where(real, 0.0, 1.0)[..., None, None] * eye2)
+        x = z.new_zeros(B, S, M, n)
+        x[..., pi] = (Pp @ (info @ pos.unsqueeze(-1))).squeeze(-1)
+        # velocity_fit of the one rate: pair s's row of the model's Jacobian at pair s's states
+        Lam = precision.expand(B, S, M, 2, 2).clone()
+        eta = x.new_zeros(B, S, M, 2)
+        if rate is not None:
+            J = model.jacobian(x).unflatten(-2, (S, d))  # (B, S, M, S, d, n): every pair's rows
+            g = torch.diagonal(J[..., rate, :], dim1=1, dim2=3).movedim(-1, 1)[..., vi]  # (B, S, M, 2)
+            w = real.to(z.dtype) / model.noise_std[rate] ** 2
+            zr = torch.where(real, z[..., rate], torch.zeros((), dtype=z.dtype))
+            Lam = Lam + w[..., None, None] * g.unsqueeze(-1) * g.unsqueeze(-2)
+            eta = eta + (w * zr)[..., None] * g
+        Pv = torch.linalg.inv(Lam)
+        x[..., vi] = (Pv @ eta.unsqueeze(-1)).squeeze(-1)
+        P = base_P.expand(B, S, M, n, n).clone()
+        P[..., torch.tensor(pi)[:, None], torch.tensor(pi)] = Pp
+        P[..., torch.tensor(vi)[:, None], torch.tensor(vi)] = Pv
+        x = torch.where(real[..., None], x, park)
+        P = torch.where(real[..., None, None], P, torch.eye(n, dtype=P.dtype))
         return Gaussian(x, P), real
 
     return seed

@@ -79,16 +79,15 @@ class FixInitiator:
         finite, ``H`` invertible)."""
         comps = model.components
         pos, ok = range_azimuth_fix(z, model)
-        # H = d(range, azimuth)/d(position) of each pair from the model's own Jacobian
+        # H = d(range, azimuth)/d(position) of each pair from the model's own Jacobian: every
+        # pair's rows at every fix in one call, then pair s's rows at pair s's fixes
         pi = list(model.pos_idx)
-        H = []
-        for s in range(model.n_pairs):
-            sub = model.for_pairs([s])
-            state = pos.new_zeros(*pos.shape[:1], pos.shape[2], n)
-            state[..., pi] = pos[:, s]
-            J = sub.jacobian(state)  # (B, M, d, n)
-            H.append(J[..., [comps.index("range"), comps.index("azimuth")], :][..., pi])
-        H = torch.stack(H, 1)  # (B, S, M, 2, 2)
+        S = model.n_pairs
+        state = pos.new_zeros(*pos.shape[:-1], n)
+        state[..., pi] = pos
+        J = model.jacobian(state).unflatten(-2, (S, len(comps)))  # (B, S, M, S, d, n)
+        J = torch.diagonal(J, dim1=1, dim2=3).movedim(-1, 1)  # (B, S, M, d, n)
+        H = J[..., [comps.index("range"), comps.index("azimuth")], :][..., pi]  # (B, S, M, 2, 2)
         sd = torch.tensor([model.noise_std[comps.index("range")], model.noise_std[comps.index("azimuth")]], dtype=z.dtype)
         det = H[..., 0, 0] * H[..., 1, 1] - H[..., 0, 1] * H[..., 1, 0]
         # the two gradients nearly parallel (the sine of their angle below 1e-6): no fix along it
