@@ -56,6 +56,41 @@ def test_a_new_potential_target_from_one_detection_holds_the_truth_within_its_co
     assert chi2.ppf(1e-4, dof) < nees < chi2.ppf(1 - 1e-4, dof), (nees, dof)
 
 
+def test_the_seeds_of_a_scan_are_each_pairs_own_as_the_fix_initiator_gives_them():
+    """The seed computes every pair at once: each pair's seeds equal the fix initiator's track
+    from that one detection with that pair's own model (a group of one member, its covariance the
+    sigma-point spread), on random lists with invalid entries and fixes that fail; the velocity
+    exactly as the per-pair fit. Round-off only: the same arithmetic in another batch shape."""
+    from pmsr_nn.trackers.fix_initiator import FixInitiator, range_azimuth_fix
+
+    m = model()
+    gen = seeded_generator(3)
+    B, S, M = 2, m.n_pairs, 6
+    z = torch.stack([torch.rand(B, S, M, generator=gen, dtype=torch.float64) * 20000.0,
+                     (torch.rand(B, S, M, generator=gen, dtype=torch.float64) - 0.5) * 120.0,
+                     (torch.rand(B, S, M, generator=gen, dtype=torch.float64) - 0.5) * 2 * math.pi], -1)
+    valid = torch.rand(B, S, M, generator=gen) < 0.8
+    g, real = one_detection_seed(m, 6, OTHER_SD, 10.0)(z, valid)
+    initiator = FixInitiator(10.0, min_pairs=1)
+    step = math.sqrt(3.0) * torch.tensor([m.noise_std[0], m.noise_std[2]], dtype=torch.float64)
+    for s in range(S):
+        sub, zs = m.for_pairs([s]), z[:, s:s + 1]
+        pos, _, ok = initiator.fixes(zs, sub, 6)
+        spread = torch.zeros(B, 1, M, 2, 2, dtype=torch.float64)
+        for c, dz in ((0, step[0]), (0, -step[0]), (2, step[1]), (2, -step[1])):
+            moved = zs.clone()
+            moved[..., c] += dz
+            p, fine = range_azimuth_fix(moved, sub)
+            spread += (p - pos).unsqueeze(-1) * (p - pos).unsqueeze(-2) / 6.0
+            ok &= fine
+        ok = ok[:, 0] & valid[:, s]
+        assert torch.equal(real[:, s], ok) and 0 < int(ok.sum()) < B * M  # some fixes fail
+        groups = torch.where(ok, torch.arange(M), -1).unsqueeze(-1)
+        want, _ = initiator.states(zs, groups, pos, spread, sub, 6, OTHER_SD)
+        torch.testing.assert_close(g.x[:, s][ok], want.x[ok], rtol=1e-12, atol=1e-9)
+        torch.testing.assert_close(g.P[:, s][ok], want.P[ok], rtol=1e-12, atol=1e-9)
+
+
 def _settings(**over) -> BPSettings:
     return BPSettings(**{"pd": 0.9, "clutter_count": 5.0, "clutter_density": 1e-7, **over})
 
