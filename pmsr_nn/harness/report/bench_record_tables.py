@@ -1,5 +1,6 @@
 """The tables of benchmarks/RESULTS.md written from a benchmark's JSON (benchmarks/results/): one
-function per table, of the loaded record, returning its lines (:mod:`.record_tables` places them)."""
+function per table, of the loaded record (or records, in its marker's order), returning its lines
+(:mod:`.record_tables` places them)."""
 
 from __future__ import annotations
 
@@ -267,4 +268,62 @@ def fault_census(rec: dict) -> list[str]:
         if command == "**all**":
             cells = [c if c == "." else f"**{c}**" for c in cells]
         out.append(row([command, *cells]))
+    return out
+
+
+LEARNED_GPU = "benchmarks/results/bench_learned_gpu.json"
+LEARNED_GPU_HOST = "benchmarks/results/bench_learned_gpu_host_cpu.json"
+_LEARNED_GPU_ROWS = [("MDFNN (Table 2)", "MDFNN"), ("DFNN", "DFNN"), ("LSTM-256", "LSTM-256"),
+                     ("MDFNN (Table 2, local inputs)", "MDFNN-local"),
+                     ("MDFNN local, compact (`models/mdfnn_local.yaml`)", "MDFNN-local-compact"),
+                     ("KalmanNet-style, GRU 64 (`models/kalmannet.yaml`)", "KalmanNet")]
+
+
+def bench_learned_gpu(gpu: dict, host: dict) -> list[str]:
+    """Training windows/s on the GPU (float32, bf16) beside its host's CPU (float32), their ratio, and
+    the MDFNN's inference against the UKF on each (two runs of benchmarks/bench_learned.py)."""
+    out = ["| network | H100 float32 (windows/s) | H100 bf16 (windows/s) | host CPU, 16 threads, float32 (windows/s) "
+           "| H100 / CPU |", "| --- | ---: | ---: | ---: | ---: |"]
+    g, h = gpu["training_windows_per_s"], host["training_windows_per_s"]
+    for label, key in _LEARNED_GPU_ROWS:
+        out.append(row([label, f"{g[key]:,.0f}", f"{g[key + ' bf16']:,.0f}", f"{h[key]:,.0f}",
+                        f"{significant(g[key] / h[key], 2)}x"]))
+    gi, hi = gpu["inference"], host["inference"]
+    out.append(row([f"inference: MDFNN, {gi['tracks']} tracks x {gi['steps']} scans, against the UKF (CPU) in the same run",
+                    f"{scientific(gi['mdfnn_track_steps_per_s'])} track-steps/s", "",
+                    f"{scientific(hi['mdfnn_track_steps_per_s'])} ({hi['tracks']} tracks)",
+                    f"MDFNN {gi['mdfnn_over_ukf_speed']:.0f}x the UKF on the GPU, "
+                    f"{significant(hi['mdfnn_over_ukf_speed'], 2)}x on the {host['threads']}-thread CPU"]))
+    return out
+
+
+TBD_ISSUE37 = tuple(f"benchmarks/results/bench_tbd_issue37_{when}_round{r}.json"
+                    for when in ("before", "after") for r in (1, 2))
+TBD_ISSUE37_SNR = tuple(f"benchmarks/results/bench_tbd_issue37_snr_round{r}.json" for r in (1, 2))
+
+
+def bench_tbd_issue37(before1: dict, before2: dict, after1: dict, after2: dict) -> list[str]:
+    """Seconds per run per sub-area before and after issue 37's likelihood, two rounds each
+    (the after 5x5 in bold), and the 5x5 with five runs per call."""
+    out = ["| sub-area | before, s per run (rounds 1, 2) | after, s per run (rounds 1, 2) |", "|---|---|---|"]
+    for size in before1["subarea_seconds_per_run"]:
+        before = ", ".join(fixed(r["subarea_seconds_per_run"][size], 2) for r in (before1, before2))
+        after = ", ".join(fixed(r["subarea_seconds_per_run"][size], 2) for r in (after1, after2))
+        out.append(row([size, before, f"**{after}**" if size == "5x5" else after]))
+    out.append(row(["5x5, 5 runs per call (per run)",
+                    ", ".join(fixed(r["batched_seconds_per_run"], 2) for r in (before1, before2)),
+                    ", ".join(fixed(r["batched_seconds_per_run"], 2) for r in (after1, after2))]))
+    return out
+
+
+def bench_tbd_issue37_snr(round1: dict, round2: dict) -> list[str]:
+    """5x5 seconds per run with the bias-corrected SNR estimate and the seed's, one and five runs per
+    call, two rounds."""
+    out = ["| 5x5, s per run | round 1 | round 2 |", "|---|---:|---:|"]
+    for label, key in (("bias-corrected estimate, one run per call", None),
+                       ("the seed's estimate, one run per call", "seed_max_estimate_5x5_seconds_per_run"),
+                       ("bias-corrected estimate, 5 runs per call", "batched_seconds_per_run"),
+                       ("the seed's estimate, 5 runs per call", "seed_max_estimate_batched_seconds_per_run")):
+        out.append(row([label] + [fixed(r["subarea_seconds_per_run"]["5x5"] if key is None else r[key], 2)
+                                  for r in (round1, round2)]))
     return out

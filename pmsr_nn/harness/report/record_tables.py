@@ -6,8 +6,13 @@ A generated table sits between two marker lines in a Markdown document::
     | ... the table, written by TABLES[NAME] ... |
     <!-- end table: NAME -->
 
-``TABLES`` maps each NAME to its record (a path relative to the repository root, which the
-opening marker must name) and a function of the loaded record that returns the table's lines.
+A table that quotes several records names them all, in its function's order, separated by ", "::
+
+    <!-- table: NAME from evaluate/results/A/results.json, evaluate/results/B/results.json -->
+
+``TABLES`` maps each NAME to its record or records (paths relative to the repository root, which
+the opening marker must name, in that order) and a function of the loaded records (one argument
+per record) that returns the table's lines.
 Everything between the markers is the generator's; the prose around them is the document's.
 
     python -m pmsr_nn.harness.report.record_tables           # rewrite every marked table
@@ -29,13 +34,14 @@ from typing import Callable
 from ...errors import ConfigError
 from . import bench_record_tables as bench
 from . import fitee_record_tables as fitee
+from . import multi_record_tables as multi
 from . import study_record_tables as study
 
 ROOT = Path(__file__).resolve().parents[3]
 DOCUMENTS = ("README.md", "evaluate/RESULTS.md", "benchmarks/RESULTS.md")
 """The documents searched for markers, relative to the repository root."""
 
-_OPEN = re.compile(r"^<!-- table: (?P<name>[\w.-]+) from (?P<record>\S+) -->$")
+_OPEN = re.compile(r"^<!-- table: (?P<name>[\w.-]+) from (?P<records>[^\s,]+(?:, [^\s,]+)*) -->$")
 _CLOSE = "<!-- end table: {name} -->"
 
 
@@ -45,10 +51,20 @@ class TableError(ConfigError):
 
 @dataclass(frozen=True)
 class Table:
-    record: str
-    """The record's path, relative to the repository root."""
-    lines: Callable[[dict], list[str]]
-    """The table's Markdown lines from the loaded record (and, for the paper's columns, the paper's tables)."""
+    record: str | tuple[str, ...]
+    """The record's path, relative to the repository root, or the paths of the records it quotes."""
+    lines: Callable[..., list[str]]
+    """The table's Markdown lines from the loaded records, one argument each in ``paths`` order (and,
+    for the paper's columns, the paper's tables)."""
+
+    @property
+    def paths(self) -> tuple[str, ...]:
+        return (self.record,) if isinstance(self.record, str) else self.record
+
+    @property
+    def source(self) -> str:
+        """The records as the opening marker names them."""
+        return ", ".join(self.paths)
 
 
 TABLES: dict[str, Table] = {
@@ -93,6 +109,17 @@ TABLES: dict[str, Table] = {
     "bench_phd": Table(bench.PHD, bench.bench_phd),
     "bench_front_end": Table(bench.FRONT_END, bench.bench_front_end),
     "fault_census_round3": Table(bench.FAULT_CENSUS, bench.fault_census),
+    "access2019_msjpda_mbest": Table(study.MSJPDA_MBEST, study.access2019_msjpda_mbest),
+    "access2019_msjpda_pd": Table(study.MSJPDA_PD, study.access2019_msjpda_pd),
+    "access2019_msjpda_clutter": Table(study.MSJPDA_CLUTTER, study.access2019_msjpda_clutter),
+    "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
+    "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
+    # tables that quote several records
+    "readme_from_detections": Table(multi.READ_DETECTIONS_SOURCES, multi.readme_from_detections),
+    "dense_crossing_bp": Table((multi.DENSE_BP, study.DENSE), multi.dense_crossing_bp),
+    "bench_learned_gpu": Table((bench.LEARNED_GPU, bench.LEARNED_GPU_HOST), bench.bench_learned_gpu),
+    "bench_tbd_issue37": Table(bench.TBD_ISSUE37, bench.bench_tbd_issue37),
+    "bench_tbd_issue37_snr": Table(bench.TBD_ISSUE37_SNR, bench.bench_tbd_issue37_snr),
 }
 
 
@@ -113,19 +140,21 @@ def regenerate(text: str, root: Path | None = None, records: dict[str, dict] | N
         i += 1
         if not match:
             continue
-        name, record = match["name"], match["record"]
+        name, source = match["name"], match["records"]
         if name not in TABLES:
             raise TableError(f"unknown table {name!r} (known: {', '.join(sorted(TABLES))})")
-        if TABLES[name].record != record:
-            raise TableError(f"table {name!r} comes from {TABLES[name].record}, its marker names {record}")
+        table = TABLES[name]
+        if table.source != source:
+            raise TableError(f"table {name!r} comes from {table.source}, its marker names {source}")
         close = _CLOSE.format(name=name)
         try:
             end = lines.index(close, i)
         except ValueError:
             raise TableError(f"table {name!r}: no line {close!r} after its marker") from None
-        if record not in records:
-            records[record] = load_record(record, root)
-        out += TABLES[name].lines(records[record])
+        for path in table.paths:
+            if path not in records:
+                records[path] = load_record(path, root)
+        out += table.lines(*(records[path] for path in table.paths))
         out.append(close)
         names.append(name)
         i = end + 1
@@ -150,7 +179,7 @@ def differing(root: Path | None = None) -> list[str]:
 def blocks(text: str) -> dict[str, str]:
     """Each marked table's text by name."""
     return {m["name"]: m["body"] for m in re.finditer(
-        r"^<!-- table: (?P<name>[\w.-]+) from \S+ -->\n(?P<body>.*?)^<!-- end table: (?P=name) -->$", text,
+        r"^<!-- table: (?P<name>[\w.-]+) from [^\n]+ -->\n(?P<body>.*?)^<!-- end table: (?P=name) -->$", text,
         re.S | re.M)}
 
 

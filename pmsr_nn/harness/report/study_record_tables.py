@@ -6,6 +6,9 @@ and what a row reads are the document's choice and sit here; every number is the
 
 from __future__ import annotations
 
+import json
+
+from .bench_record_tables import PAPER_TABLES
 from .record_cells import fixed, pm, row, significant
 
 
@@ -334,3 +337,59 @@ def fm_tracking(rec: dict) -> list[str]:
                          f"OSPA {m['ospa_m']:.1f}")
         out.append(row(cells))
     return out
+
+
+MSJPDA_MBEST = "evaluate/results/access2019_msjpda_mbest/results.json"
+
+
+def access2019_msjpda_mbest(rec: dict) -> list[str]:
+    """The m ablation: each row's RMSE, over the true assignment's, ANEES, swap probability,
+    P-MSJPDA's largest duality gap, seconds per run and over S-MSJPDA m=10's, per Pd."""
+    out = ["| Pd | method | pos RMSE (m) | / reference | ANEES | swap prob. | max gap | s / run | time / S-MSJPDA m=10 |",
+           "|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for _, case in _cases(rec):
+        methods = case["methods"]
+        reference = methods["true assignment"]["rmse_pos_m"]
+        base = methods["S-MSJPDA m=10"]["seconds_per_run"]
+        for i, (name, m) in enumerate(methods.items()):
+            gap = m.get("max_duality_gap")
+            out.append(row([f"{case['pd']:g}" if i == 0 else "", name, fixed(m["rmse_pos_m"], 1),
+                            fixed(m["rmse_pos_m"] / reference, 2), fixed(m["anees"], 2), fixed(m["swap_probability"], 3),
+                            "" if gap is None else fixed(gap, 1), fixed(m["seconds_per_run"], 3),
+                            fixed(m["seconds_per_run"] / base, 1)]))
+    return out
+
+
+MSJPDA_PD = "evaluate/results/access2019_msjpda_pd/results.json"
+MSJPDA_CLUTTER = "evaluate/results/access2019_msjpda_clutter/results.json"
+
+
+def _msjpda_sweep(rec: dict, key: str, header: str, timing: str) -> list[str]:
+    """A sweep of the MSJPDA study over ``key`` (a case field): RMSE of each row, over the true
+    assignment's, loss probabilities, seconds per run and their ratios, beside the paper's times
+    (``timing``: the paper's table in evaluate/reference/paper_tables.json)."""
+    paper = json.loads(PAPER_TABLES.read_text())["access2019_msjpda"][timing]
+    out = [f"| {header} | S-MSJPDA | P-MSJPDA (m = 10) | P-MSJPDA (m = 100) | true assignment | S / ref | P m=100 / ref "
+           "| loss S / P / P100 | s/run S / P / P100 | P/S, P100/S time | paper s/run S / P | paper P/S |",
+           "|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|---:|"]
+    for _, case in _cases(rec):
+        s, p, p100, ref = (case["methods"][n] for n in ("S-MSJPDA", "P-MSJPDA", "P-MSJPDA m=100", "true assignment"))
+        level = f"{case[key]:g}"
+        ps, pp = paper["S-MSJPDA"][level], paper["P-MSJPDA"][level]
+        out.append(row([level] + [fixed(m["rmse_pos_m"], 1) for m in (s, p, p100, ref)]
+                       + [fixed(s["rmse_pos_m"] / ref["rmse_pos_m"], 2), fixed(p100["rmse_pos_m"] / ref["rmse_pos_m"], 2),
+                          " / ".join(fixed(m["loss_probability"], 3) for m in (s, p, p100)),
+                          f"{s['seconds_per_run']:.3f} / {p['seconds_per_run']:.3f} / {p100['seconds_per_run']:.2f}",
+                          f"{p['seconds_per_run'] / s['seconds_per_run']:.1f}, {p100['seconds_per_run'] / s['seconds_per_run']:.1f}",
+                          f"{ps} / {pp}", fixed(pp / ps, 1)]))
+    return out
+
+
+def access2019_msjpda_pd(rec: dict) -> list[str]:
+    """The sweep over Pd (50 clutter points), the paper's Table 1 times beside ours."""
+    return _msjpda_sweep(rec, "pd", "Pd", "table1_runtime_s_vs_pd_50_clutter")
+
+
+def access2019_msjpda_clutter(rec: dict) -> list[str]:
+    """The sweep over clutter points per scan (Pd 0.8), the paper's Table 2 times beside ours."""
+    return _msjpda_sweep(rec, "clutter_per_scan", "clutter / scan", "table2_runtime_s_vs_clutter_pd_0.8")
