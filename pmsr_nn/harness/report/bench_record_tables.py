@@ -327,3 +327,41 @@ def bench_tbd_issue37_snr(round1: dict, round2: dict) -> list[str]:
         out.append(row([label] + [fixed(r["subarea_seconds_per_run"]["5x5"] if key is None else r[key], 2)
                                   for r in (round1, round2)]))
     return out
+
+
+FAULT_CENSUS_BEFORE = "benchmarks/results/fault_census_before.json"
+FAULT_CENSUS_AFTER = "benchmarks/results/fault_census_after.json"
+
+
+def fault_census_before_after(before: dict, after: dict) -> list[str]:
+    """The first fault census's outcomes per command before and after the fixes ('b → a', '.' where
+    both are none), the totals in bold."""
+    out = ["| command | " + " | ".join(c.replace("_", " ") for c in CENSUS_CLASSES) + " | cases |",
+           "|---|" + "---:|" * (len(CENSUS_CLASSES) + 1)]
+    rows = [(c, before["meta"]["by_command"][c], after["meta"]["by_command"][c]) for c in after["meta"]["by_command"]]
+    for command, b, a in [*rows, ("**all**", before["meta"]["counts"], after["meta"]["counts"])]:
+        cells = ["." if not b.get(c) and not a.get(c) else f"{b.get(c, 0)} → {a.get(c, 0)}" for c in CENSUS_CLASSES]
+        cells.append(str(sum(a.values())))
+        if command == "**all**":
+            cells = [c if c == "." else f"**{c}**" for c in cells]
+        out.append(row([command, *cells]))
+    return out
+
+
+SET_TRACKER_GPU = "benchmarks/results/set_tracker_h200.json"
+SET_TRACKER_CPU = "benchmarks/results/set_tracker_cpu.json"
+
+
+def bench_set_tracker(gpu: dict, cpu: dict) -> list[str]:
+    """The set tracker's seconds per run of 240 scans on the device machine's GPU and on the 2-core CPU
+    (benchmarks/bench_set_tracker.py, one JSON each); the commands as the document gives them."""
+    g, c = gpu["cuda"]["seconds_per_run"], cpu["cpu"]["seconds_per_run"]
+    return ["| device | command, date | s per run of 240 scans | record |", "|---|---|---:|---|",
+            row([f"{gpu['cuda']['name']} (device machine, torch {gpu['torch']})",
+                 "`python benchmarks/bench_set_tracker.py --checkpoint runs/set_tracker_s0/tracker.pt --runs "
+                 f"{gpu['runs']} --repeats 3 --devices cuda`, {gpu['date']}, right after the training in the same device call",
+                 fixed(g, 3), f"`results/{Path(SET_TRACKER_GPU).name}`"]),
+            row([f"2-core Intel Xeon (AVX-512), {cpu['threads']} threads, nothing else running",
+                 f"`OMP_NUM_THREADS={cpu['threads']} python benchmarks/bench_set_tracker.py --checkpoint "
+                 f"runs/set_tracker_s2/tracker.pt --runs {cpu['runs']} --repeats 2 --devices cpu`, {cpu['date']}",
+                 fixed(c, 1), f"`results/{Path(SET_TRACKER_CPU).name}`"])]

@@ -296,3 +296,22 @@ def learned_vs_bounds(rec: dict) -> list[str]:
     out.append(row(["PCRB smoothing (per trajectory)", "", fixed(smoothing["position_m"], 2),
                     fixed(smoothing["velocity_mps"], 3), "", "", "all", "", ""]))
     return out
+
+
+MISMATCH = "evaluate/results/fitee2023_mismatch/results.json"
+
+
+def mismatch_whole_sequence(rec: dict) -> list[str]:
+    """The KalmanNet-style filter's 100-scan windows against whole-sequence inference on the three
+    mismatched flights: mean (min-max) over the three seeds, and paired against the tuned IMM."""
+    out = ["| KalmanNet, 3 seeds | patrol | speed changes | weave | paired against the tuned IMM (m): patrol / speed / weave |",
+           "|---|---:|---:|---:|---|"]
+    for label, group in (("100-scan windows, stride 50 (as above)", "KalmanNet"), ("whole sequence", "KalmanNet, whole sequence")):
+        cells, paired = [], []
+        for case in rec["cases"].values():
+            r = case["seed_groups"][group]["rmse_pos_m"]
+            cells.append(f"{r['mean']:.2f} ({r['min']:.2f}-{r['max']:.2f})")
+            (c,) = [c for c in case["comparisons"] if c["learned"] == group and c["classical"] == "IMM (tuned)"]
+            paired.append(f"{c['margin_m']:.2f} +- {c['se_m']:.2f}")
+        out.append(row([label, *cells, " / ".join(paired)]))
+    return out

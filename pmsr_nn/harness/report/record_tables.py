@@ -75,6 +75,7 @@ TABLES: dict[str, Table] = {
     "three_trajectories": Table(fitee.THREE, fitee.results_three_trajectories),
     "three_trajectories_learned": Table(fitee.THREE, fitee.results_learned_rows),
     "three_trajectories_whole_sequence": Table(fitee.THREE, fitee.results_whole_sequence),
+    "mismatch_whole_sequence": Table(fitee.MISMATCH, fitee.mismatch_whole_sequence),
     "shared_drones": Table(study.SHARED, study.shared_drones),
     "one_sky": Table(study.ONE_SKY, study.one_sky),
     "one_sky_paired_own_tracks": Table(study.ONE_SKY, study.one_sky_paired_own_tracks),
@@ -122,6 +123,9 @@ TABLES: dict[str, Table] = {
     "bench_learned_gpu": Table((bench.LEARNED_GPU, bench.LEARNED_GPU_HOST), bench.bench_learned_gpu),
     "bench_tbd_issue37": Table(bench.TBD_ISSUE37, bench.bench_tbd_issue37),
     "bench_tbd_issue37_snr": Table(bench.TBD_ISSUE37_SNR, bench.bench_tbd_issue37_snr),
+    "fault_census_before_after": Table((bench.FAULT_CENSUS_BEFORE, bench.FAULT_CENSUS_AFTER),
+                                       bench.fault_census_before_after),
+    "bench_set_tracker": Table((bench.SET_TRACKER_GPU, bench.SET_TRACKER_CPU), bench.bench_set_tracker),
 }
 
 
