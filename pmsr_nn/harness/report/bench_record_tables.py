@@ -365,3 +365,11 @@ def bench_set_tracker(gpu: dict, cpu: dict) -> list[str]:
                  f"`OMP_NUM_THREADS={cpu['threads']} python benchmarks/bench_set_tracker.py --checkpoint "
                  f"runs/set_tracker_s2/tracker.pt --runs {cpu['runs']} --repeats 2 --devices cpu`, {cpu['date']}",
                  fixed(c, 1), f"`results/{Path(SET_TRACKER_CPU).name}`"])]
+
+
+def bench_pmht_stonesoup(rec: dict) -> list[str]:
+    """Stone Soup's PMHTTracker against ours on one pair (bench_pmht.py's ``stonesoup`` entry)."""
+    s = rec["stonesoup"]
+    return ["| tracker | s / run | position RMSE (m), scans 10+ |", "|---|---:|---:|",
+            row(["Stone Soup `PMHTTracker`", fixed(s["stonesoup_s_per_run"], 2), fixed(s["stonesoup_rmse_pos_m"], 0)]),
+            row(["ours (`pmht`, one pair)", fixed(s["ours_s_per_run"], 3), fixed(s["ours_rmse_pos_m"], 0)])]

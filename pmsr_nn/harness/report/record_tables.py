@@ -102,6 +102,7 @@ TABLES: dict[str, Table] = {
     "bench_particle": Table(bench.PARTICLE, bench.bench_particle),
     "bench_learned": Table(bench.LEARNED, bench.bench_learned),
     "bench_pmht": Table(bench.PMHT_BENCH, bench.bench_pmht),
+    "bench_pmht_stonesoup": Table(bench.PMHT_BENCH, bench.bench_pmht_stonesoup),
     "bench_msjpda_nominal": Table(bench.MSJPDA, bench.bench_msjpda_nominal),
     "bench_msjpda_rounds": Table(bench.MSJPDA, bench.bench_msjpda_rounds),
     "bench_msjpda_exact": Table(bench.MSJPDA_EXACT, bench.bench_msjpda_exact),
