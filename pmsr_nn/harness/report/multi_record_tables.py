@@ -118,3 +118,34 @@ def one_sky_stonesoup(rec: dict) -> list[str]:
         out.append(row([label, _gospa(m), _quantiles(m, slice(1, None)), _shares(m),
                         fixed(m["false_tracks_per_run"], 2), fixed(m["seconds_per_run"], 1)]))
     return out
+
+
+SET_TRACKER_DIAGNOSIS = tuple(f"evaluate/results/set_tracker_diagnosis/s{seed}_r{rounds}.json"
+                              for seed in range(3) for rounds in (0, 1))
+
+
+def set_tracker_diagnosis(*records: dict) -> list[str]:
+    """evaluate/set_tracker_diagnosis.py's stages per seed and re-association rounds (one record
+    each, ``SET_TRACKER_DIAGNOSIS``'s order): GOSPA beside the empty set's, missed and false per
+    window, the seeds' and the association's shares, position errors, existence probabilities."""
+    (empty,) = {round(r["gospa_empty_set_m"]) for r in records}
+    out = [f'| seed, re-association rounds | GOSPA (m), "no target" {empty} | missed / false per window '
+           "| seeds that are a target's detection (base rate "
+           f"{fixed(_mean([r['base_rate']['mean'] for r in records]), 2)}) "
+           "| own share of a matched query's chosen weight | position error median / p90 (m): start, refined "
+           "| same refinement on the target's own detections: median / p90 (m) | existence p: matched / unmatched |",
+           "|---|---:|---|---:|---:|---|---|---|"]
+    for path, r in zip(SET_TRACKER_DIAGNOSIS, records):
+        seed = path.rsplit("/s", 1)[1].split("_")[0]
+
+        def mp(key: str) -> str:
+            return f"{r[key]['median']:.0f} / {r[key]['p90']:.0f}"
+        out.append(row([f"{seed}, {r['reassociate']}", f"{r['gospa_m']:.0f}",
+                        f"{r['missed_per_window']:.2f} / {r['false_per_window']:.2f}", fixed(r["seed_is_target"]["mean"], 2),
+                        fixed(r["own_weight_share"]["mean"], 2), f"{mp('error_start_m')}, {mp('error_refined_m')}",
+                        mp("error_true_association_m"), f"{r['p_matched']['mean']:.2f} / {r['p_unmatched']['mean']:.2f}"]))
+    return out
+
+
+def _mean(xs: list[float]) -> float:
+    return sum(xs) / len(xs)
