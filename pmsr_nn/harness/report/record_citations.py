@@ -7,13 +7,14 @@ Markdown link); the title the key, the path of names through the record's object
 them, a list's index as a number), optionally followed by `` x FACTOR`` where the document quotes
 the value scaled (``x 1000`` for seconds quoted in ms, ``x 100`` for a share quoted in %).
 :func:`problems` checks that every such citation in a document resolves: the file exists, the key
-exists, and the figure equals the record's value rounded to the figure's decimals.
+exists, and the figure equals the record's value rounded to the figure's decimals (a tie either way).
 """
 
 from __future__ import annotations
 
 import json
 import re
+from decimal import ROUND_HALF_UP, Decimal
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,11 +55,20 @@ def value(record: object, key: str) -> float:
     return node * float(factor) if factor else node
 
 
-def rounded(x: float, figure: str) -> str:
-    """``x`` written with as many decimals as ``figure`` (thousands separators as ``figure`` has them)."""
+def rounded(x: float, figure: str, half_up: bool = False) -> str:
+    """``x`` written with as many decimals as ``figure`` (thousands separators as ``figure`` has them):
+    as Python formats the float, or with ``half_up`` a tie of its shortest decimal text rounded away
+    from zero (1.085 -> 1.09, where the float 1.08499... formats as 1.08)."""
     decimals = len(figure.split(".")[1]) if "." in figure else 0
+    if half_up:
+        x = float(Decimal(repr(x)).quantize(Decimal(1).scaleb(-decimals), rounding=ROUND_HALF_UP))
     text = f"{x:,.{decimals}f}" if "," in figure else f"{x:.{decimals}f}"
     return ("+" + text) if figure.startswith("+") and x >= 0 else text
+
+
+def quotes(x: float, figure: str) -> bool:
+    """Whether ``figure`` is ``x`` at ``figure``'s rounding (either way of rounding a tie)."""
+    return figure in (rounded(x, figure), rounded(x, figure, half_up=True))
 
 
 def problems(document: Path, root: Path) -> list[str]:
@@ -79,6 +89,6 @@ def problems(document: Path, root: Path) -> list[str]:
         except (KeyError, ValueError) as exc:
             out.append(f"{where}: {exc}")
             continue
-        if rounded(x, c.figure) != c.figure:
+        if not quotes(x, c.figure):
             out.append(f"{where}: the record gives {x!r} ({rounded(x, c.figure)})")
     return out

@@ -92,6 +92,7 @@ TABLES: dict[str, Table] = {
     "one_sky_hybrid": Table(study.ONE_SKY_HYBRID, study.one_sky_hybrid),
     "shared_drones_hybrid": Table(study.SHARED_HYBRID, study.shared_drones_hybrid),
     "dense_crossing": Table(study.DENSE, study.dense_crossing),
+    "dense_crossing_burn_in": Table(study.BURN_IN_SEED1, study.dense_crossing_burn_in),
     "ablation_dfnn_vs_mdfnn": Table(fitee.DFNN_VS_MDFNN, fitee.ablation_dfnn_vs_mdfnn),
     "ablation_sequence_size": Table(fitee.SEQUENCE_SIZE, fitee.ablation_sequence_size),
     "ablation_filter_order": Table(fitee.FILTER_ORDER, fitee.ablation_filter_order),
