@@ -34,6 +34,7 @@ from typing import Callable
 from ...errors import ConfigError
 from . import bench_record_tables as bench
 from . import fitee_record_tables as fitee
+from . import msjpda_record_tables as msjpda
 from . import multi_record_tables as multi
 from . import study_record_tables as study
 
@@ -82,7 +83,7 @@ TABLES: dict[str, Table] = {
     "one_sky_paired_handed": Table(study.ONE_SKY, study.one_sky_paired_handed),
     "one_sky_quantiles": Table(study.ONE_SKY, study.one_sky_quantiles),
     "daniyan_smcphd": Table(study.SMCPHD, study.daniyan_smcphd),
-    "access2019_msjpda": Table(study.MSJPDA, study.access2019_msjpda),
+    "access2019_msjpda": Table(msjpda.MSJPDA, msjpda.access2019_msjpda),
     "fm_front_end": Table(study.FM, study.fm_front_end),
     "fm_range_by_kind": Table(study.FM, study.fm_range_by_kind),
     "fm_tracking": Table(study.FM, study.fm_tracking),
@@ -113,10 +114,10 @@ TABLES: dict[str, Table] = {
     "bench_phd": Table(bench.PHD, bench.bench_phd),
     "bench_front_end": Table(bench.FRONT_END, bench.bench_front_end),
     "fault_census_round3": Table(bench.FAULT_CENSUS, bench.fault_census),
-    "access2019_msjpda_initiation": Table(study.MSJPDA_INITIATION, study.access2019_msjpda_initiation),
-    "access2019_msjpda_mbest": Table(study.MSJPDA_MBEST, study.access2019_msjpda_mbest),
-    "access2019_msjpda_pd": Table(study.MSJPDA_PD, study.access2019_msjpda_pd),
-    "access2019_msjpda_clutter": Table(study.MSJPDA_CLUTTER, study.access2019_msjpda_clutter),
+    "access2019_msjpda_initiation": Table(msjpda.MSJPDA_INITIATION, msjpda.access2019_msjpda_initiation),
+    "access2019_msjpda_mbest": Table(msjpda.MSJPDA_MBEST, msjpda.access2019_msjpda_mbest),
+    "access2019_msjpda_pd": Table(msjpda.MSJPDA_PD, msjpda.access2019_msjpda_pd),
+    "access2019_msjpda_clutter": Table(msjpda.MSJPDA_CLUTTER, msjpda.access2019_msjpda_clutter),
     "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
     "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
     # tables that quote several records
