@@ -149,3 +149,38 @@ def set_tracker_diagnosis(*records: dict) -> list[str]:
 
 def _mean(xs: list[float]) -> float:
     return sum(xs) / len(xs)
+
+
+ONE_SKY_BP_SECOND = "evaluate/results/one_sky_bp_second_defaults/results.json"
+ONE_SKY_BP_FIRST = "evaluate/results/one_sky_bp_first_defaults/results.json"
+ONE_SKY_MANAGED = "evaluate/results/one_sky_managed/results.json"
+
+
+def one_sky_bp(current: dict, second: dict, first: dict, managed: dict) -> list[str]:
+    """BP's one_sky study: its record's rows, BP of the two earlier records (the earlier defaults,
+    restored from git), and S-MSJPDA with the duplicate-free management (its own record)."""
+    dt = current["settings"]["dt_s"]
+    now = _methods(current)
+
+    def cells(m: dict, seconds: str, bold: bool = False) -> list[str]:
+        c = [_gospa(m), _quantiles(m, slice(1, None)), _shares(m), fixed(m["false_tracks_per_run"], 2),
+             fixed(m["confirmed_tracks_per_target"], 2), fixed(m["scans_to_first_track"] * dt, 2), seconds]
+        if bold:
+            c = [f"**{x}**" if i in (0, 1, 3, 5) else x for i, x in enumerate(c)]
+        return c
+
+    then = _methods(second)
+    out = ["| row | GOSPA (m) ± s.e. | median / 75 % / 90 % / worst run (m) | % loc. / missed / false | false tracks / run "
+           "| tracks / drone | first track after birth (s) | s / run |",
+           "|---|---:|---|---|---:|---:|---:|---:|",
+           row(["S-MSJPDA (oracle births)", *cells(now["S-MSJPDA (oracle births)"],
+                                                   fixed(now["S-MSJPDA (oracle births)"]["seconds_per_run"], 1))]),
+           row(["**BP**", *cells(now["BP"], fixed(now["BP"]["seconds_per_run"], 1), bold=True)]),
+           row(["BP (second defaults), the previous record",
+                *cells(then["BP"], f"{then['BP']['seconds_per_run']:.1f} (then; S-MSJPDA "
+                                   f"{then['S-MSJPDA']['seconds_per_run']:.1f})")]),
+           row(["BP (first defaults), the record before", *cells(_methods(first)["BP"], "(other processes)")]),
+           row(["S-MSJPDA", *cells(now["S-MSJPDA"], fixed(now["S-MSJPDA"]["seconds_per_run"], 1))]),
+           row(["S-MSJPDA (duplicate-free), `one_sky_managed.yaml`",
+                *cells(_methods(managed)["S-MSJPDA (duplicate-free)"], "(other processes)")])]
+    return out

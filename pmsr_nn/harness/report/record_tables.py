@@ -123,6 +123,8 @@ TABLES: dict[str, Table] = {
     # tables that quote several records
     "readme_from_detections": Table(multi.READ_DETECTIONS_SOURCES, multi.readme_from_detections),
     "dense_crossing_bp": Table((multi.DENSE_BP, study.DENSE), multi.dense_crossing_bp),
+    "one_sky_bp": Table((multi.ONE_SKY_BP, multi.ONE_SKY_BP_SECOND, multi.ONE_SKY_BP_FIRST, multi.ONE_SKY_MANAGED),
+                        multi.one_sky_bp),
     "set_tracker_diagnosis": Table(multi.SET_TRACKER_DIAGNOSIS, multi.set_tracker_diagnosis),
     "bench_learned_gpu": Table((bench.LEARNED_GPU, bench.LEARNED_GPU_HOST), bench.bench_learned_gpu),
     "bench_tbd_issue37": Table(bench.TBD_ISSUE37, bench.bench_tbd_issue37),
