@@ -373,3 +373,20 @@ def bench_pmht_stonesoup(rec: dict) -> list[str]:
     return ["| tracker | s / run | position RMSE (m), scans 10+ |", "|---|---:|---:|",
             row(["Stone Soup `PMHTTracker`", fixed(s["stonesoup_s_per_run"], 2), fixed(s["stonesoup_rmse_pos_m"], 0)]),
             row(["ours (`pmht`, one pair)", fixed(s["ours_s_per_run"], 3), fixed(s["ours_rmse_pos_m"], 0)])]
+
+
+LEARNED_FIRST = "benchmarks/results/bench_learned_2026-11-21.json"
+
+
+def bench_learned_first(rec: dict) -> list[str]:
+    """The first bench_learned.py run (MDFNN, DFNN, LSTM training; MDFNN inference beside the UKF)."""
+    t, inf = rec["training_windows_per_s"], rec["inference"]
+    return ["| | figure |", "| --- | --- |",
+            row([f"training, MDFNN (Table 2), batch {rec['batch']} x {rec['window']} scans", f"{t['MDFNN']:,.0f} windows/s"]),
+            row(["training, DFNN", f"{t['DFNN']:,.0f} windows/s"]),
+            row(["training, LSTM-256", f"{t['LSTM-256']:,.0f} windows/s"]),
+            row([f"inference, MDFNN, {inf['tracks']} tracks x {inf['steps']} scans (spliced windows, stride {inf['stride']})",
+                 f"{scientific(inf['mdfnn_track_steps_per_s'])} track-steps/s"]),
+            row(["inference, batched UKF (float64), same tracks, same run",
+                 f"{scientific(inf['ukf_track_steps_per_s'])} track-steps/s"]),
+            row(["MDFNN / UKF speed", f"{inf['mdfnn_over_ukf_speed']:.2f}x"])]

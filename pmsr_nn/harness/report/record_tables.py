@@ -103,6 +103,7 @@ TABLES: dict[str, Table] = {
     "bench_si_kf": Table(bench.SI_KF, bench.bench_si_kf),
     "bench_particle": Table(bench.PARTICLE, bench.bench_particle),
     "bench_learned": Table(bench.LEARNED, bench.bench_learned),
+    "bench_learned_first": Table(bench.LEARNED_FIRST, bench.bench_learned_first),
     "bench_pmht": Table(bench.PMHT_BENCH, bench.bench_pmht),
     "bench_pmht_stonesoup": Table(bench.PMHT_BENCH, bench.bench_pmht_stonesoup),
     "bench_msjpda_nominal": Table(bench.MSJPDA, bench.bench_msjpda_nominal),
