@@ -68,3 +68,13 @@ def test_a_tie_is_rounded_either_way(x, figure, ok):
     """1.085 is stored as 1.08499...: Python formats it 1.08, its decimal text rounds half up to 1.09;
     a figure off the tie has one rounding only."""
     assert rc.quotes(x, figure) == ok
+
+
+def test_the_check_command_names_a_wrong_citation(repo, monkeypatch, capsys):
+    (repo / "doc.md").write_text('a figure [24.4](results/r.json "cases/pd_0.65/methods/S-MSJPDA + gain [seed 0]/gospa_m")\n')
+    monkeypatch.setattr(rt, "ROOT", repo)
+    monkeypatch.setattr(rt, "DOCUMENTS", ("doc.md",))
+    assert rt.main(["--check"]) == 1
+    assert "doc.md:1:" in capsys.readouterr().err
+    (repo / "doc.md").write_text('a figure [24.3](results/r.json "cases/pd_0.65/methods/S-MSJPDA + gain [seed 0]/gospa_m")\n')
+    assert rt.main(["--check"]) == 0

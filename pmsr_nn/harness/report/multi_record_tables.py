@@ -1,7 +1,8 @@
 """The documents' tables that quote several records (:mod:`.record_tables`' markers naming more
-than one): a study beside the recorded rows of the studies it shares its draws with. One function
-per table, of the loaded records in the order its marker names them, returning the table's lines.
-Row labels are the document's choice and sit here; every number is a record's."""
+than one: a study beside the recorded rows of the studies it shares its draws with, or a study's
+earlier records), and the belief-propagation section's one-record tables. One function per table,
+of the loaded records in the order its marker names them, returning the table's lines. Row labels
+are the document's choice and sit here; every number is a record's."""
 
 from __future__ import annotations
 

@@ -17,6 +17,8 @@ Everything between the markers is the generator's; the prose around them is the 
 
     python -m pmsr_nn.harness.report.record_tables           # rewrite every marked table
     python -m pmsr_nn.harness.report.record_tables --check   # exit 1, naming each table that differs
+                                                             # and each figure the prose cites wrongly
+                                                             # (:mod:`.record_citations`)
 
 ``tests/test_record_tables.py`` runs the check in the default test tier.
 """
@@ -37,6 +39,7 @@ from . import fitee_record_tables as fitee
 from . import msjpda_record_tables as msjpda
 from . import multi_record_tables as multi
 from . import study_record_tables as study
+from .record_citations import problems
 
 ROOT = Path(__file__).resolve().parents[3]
 DOCUMENTS = ("README.md", "evaluate/RESULTS.md", "benchmarks/RESULTS.md")
@@ -199,14 +202,18 @@ def blocks(text: str) -> dict[str, str]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m pmsr_nn.harness.report.record_tables",
                                 description="Rewrite the documents' tables from their records (or check them).")
-    p.add_argument("--check", action="store_true", help="write nothing; exit 1 naming each table that differs")
+    p.add_argument("--check", action="store_true", help="write nothing; exit 1 naming each table that differs "
+                                                        "and each cited figure that is not its record's")
     args = p.parse_args(argv)
     try:
         if args.check:
             bad = differing()
             for b in bad:
                 print(f"differs from its record: {b}", file=sys.stderr)
-            return 1 if bad else 0
+            cited = [p for doc in DOCUMENTS for p in problems(ROOT / doc, ROOT)]
+            for c in cited:
+                print(f"cites another figure than its record: {c}", file=sys.stderr)
+            return 1 if bad or cited else 0
         records: dict[str, dict] = {}
         texts = {doc: (ROOT / doc).read_text() for doc in DOCUMENTS}
         new = {doc: regenerate(text, ROOT, records) for doc, text in texts.items()}  # all, before writing any
