@@ -6,7 +6,7 @@ are the document's choice and sit here; every number is a record's."""
 
 from __future__ import annotations
 
-from .record_cells import fixed, pm, row
+from .record_cells import fixed, pm, row, significant
 from .study_record_tables import DENSE, ONE_SKY, ONE_SKY_HYBRID, SHARED, SHARED_HYBRID
 
 ONE_SKY_BP = "evaluate/results/one_sky_bp/results.json"
@@ -184,4 +184,31 @@ def one_sky_bp(current: dict, second: dict, first: dict, managed: dict) -> list[
            row(["S-MSJPDA", *cells(now["S-MSJPDA"], fixed(now["S-MSJPDA"]["seconds_per_run"], 1))]),
            row(["S-MSJPDA (duplicate-free), `one_sky_managed.yaml`",
                 *cells(_methods(managed)["S-MSJPDA (duplicate-free)"], "(other processes)")])]
+    return out
+
+
+TBD = "evaluate/results/remotesensing2020_icmb/results.json"
+TBD_FIRST = "evaluate/results/history/remotesensing2020_icmb_b77ce5e.json"
+"""The TBD study's first recording (the seed's SNR estimate; as git held it at b77ce5e, before the
+record's layout moved each map row's figures under ``tbd``)."""
+
+
+def tbd_subarea(current: dict, first: dict) -> list[str]:
+    """The sub-area study (the seed's Table 2): power ratio, seconds per run and detected-frame
+    rate at the table's frame, ours (the first recording's in brackets) beside the seed's."""
+    paper = current["reference"]["subarea"]["table"]
+    now, then = current["cases"]["mixed"]["methods"], first["cases"]["mixed"]["methods"]
+    out = ["| sub-area | power ratio % (ours / seed) | s per run (ours / seed) | detected % frame 15 (ours / seed) |",
+           "|---|---|---|---|"]
+    for i, size in enumerate(paper["size"]):
+        name = {"5x5": "modified ICMB", "full": "modified ICMB full map"}.get(size, f"modified ICMB {size}")
+        m, old = now[name], then[name]
+
+        def secs(x: float) -> str:
+            return fixed(x, 2 if x < 10 else 1)
+        out.append(row(["whole map" if size == "full" else size,
+                        f"{significant(100 * m['tbd']['power_ratio'], 3)} / {paper['power_ratio_pct'][i]}",
+                        f"{secs(m['seconds_per_run'])} ({secs(old['seconds_per_run'])}) / {paper['computation_time_s'][i]}",
+                        f"{100 * m['tbd']['detected_rate_table_frame']:.0f} ({100 * old['detected_rate_table2_frame']:.0f}) "
+                        f"/ {paper['detected_frame_rate_pct'][i]}"]))
     return out

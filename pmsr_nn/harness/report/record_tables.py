@@ -129,6 +129,7 @@ TABLES: dict[str, Table] = {
     "dense_crossing_bp": Table((multi.DENSE_BP, study.DENSE), multi.dense_crossing_bp),
     "one_sky_bp": Table((multi.ONE_SKY_BP, multi.ONE_SKY_BP_SECOND, multi.ONE_SKY_BP_FIRST, multi.ONE_SKY_MANAGED),
                         multi.one_sky_bp),
+    "tbd_subarea": Table((multi.TBD, multi.TBD_FIRST), multi.tbd_subarea),
     "set_tracker_diagnosis": Table(multi.SET_TRACKER_DIAGNOSIS, multi.set_tracker_diagnosis),
     "bench_learned_gpu": Table((bench.LEARNED_GPU, bench.LEARNED_GPU_HOST), bench.bench_learned_gpu),
     "bench_tbd_issue37": Table(bench.TBD_ISSUE37, bench.bench_tbd_issue37),
