@@ -152,8 +152,10 @@ def _mean(xs: list[float]) -> float:
     return sum(xs) / len(xs)
 
 
-ONE_SKY_BP_SECOND = "evaluate/results/one_sky_bp_second_defaults/results.json"
-ONE_SKY_BP_FIRST = "evaluate/results/one_sky_bp_first_defaults/results.json"
+ONE_SKY_BP_SECOND = "evaluate/results/history/one_sky_bp_c9234c4.json"
+ONE_SKY_BP_FIRST = "evaluate/results/history/one_sky_bp_ed6bff1.json"
+"""one_sky_bp's two previous records (BP's second and first defaults), as git held them at c9234c4
+and ed6bff1."""
 ONE_SKY_MANAGED = "evaluate/results/one_sky_managed/results.json"
 
 

@@ -80,6 +80,7 @@ TABLES: dict[str, Table] = {
     "three_trajectories_learned": Table(fitee.THREE, fitee.results_learned_rows),
     "three_trajectories_whole_sequence": Table(fitee.THREE, fitee.results_whole_sequence),
     "mismatch_whole_sequence": Table(fitee.MISMATCH, fitee.mismatch_whole_sequence),
+    "mismatch": Table((fitee.MISMATCH, fitee.MISMATCH_FIRST), fitee.mismatch),
     "shared_drones": Table(study.SHARED, study.shared_drones),
     "one_sky": Table(study.ONE_SKY, study.one_sky),
     "one_sky_paired_own_tracks": Table(study.ONE_SKY, study.one_sky_paired_own_tracks),
