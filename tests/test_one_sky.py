@@ -144,3 +144,13 @@ def test_the_ghost_companion_of_one_sky_is_one_sky_but_for_its_rows():
     innovation bias test as its only rows."""
     (row,) = companion_rows("one_sky.yaml", "one_sky_ghosts.yaml")
     assert row["kind"] == "s_msjpda" and row["options"] == {"initiation": "detections", "bias_window": 20}
+
+
+def test_the_burn_in_companion_is_dense_crossing_but_for_its_rows():
+    """``evaluate/dense_crossing_burn_in.yaml``: S-MSJPDA with the innovation bias test at each
+    burn-in the document's table names, nothing else changed."""
+    rows = dense_crossing_companion("dense_crossing_burn_in.yaml")
+    assert [m["options"]["bias_burn_in"] for m in rows] == [0, 5, 10, 20]
+    for m in rows:
+        assert m["kind"] == "s_msjpda" and m["options"] == {"initiation": "detections", "bias_window": 20,
+                                                             "bias_burn_in": m["options"]["bias_burn_in"]}

@@ -446,3 +446,16 @@ def test_readme_scripts_take_the_options_they_are_given():
         assert proc.returncode == 0, f"{argv[1]} --help: {err[-1000:]}"
         for opt in (a for a in argv[2:] if a.startswith("--")):
             assert opt in out, f"{argv[1]} has no option {opt}"
+
+
+def test_the_demo_stage_hints_are_its_records():
+    """harness.demo.REFERENCE_SECONDS from benchmarks/results/demo_time.json: seconds per training batch
+    (the demo's 300 and 120 batches), per one-sky run (2) and per evaluation run (20, what is left of
+    the total), each to the constant's two decimals or three figures."""
+    from pmsr_nn.harness.demo import REFERENCE_SECONDS as ref
+
+    st = json.loads((ROOT / "benchmarks" / "results" / "demo_time.json").read_text())["stages"]
+    assert ref["batch"] == {"mdfnn": round(st["train_seconds"]["mdfnn"] / 300, 2),
+                            "kalmannet": round(st["train_seconds"]["kalmannet"] / 120, 2)}
+    rest = st["total_seconds"] - sum(st["train_seconds"].values()) - st["one_sky_seconds"]
+    assert ref["run"] == {"evaluation": round(rest / 20, 2), "one_sky": round(st["one_sky_seconds"] / 2, 1)}

@@ -98,3 +98,34 @@ def test_a_bad_marker_writes_nothing(tmp_path, monkeypatch, capsys):
     assert rt.main(["--check"]) == 1 and rt.main([]) == 0
     assert "ekf: 10000 tracks" in (tmp_path / "a.md").read_text() and rt.main(["--check"]) == 0
 
+
+
+def test_a_table_of_several_records_reads_each_of_them():
+    """The README's trackers-from-detections table: each cell from the record its column names, read
+    here directly (BP from the BP studies, the model-based rows from the scenarios' studies)."""
+    from pmsr_nn.harness.report import multi_record_tables as multi
+    lines = multi.readme_from_detections(*(rt.load_record(p) for p in multi.READ_DETECTIONS_SOURCES))
+    rows = {line.split(" | ")[0][2:].split(" (")[0].strip("`"): line.split(" | ") for line in lines[2:]}
+    bp = rt.load_record(multi.ONE_SKY_BP)["cases"]["one_sky"]["methods"]["BP"]
+    assert rows["one_sky.yaml"][1] == f"{bp['gospa_m']:.1f} ± {bp['gospa_se_m']:.1f} *"
+    pmht = rt.load_record(study.SHARED)["cases"]["three_drones"]["methods"]["PMHT from detections"]
+    assert rows["shared_drones.yaml"][4] == f"{pmht['gospa_m']:.1f} ± {pmht['gospa_se_m']:.1f}"
+    ghosts = rt.load_record(multi.DENSE_GHOSTS)["cases"]["dense_crossing"]["methods"]
+    seed2 = ghosts["S-MSJPDA + learned gain [seed 2] + bias test"]
+    assert rows["dense_crossing_ghosts.yaml"][-1].endswith(f"/ {seed2['gospa_m']:.1f} ± {seed2['gospa_se_m']:.1f} |")
+
+
+def test_a_marker_of_several_records_names_them_all_in_order():
+    text = (rt.ROOT / "evaluate/RESULTS.md").read_text()
+    sources = rt.TABLES["dense_crossing_bp"].paths
+    marker = f"<!-- table: dense_crossing_bp from {', '.join(sources)} -->"
+    assert len(sources) == 2 and marker in text
+    for wrong in (", ".join(reversed(sources)), sources[0]):
+        with pytest.raises(rt.TableError, match="comes from"):
+            rt.regenerate(text.replace(marker, f"<!-- table: dense_crossing_bp from {wrong} -->"))
+    # a figure of the second record changed in the document is found and put back
+    dense = rt.load_record(study.DENSE)["cases"]["dense_crossing"]["methods"]["PMHT"]
+    old = f"| PMHT (recorded) | {dense['gospa_m']:.1f} ± "
+    assert text.count(old) == 1
+    bad = text.replace(old, f"| PMHT (recorded) | {dense['gospa_m'] + 0.1:.1f} ± ")
+    assert rt.regenerate(bad)[0] == text

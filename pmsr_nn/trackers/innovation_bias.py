@@ -20,13 +20,11 @@ per scan (the time-averaged innovation tests of filter consistency, Bar-Shalom, 
 ch. 5, here on a sliding exponential window so it follows a track's whole life).
 
 A track's first ``burn_in`` updates are left out (:attr:`BiasTest.burn_in`): a track started by
-the fix initiator is not yet consistent. Measured (one drone seen at every scan by 3 pairs, no
-clutter, 200 runs, ``W`` = 20): with every update in, the statistic's mean is 11-14 over the first
-20 updates (every pair's range innovations average -0.15 deviations: the start is biased outward
-and the filter takes about 20 scans to forget it), against 7.6 after 40 updates, when 1
-track-scan in 10^4 exceeds the 0.999 quantile; of 40 runs of 60 scans the test at 0.999 deleted
-and restarted the track in 10 with no burn-in, 3 with 5 updates, 2 with 10, 1 with 20
-(``tests/test_innovation_bias.py``'s scene). A ghost is best deleted early, before it holds the
+the fix initiator is not yet consistent (its start is biased outward, and the filter takes about
+20 scans to forget it; evaluate/RESULTS.md, "Burn-in"). Of 40 runs of 60 scans of one drone the
+test at 0.999 deleted and restarted the track in 10 with no burn-in, 3 with 5 updates, 2 with 10,
+1 with 20 (``evaluate/innovation_bias_burn_in.py``, record
+``evaluate/results/innovation_bias_burn_in.json``). A ghost is best deleted early, before it holds the
 formation's detections for long: on dense_crossing's draws of another seed than the recorded one
 the burn-in of 10 updates gave the lowest GOSPA of 0, 5, 10 and 20 (``evaluate/RESULTS.md``).
 """

@@ -5,7 +5,8 @@
 :mod:`.front_end_report`), the honesty flags (:mod:`.flags`) and the figures (:mod:`.figures`,
 :mod:`.trajectory_figure`, :mod:`.track_figure`); :mod:`.report_cells` writes the numbers.
 :mod:`.record_tables` writes the repository documents' tables from the recorded results
-(:mod:`.fitee_record_tables`, :mod:`.study_record_tables`, :mod:`.bench_record_tables`; cells by
-:mod:`.record_cells`).
+(:mod:`.fitee_record_tables`, :mod:`.study_record_tables`, :mod:`.bench_record_tables`,
+:mod:`.msjpda_record_tables`, :mod:`.multi_record_tables`; cells by
+:mod:`.record_cells`); :mod:`.record_citations` checks the figures their prose cites from a record.
 Imports the earlier stages only.
 """

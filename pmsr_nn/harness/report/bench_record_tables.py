@@ -1,5 +1,6 @@
 """The tables of benchmarks/RESULTS.md written from a benchmark's JSON (benchmarks/results/): one
-function per table, of the loaded record, returning its lines (:mod:`.record_tables` places them)."""
+function per table, of the loaded record (or records, in its marker's order), returning its lines
+(:mod:`.record_tables` places them)."""
 
 from __future__ import annotations
 
@@ -268,3 +269,124 @@ def fault_census(rec: dict) -> list[str]:
             cells = [c if c == "." else f"**{c}**" for c in cells]
         out.append(row([command, *cells]))
     return out
+
+
+LEARNED_GPU = "benchmarks/results/bench_learned_gpu.json"
+LEARNED_GPU_HOST = "benchmarks/results/bench_learned_gpu_host_cpu.json"
+_LEARNED_GPU_ROWS = [("MDFNN (Table 2)", "MDFNN"), ("DFNN", "DFNN"), ("LSTM-256", "LSTM-256"),
+                     ("MDFNN (Table 2, local inputs)", "MDFNN-local"),
+                     ("MDFNN local, compact (`models/mdfnn_local.yaml`)", "MDFNN-local-compact"),
+                     ("KalmanNet-style, GRU 64 (`models/kalmannet.yaml`)", "KalmanNet")]
+
+
+def bench_learned_gpu(gpu: dict, host: dict) -> list[str]:
+    """Training windows/s on the GPU (float32, bf16) beside its host's CPU (float32), their ratio, and
+    the MDFNN's inference against the UKF on each (two runs of benchmarks/bench_learned.py)."""
+    out = ["| network | H100 float32 (windows/s) | H100 bf16 (windows/s) | host CPU, 16 threads, float32 (windows/s) "
+           "| H100 / CPU |", "| --- | ---: | ---: | ---: | ---: |"]
+    g, h = gpu["training_windows_per_s"], host["training_windows_per_s"]
+    for label, key in _LEARNED_GPU_ROWS:
+        out.append(row([label, f"{g[key]:,.0f}", f"{g[key + ' bf16']:,.0f}", f"{h[key]:,.0f}",
+                        f"{significant(g[key] / h[key], 2)}x"]))
+    gi, hi = gpu["inference"], host["inference"]
+    out.append(row([f"inference: MDFNN, {gi['tracks']} tracks x {gi['steps']} scans, against the UKF (CPU) in the same run",
+                    f"{scientific(gi['mdfnn_track_steps_per_s'])} track-steps/s", "",
+                    f"{scientific(hi['mdfnn_track_steps_per_s'])} ({hi['tracks']} tracks)",
+                    f"MDFNN {gi['mdfnn_over_ukf_speed']:.0f}x the UKF on the GPU, "
+                    f"{significant(hi['mdfnn_over_ukf_speed'], 2)}x on the {host['threads']}-thread CPU"]))
+    return out
+
+
+TBD_ISSUE37 = tuple(f"benchmarks/results/bench_tbd_issue37_{when}_round{r}.json"
+                    for when in ("before", "after") for r in (1, 2))
+TBD_ISSUE37_SNR = tuple(f"benchmarks/results/bench_tbd_issue37_snr_round{r}.json" for r in (1, 2))
+
+
+def bench_tbd_issue37(before1: dict, before2: dict, after1: dict, after2: dict) -> list[str]:
+    """Seconds per run per sub-area before and after issue 37's likelihood, two rounds each
+    (the after 5x5 in bold), and the 5x5 with five runs per call."""
+    out = ["| sub-area | before, s per run (rounds 1, 2) | after, s per run (rounds 1, 2) |", "|---|---|---|"]
+    for size in before1["subarea_seconds_per_run"]:
+        before = ", ".join(fixed(r["subarea_seconds_per_run"][size], 2) for r in (before1, before2))
+        after = ", ".join(fixed(r["subarea_seconds_per_run"][size], 2) for r in (after1, after2))
+        out.append(row([size, before, f"**{after}**" if size == "5x5" else after]))
+    out.append(row(["5x5, 5 runs per call (per run)",
+                    ", ".join(fixed(r["batched_seconds_per_run"], 2) for r in (before1, before2)),
+                    ", ".join(fixed(r["batched_seconds_per_run"], 2) for r in (after1, after2))]))
+    return out
+
+
+def bench_tbd_issue37_snr(round1: dict, round2: dict) -> list[str]:
+    """5x5 seconds per run with the bias-corrected SNR estimate and the seed's, one and five runs per
+    call, two rounds."""
+    out = ["| 5x5, s per run | round 1 | round 2 |", "|---|---:|---:|"]
+    for label, key in (("bias-corrected estimate, one run per call", None),
+                       ("the seed's estimate, one run per call", "seed_max_estimate_5x5_seconds_per_run"),
+                       ("bias-corrected estimate, 5 runs per call", "batched_seconds_per_run"),
+                       ("the seed's estimate, 5 runs per call", "seed_max_estimate_batched_seconds_per_run")):
+        out.append(row([label] + [fixed(r["subarea_seconds_per_run"]["5x5"] if key is None else r[key], 2)
+                                  for r in (round1, round2)]))
+    return out
+
+
+FAULT_CENSUS_BEFORE = "benchmarks/results/fault_census_before.json"
+FAULT_CENSUS_AFTER = "benchmarks/results/fault_census_after.json"
+
+
+def fault_census_before_after(before: dict, after: dict) -> list[str]:
+    """The first fault census's outcomes per command before and after the fixes ('b → a', '.' where
+    both are none), the totals in bold."""
+    out = ["| command | " + " | ".join(c.replace("_", " ") for c in CENSUS_CLASSES) + " | cases |",
+           "|---|" + "---:|" * (len(CENSUS_CLASSES) + 1)]
+    rows = [(c, before["meta"]["by_command"][c], after["meta"]["by_command"][c]) for c in after["meta"]["by_command"]]
+    for command, b, a in [*rows, ("**all**", before["meta"]["counts"], after["meta"]["counts"])]:
+        cells = ["." if not b.get(c) and not a.get(c) else f"{b.get(c, 0)} → {a.get(c, 0)}" for c in CENSUS_CLASSES]
+        cells.append(str(sum(a.values())))
+        if command == "**all**":
+            cells = [c if c == "." else f"**{c}**" for c in cells]
+        out.append(row([command, *cells]))
+    return out
+
+
+SET_TRACKER_GPU = "benchmarks/results/set_tracker_h200.json"
+SET_TRACKER_CPU = "benchmarks/results/set_tracker_cpu.json"
+
+
+def bench_set_tracker(gpu: dict, cpu: dict) -> list[str]:
+    """The set tracker's seconds per run of 240 scans on the device machine's GPU and on the 2-core CPU
+    (benchmarks/bench_set_tracker.py, one JSON each); the commands as the document gives them."""
+    g, c = gpu["cuda"]["seconds_per_run"], cpu["cpu"]["seconds_per_run"]
+    return ["| device | command, date | s per run of 240 scans | record |", "|---|---|---:|---|",
+            row([f"{gpu['cuda']['name']} (device machine, torch {gpu['torch']})",
+                 "`python benchmarks/bench_set_tracker.py --checkpoint runs/set_tracker_s0/tracker.pt --runs "
+                 f"{gpu['runs']} --repeats 3 --devices cuda`, {gpu['date']}, right after the training in the same device call",
+                 fixed(g, 3), f"`results/{Path(SET_TRACKER_GPU).name}`"]),
+            row([f"2-core Intel Xeon (AVX-512), {cpu['threads']} threads, nothing else running",
+                 f"`OMP_NUM_THREADS={cpu['threads']} python benchmarks/bench_set_tracker.py --checkpoint "
+                 f"runs/set_tracker_s2/tracker.pt --runs {cpu['runs']} --repeats 2 --devices cpu`, {cpu['date']}",
+                 fixed(c, 1), f"`results/{Path(SET_TRACKER_CPU).name}`"])]
+
+
+def bench_pmht_stonesoup(rec: dict) -> list[str]:
+    """Stone Soup's PMHTTracker against ours on one pair (bench_pmht.py's ``stonesoup`` entry)."""
+    s = rec["stonesoup"]
+    return ["| tracker | s / run | position RMSE (m), scans 10+ |", "|---|---:|---:|",
+            row(["Stone Soup `PMHTTracker`", fixed(s["stonesoup_s_per_run"], 2), fixed(s["stonesoup_rmse_pos_m"], 0)]),
+            row(["ours (`pmht`, one pair)", fixed(s["ours_s_per_run"], 3), fixed(s["ours_rmse_pos_m"], 0)])]
+
+
+LEARNED_FIRST = "benchmarks/results/bench_learned_2026-11-21.json"
+
+
+def bench_learned_first(rec: dict) -> list[str]:
+    """The first bench_learned.py run (MDFNN, DFNN, LSTM training; MDFNN inference beside the UKF)."""
+    t, inf = rec["training_windows_per_s"], rec["inference"]
+    return ["| | figure |", "| --- | --- |",
+            row([f"training, MDFNN (Table 2), batch {rec['batch']} x {rec['window']} scans", f"{t['MDFNN']:,.0f} windows/s"]),
+            row(["training, DFNN", f"{t['DFNN']:,.0f} windows/s"]),
+            row(["training, LSTM-256", f"{t['LSTM-256']:,.0f} windows/s"]),
+            row([f"inference, MDFNN, {inf['tracks']} tracks x {inf['steps']} scans (spliced windows, stride {inf['stride']})",
+                 f"{scientific(inf['mdfnn_track_steps_per_s'])} track-steps/s"]),
+            row(["inference, batched UKF (float64), same tracks, same run",
+                 f"{scientific(inf['ukf_track_steps_per_s'])} track-steps/s"]),
+            row(["MDFNN / UKF speed", f"{inf['mdfnn_over_ukf_speed']:.2f}x"])]

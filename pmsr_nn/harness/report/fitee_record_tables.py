@@ -296,3 +296,66 @@ def learned_vs_bounds(rec: dict) -> list[str]:
     out.append(row(["PCRB smoothing (per trajectory)", "", fixed(smoothing["position_m"], 2),
                     fixed(smoothing["velocity_mps"], 3), "", "", "all", "", ""]))
     return out
+
+
+MISMATCH = "evaluate/results/fitee2023_mismatch/results.json"
+
+
+def mismatch_whole_sequence(rec: dict) -> list[str]:
+    """The KalmanNet-style filter's 100-scan windows against whole-sequence inference on the three
+    mismatched flights: mean (min-max) over the three seeds, and paired against the tuned IMM."""
+    out = ["| KalmanNet, 3 seeds | patrol | speed changes | weave | paired against the tuned IMM (m): patrol / speed / weave |",
+           "|---|---:|---:|---:|---|"]
+    for label, group in (("100-scan windows, stride 50 (as above)", "KalmanNet"), ("whole sequence", "KalmanNet, whole sequence")):
+        cells, paired = [], []
+        for case in rec["cases"].values():
+            r = case["seed_groups"][group]["rmse_pos_m"]
+            cells.append(f"{r['mean']:.2f} ({r['min']:.2f}-{r['max']:.2f})")
+            (c,) = [c for c in case["comparisons"] if c["learned"] == group and c["classical"] == "IMM (tuned)"]
+            paired.append(f"{c['margin_m']:.2f} +- {c['se_m']:.2f}")
+        out.append(row([label, *cells, " / ".join(paired)]))
+    return out
+
+
+MISMATCH_FIRST = "evaluate/results/history/fitee2023_mismatch_40cd609.json"
+"""The mismatch study's first record (2026-11-23, the KalmanNet rows before the restart of a lost
+filter), as git held it at 40cd609."""
+
+
+def mismatch(rec: dict, first: dict) -> list[str]:
+    """Position RMSE per flight of the classical filters, the learned trackers' three seeds (mean,
+    min-max; the KalmanNet rows before and after the restart) and the PCRB, with seed 0's or the
+    filter's median run; the lowest tracker per flight in bold."""
+    cases = list(rec["cases"].values())
+
+    def m(c: dict, name: str) -> dict:
+        return c["methods"][name]
+
+    def group(r: dict, name: str) -> list[str]:
+        return [f"{g['mean']:.2f} ({g['min']:.1f}-{g['max']:.1f})"
+                for g in (c["seed_groups"][name]["rmse_pos_m"] for c in r["cases"].values())]
+
+    def medians(r: dict, name: str) -> str:
+        return " / ".join(fixed(c["methods"][name]["median_run_rmse_pos_m"], 1) for c in r["cases"].values())
+
+    tuned = [m(c, "EKF (tuned q)")["rmse_pos_m"] for c in cases]
+    if [round(x, 2) for x in tuned] != [round(m(c, "UKF (tuned q)")["rmse_pos_m"], 2) for c in cases]:
+        raise ValueError("the mismatch table's 'EKF / UKF (tuned q = 1)' row needs the two equal to 2 decimals")
+    means = {"EKF (tuned q)": tuned, "IMM (tuned)": [m(c, "IMM (tuned)")["rmse_pos_m"] for c in cases]}
+    means.update({g: [c["seed_groups"][g]["rmse_pos_m"]["mean"] for c in cases] for g in ("MDFNN local", "KalmanNet")})
+    best = [min(v[i] for v in means.values()) for i in range(len(cases))]
+
+    def cells(values: list[float]) -> list[str]:
+        return [f"**{x:.2f}**" if x == b else f"{x:.2f}" for x, b in zip(values, best)]
+
+    return ["| method | patrol | speed changes | weave | median run (patrol / speed / weave) |",
+            "|---|---:|---:|---:|---|",
+            row(["EKF (recipe q = 1e-7)", *[fixed(m(c, "EKF")["rmse_pos_m"], 2) for c in cases], ""]),
+            row(["EKF / UKF (tuned q = 1)", *cells(tuned), medians(rec, "EKF (tuned q)")]),
+            row(["IMM (tuned: q 1e-9 / 0.3, stay 0.9999)", *cells(means["IMM (tuned)"]), medians(rec, "IMM (tuned)")]),
+            row(["MDFNN local, 3 seeds", *group(rec, "MDFNN local"), medians(rec, "MDFNN local [seed 0]") + " (seed 0)"]),
+            row(["KalmanNet (robust: gain x 0.1, innovations clipped at 5 sd), 3 seeds, before the restart (2026-11-23)",
+                 *group(first, "KalmanNet"), medians(first, "KalmanNet [seed 0]") + " (seed 0)"]),
+            row(["KalmanNet, the same checkpoints with the restart of a lost filter (2026-11-26)",
+                 *group(rec, "KalmanNet"), medians(rec, "KalmanNet [seed 0]") + " (seed 0)"]),
+            row(["PCRB filtering, per flight", *[fixed(c["pcrb"]["pos_m"], 2) for c in cases], ""])]

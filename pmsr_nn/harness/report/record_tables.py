@@ -6,12 +6,19 @@ A generated table sits between two marker lines in a Markdown document::
     | ... the table, written by TABLES[NAME] ... |
     <!-- end table: NAME -->
 
-``TABLES`` maps each NAME to its record (a path relative to the repository root, which the
-opening marker must name) and a function of the loaded record that returns the table's lines.
+A table that quotes several records names them all, in its function's order, separated by ", "::
+
+    <!-- table: NAME from evaluate/results/A/results.json, evaluate/results/B/results.json -->
+
+``TABLES`` maps each NAME to its record or records (paths relative to the repository root, which
+the opening marker must name, in that order) and a function of the loaded records (one argument
+per record) that returns the table's lines.
 Everything between the markers is the generator's; the prose around them is the document's.
 
     python -m pmsr_nn.harness.report.record_tables           # rewrite every marked table
     python -m pmsr_nn.harness.report.record_tables --check   # exit 1, naming each table that differs
+                                                             # and each figure the prose cites wrongly
+                                                             # (:mod:`.record_citations`)
 
 ``tests/test_record_tables.py`` runs the check in the default test tier.
 """
@@ -29,13 +36,16 @@ from typing import Callable
 from ...errors import ConfigError
 from . import bench_record_tables as bench
 from . import fitee_record_tables as fitee
+from . import msjpda_record_tables as msjpda
+from . import multi_record_tables as multi
 from . import study_record_tables as study
+from .record_citations import problems
 
 ROOT = Path(__file__).resolve().parents[3]
 DOCUMENTS = ("README.md", "evaluate/RESULTS.md", "benchmarks/RESULTS.md")
 """The documents searched for markers, relative to the repository root."""
 
-_OPEN = re.compile(r"^<!-- table: (?P<name>[\w.-]+) from (?P<record>\S+) -->$")
+_OPEN = re.compile(r"^<!-- table: (?P<name>[\w.-]+) from (?P<records>[^\s,]+(?:, [^\s,]+)*) -->$")
 _CLOSE = "<!-- end table: {name} -->"
 
 
@@ -45,10 +55,20 @@ class TableError(ConfigError):
 
 @dataclass(frozen=True)
 class Table:
-    record: str
-    """The record's path, relative to the repository root."""
-    lines: Callable[[dict], list[str]]
-    """The table's Markdown lines from the loaded record (and, for the paper's columns, the paper's tables)."""
+    record: str | tuple[str, ...]
+    """The record's path, relative to the repository root, or the paths of the records it quotes."""
+    lines: Callable[..., list[str]]
+    """The table's Markdown lines from the loaded records, one argument each in ``paths`` order (and,
+    for the paper's columns, the paper's tables)."""
+
+    @property
+    def paths(self) -> tuple[str, ...]:
+        return (self.record,) if isinstance(self.record, str) else self.record
+
+    @property
+    def source(self) -> str:
+        """The records as the opening marker names them."""
+        return ", ".join(self.paths)
 
 
 TABLES: dict[str, Table] = {
@@ -59,21 +79,25 @@ TABLES: dict[str, Table] = {
     "three_trajectories": Table(fitee.THREE, fitee.results_three_trajectories),
     "three_trajectories_learned": Table(fitee.THREE, fitee.results_learned_rows),
     "three_trajectories_whole_sequence": Table(fitee.THREE, fitee.results_whole_sequence),
+    "mismatch_whole_sequence": Table(fitee.MISMATCH, fitee.mismatch_whole_sequence),
+    "mismatch": Table((fitee.MISMATCH, fitee.MISMATCH_FIRST), fitee.mismatch),
     "shared_drones": Table(study.SHARED, study.shared_drones),
     "one_sky": Table(study.ONE_SKY, study.one_sky),
     "one_sky_paired_own_tracks": Table(study.ONE_SKY, study.one_sky_paired_own_tracks),
     "one_sky_paired_handed": Table(study.ONE_SKY, study.one_sky_paired_handed),
     "one_sky_quantiles": Table(study.ONE_SKY, study.one_sky_quantiles),
     "daniyan_smcphd": Table(study.SMCPHD, study.daniyan_smcphd),
-    "access2019_msjpda": Table(study.MSJPDA, study.access2019_msjpda),
+    "access2019_msjpda": Table(msjpda.MSJPDA, msjpda.access2019_msjpda),
     "fm_front_end": Table(study.FM, study.fm_front_end),
     "fm_range_by_kind": Table(study.FM, study.fm_range_by_kind),
     "fm_tracking": Table(study.FM, study.fm_tracking),
     "tbd_mixed": Table(study.TBD, study.tbd_mixed),
     "jeit_pmht": Table(study.JEIT, study.jeit_pmht),
+    "jeit_pmht_per_target": Table(study.JEIT, study.jeit_pmht_per_target),
     "one_sky_hybrid": Table(study.ONE_SKY_HYBRID, study.one_sky_hybrid),
     "shared_drones_hybrid": Table(study.SHARED_HYBRID, study.shared_drones_hybrid),
     "dense_crossing": Table(study.DENSE, study.dense_crossing),
+    "dense_crossing_burn_in": Table(study.BURN_IN_SEED1, study.dense_crossing_burn_in),
     "ablation_dfnn_vs_mdfnn": Table(fitee.DFNN_VS_MDFNN, fitee.ablation_dfnn_vs_mdfnn),
     "ablation_sequence_size": Table(fitee.SEQUENCE_SIZE, fitee.ablation_sequence_size),
     "ablation_filter_order": Table(fitee.FILTER_ORDER, fitee.ablation_filter_order),
@@ -83,7 +107,9 @@ TABLES: dict[str, Table] = {
     "bench_si_kf": Table(bench.SI_KF, bench.bench_si_kf),
     "bench_particle": Table(bench.PARTICLE, bench.bench_particle),
     "bench_learned": Table(bench.LEARNED, bench.bench_learned),
+    "bench_learned_first": Table(bench.LEARNED_FIRST, bench.bench_learned_first),
     "bench_pmht": Table(bench.PMHT_BENCH, bench.bench_pmht),
+    "bench_pmht_stonesoup": Table(bench.PMHT_BENCH, bench.bench_pmht_stonesoup),
     "bench_msjpda_nominal": Table(bench.MSJPDA, bench.bench_msjpda_nominal),
     "bench_msjpda_rounds": Table(bench.MSJPDA, bench.bench_msjpda_rounds),
     "bench_msjpda_exact": Table(bench.MSJPDA_EXACT, bench.bench_msjpda_exact),
@@ -93,6 +119,25 @@ TABLES: dict[str, Table] = {
     "bench_phd": Table(bench.PHD, bench.bench_phd),
     "bench_front_end": Table(bench.FRONT_END, bench.bench_front_end),
     "fault_census_round3": Table(bench.FAULT_CENSUS, bench.fault_census),
+    "access2019_msjpda_initiation": Table(msjpda.MSJPDA_INITIATION, msjpda.access2019_msjpda_initiation),
+    "access2019_msjpda_mbest": Table(msjpda.MSJPDA_MBEST, msjpda.access2019_msjpda_mbest),
+    "access2019_msjpda_pd": Table(msjpda.MSJPDA_PD, msjpda.access2019_msjpda_pd),
+    "access2019_msjpda_clutter": Table(msjpda.MSJPDA_CLUTTER, msjpda.access2019_msjpda_clutter),
+    "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
+    "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
+    # tables that quote several records
+    "readme_from_detections": Table(multi.READ_DETECTIONS_SOURCES, multi.readme_from_detections),
+    "dense_crossing_bp": Table((multi.DENSE_BP, study.DENSE), multi.dense_crossing_bp),
+    "one_sky_bp": Table((multi.ONE_SKY_BP, multi.ONE_SKY_BP_SECOND, multi.ONE_SKY_BP_FIRST, multi.ONE_SKY_MANAGED),
+                        multi.one_sky_bp),
+    "tbd_subarea": Table((multi.TBD, multi.TBD_FIRST), multi.tbd_subarea),
+    "set_tracker_diagnosis": Table(multi.SET_TRACKER_DIAGNOSIS, multi.set_tracker_diagnosis),
+    "bench_learned_gpu": Table((bench.LEARNED_GPU, bench.LEARNED_GPU_HOST), bench.bench_learned_gpu),
+    "bench_tbd_issue37": Table(bench.TBD_ISSUE37, bench.bench_tbd_issue37),
+    "bench_tbd_issue37_snr": Table(bench.TBD_ISSUE37_SNR, bench.bench_tbd_issue37_snr),
+    "fault_census_before_after": Table((bench.FAULT_CENSUS_BEFORE, bench.FAULT_CENSUS_AFTER),
+                                       bench.fault_census_before_after),
+    "bench_set_tracker": Table((bench.SET_TRACKER_GPU, bench.SET_TRACKER_CPU), bench.bench_set_tracker),
 }
 
 
@@ -113,19 +158,21 @@ def regenerate(text: str, root: Path | None = None, records: dict[str, dict] | N
         i += 1
         if not match:
             continue
-        name, record = match["name"], match["record"]
+        name, source = match["name"], match["records"]
         if name not in TABLES:
             raise TableError(f"unknown table {name!r} (known: {', '.join(sorted(TABLES))})")
-        if TABLES[name].record != record:
-            raise TableError(f"table {name!r} comes from {TABLES[name].record}, its marker names {record}")
+        table = TABLES[name]
+        if table.source != source:
+            raise TableError(f"table {name!r} comes from {table.source}, its marker names {source}")
         close = _CLOSE.format(name=name)
         try:
             end = lines.index(close, i)
         except ValueError:
             raise TableError(f"table {name!r}: no line {close!r} after its marker") from None
-        if record not in records:
-            records[record] = load_record(record, root)
-        out += TABLES[name].lines(records[record])
+        for path in table.paths:
+            if path not in records:
+                records[path] = load_record(path, root)
+        out += table.lines(*(records[path] for path in table.paths))
         out.append(close)
         names.append(name)
         i = end + 1
@@ -150,21 +197,25 @@ def differing(root: Path | None = None) -> list[str]:
 def blocks(text: str) -> dict[str, str]:
     """Each marked table's text by name."""
     return {m["name"]: m["body"] for m in re.finditer(
-        r"^<!-- table: (?P<name>[\w.-]+) from \S+ -->\n(?P<body>.*?)^<!-- end table: (?P=name) -->$", text,
+        r"^<!-- table: (?P<name>[\w.-]+) from [^\n]+ -->\n(?P<body>.*?)^<!-- end table: (?P=name) -->$", text,
         re.S | re.M)}
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m pmsr_nn.harness.report.record_tables",
                                 description="Rewrite the documents' tables from their records (or check them).")
-    p.add_argument("--check", action="store_true", help="write nothing; exit 1 naming each table that differs")
+    p.add_argument("--check", action="store_true", help="write nothing; exit 1 naming each table that differs "
+                                                        "and each cited figure that is not its record's")
     args = p.parse_args(argv)
     try:
         if args.check:
             bad = differing()
             for b in bad:
                 print(f"differs from its record: {b}", file=sys.stderr)
-            return 1 if bad else 0
+            cited = [p for doc in DOCUMENTS for p in problems(ROOT / doc, ROOT)]
+            for c in cited:
+                print(f"cites another figure than its record: {c}", file=sys.stderr)
+            return 1 if bad or cited else 0
         records: dict[str, dict] = {}
         texts = {doc: (ROOT / doc).read_text() for doc in DOCUMENTS}
         new = {doc: regenerate(text, ROOT, records) for doc, text in texts.items()}  # all, before writing any

@@ -1,11 +1,15 @@
 """The tables of evaluate/RESULTS.md written from the records of the multi-target studies
-(evaluate/results/STUDY/results.json): one_sky, the learned trackers on detections, the JEIT 2021
-PMHT study and the track-before-detect study. One function per table, of the loaded record,
+(evaluate/results/STUDY/results.json): one_sky, shared_drones, the learned trackers on detections
+and the burn-in of the innovation bias test, the JEIT 2021 PMHT study, the track-before-detect,
+SMC-PHD and FM front-end studies (the MSJPDA study's: :mod:`.msjpda_record_tables`). One function per table, of the loaded record,
 returning its lines; :mod:`.record_tables` places them between the documents' markers. Row labels
 and what a row reads are the document's choice and sit here; every number is the record's."""
 
 from __future__ import annotations
 
+import json
+
+from .bench_record_tables import PAPER_TABLES
 from .record_cells import fixed, pm, row, significant
 
 
@@ -259,34 +263,6 @@ def daniyan_smcphd(rec: dict) -> list[str]:
     return out
 
 
-# ---------------------------------------------------------------- S-MSJPDA against P-MSJPDA (IEEE Access 2019)
-
-MSJPDA = "evaluate/results/access2019_msjpda/results.json"
-_MSJPDA_CASES = {"nominal": "nominal (2 km apart)", "close_500m": "500 m apart",
-                 "loose_prior": "initiation 500 m / 20 m/s"}
-_MSJPDA_ROWS = {"S-MSJPDA": "S-MSJPDA", "P-MSJPDA": "P-MSJPDA (m = 10)",
-                "P-MSJPDA relaxation": "P-MSJPDA (m = 10, relaxation)", "P-MSJPDA m=100": "P-MSJPDA (m = 100)",
-                "true assignment": "true assignment"}
-
-
-def access2019_msjpda(rec: dict) -> list[str]:
-    """The three cases of the MSJPDA study: RMSE after the warm-up (over every scan in brackets),
-    over the true-assignment reference, ANEES, loss and swap probabilities, P-MSJPDA's largest
-    duality gap, seconds per run."""
-    out = ["| case | method | pos RMSE (m) | / reference | ANEES | loss prob. | swap prob. | max gap | s / run |",
-           "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for key, case in _cases(rec):
-        reference = case["methods"]["true assignment"]["rmse_pos_m"]
-        for i, (name, label) in enumerate(_MSJPDA_ROWS.items()):
-            m = case["methods"][name]
-            gap = m.get("max_duality_gap")
-            out.append(row([_MSJPDA_CASES[key] if i == 0 else "", label,
-                            f"{m['rmse_pos_m']:.1f} ({m['rmse_pos_all_scans_m']:.1f})", fixed(m["rmse_pos_m"] / reference, 2),
-                            fixed(m["anees"], 2), fixed(m["loss_probability"], 3), fixed(m["swap_probability"], 3),
-                            "" if gap is None else fixed(gap, 1), fixed(m["seconds_per_run"], 3)]))
-    return out
-
-
 # ---------------------------------------------------------------- FM front end (Daniyan et al., Section II)
 
 FM = "evaluate/results/fm_front_end/results.json"
@@ -333,4 +309,45 @@ def fm_tracking(rec: dict) -> list[str]:
             cells.append(f"{m['rmse_pos_m']:.1f} m, {m['rmse_vel_mps']:.2f} m/s, ANEES {m['anees']:.2f}, "
                          f"OSPA {m['ospa_m']:.1f}")
         out.append(row(cells))
+    return out
+
+
+def _mean(xs: list[float]) -> float:
+    return sum(xs) / len(xs)
+
+
+def jeit_pmht_per_target(rec: dict) -> list[str]:
+    """The JEIT study's velocity RMSE and NEES (ANEES x 6, the paper's convention) per target beside
+    the paper's Tables 2 and 4, and their means over the targets."""
+    (_, case), = _cases(rec)
+    paper = json.loads(PAPER_TABLES.read_text())["jeit2021_pmht3d"]
+    vel = paper["table2_velocity_rmse_mps"]
+    m3d, pmht, smoother = (case["methods"][n] for n in ("PMHT-3D", "PMHT", "UKF smoother (true assignment)"))
+    columns = [(m3d["rmse_vel_per_target_mps"], 2), (vel["proposed"], 2), (pmht["rmse_vel_per_target_mps"], 2),
+               (vel["PMHT"], 2), (smoother["rmse_vel_per_target_mps"], 2),
+               ([6 * a for a in m3d["anees_per_target"]], 1), ([6 * a for a in smoother["anees_per_target"]], 1),
+               (paper["table4_anees"], 2)]
+    out = ["| target | PMHT-3D | paper: proposed | PMHT (labels given) | paper: PMHT | true-assignment smoother "
+           "| NEES PMHT-3D | NEES true-assignment smoother | paper: NEES proposed |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for i in range(len(vel["proposed"])):
+        out.append(row([str(i + 1)] + [fixed(xs[i], d) for xs, d in columns]))
+    out.append(row(["mean"] + [fixed(_mean(xs), d) for xs, d in columns]))
+    return out
+
+
+BURN_IN_SEED1 = "evaluate/results/dense_crossing_burn_in_seed1/results.json"
+
+
+def dense_crossing_burn_in(rec: dict) -> list[str]:
+    """S-MSJPDA on dense_crossing's draws of another seed without the innovation bias test and with
+    it at each burn-in: GOSPA ± s.e. and the median run (the default's row in bold)."""
+    (_, case), = _cases(rec)
+    out = [f"| S-MSJPDA on dense_crossing, seed {rec['seed']}'s {rec['mc_runs']} runs | GOSPA (m) ± s.e. | median run (m) |",
+           "|---|---:|---:|"]
+    for name, m in case["methods"].items():
+        gospa = pm(m["gospa_m"], m["gospa_se_m"])
+        if "default" in name:
+            name, gospa = f"**{name}**", f"**{gospa}**"
+        out.append(row(["no bias test" if name == "S-MSJPDA" else name, gospa, fixed(m["gospa_median_run_m"], 1)]))
     return out
