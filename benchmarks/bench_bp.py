@@ -44,20 +44,22 @@ def _mean_se(values: list[float]) -> tuple[float, float | None]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=6, help="the first RUNS runs of the study (default 6)")
+    ap.add_argument("--scenario", type=Path, default=SCENARIO,
+                    help=f"a scenario with rows {' and '.join(ROWS)}, one run per block (default {SCENARIO.name})")
     ap.add_argument("--json", type=Path, help="write the figures here")
     args = ap.parse_args()
-    data = load_yaml(SCENARIO)
+    data = load_yaml(args.scenario)
     if not 1 <= args.runs <= int(data["mc_runs"]):
         ap.error(f"--runs must be in [1, {data['mc_runs']}] (the study's runs), got {args.runs}")
-    sc = scenario_from_dict(data, SCENARIO.parent)
+    sc = scenario_from_dict(data, args.scenario.resolve().parent)
     if sc.block_runs != 1:
-        ap.error(f"{SCENARIO.name} must run one run per block (block_runs: 1), as the study does")
+        ap.error(f"{args.scenario.name} must run one run per block (block_runs: 1), as the study does")
     setup = prepare(sc)
     case = setup.cases[0]
     methods = {m.name: m for m in setup.methods}
     missing = [r for r in ROWS if r not in methods]
     if missing:
-        ap.error(f"{SCENARIO.name} has no row {missing}; it has {sorted(methods)}")
+        ap.error(f"{args.scenario.name} has no row {missing}; it has {sorted(methods)}")
     wall = {r: [] for r in ROWS}
     cpu = {r: [] for r in ROWS}
     with torch.no_grad():
@@ -69,7 +71,7 @@ def main() -> None:
                 wall[name].append(time.perf_counter() - t0)
                 cpu[name].append(time.process_time() - c0)
             print(f"run {run}: " + ", ".join(f"{r} {wall[r][-1]:.1f} s" for r in ROWS), flush=True)
-    figures = {"scenario": SCENARIO.name, "case": case.name, "runs": args.runs, "threads": torch.get_num_threads(),
+    figures = {"scenario": args.scenario.name, "case": case.name, "runs": args.runs, "threads": torch.get_num_threads(),
                "reference": ROWS[0], "rows": {}}
     for clock, times in (("wall", wall), ("cpu", cpu)):
         ratios = [b / a for a, b in zip(times[ROWS[0]], times[ROWS[1]])]
