@@ -260,12 +260,18 @@ CENSUS_CLASSES = ("data_loss", "hang", "traceback", "silent_wrong", "leftover", 
 def fault_census(rec: dict) -> list[str]:
     """The fault census's outcomes per command (benchmarks/fault_census.py: every case of
     tests/faults/cases.py as a subprocess), one column per class, '.' for none."""
+    by = rec["meta"]["by_command"]
+    return _census_table([(command, [str(counts.get(c, ".")) for c in CENSUS_CLASSES] + [str(sum(counts.values()))])
+                          for command, counts in [*by.items(), ("**all**", rec["meta"]["counts"])]])
+
+
+def _census_table(rows: list[tuple[str, list[str]]]) -> list[str]:
+    """A census table: a column per outcome class and the cases, a row per command (the last, the
+    totals, in bold but for its '.' cells)."""
     out = ["| command | " + " | ".join(c.replace("_", " ") for c in CENSUS_CLASSES) + " | cases |",
            "|---|" + "---:|" * (len(CENSUS_CLASSES) + 1)]
-    by = rec["meta"]["by_command"]
-    for command, counts in [*by.items(), ("**all**", rec["meta"]["counts"])]:
-        cells = [str(counts.get(c, ".")) for c in CENSUS_CLASSES] + [str(sum(counts.values()))]
-        if command == "**all**":
+    for i, (command, cells) in enumerate(rows):
+        if i == len(rows) - 1:
             cells = [c if c == "." else f"**{c}**" for c in cells]
         out.append(row([command, *cells]))
     return out
@@ -336,16 +342,10 @@ FAULT_CENSUS_AFTER = "benchmarks/results/fault_census_after.json"
 def fault_census_before_after(before: dict, after: dict) -> list[str]:
     """The first fault census's outcomes per command before and after the fixes ('b → a', '.' where
     both are none), the totals in bold."""
-    out = ["| command | " + " | ".join(c.replace("_", " ") for c in CENSUS_CLASSES) + " | cases |",
-           "|---|" + "---:|" * (len(CENSUS_CLASSES) + 1)]
     rows = [(c, before["meta"]["by_command"][c], after["meta"]["by_command"][c]) for c in after["meta"]["by_command"]]
-    for command, b, a in [*rows, ("**all**", before["meta"]["counts"], after["meta"]["counts"])]:
-        cells = ["." if not b.get(c) and not a.get(c) else f"{b.get(c, 0)} → {a.get(c, 0)}" for c in CENSUS_CLASSES]
-        cells.append(str(sum(a.values())))
-        if command == "**all**":
-            cells = [c if c == "." else f"**{c}**" for c in cells]
-        out.append(row([command, *cells]))
-    return out
+    return _census_table([(command, ["." if not b.get(c) and not a.get(c) else f"{b.get(c, 0)} → {a.get(c, 0)}"
+                                     for c in CENSUS_CLASSES] + [str(sum(a.values()))])
+                          for command, b, a in [*rows, ("**all**", before["meta"]["counts"], after["meta"]["counts"])]])
 
 
 SET_TRACKER_GPU = "benchmarks/results/set_tracker_h200.json"
