@@ -262,3 +262,50 @@ def test_bp_with_azimuth_refuses_init_scans_it_would_not_read(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "method 'S'" in err[0] and "init_scans is read only without azimuth" in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+def test_not_exclusive_the_spherical_initiator_hands_on_every_consistent_combination():
+    """Noise-free detections of two targets 2 km apart: the greedy selection gives one combination
+    per target; not exclusive, every combination that passes the gate, counted here by brute
+    force over the 2^3 combinations with the initiator's own fit of each alone (the true two
+    among them), the smallest chi-square first."""
+    model = access_model()
+    truth = torch.tensor([[-25000.0, 200.0, -20000.0, 244.1], [-23000.0, 200.0, -21000.0, 244.1]], dtype=F64)
+    z = detections(model, truth)
+    unused = torch.ones(1, 3, 2, dtype=torch.bool)
+    greedy = SphericalInitiator()
+    every = SphericalInitiator(exclusive=False)
+    assert int(greedy.initiate(z, unused, model, 4, torch.ones(4, dtype=F64))[1].sum()) == 2
+    combos, chi2, _, _ = every.select(z, unused, model, 4)
+    passing = 0
+    for a in range(2):
+        for b in range(2):
+            for c in range(2):
+                one = torch.zeros(1, 3, 2, dtype=torch.bool)
+                one[0, 0, a] = one[0, 1, b] = one[0, 2, c] = True
+                passing += int(greedy.select(z, one, model, 4)[0].shape[1])
+    real = (combos[0] >= 0).any(-1)
+    assert int(real.sum()) == passing >= 2
+    assert bool((chi2[0, real].diff() >= 0).all())  # the best first
+    own = combos[0, real]
+    assert [0, 0, 0] in own.tolist() and [1, 1, 1] in own.tolist()
+
+
+@pytest.mark.parametrize("options, scans, exclusive", [
+    ({}, None, True),  # init_scans 1: today's single-scan initiator itself
+    ({"init_scans": 3}, 3, False),
+    ({"init_scans": 2, "init_scan_candidates": "greedy", "init_scan_gate_probability": 0.99}, 2, True),
+])
+def test_the_rows_options_pick_the_initiator(tmp_path, options, scans, exclusive):
+    from pmsr_nn.methods.track_management import management
+
+    path = two_targets(tmp_path, {"initiation": "detections", **options})
+    setup = prepare(load_any(path))
+    ini = management(setup.methods[0], setup.cases[0].sensing).initiator
+    if scans is None:
+        assert type(ini) is SphericalInitiator and ini == SphericalInitiator()
+    else:
+        assert isinstance(ini, MultiScanInitiator) and ini.scans == scans
+        assert ini.gate_probability == options.get("init_scan_gate_probability", 0.999)
+        ini = ini.base
+    assert ini.exclusive is exclusive

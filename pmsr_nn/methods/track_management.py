@@ -18,7 +18,9 @@ Options:
 * ``init_scans``: 1 (default) a tentative track starts from one scan's candidate; 2 or 3 only
   from candidates consistent over that many consecutive scans (the multi-scan initiator,
   :mod:`pmsr_nn.trackers.multi_scan_initiator`, around the single-scan one), scan to scan within
-  ``init_scan_gate_probability`` of the chi-square of position and velocity;
+  ``init_scan_gate_probability`` of the chi-square of position and velocity; without azimuth the
+  spherical initiator then hands on every consistent combination of a scan
+  (``init_scan_candidates: all``, default) or its greedy exclusive selection (``greedy``);
 * M-of-N confirmation ``confirm_m`` / ``confirm_n``, a hit at ``hit_pairs`` pairs, deletion after
   ``delete_misses`` misses;
 * existence: ``survival``, ``initial_existence``, ``report_existence``; its update ``existence``:
@@ -63,9 +65,16 @@ probabilities (:attr:`pmsr_nn.trackers.management.Management.shared_existence`).
 MAX_INIT_SCANS = 3
 """Most consecutive scans ``init_scans`` chains candidates over."""
 
+INIT_SCAN_CANDIDATES = ("all", "greedy")
+"""Which of a scan's consistent combinations the spherical initiator hands the multi-scan one:
+``all`` (the best :data:`~pmsr_nn.trackers.spherical_initiator.MAX_CANDIDATES` per run; the
+scan-to-scan gate prunes them) or ``greedy`` (the exclusive selection of single-scan initiation)."""
+
 INIT_SCAN_OPTIONS = {"init_scans": Option(1, int, 1, MAX_INIT_SCANS),
                      "init_scan_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12,
-                                                          read_when=ReadWhen("init_scans", (2, 3)))}
+                                                          read_when=ReadWhen("init_scans", (2, 3))),
+                     "init_scan_candidates": Option("all", str, choices=INIT_SCAN_CANDIDATES,
+                                                    read_when=ReadWhen("init_scans", (2, 3)))}
 """Multi-scan initiation (module docstring): shared with the kinds whose initiator is the
 spherical or fix one (``bp`` without azimuth)."""
 
@@ -123,10 +132,14 @@ def bias_test(spec) -> BiasTest | None:
 
 def initiator(single: Initiator, spec) -> Initiator:
     """The initiator a row's ``init_scans`` asks for: ``single`` (1), or the multi-scan initiator
-    around it (2 or 3; :class:`MultiScanInitiator`, its gate ``init_scan_gate_probability``)."""
+    around it (2 or 3; :class:`MultiScanInitiator`, its gate ``init_scan_gate_probability``), a
+    spherical one then giving every consistent combination (``init_scan_candidates: all``) or its
+    greedy exclusive selection (``greedy``)."""
     scans = int(spec.option("init_scans"))
     if scans == 1:
         return single
+    if isinstance(single, SphericalInitiator) and spec.option("init_scan_candidates") == "all":
+        single = replace(single, exclusive=False)
     return MultiScanInitiator(single, scans, float(spec.option("init_scan_gate_probability")))
 
 
