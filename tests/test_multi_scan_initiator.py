@@ -252,15 +252,20 @@ def test_bad_init_scans_are_one_line_errors_naming_the_row_and_write_nothing(tmp
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
-def test_bp_with_azimuth_refuses_init_scans_it_would_not_read(tmp_path, capsys):
-    path = two_targets(tmp_path, {"init_scans": 3}, "bp")
+@pytest.mark.parametrize("kind, options, message", [
+    ("bp", {"init_scans": 3}, "option init_scans is read only without azimuth"),
+    ("s_msjpda", {"initiation": "detections", "init_scans": 2, "init_scan_candidates": "greedy"},
+     "option init_scan_candidates is read only without azimuth"),
+])
+def test_with_azimuth_options_that_would_go_unread_are_refused(tmp_path, capsys, kind, options, message):
+    path = two_targets(tmp_path, options, kind)
     data = yaml.safe_load(path.read_text())
     data["detections"]["components"] = ["range", "doppler", "azimuth"]
     data["noise"]["azimuth_deg"] = 1.0
     path.write_text(yaml.safe_dump(data))
     assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "method 'S'" in err[0] and "init_scans is read only without azimuth" in err[0], err
+    assert len(err) == 1 and "method 'S'" in err[0] and message in err[0], err
     assert not (tmp_path / "out").exists()
 
 

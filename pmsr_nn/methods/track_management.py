@@ -177,6 +177,10 @@ def check_initiation(spec, sensing, pooled: bool = False) -> None:
                           f"bias_window: null")
     if not starts_own_tracks(spec):
         return
+    if "init_scan_candidates" in spec.options and "azimuth" in sensing.detection_model.components:
+        raise ConfigError(f"method {spec.name!r}: option init_scan_candidates is read only without azimuth (the "
+                          f"spherical initiator's combinations); the detections measure "
+                          f"{list(sensing.detection_model.components)}")
     try:
         management(spec, sensing, pooled).check(sensing.detection_model, "initiation from detections", pooled=pooled)
     except ConfigError as exc:
