@@ -135,7 +135,10 @@ class SphericalInitiator:
     5. greedy selection, per run: of the consistent combinations, one with the most pairs and
        among those the smallest chi-square tail probability (the smallest chi-square when all
        have ``k`` pairs) starts a track, every combination that shares a detection with it is
-       dropped, and so on until none is left: each detection starts at most one track.
+       dropped, and so on until none is left: each detection starts at most one track. With
+       ``exclusive=False`` (what the multi-scan initiator reads, :mod:`.multi_scan_initiator`)
+       every consistent combination is kept instead, the best :data:`MAX_CANDIDATES` a run, in
+       that order.
 
     A track's Gaussian: the joint estimate and the inverse of its Fisher information
     ``J^T R^-1 J`` (``J`` the model's Jacobian of the ranges and rates by position and
