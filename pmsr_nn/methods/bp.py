@@ -12,7 +12,9 @@ Options:
   target is not kept), ``report_existence`` (a confirmed track is reported while at or above it);
 * new potential targets: with azimuth, one per detection, its velocity prior
   ``birth_velocity_sd_mps`` per axis; without azimuth, tentative tracks from the multi-pair
-  initiator (``init_pairs``, ``init_gate_probability``) at ``initial_existence``;
+  initiator (``init_pairs``, ``init_gate_probability``) at ``initial_existence``, from one scan
+  (``init_scans: 1``) or from candidates consistent over 2 or 3 scans (``init_scans``,
+  ``init_scan_gate_probability``: the multi-scan initiator, as in :mod:`.track_management`);
 * the message passing: ``iterations`` at most, until the largest change of a message is at most
   ``tolerance``.
 
@@ -41,7 +43,9 @@ from ..errors import ConfigError
 from ..trackers.base import Estimates
 from ..trackers.bp_tracker import BPSettings, bp_tracker
 from ..trackers.jpda import floored_clutter_density
+from ..trackers.roles import Initiator
 from ..trackers.spherical_initiator import SphericalInitiator
+from .track_management import INIT_SCAN_OPTIONS, initiator
 from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, register
 
 EXISTENCE = dict(kind=float, lo=1e-12, hi=1.0 - 1e-12)
@@ -66,10 +70,10 @@ def settings(spec, sensing) -> BPSettings:
         raise ConfigError(f"method {spec.name!r}: {exc}") from None
 
 
-def _initiator(spec) -> SphericalInitiator:
+def _initiator(spec) -> Initiator:
     pairs = spec.option("init_pairs")
-    return SphericalInitiator(float(spec.option("birth_velocity_sd_mps")), None if pairs is None else int(pairs),
-                              float(spec.option("init_gate_probability")))
+    return initiator(SphericalInitiator(float(spec.option("birth_velocity_sd_mps")), None if pairs is None else int(pairs),
+                                        float(spec.option("init_gate_probability"))), spec)
 
 
 def check_sensing(spec, sensing) -> None:
@@ -81,6 +85,9 @@ def check_sensing(spec, sensing) -> None:
         raise ConfigError(f"method {spec.name!r}: kind bp_3d reads lists pooled per receiver only where each pair "
                           f"measures azimuth (a detection seeds a target under each illuminator); the detections "
                           f"measure {list(model.components)} (use kind bp)")
+    if "azimuth" in model.components and int(spec.option("init_scans")) != 1:
+        raise ConfigError(f"method {spec.name!r}: option init_scans is read only without azimuth (with it, each "
+                          f"detection seeds a potential target); the detections measure {list(model.components)}")
     if "azimuth" not in model.components:
         try:
             _initiator(spec).check(model, "BP without azimuth (tracks from the multi-pair initiator)")
@@ -112,7 +119,7 @@ OPTIONS = {"gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
            "birth_velocity_sd_mps": Option(10.0, float, 1e-3, 1e5),
            "init_pairs": Option(None, int, 1, 64, nullable=True, null="every pair (the multi-pair initiator, without "
                                                                        "azimuth)"),
-           "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+           "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12), **INIT_SCAN_OPTIONS,
            "iterations": Option(100, int, 1, 100_000), "tolerance": Option(1e-8, float, 0.0, 1.0)}
 register(MethodKind("bp", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
                     description="multisensor belief-propagation tracker (TOMB/P with BP association, Meyer et al., "

@@ -15,6 +15,12 @@ Options:
   fixes a position; fixes of ``init_pairs`` pairs that agree start a track); without, the
   spherical initiator (every combination of one detection per pair whose joint fit of ranges and
   rates passes the gate);
+* ``init_scans``: 1 (default) a tentative track starts from one scan's candidate; 2 or 3 only
+  from candidates consistent over that many consecutive scans (the multi-scan initiator,
+  :mod:`pmsr_nn.trackers.multi_scan_initiator`, around the single-scan one), scan to scan within
+  ``init_scan_gate_probability`` of the chi-square of position and velocity; without azimuth the
+  spherical initiator then hands on every consistent combination of a scan
+  (``init_scan_candidates: all``, default) or its greedy exclusive selection (``greedy``);
 * M-of-N confirmation ``confirm_m`` / ``confirm_n``, a hit at ``hit_pairs`` pairs, deletion after
   ``delete_misses`` misses;
 * existence: ``survival``, ``initial_existence``, ``report_existence``; its update ``existence``:
@@ -45,6 +51,8 @@ from ..trackers.fix_initiator import FixInitiator
 from ..trackers.jpda import floored_clutter_density
 from ..trackers.coalescence import Coalescence
 from ..trackers.management import EXPLAINED_BY, MERGE_SCANS, BiasTest, Confirmer, Deleter, Management
+from ..trackers.multi_scan_initiator import MultiScanInitiator
+from ..trackers.roles import Initiator
 from ..trackers.spherical_initiator import SphericalInitiator
 from . import Option, ReadWhen, method_kind
 
@@ -54,10 +62,27 @@ EXISTENCE_UPDATES = ("ipda", "jipda")
 """The existence update: ``ipda`` each pair's gated likelihood sum; ``jipda`` the association
 probabilities (:attr:`pmsr_nn.trackers.management.Management.shared_existence`)."""
 
+MAX_INIT_SCANS = 3
+"""Most consecutive scans ``init_scans`` chains candidates over."""
+
+INIT_SCAN_CANDIDATES = ("all", "greedy")
+"""Which of a scan's consistent combinations the spherical initiator hands the multi-scan one:
+``all`` (the best :data:`~pmsr_nn.trackers.spherical_initiator.MAX_CANDIDATES` per run; the
+scan-to-scan gate prunes them) or ``greedy`` (the exclusive selection of single-scan initiation)."""
+
+INIT_SCAN_OPTIONS = {"init_scans": Option(1, int, 1, MAX_INIT_SCANS),
+                     "init_scan_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12,
+                                                          read_when=ReadWhen("init_scans", (2, 3))),
+                     "init_scan_candidates": Option("all", str, choices=INIT_SCAN_CANDIDATES,
+                                                    read_when=ReadWhen("init_scans", (2, 3)))}
+"""Multi-scan initiation (module docstring): shared with the kinds whose initiator is the
+spherical or fix one (``bp`` without azimuth)."""
+
 OWN_TRACK_OPTIONS = {"init_pairs": Option(None, int, 1, 64, nullable=True,
                                           null="2 with azimuth (fix initiator; 3 from lists pooled per receiver), else "
                                                "every pair (spherical initiator)"),
                      "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+                     **INIT_SCAN_OPTIONS,
                      "birth_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
                      "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),
                      "hit_pairs": Option(2, int, 1, 64), "delete_misses": Option(2, int, 0, 10_000),
@@ -105,6 +130,19 @@ def bias_test(spec) -> BiasTest | None:
                     int(spec.option("bias_burn_in")))
 
 
+def initiator(single: Initiator, spec) -> Initiator:
+    """The initiator a row's ``init_scans`` asks for: ``single`` (1), or the multi-scan initiator
+    around it (2 or 3; :class:`MultiScanInitiator`, its gate ``init_scan_gate_probability``), a
+    spherical one then giving every consistent combination (``init_scan_candidates: all``) or its
+    greedy exclusive selection (``greedy``)."""
+    scans = int(spec.option("init_scans"))
+    if scans == 1:
+        return single
+    if isinstance(single, SphericalInitiator) and spec.option("init_scan_candidates") == "all":
+        single = replace(single, exclusive=False)
+    return MultiScanInitiator(single, scans, float(spec.option("init_scan_gate_probability")))
+
+
 def management(spec, sensing, pooled: bool = False) -> Management:
     """The track-management components a row's options describe (module docstring).
 
@@ -117,11 +155,11 @@ def management(spec, sensing, pooled: bool = False) -> Management:
     pairs = o("init_pairs")
     velocity_sd, gate = float(o("birth_velocity_sd_mps")), float(o("init_gate_probability"))
     if "azimuth" in sensing.detection_model.components:
-        initiator = FixInitiator(velocity_sd, (3 if pooled else 2) if pairs is None else int(pairs), gate)
+        single = FixInitiator(velocity_sd, (3 if pooled else 2) if pairs is None else int(pairs), gate)
     else:
-        initiator = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
+        single = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
     merge = o("merge_scans")
-    return Management(initiator, Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
+    return Management(initiator(single, spec), Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses"))),
                       sensing.prior_sd, int(o("hit_pairs")), float(o("survival")), float(o("initial_existence")),
                       float(o("report_existence")), bias_test(spec),
                       None if merge is None else Coalescence(int(merge), float(o("merge_probability"))),
@@ -139,6 +177,10 @@ def check_initiation(spec, sensing, pooled: bool = False) -> None:
                           f"bias_window: null")
     if not starts_own_tracks(spec):
         return
+    if "init_scan_candidates" in spec.options and "azimuth" in sensing.detection_model.components:
+        raise ConfigError(f"method {spec.name!r}: option init_scan_candidates is read only without azimuth (the "
+                          f"spherical initiator's combinations); the detections measure "
+                          f"{list(sensing.detection_model.components)}")
     try:
         management(spec, sensing, pooled).check(sensing.detection_model, "initiation from detections", pooled=pooled)
     except ConfigError as exc:

@@ -174,8 +174,10 @@ class BPTracks(TableTracks):
         self.s, self.model, self.n, self.initiator, self.other_sd, self.dtype = settings, model, n, initiator, other_sd, dtype
         self.started = None
 
-    def begin(self, B: int, K: int) -> None:
+    def begin(self, B: int, K: int, F: torch.Tensor | None = None, Q: torch.Tensor | None = None) -> None:
         self.start_table(B, K, self.model, self.n, self.dtype)
+        if self.initiator is not None:
+            self.initiator.begin(B, F, Q)
         self.undetected = torch.full((B,), float(self.s.initial_targets), dtype=self.dtype)
 
     def predicted(self, k: int) -> None:
@@ -200,8 +202,9 @@ class BPTracks(TableTracks):
                 table.add(Gaussian(post.x[:, C:], post.P[:, C:]), born, step.existence[:, C:])
         elif self.initiator is not None:
             unused = valid & ~step.explained
+            new = self.initiator.initiate(z, unused, self.model, self.n, self.other_sd)  # every scan (multi-scan)
             if bool(unused.any()):
-                table.add(*self.initiator.initiate(z, unused, self.model, self.n, self.other_sd), s.initial_existence)
+                table.add(*new, s.initial_existence)
         table.confirm((table.status == TENTATIVE) & (table.existence >= s.confirm_existence))
         table.free(table.active & (table.existence < s.delete_existence))
         self.report.write(k, table, s.report_existence)

@@ -64,6 +64,9 @@ class FixInitiator:
         require(self.min_pairs >= 1, f"min_pairs must be at least 1, got {self.min_pairs}")
         require(0.5 <= self.gate_probability < 1.0, f"gate probability must be in [0.5, 1), got {self.gate_probability}")
 
+    def begin(self, B: int, F: torch.Tensor | None = None, Q: torch.Tensor | None = None) -> None:
+        """A single-scan initiator keeps nothing across scans."""
+
     def check(self, model: MeasurementModel, what: str = "initiation from detections") -> None:
         """One-line refusal of a model this initiator can not fix positions from."""
         if "azimuth" not in model.components or "range" not in model.components or model.geometry.dim != 2:

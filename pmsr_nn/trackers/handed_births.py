@@ -57,7 +57,7 @@ class HandedBirths:
     def __init__(self, prior: Gaussian, active: torch.Tensor | None = None):
         self.prior, self.active_in = prior, active
 
-    def begin(self, B: int, K: int) -> None:
+    def begin(self, B: int, K: int, F: torch.Tensor | None = None, Q: torch.Tensor | None = None) -> None:
         N, n = self.prior.x.shape[1:]
         self.active, self.first = lifespans(self.active_in, B, K, N)
         self.g = self.prior

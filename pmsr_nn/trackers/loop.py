@@ -29,9 +29,9 @@ def run_tracker(scans: Scans | AssociationLists, motion: KinematicModel, dt: flo
     (B, K, L, M)``: per-pair lists, or PMHT's association lists) with the CV/CA prediction of
     ``motion`` over ``dt`` and process noise ``q``; returns ``management.result()``."""
     B, K = scans.z.shape[:2]
-    management.begin(B, K)
-    dtype = management.g.x.dtype
+    dtype = scans.z.dtype
     F, Q = motion.F(dt, dtype), motion.Q(dt, q, dtype)
+    management.begin(B, K, F, Q)
     correction = associator.correction
     if correction is not None:
         correction.start(B, management.g.x.shape[1])

@@ -148,7 +148,7 @@ class Management:
         """One-line refusals of settings that could never confirm a track on ``model`` (``pooled``:
         from detection lists pooled per receiver, which only the
         :class:`~.fix_initiator.FixInitiator` reads)."""
-        if pooled and not isinstance(self.initiator, FixInitiator):
+        if pooled and not isinstance(getattr(self.initiator, "base", self.initiator), FixInitiator):
             raise ConfigError(f"{what}: tracks start from lists pooled per receiver (illuminator unknown) only where each "
                               f"pair measures azimuth (a position fix per illuminator hypothesis); the detections "
                               f"measure {list(model.components)} (use initiation: oracle)")

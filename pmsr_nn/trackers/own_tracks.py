@@ -42,8 +42,9 @@ class OwnTracks(TableTracks):
         self.initiate = initiate  # what the initiator reads besides the detections (routes of pooled lists)
         self.started = None
 
-    def begin(self, B: int, K: int) -> None:
+    def begin(self, B: int, K: int, F: torch.Tensor | None = None, Q: torch.Tensor | None = None) -> None:
         self.start_table(B, K, self.model, self.n, self.dtype)
+        self.mg.initiator.begin(B, F, Q)
         rule = self.mg.coalescence
         self.merging = None if rule is None else CoalescenceTest(rule, B, self.pos + list(self.model.vel_idx))
 
@@ -84,10 +85,11 @@ class OwnTracks(TableTracks):
         self.report.write(k, table if step.reported is None else replace(table, g=step.reported), mg.report_existence)
         by_gate = mg.explained_by == "gate" or step.taken is None
         unused = valid & ~(step.explained if by_gate else step.taken >= EXPLAINED)
+        # the initiator hears every scan (a multi-scan one keeps its candidates across scans)
+        new = mg.initiator.initiate(z, unused, self.model, self.n, mg.other_sd, **self.initiate)
         self.started = None
         if bool(unused.any()):
             before = table.active
-            table.add(*mg.initiator.initiate(z, unused, self.model, self.n, mg.other_sd, **self.initiate),
-                      mg.initial_existence)
+            table.add(*new, mg.initial_existence)
             C = table.active.shape[1]
             self.started = table.active & ~torch.cat([before, before.new_zeros(before.shape[0], C - before.shape[1])], 1)

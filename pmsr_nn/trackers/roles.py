@@ -106,14 +106,21 @@ class Associator:
 
 class Initiator(Protocol):
     """Starts tentative tracks from the detections no track explains (:mod:`.initiators`:
-    :class:`~.fix_initiator.FixInitiator`, :class:`~.spherical_initiator.SphericalInitiator`).
+    :class:`~.fix_initiator.FixInitiator`, :class:`~.spherical_initiator.SphericalInitiator`; and
+    :class:`~.multi_scan_initiator.MultiScanInitiator`, which wraps one of them and keeps its
+    candidates across scans).
 
     :meth:`check` refuses, in one line, a measurement model it can not start tracks from;
-    :meth:`initiate` gives tracks ``(B, G, n)`` and which are real ``(B, G)`` from ``z (B, L, M, d)``
-    where ``unused (B, L, M)`` (``other_sd (n,)`` the deviations of the state entries it does not
-    fix; keywords: what else it reads, e.g. the ``routes`` of lists pooled per receiver)."""
+    :meth:`begin` starts a batch of ``B`` runs (``F``, ``Q`` ``(n, n)`` one scan's motion; a
+    single-scan initiator keeps nothing); :meth:`initiate`, called at every scan after
+    :meth:`begin` (with no unused detection too), gives tracks ``(B, G, n)`` and which are real
+    ``(B, G)`` from ``z (B, L, M, d)`` where ``unused (B, L, M)`` (``other_sd (n,)`` the
+    deviations of the state entries it does not fix; keywords: what else it reads, e.g. the
+    ``routes`` of lists pooled per receiver)."""
 
     def check(self, model, what: str) -> None: ...
+
+    def begin(self, B: int, F: torch.Tensor | None, Q: torch.Tensor | None) -> None: ...
 
     def initiate(self, z: torch.Tensor, unused: torch.Tensor, model, n: int, other_sd: torch.Tensor,
                  **where) -> tuple[Gaussian, torch.Tensor]: ...
@@ -122,7 +129,8 @@ class Initiator(Protocol):
 class TrackManagement(Protocol):
     """Holds a tracker's tracks and manages them around the association (module docstring).
 
-    :meth:`begin` once, then every scan ``k``: :meth:`predicted` after the loop's prediction of
+    :meth:`begin` once (``B`` runs, ``K`` scans, ``F``, ``Q`` one scan's motion, which an
+    initiator that keeps candidates across scans predicts them with), then every scan ``k``: :meth:`predicted` after the loop's prediction of
     :attr:`g` (``k > 0``), :meth:`associating` and :meth:`learned` before the association,
     :meth:`updated` after it, which sets :attr:`started` (the slots ``(B, C)`` it started tracks
     in, None: none); :meth:`result` at the end."""
@@ -130,7 +138,7 @@ class TrackManagement(Protocol):
     g: Gaussian
     started: torch.Tensor | None
 
-    def begin(self, B: int, K: int) -> None: ...
+    def begin(self, B: int, K: int, F: torch.Tensor, Q: torch.Tensor) -> None: ...
 
     def predicted(self, k: int) -> None: ...
 

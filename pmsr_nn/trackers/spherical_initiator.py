@@ -30,6 +30,9 @@ SPHERICAL_CHUNK = 1 << 16
 """Combinations (all runs together) :class:`SphericalInitiator` works on at once: bounds its
 memory to a few tens of MB whatever the clutter."""
 
+MAX_CANDIDATES = 1024
+"""Most combinations a run's scan gives where the selection is not exclusive (the best first)."""
+
 RANGE_STEPS = 3
 """Gauss-Newton steps on the ranges from the spherical-interpolation solution (on the Access
 geometry at 1 km range noise the range chi-square has converged to 1e-5 after two)."""
@@ -132,7 +135,10 @@ class SphericalInitiator:
     5. greedy selection, per run: of the consistent combinations, one with the most pairs and
        among those the smallest chi-square tail probability (the smallest chi-square when all
        have ``k`` pairs) starts a track, every combination that shares a detection with it is
-       dropped, and so on until none is left: each detection starts at most one track.
+       dropped, and so on until none is left: each detection starts at most one track. With
+       ``exclusive=False`` (what the multi-scan initiator reads, :mod:`.multi_scan_initiator`)
+       every consistent combination is kept instead, the best :data:`MAX_CANDIDATES` a run, in
+       that order.
 
     A track's Gaussian: the joint estimate and the inverse of its Fisher information
     ``J^T R^-1 J`` (``J`` the model's Jacobian of the ranges and rates by position and
@@ -148,6 +154,7 @@ class SphericalInitiator:
     velocity_sd_mps: float = 20.0
     min_pairs: int | None = None
     gate_probability: float = 0.999
+    exclusive: bool = True
 
     def __post_init__(self) -> None:
         require(self.velocity_sd_mps > 0 and math.isfinite(self.velocity_sd_mps),
@@ -180,6 +187,9 @@ class SphericalInitiator:
             raise ConfigError(f"{what} from range and range-rate: the pairs' other sensors lie on one line through the "
                               "shared one, so a position and its mirror image give the same ranges (use initiation: "
                               "oracle)")
+
+    def begin(self, B: int, F: torch.Tensor | None = None, Q: torch.Tensor | None = None) -> None:
+        """A single-scan initiator keeps nothing across scans."""
 
     def pairs_needed(self, model: MeasurementModel) -> int:
         """The fewest pairs of a combination: ``min_pairs``, or every pair."""
@@ -302,9 +312,14 @@ class SphericalInitiator:
         info_p = torch.eye(2 * D, dtype=work).repeat(B, n_found, 1, 1)
         info_p[b, slot] = info
         # 5. greedy, batched over runs: each round every run takes its best combination left and
-        # drops every combination that shares a detection with it (that one included)
+        # drops every combination that shares a detection with it (that one included); or, not
+        # exclusive, every consistent combination, the best MAX_CANDIDATES a run
         taken = []
-        while n_found:
+        if not self.exclusive and n_found:
+            G = min(n_found, MAX_CANDIDATES)
+            best_key, best = key.topk(G, 1, largest=False)  # (B, G), ascending
+            taken = list(torch.where(torch.isfinite(best_key), best, n_found).unbind(1))
+        while n_found and self.exclusive:
             best_key, best = key.min(1)
             go = torch.isfinite(best_key)
             if not bool(go.any()):

@@ -1758,6 +1758,14 @@ case("evaluate/merge-probability-without-merging", "evaluate m.yaml --out out",
      setup=scenario_method("m.yaml", {"name": "J", "kind": "s_msjpda",
                                       "options": {"initiation": "detections", "merge_probability": 0.9}}),
      message="option(s) merge_probability are read only with merge_scans not null", klass="silent_wrong")
+case("evaluate/init-scans-out-of-range", "evaluate m.yaml --out out",
+     setup=scenario_method("m.yaml", {"name": "J", "kind": "s_msjpda",
+                                      "options": {"initiation": "detections", "init_scans": 4}}),
+     message="option init_scans must be an integer in [1, 3]", klass="refusal")
+case("evaluate/init-scan-gate-without-multi-scan", "evaluate m.yaml --out out",
+     setup=scenario_method("m.yaml", {"name": "J", "kind": "s_msjpda",
+                                      "options": {"initiation": "detections", "init_scan_gate_probability": 0.99}}),
+     message="option(s) init_scan_gate_probability are read only with init_scans: 2 | 3", klass="silent_wrong")
 case("evaluate/targets-empty", "evaluate e.yaml --out out",
      setup=yaml_edit(SCENARIO_YAML, "e.yaml", lambda d: d["cases"].__setitem__(0, {"name": "steady", "targets": []})),
      message="case 'steady': targets: [] lists no target; give at least one", klass="refusal",
