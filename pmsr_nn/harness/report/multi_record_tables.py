@@ -7,6 +7,7 @@ are the document's choice and sit here; every number is a record's."""
 from __future__ import annotations
 
 from .record_cells import fixed, pm, row, significant
+from .msjpda_record_tables import MSJPDA_INITIATION
 from .study_record_tables import DENSE, ONE_SKY, ONE_SKY_HYBRID, SHARED, SHARED_HYBRID
 
 ONE_SKY_BP = "evaluate/results/one_sky_bp/results.json"
@@ -40,13 +41,15 @@ def _seeds(methods: dict, name: str) -> str:
 
 
 READ_DETECTIONS_SOURCES = (SHARED_BP, SHARED, SHARED_HYBRID, ONE_SKY_BP, ONE_SKY, ONE_SKY_HYBRID,
-                           DENSE_BP, DENSE, DENSE_GHOSTS)
+                           DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION)
 
 
 def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, one_sky_bp: dict, one_sky: dict,
-                           one_sky_hybrid: dict, dense_bp: dict, dense: dict, dense_ghosts: dict) -> list[str]:
+                           one_sky_hybrid: dict, dense_bp: dict, dense: dict, dense_ghosts: dict,
+                           access: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
-    rows (the scenarios' studies) and the learned gain's three seeds, per scenario."""
+    rows (the scenarios' studies) and the learned gain's three seeds, per scenario; the Access
+    initiation study's nominal case (range and Doppler only) last."""
     gain = "S-MSJPDA + learned gain [seed {seed}]"
     out = ["| scenario | BP | S-MSJPDA | P-MSJPDA | PMHT | SMC-PHD + GTDA | S-MSJPDA + learned gain, seeds 0 / 1 / 2 |",
            "|---|---:|---:|---:|---:|---:|---|"]
@@ -66,6 +69,10 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
     g = _methods(dense_ghosts)
     out.append(row(["`dense_crossing_ghosts.yaml` (the same runs; S-MSJPDA rows with the innovation bias test)", "-",
                     _gospa(g["S-MSJPDA + bias test"]), "-", "-", "-", _seeds(g, gain + " + bias test")]))
+    a = access["cases"]["nominal"]["methods"]
+    out.append(row(["`access2019_msjpda_initiation.yaml`, nominal (range and Doppler only, Pd 0.8, 50 clutter points "
+                    "per pair, 10 runs; BP with two-scan initiation)", _gospa(a["BP (2-scan)"]) + " †",
+                    _gospa(a["S-MSJPDA from detections"]), "-", "-", "-", "-"]))
     return out
 
 
