@@ -25,14 +25,12 @@ import yaml
 from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters.gaussian import Gaussian
-from pmsr_nn.harness.run.blocks import call_method, draw_block
 from pmsr_nn.harness.run.runner import prepare
 from pmsr_nn.harness.scenario.loading import load_any
-from pmsr_nn.metrics import set_scores, track_scores
 from pmsr_nn.trackers.gating import gate_threshold
 from pmsr_nn.trackers.multi_scan_initiator import MultiScanInitiator
 from pmsr_nn.trackers.spherical_initiator import SphericalInitiator
-from test_spherical_initiator import CV_POS, CV_VEL, access_model, access_study, detections
+from test_spherical_initiator import CV_POS, CV_VEL, access_model, access_study, detections, first_row_tracks
 
 F64 = torch.float64
 PLANE = SimpleNamespace(pos_idx=CV_POS, vel_idx=CV_VEL)  # all the initiator reads of a model besides the base
@@ -221,16 +219,8 @@ def test_s_msjpda_with_three_scan_initiation_confirms_one_track_per_target_a_sca
     """Both targets' candidates chain over scans 0-2, start a tentative track at scan 2 and are
     confirmed at scan 3 (2 of 3, the initiation scan counting): first track at scan 3, nothing else."""
     path = two_targets(tmp_path, {"initiation": "detections", "init_scans": 3})
-    setup = prepare(load_any(path))
-    case = setup.cases[0]
-    truth, products = draw_block(setup, 0, 0)
-    est = call_method(setup, setup.methods[0], case, products, (0, 0, 0))
-    assert not est.paired and est.x.shape[2] == 2
-    B, K, _ = est.exists.shape
-    alive = case.alive.expand(B, K, 2)
-    pos = list(setup.models.motion.pos_idx)
-    sets = set_scores(est.x[..., pos], est.exists, truth.x[..., pos], alive, 1000.0, 2.0)
-    ts = track_scores(sets.assignment, est.exists, alive)
+    est, ts = first_row_tracks(path)
+    B = est.exists.shape[0]
     assert ts.tracks_per_target.tolist() == [[1.0, 1.0]] * B and ts.false_tracks.tolist() == [0.0] * B
     assert ts.scans_to_first_track.tolist() == [[3.0, 3.0]] * B
     assert bool(est.exists[:, 3:].all()) and not bool(est.exists[:, :3].any())

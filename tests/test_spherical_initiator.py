@@ -331,6 +331,21 @@ def test_the_access_study_now_passes_the_checks_and_picks_the_spherical_initiato
 
 # -- (vi) end to end ------------------------------------------------------------------------------------
 
+def first_row_tracks(path):
+    """The first row of the two-target scenario at ``path`` on its first block: its estimates (two
+    track ids in all, per run, checked) and its track scores against the truth (cut-off 1 km)."""
+    setup = prepare(load_any(path))
+    case = setup.cases[0]
+    truth, products = draw_block(setup, 0, 0)
+    est = call_method(setup, setup.methods[0], case, products, (0, 0, 0))
+    assert not est.paired and est.x.shape[2] == 2  # two tracks in all, per run
+    B, K, _ = est.exists.shape
+    alive = case.alive.expand(B, K, 2)
+    pos = list(setup.models.motion.pos_idx)
+    sets = set_scores(est.x[..., pos], est.exists, truth.x[..., pos], alive, 1000.0, 2.0)
+    return est, track_scores(sets.assignment, est.exists, alive)
+
+
 def test_s_msjpda_from_detections_confirms_one_track_per_target(tmp_path):
     """The Access geometry and noise, two targets 10 km apart, Pd 1, no clutter, 2 runs of 8
     scans: both targets are fixed at scan 0 from their three detections and confirmed at
@@ -345,16 +360,8 @@ def test_s_msjpda_from_detections_confirms_one_track_per_target(tmp_path):
     data = yaml.safe_load(path.read_text())
     data["world"]["scans"] = 8
     path.write_text(yaml.safe_dump(data))
-    setup = prepare(load_any(path))
-    case = setup.cases[0]
-    truth, products = draw_block(setup, 0, 0)
-    est = call_method(setup, setup.methods[0], case, products, (0, 0, 0))
-    assert not est.paired and est.x.shape[2] == 2  # two tracks in all, per run
-    B, K, _ = est.exists.shape
-    alive = case.alive.expand(B, K, 2)
-    pos = list(setup.models.motion.pos_idx)
-    sets = set_scores(est.x[..., pos], est.exists, truth.x[..., pos], alive, 1000.0, 2.0)
-    ts = track_scores(sets.assignment, est.exists, alive)
+    est, ts = first_row_tracks(path)
+    B = est.exists.shape[0]
     assert ts.tracks_per_target.tolist() == [[1.0, 1.0]] * B and ts.false_tracks.tolist() == [0.0] * B
     assert ts.scans_to_first_track.tolist() == [[1.0, 1.0]] * B
     assert bool(est.exists[:, 1:].all()) and not bool(est.exists[:, 0].any())
