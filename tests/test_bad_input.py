@@ -109,7 +109,7 @@ def run_in_process(argv, work: Path, timeout: float) -> dict:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
         os.chdir(cwd)
-        torch.set_num_threads(threads)  # trainer.threads sets it process-wide
+        torch.set_num_threads(threads)  # a guard: trainings give their threads back themselves (pmsr_nn.nets.torch_settings)
     return {"rc": rc, "stdout": out.getvalue(), "stderr": err.getvalue(), "timed_out": timed_out,
             "seconds": time.monotonic() - t0, "maxrss_mb": None, "signal_sent_at": None}
 

@@ -579,3 +579,55 @@ def test_a_network_too_big_to_build_is_refused_before_it_is_built(tmp_path, caps
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and message in err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_a_training_in_process_gives_back_the_callers_threads_and_determinism(tmp_path):
+    """``trainer.threads`` and Lightning's ``deterministic`` are process-wide: a training called
+    in-process (the demo, the tests) must hand the caller its own settings back. Left at 2 threads
+    in each of two pytest workers, every later test ran several times slower."""
+    before = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
+    own = 1 if before[0] != 1 else 3  # a count the training's 2 threads cannot leave behind by chance
+    torch.set_num_threads(own)
+    torch.use_deterministic_algorithms(False)
+    try:
+        cfg = write_config(tmp_path / "t.yaml", tmp_path / "data", trainer={"threads": 2, "max_epochs": 1,
+                                                                           "deterministic": True})
+        assert main(["train", str(cfg), "--out", str(tmp_path / "run")]) == 0
+        seen = json.loads((tmp_path / "run" / "metrics.json").read_text()).get("threads")
+        assert torch.get_num_threads() == own
+        assert not torch.are_deterministic_algorithms_enabled()
+    finally:
+        torch.set_num_threads(before[0])
+        torch.use_deterministic_algorithms(before[1])
+    assert seen in (None, 2)
+
+
+@pytest.mark.parametrize("module, entry", [("set_training", "train_set"), ("jpda_training", "train_gain")])
+def test_the_scene_trainings_give_back_the_callers_threads_even_when_they_fail(monkeypatch, module, entry):
+    """The set tracker's and the learned gain's trainings set ``threads`` for their own run only,
+    and hand the caller its settings back also when the run raises."""
+    import importlib
+    from types import SimpleNamespace
+
+    mod = importlib.import_module(f"pmsr_nn.nets.{module}")
+    inside = {}
+
+    def body(cfg, out, progress):
+        inside["threads"] = torch.get_num_threads()
+        torch.use_deterministic_algorithms(True)  # as Lightning's deterministic=True does
+        raise ConfigError("stop here")
+
+    monkeypatch.setattr(mod, f"_{entry}", body)
+    before = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
+    own = 1 if before[0] != 1 else 3
+    torch.set_num_threads(own)
+    torch.use_deterministic_algorithms(False)
+    try:
+        with pytest.raises(ConfigError, match="stop here"):
+            getattr(mod, entry)(SimpleNamespace(threads=2), "unused", False)
+        assert inside["threads"] == 2
+        assert torch.get_num_threads() == own
+        assert not torch.are_deterministic_algorithms_enabled()
+    finally:
+        torch.set_num_threads(before[0])
+        torch.use_deterministic_algorithms(before[1])

@@ -247,6 +247,13 @@ def baseline_validation(cfg: GainTrainConfig, problem: Problem) -> dict:
 
 def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> dict:
     """Train ``cfg`` into the new run folder ``out``; returns the metrics (also in metrics.json)."""
+    from .torch_settings import restored_torch_settings
+
+    with restored_torch_settings(cfg.threads):
+        return _train_gain(cfg, out, progress)
+
+
+def _train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool) -> dict:
     import lightning.pytorch as pl
 
     from ..outputs import write_marker
@@ -254,8 +261,6 @@ def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> 
 
     out = Path(out)
     start_run(out, cfg, cfg.recipe)
-    if cfg.threads is not None:
-        torch.set_num_threads(cfg.threads)
     problem = Problem(cfg)
     base = baseline_validation(cfg, problem)
     if progress:

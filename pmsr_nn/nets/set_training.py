@@ -161,6 +161,13 @@ def start_from(net, path: str, sampler: SceneSampler) -> None:
 
 def train_set(cfg: SetTrainConfig, out: str | Path, progress: bool = True) -> dict:
     """Train ``cfg`` into the new run folder ``out``; returns the metrics (also in metrics.json)."""
+    from .torch_settings import restored_torch_settings
+
+    with restored_torch_settings(cfg.threads):
+        return _train_set(cfg, out, progress)
+
+
+def _train_set(cfg: SetTrainConfig, out: str | Path, progress: bool) -> dict:
     import lightning.pytorch as pl
 
     from ..outputs import write_marker
@@ -172,8 +179,6 @@ def train_set(cfg: SetTrainConfig, out: str | Path, progress: bool = True) -> di
 
         raise ConfigError(f"accelerator={cfg.accelerator}: no CUDA GPU is available on this machine (use auto or cpu)")
     start_run(out, cfg, cfg.recipe)
-    if cfg.threads is not None:
-        torch.set_num_threads(cfg.threads)
     sampler = SceneSampler(cfg.recipe, cfg.scenes)
     pl.seed_everything(cfg.seed, verbose=False)
     module = make_module(cfg, sampler)

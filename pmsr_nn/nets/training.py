@@ -218,10 +218,11 @@ def train(cfg: TrainConfig | None, out: str | Path, *, resume: bool = False, con
     false`` silences it), ``label`` the progress bar's.
     """
     from .progress import CONSOLES, quiet_lightning
+    from .torch_settings import restored_torch_settings
 
     if console not in CONSOLES:
         raise ValueError(f"console must be one of {CONSOLES}, got {console!r}")
-    with quiet_lightning(console != "lightning"):
+    with quiet_lightning(console != "lightning"), restored_torch_settings():  # _train sets the config's threads
         return _train(cfg, Path(out), resume, console, label)
 
 
