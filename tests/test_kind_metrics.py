@@ -157,3 +157,9 @@ def test_the_frames_of_a_track_before_detect_row_against_hand_counts():
     assert s["tbd_hits"].tolist() == [0.0, 1.0, 2.0]  # frame 0: no target lives
     assert s["tbd_pos"].tolist() == [0.0, 9.0, 25.0] and s["tbd_vel"].tolist() == [0.0, 1.0, 1.0]
     np.testing.assert_array_equal(s["tbd_run_pos_err"], [[np.nan, 3.0, 3.0], [np.nan, np.nan, 4.0]])
+
+
+def test_a_metric_placed_nowhere_in_a_row_is_refused():
+    with pytest.raises(ValueError, match="after must be one of"):
+        class Lost(Metric):
+            after = "the end"

@@ -66,17 +66,25 @@ class RowContext:
     per_block: dict
 
 
+AFTER = ("point", "sets", "bounds")
+"""Where a metric's fields go in a row: after the point figures (RMSE, ANEES, run time), after the
+set and trajectory figures, or last, after the figures against the case's bounds."""
+
+
 class Metric:
     """A family of a kind's figures: ``keys`` the sums it keeps (``per_run`` those kept per run),
-    ``leads`` whether its fields come before the set figures in a row (where recorded rows have
-    them), :meth:`update` per block, :meth:`compute` from every block's sums."""
+    :meth:`update` per block, :meth:`compute` from every block's sums; ``after``: the part of a
+    row its fields follow (:data:`AFTER`: where recorded rows have them, results.json keeping
+    its fields' order)."""
 
     keys: tuple[str, ...] = ()
     per_run: tuple[str, ...] = ()
-    leads: bool = False
+    after: str = "sets"
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
+        if cls.after not in AFTER:
+            raise ValueError(f"metric {cls.__name__}: after must be one of {AFTER}, got {cls.after!r}")
         PER_RUN_SUMS.update(cls.per_run)
 
     def update(self, est: Estimates, truth: Truth, ctx: BlockContext) -> dict[str, np.ndarray]:
@@ -100,7 +108,7 @@ class TrackLoss(Metric):
     ``loss_probability``."""
 
     keys = ("lost",)
-    leads = True
+    after = "point"
 
     def update(self, est, truth, ctx):
         if ctx.loss is None or "dummy_most_probable" not in est.extras:
@@ -118,7 +126,7 @@ class DualityGap(Metric):
     ``max_duality_gap``, the largest over the blocks."""
 
     keys = ("gap",)
-    leads = True
+    after = "point"
 
     def update(self, est, truth, ctx):
         return {"gap": np.asarray(float(est.extras["max_duality_gap"]))} if "max_duality_gap" in est.extras else {}
@@ -219,6 +227,7 @@ class TBDFrames(Metric):
 
     describe: Callable
     per_run = ("tbd_run_pos_err",)
+    after = "bounds"
     keys = ("tbd_detected", "tbd_pos", "tbd_vel", "tbd_hits", "tbd_existence", "tbd_snr_db", "tbd_particles",
             "tbd_run_pos_err")
 

@@ -270,6 +270,16 @@ def _bound_fields(setup: Setup, spec: MethodSpec, case: Case, mse: np.ndarray, r
     return out
 
 
+def _own_figures(metrics: tuple, after: str, s: dict, ctx: RowContext, row: dict, curves: dict) -> None:
+    """The fields and curves of the kind's ``metrics`` whose place in the row is ``after``
+    (:data:`~pmsr_nn.methods.kind_metrics.AFTER`), into ``row`` and ``curves``."""
+    for metric in metrics:
+        if metric.after == after:
+            extra, more = metric.compute(s, ctx)
+            row.update(extra)
+            curves.update(more)
+
+
 def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tuple[dict, list, dict | None, np.ndarray]:
     """One method's row in one case from the sums of all blocks, its RMSE curve (``(K,)`` for one
     target, ``(N, K)`` otherwise, as lists), its set curves (None for a row without set figures)
@@ -307,26 +317,21 @@ def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tup
     if setup.divergence_m is not None:
         row["diverged_runs"] = int((~np.isfinite(per_run) | (per_run > setup.divergence_m)).sum())
     own_curves = {}  # per-scan curves of the kind's metrics: beside its set curves
-    for metric in (m for m in metrics if m.leads):  # e.g. the loss rule: before the set figures
-        extra, more = metric.compute(s, ctx)
-        row.update(extra)
-        own_curves.update(more)
+    _own_figures(metrics, "point", s, ctx, row, own_curves)  # e.g. the loss rule
     set_curves = None
     if "ospa" in s:
         extra, set_curves = _set_figures(s, B, scored, setup.set_metric[1], case.set_scan_mask.numpy())
         row.update(extra)
         if "tgospa_run" in s:
             row.update(_trajectory_figures(s, B, *setup.set_metric))
-    for metric in (m for m in metrics if not m.leads):
-        extra, more = metric.compute(s, ctx)
-        row.update(extra)
-        own_curves.update(more)
-    if own_curves:
-        set_curves = {**(set_curves or {}), **own_curves}
+    _own_figures(metrics, "sets", s, ctx, row, own_curves)  # e.g. a PHD's
     space = method_space(setup, spec, case)
     if space is not None:
         row.update(_space_fields(space, s, m_scored))
     row.update(_bound_fields(setup, spec, case, mse, rmse, m_scored))
+    _own_figures(metrics, "bounds", s, ctx, row, own_curves)  # e.g. track-before-detect's per-frame part
+    if own_curves:
+        set_curves = {**(set_curves or {}), **own_curves}
     return row, rmse_p[:, 0].tolist() if N == 1 else rmse_p.T.tolist(), set_curves, per_run
 
 
