@@ -256,16 +256,16 @@ class TBDFrames(Metric):
         these sums and the harness's ``ospa`` and ``n_est``, of a case with maps (``case.info["rd_maps"]``)."""
         if "tbd_detected" not in s:
             return {}, {}
-        R, case = ctx.runs, ctx.case
+        B, case = ctx.runs, ctx.case
         info = case.info["rd_maps"]
         present = np.asarray(info["present"], dtype=bool)
         hits = np.where(s["tbd_hits"] > 0, s["tbd_hits"], np.nan)
-        det = s["tbd_detected"] / R
+        det = s["tbd_detected"] / B
         rms_p, rms_v = np.sqrt(s["tbd_pos"] / hits), np.sqrt(s["tbd_vel"] / hits)
-        err = s["tbd_run_pos_err"]  # (R, K), NaN where the run does not detect
+        err = s["tbd_run_pos_err"]  # (B, K), NaN where the run does not detect
         med = np.array([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in err.T])
         last = int(np.nonzero(present)[0][-1])
-        ospa = s["ospa"] / R
+        ospa = s["ospa"] / B
         return {"tbd": {**self.describe(ctx.spec, case.sensing.rd_maps),
                         "detected_frame_rate": det.tolist(),
                         "detected_rate_present": float(det[present].mean()),
@@ -274,7 +274,7 @@ class TBDFrames(Metric):
                         "rms_pos_m": rms_p.tolist(), "rms_vel_mps": rms_v.tolist(),
                         "rms_pos_last_present_m": float(rms_p[last]), "rms_vel_last_present_mps": float(rms_v[last]),
                         "median_pos_err_m": med.tolist(), "median_pos_err_last_present_m": float(med[last]),
-                        "existence": (s["tbd_existence"] / R).tolist(), "ospa_frame_m": ospa.tolist(),
-                        "ospa_mean_m": float(ospa.mean()), "snr_db": (s["tbd_snr_db"] / R).tolist(),
-                        "particles": (s["tbd_particles"] / R).tolist(),
-                        "estimates_per_frame": (s["n_est"] / R).tolist()}}, {}
+                        "existence": (s["tbd_existence"] / B).tolist(), "ospa_frame_m": ospa.tolist(),
+                        "ospa_mean_m": float(ospa.mean()), "snr_db": (s["tbd_snr_db"] / B).tolist(),
+                        "particles": (s["tbd_particles"] / B).tolist(),
+                        "estimates_per_frame": (s["n_est"] / B).tolist()}}, {}
