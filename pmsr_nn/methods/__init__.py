@@ -1,12 +1,13 @@
 """The methods a scenario can run, behind one interface: a product in, labelled estimates out.
 
 Every method kind is a :class:`MethodKind` in :data:`REGISTRY`: the product it reads
-(:mod:`pmsr_nn.simulation.products`), its options with defaults and ranges, whether it needs a
-checkpoint, and ``run(call) -> Estimates``. The modules of this package register their kinds
-when imported, and :func:`registry` imports every module of the package, so a new tracker is
-one module here (plus its tests): the runner and the report need no edit. Another installed
-package registers its kinds through the entry-point group :data:`PLUGIN_GROUP`
-(``pmsr_nn.methods``), loaded once when the registry is first consulted (:func:`load_plugins`).
+(:mod:`pmsr_nn.simulation.products`), its options with defaults and ranges, whether it needs a checkpoint,
+``run(call) -> Estimates`` and the figures it reports beside the runner's (its ``metrics``,
+:mod:`.kind_metrics`). The modules of this package register their kinds when imported, and :func:`registry`
+imports every module of the package, so a new tracker is one module here (plus its tests): the runner and the
+report need no edit. Another installed package registers its kinds through the entry-point group
+:data:`PLUGIN_GROUP` (``pmsr_nn.methods``), loaded once when the registry is first consulted
+(:func:`load_plugins`).
 
 * :mod:`.single_target`: EKF, UKF, IMM, SI+KF, particle filter and learned trackers, each run
   on every target's own stream (association known);
@@ -118,22 +119,20 @@ class Option:
 class MethodKind:
     """A registered method kind (see the module docstring).
 
-    ``load(spec, context) -> resource`` runs before anything is written (it loads and checks a
-    checkpoint); ``causal(resource)`` says whether an estimate at scan k reads only scans up to k;
-    ``check(spec, alive, resource, case)`` refuses a case the method can not run and
-    ``check_sensing(spec, sensing)`` one whose sensing (a :class:`SensorSetup`) it can not read
-    (one-line errors); ``starts_tracks``: the kind always starts its own tracks from the detections
-    (no ``initiation`` option to say so; the report scores its rows as tracks started from detections);
-    ``bound``: the kind is an information bound, not an estimator (:mod:`.bound`): the runner calls
-    nothing and fills its row from the case's bound; ``space(spec, sensing) -> EstimateSpace``: the
-    kind's estimates are not the scenario's state but live in another space (one pair's bistatic
-    plane): the runner scores them against the truth projected into it (:class:`EstimateSpace`);
-    ``initiation``: how the kind's tracks start where the runner can not tell from ``reads`` and
-    ``starts_tracks`` (e.g. ``association known`` for a reference that reads the detections' origins);
-    ``pooled_lists``: where the scenario pools the detections per receiver (a single-frequency
-    network), the kind reads those lists (the illuminator unknown); the other readers of
-    ``detections`` read the per-pair lists (the illuminator given).
-    """
+    ``load(spec, context) -> resource`` runs before anything is written (it loads and checks a checkpoint);
+    ``causal(resource)`` says whether an estimate at scan k reads only scans up to k; ``check(spec, alive, resource,
+    case)`` refuses a case the method can not run and ``check_sensing(spec, sensing)`` one whose sensing (a
+    :class:`SensorSetup`) it can not read (one-line errors); ``starts_tracks``: the kind always starts its own
+    tracks from the detections (no ``initiation`` option to say so; the report scores its rows as tracks started
+    from detections); ``bound``: the kind is an information bound, not an estimator (:mod:`.bound`): the runner
+    calls nothing and fills its row from the case's bound; ``space(spec, sensing) -> EstimateSpace``: the kind's
+    estimates are not the scenario's state but live in another space (one pair's bistatic plane): the runner scores
+    them against the truth projected into it (:class:`EstimateSpace`); ``initiation``: how the kind's tracks start
+    where the runner can not tell from ``reads`` and ``starts_tracks`` (e.g. ``association known`` for a reference
+    that reads the detections' origins); ``pooled_lists``: where the scenario pools the detections per receiver (a
+    single-frequency network), the kind reads those lists (the illuminator unknown); the other readers of
+    ``detections`` read the per-pair lists (the illuminator given); ``metrics``: the kind's own figures beside the
+    runner's (:class:`~.kind_metrics.Metric` objects; none by default)."""
 
     name: str
     reads: str
@@ -150,6 +149,7 @@ class MethodKind:
     space: Callable | None = None
     initiation: str = ""
     pooled_lists: bool = False
+    metrics: tuple = ()
 
 
 def lists_read(kind: MethodKind) -> str:

@@ -16,7 +16,8 @@ P-MSJPDA ranks its (S+1)-D events by ``m_best_search``: ``branch_and_bound`` (th
 :mod:`pmsr_nn.trackers.assignment_bnb`) or ``relaxation`` (the paper's Lagrangian relaxation,
 ``relaxation_iterations`` per subproblem; its duality gap can hide cheaper events).
 
-Extras of oracle-initiated rows (read by the paper's loss rule and the report):
+Extras of oracle-initiated rows (read by the kinds' metrics, :mod:`.kind_metrics`: the paper's
+loss rule :class:`~.kind_metrics.TrackLoss` and :class:`~.kind_metrics.DualityGap`):
 ``dummy_most_probable (B, K, N)``, ``gate_range_sd_m (B, K, N)`` and, for P-MSJPDA,
 ``max_duality_gap`` (nats).
 """
@@ -31,6 +32,7 @@ from ..trackers.jpda import M_BEST_SEARCHES
 from ..trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
 from ..trackers.msjpda_managed import managed_msjpda
 from . import MethodCall, MethodKind, Option, ReadWhen, register
+from .kind_metrics import DualityGap, TrackLoss
 from .track_management import BIAS_OPTIONS, MANAGEMENT_OPTIONS, check_initiation, clutter_density, management
 
 ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
@@ -85,11 +87,13 @@ OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.9
            "relaxation_iterations": Option(20, int, 1, 10_000, read_when=ReadWhen("m_best_search", ("relaxation",))),
            "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS,
            **BIAS_OPTIONS}  # the innovation bias test: S-MSJPDA from detections only
-register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
+register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation, metrics=(TrackLoss(),),
                     description="sequential multi-sensor JPDA (Lyu & Wang, IEEE Access 2019), pair by pair; "
                                 "initiation: oracle (handed the births) or detections (starts its own tracks)"))
 register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
+                    metrics=(TrackLoss(), DualityGap()),
                     description="parallel multi-sensor JPDA, (N+1)-D joint events (Lyu & Wang, IEEE Access 2019); "
                                 "initiation: oracle or detections"))
 register(MethodKind("true_assignment", "detections", run_true_assignment, {}, check=_all_from_start,
+                    metrics=(TrackLoss(),),
                     description="reference: a UKF per target on exactly its own detections (true origins)"))

@@ -30,6 +30,7 @@ from ..trackers.gtda import GameSpec
 from ..trackers.labelling import LabelSpec, label_tracks
 from ..trackers.phd_cartesian import CartesianPHD, CartesianPHDSpec, check_model
 from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, method_stream, register
+from .kind_metrics import Labelling, PHDFigures
 
 
 def clutter_intensity(sensing) -> float:
@@ -109,6 +110,7 @@ OPTIONS = {
     "label_gate_probability": Option(0.999, float, **PROBABILITY),
 }
 register(MethodKind("smc_phd", "detections", run_smc_phd, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
+                    metrics=(Labelling(), PHDFigures()),
                     description="multi-sensor SMC-PHD in Cartesian state (iterated corrector over the pairs, births "
                                 "from position fixes) with GTDA or Hungarian track labelling (Daniyan et al.); "
                                 "starts its own tracks"))

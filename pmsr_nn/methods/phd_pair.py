@@ -55,6 +55,7 @@ from ..trackers.gtda import GameSpec
 from ..trackers.labelling import LabelSpec, label_tracks
 from ..trackers.phd import PHDSpec, SMCPHD, cv_matrices
 from . import MIN_CLUTTER_PER_SCAN, EstimateSpace, MethodCall, MethodKind, Option, ReadWhen, method_stream, register
+from .kind_metrics import Labelling, PHDFigures, Unlabelled
 
 PHD_STREAM = method_stream("smcphd")
 """Last seed word of the PHD filter's generator (the former study's, so its draws are the same)."""
@@ -286,7 +287,7 @@ OPTIONS = {
     "alpha_scale": Option(2.0, float, 1.0, 1.0e6, read_when=GTDA),  # above 1: GameSpec refuses 1 itself
 }
 register(MethodKind("smc_phd_pair", "detections", run_smc_phd_pair, OPTIONS, check_sensing=check_pair_sensing,
-                    starts_tracks=True, space=pair_space,
+                    starts_tracks=True, space=pair_space, metrics=(Labelling(), PHDFigures(), Unlabelled()),
                     description="SMC-PHD in one pair's bistatic plane [r, rdot] (Daniyan et al.; births around the "
                                 "previous scan's detections no existing target explains, births: adaptive; "
                                 "every_detection: on all of them), its estimates labelled by GTDA or the Hungarian "

@@ -27,10 +27,10 @@ Every kind starts its own tracks: it returns the Bernoulli components as unpaire
 scenario's state (the planar CV state at the maps' altitude placed in the truth's position and
 velocity columns, acceleration 0), a track existing where its component's existence is above the
 threshold. A component slot is reused after its component died; a birth into a slot starts a new
-track. Per-frame extras for the Remote Sensing figures (:func:`~pmsr_nn.harness.run.scoring.tbd_sums`):
-``tbd_detected`` (some component above the threshold), ``tbd_best_x`` / ``tbd_best_r`` (the most
-probable component's mean and existence), ``tbd_snr_db`` (the SNR each map's update used) and
-``tbd_particles``.
+track. Per-frame extras for the Remote Sensing figures (read by the kinds' metric
+:class:`~.kind_metrics.TBDFrames`): ``tbd_detected`` (some component above the threshold),
+``tbd_best_x`` / ``tbd_best_r`` (the most probable component's mean and existence), ``tbd_snr_db``
+(the SNR each map's update used) and ``tbd_particles``.
 
 Random draws: the filter's from ``(seed, case, block, crc32(name))``.
 """
@@ -47,6 +47,7 @@ from ..tbd.multibernoulli import MBOutput, MBSpec
 from ..tbd.run import run_filter
 from ..trackers.base import Estimates
 from . import MethodCall, MethodKind, Option, method_stream, register
+from .kind_metrics import TBDFrames
 
 MAP_KINDS = ("pmb", "icmb", "modified_icmb")
 """Kinds whose likelihood is the maps' own (the others track detections of the maps)."""
@@ -173,13 +174,15 @@ COMMON = {
 SUBAREA = {"subarea_half": Option(2, int, 0, 10_000, nullable=True, null="the whole map")}
 SNR_MODEL = {"snr_model_db": Option(None, float, -100.0, 100.0, nullable=True, null="each map's true SNR")}
 ORDER = {"order": Option("ascending", str, choices=("ascending", "descending", "given"))}
+FRAMES = (TBDFrames(describe),)
+"""What every kind reports beside the runner's figures: the Remote Sensing 2020 figures per frame."""
 
 register(MethodKind("pmb", "rd_maps", run_tbd, {**SNR_MODEL, **SUBAREA, **COMMON}, check_sensing=check_sensing,
-                    starts_tracks=True,
+                    starts_tracks=True, metrics=FRAMES,
                     description="SMC multi-Bernoulli track-before-detect, product update of every map (PMB; Zeng et "
                                 "al., Remote Sensing 2020), modelled or true SNR; starts its own tracks"))
 register(MethodKind("icmb", "rd_maps", run_tbd, {**ORDER, **SNR_MODEL, **SUBAREA, **COMMON}, check_sensing=check_sensing,
-                    starts_tracks=True,
+                    starts_tracks=True, metrics=FRAMES,
                     description="SMC multi-Bernoulli track-before-detect, one map after another in SNR order (ICMB; "
                                 "Zeng et al.), modelled or true SNR; starts its own tracks"))
 register(MethodKind("modified_icmb", "rd_maps", run_tbd, {"order": Option("ascending", str, choices=("ascending",
@@ -187,13 +190,13 @@ register(MethodKind("modified_icmb", "rd_maps", run_tbd, {"order": Option("ascen
                                                           "snr_estimator": Option("bootstrap", str,
                                                                                   choices=("bootstrap", "max")),
                                                           **SUBAREA, **COMMON},
-                    check_sensing=check_sensing, starts_tracks=True,
+                    check_sensing=check_sensing, starts_tracks=True, metrics=FRAMES,
                     description="ICMB with each map's SNR estimated online, ordering the maps (the modified ICMB of "
                                 "Zeng et al., Remote Sensing 2020); starts its own tracks"))
 register(MethodKind("detect_then_track", "rd_maps", run_tbd,
                     {"pfa": Option(1e-4, float, 1e-12, 0.5), "detector": Option("os_cfar", str,
                                                                                 choices=("os_cfar", "known_noise")),
                      **ORDER, **COMMON},
-                    check_sensing=check_sensing, starts_tracks=True,
+                    check_sensing=check_sensing, starts_tracks=True, metrics=FRAMES,
                     description="each map thresholded (OS-CFAR or the known-noise threshold at pfa per cell), the "
                                 "detections tracked by the same multi-Bernoulli filter; starts its own tracks"))

@@ -2,9 +2,16 @@
 benchmark and the tests call.
 
 :func:`run_filter` runs a filter (the seed's map likelihood, or detect-then-track when given a
-:class:`~.detect.DetectSpec`) on a block's ``rd_maps`` product; :func:`simulate_and_run` also draws
-the block of a stand-alone :class:`~.scene.TBDScene` (truth from ``(seed, 0)``, the maps from
-``(seed, 1)``, the filter from ``(seed, 2)``).
+:class:`~.detect.DetectSpec`) on a block's ``rd_maps`` product: the kinds' body, the one path
+that runs a filter. :func:`simulate_and_run` draws the block of a stand-alone
+:class:`~.scene.TBDScene` with the same pieces the harness's runner uses (the truth's ``draw``,
+the ``rd_maps`` product's maker :func:`~.scene.make_rd_maps`) and runs :func:`run_filter` on it,
+but from its own streams: truth ``(seed, 0)``, maps ``(seed, 1)``, filter ``(seed, 2)``. The
+statistical checks of ``tests/test_tbd.py`` and ``tests/test_tbd_snr.py`` and the figures
+``evaluate/tbd_checks.py`` recorded in ``evaluate/RESULTS.md`` (issue 37's table) were measured on
+those draws; the runner's streams (``(seed, case, block[, stream])``, the filter's
+``(seed, case, block, crc32(name))``) can not give them, so running these through the runner
+would change recorded figures.
 """
 
 from __future__ import annotations

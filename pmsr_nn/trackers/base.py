@@ -3,8 +3,9 @@
 A single-target filter, a learned tracker and a multi-target tracker all answer with
 :class:`Estimates`: ``M`` labelled slots (track ids ``0..M-1``) per run and scan, each with a
 mean, optionally a covariance, and whether the slot holds a track at that scan. Method-specific
-diagnostics (the JPDA's loss-rule flags, a relaxation's duality gap) travel in ``extras``, so
-the harness never reads a field only one tracker has.
+diagnostics (the JPDA's loss-rule flags, a relaxation's duality gap) travel in ``extras``, read
+only by the metrics the method's kind declares (:mod:`pmsr_nn.methods.kind_metrics`), so the
+harness never reads a field only one tracker has.
 
 Two kinds of slots:
 

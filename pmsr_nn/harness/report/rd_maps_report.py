@@ -1,7 +1,7 @@
 """The track-before-detect part of a scenario's report: the Remote Sensing 2020 seed's figures
 of every method that reads range-Doppler maps (:mod:`pmsr_nn.methods.tbd`).
 
-It reads the ``tbd`` part of those rows (:mod:`pmsr_nn.harness.results.tbd_row`);
+It reads the ``tbd`` part of those rows (:class:`pmsr_nn.methods.kind_metrics.TBDFrames`);
 :func:`report_lines` writes the report's section and figures for every case whose rows have one
 (nothing otherwise); :func:`summary_lines` is the terminal's table.
 

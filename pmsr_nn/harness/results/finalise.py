@@ -3,7 +3,9 @@
 Takes a :class:`~pmsr_nn.harness.scenario.prepared.Setup` and the sums of all its blocks
 (:class:`~pmsr_nn.harness.run.block_sums.BlockSums`, one run or merged shards, in block order);
 gives per case its settings, one row per method (RMSE, ANEES, run time, the set and track figures
-of multi-target rows, the ratios to the case's bounds) and the curves the report draws (:func:`finalise`), and the result kind (:func:`result_kind`).
+of multi-target rows, the figures of the metrics the row's kind declares,
+:mod:`pmsr_nn.methods.kind_metrics`, the ratios to the case's bounds) and the curves the report
+draws (:func:`finalise`), and the result kind (:func:`result_kind`).
 Reducing the blocks in order is why merged shards give the unsharded figures bit for bit.
 
 Shapes: ``B`` Monte Carlo runs, ``K`` scans, ``N`` targets; positions in m, velocities in m/s.
@@ -15,6 +17,7 @@ import numpy as np
 
 from ...errors import ConfigError
 from ...frontend.chain import summarise
+from ...methods.kind_metrics import RowContext
 from ..run import scoring
 from ..run.block_sums import FRONT_END, BlockSums
 from ..scenario.method_spec import MethodSpec
@@ -147,43 +150,14 @@ def _trajectory_figures(s: dict, B: int, c: float, p: float) -> dict:
             "tgospa_integral_runs": int(round(float(s["tgospa_integral"])))}
 
 
-def _extra_figures(s: dict, B: int, n_blocks: int) -> tuple[dict, dict]:
-    """Figures of the diagnostics some trackers report (:func:`pmsr_nn.harness.run.scoring.extra_sums`): the row's
-    fields and per-scan curves (empty for a tracker without them)."""
-    row, curves = {}, {}
-    if "labels" in s:
-        row["labels_per_run"] = float(s["labels"] / B)
-    if "repaired" in s:
-        row["conflicts_repaired_per_run"] = float(s["repaired"] / B)
-    if "game_rounds" in s:
-        row["game_rounds_mean"] = float(np.mean(s["game_rounds"] / n_blocks))
-    if "phd_expected" in s:
-        curves["phd_expected"] = (s["phd_expected"] / B).tolist()
-    if "phd_particles" in s:
-        row["phd_particles_mean"] = float(np.mean(s["phd_particles"] / B))
-    if "phd_seconds" in s:
-        row["phd_seconds_per_run"] = float(s["phd_seconds"] / B)
-    return row, curves
-
-
-def _unlabelled(N: int) -> dict:
-    """A row of estimates without identity (extras ``unlabelled``: one set per scan, e.g. a PHD's own
-    estimates): the figures that follow a track's label over scans do not apply (None); OSPA, GOSPA,
-    cardinality, matched errors and fragmentations (gaps in a target's coverage) do."""
-    return {"labelled": False, "label_switches_per_run": None, "label_switches_per_target": None,
-            "id_switches_per_run": None, "id_switches_per_target": None,
-            "rmse_pos_assigned_per_target_m": [None] * N, "confirmed_tracks_per_target": None,
-            "false_tracks_per_run": None, "track_loss_probability": None}
-
-
 def complete(sums: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """A method's block sums without the quantities some block lacks (blocks of a bank recorded
     before the quantity was kept, merged with newer ones): such a figure is left out, not summed
     over part of the runs. Per-run quantities have a row per run, the others one per block: a
     quantity with fewer than the most of its kind is incomplete."""
-    most = {per: max((len(a) for q, a in sums.items() if (q in scoring.PER_RUN) == per), default=0)
+    most = {per: max((len(a) for q, a in sums.items() if scoring.per_run(q) == per), default=0)
             for per in (False, True)}
-    return {q: a for q, a in sums.items() if len(a) == most[q in scoring.PER_RUN]}
+    return {q: a for q, a in sums.items() if len(a) == most[scoring.per_run(q)]}
 
 
 def _space_fields(space, s: dict, scored: np.ndarray) -> dict:
@@ -296,6 +270,16 @@ def _bound_fields(setup: Setup, spec: MethodSpec, case: Case, mse: np.ndarray, r
     return out
 
 
+def _own_figures(metrics: tuple, after: str, s: dict, ctx: RowContext, row: dict, curves: dict) -> None:
+    """The fields and curves of the kind's ``metrics`` whose place in the row is ``after``
+    (:data:`~pmsr_nn.methods.kind_metrics.AFTER`), into ``row`` and ``curves``."""
+    for metric in metrics:
+        if metric.after == after:
+            extra, more = metric.compute(s, ctx)
+            row.update(extra)
+            curves.update(more)
+
+
 def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tuple[dict, list, dict | None, np.ndarray]:
     """One method's row in one case from the sums of all blocks, its RMSE curve (``(K,)`` for one
     target, ``(N, K)`` otherwise, as lists), its set curves (None for a row without set figures)
@@ -304,7 +288,10 @@ def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tup
     B = sc.mc_runs
     scored, alive = case.scored.numpy(), case.alive.numpy()
     N = alive.shape[1]
-    s = {q: a.sum(0) if q not in scoring.PER_RUN else a for q, a in complete(bs.sums[case.name][spec.name]).items()}
+    blocks = complete(bs.sums[case.name][spec.name])
+    s = {q: a if scoring.per_run(q) else a.sum(0) for q, a in blocks.items()}
+    metrics = setup.kinds[spec.name].metrics  # the kind's own figures (pmsr_nn.methods.kind_metrics)
+    ctx = RowContext(B, sc.n_blocks, N, case, spec, blocks)
     count = np.where(s["count"] > 0, s["count"], np.nan)
     rmse_p, rmse_v, nees = np.sqrt(s["pos"] / count), np.sqrt(s["vel"] / count), s["nees"] / count
     mse = s["run_mse"]  # (B, N)
@@ -329,29 +316,22 @@ def method_row(setup: Setup, bs: BlockSums, case: Case, spec: MethodSpec) -> tup
             [float(nees[m_scored[:, t], t].mean()) for t in range(N)]
     if setup.divergence_m is not None:
         row["diverged_runs"] = int((~np.isfinite(per_run) | (per_run > setup.divergence_m)).sum())
-    if "lost" in s:
-        row["loss_probability"] = float(s["lost"].sum() / (B * N))
-    if "gap" in s:
-        row["max_duality_gap"] = float(bs.sums[case.name][spec.name]["gap"].max())
+    own_curves = {}  # per-scan curves of the kind's metrics: beside its set curves
+    _own_figures(metrics, "point", s, ctx, row, own_curves)  # e.g. the loss rule
     set_curves = None
     if "ospa" in s:
         extra, set_curves = _set_figures(s, B, scored, setup.set_metric[1], case.set_scan_mask.numpy())
         row.update(extra)
         if "tgospa_run" in s:
             row.update(_trajectory_figures(s, B, *setup.set_metric))
-        extra, more = _extra_figures(s, B, sc.n_blocks)
-        row.update(extra)
-        set_curves.update(more)
-    if "unlabelled" in s:
-        row.update(_unlabelled(N))
+    _own_figures(metrics, "sets", s, ctx, row, own_curves)  # e.g. a PHD's
     space = method_space(setup, spec, case)
     if space is not None:
         row.update(_space_fields(space, s, m_scored))
     row.update(_bound_fields(setup, spec, case, mse, rmse, m_scored))
-    if "tbd_detected" in s:  # a track-before-detect method: the Remote Sensing 2020 figures per frame
-        from .tbd_row import tbd_row  # the seed's per-frame figures of these rows
-
-        row["tbd"] = tbd_row(s, B, case, spec)
+    _own_figures(metrics, "bounds", s, ctx, row, own_curves)  # e.g. track-before-detect's per-frame part
+    if own_curves:
+        set_curves = {**(set_curves or {}), **own_curves}
     return row, rmse_p[:, 0].tolist() if N == 1 else rmse_p.T.tolist(), set_curves, per_run
 
 

@@ -178,7 +178,7 @@ class PlaneSpace:
 
 @dataclass(frozen=True)
 class TbdFigures:
-    """Per-frame figures of a row that reads range-Doppler maps (:func:`~.tbd_row.tbd_row`);
+    """Per-frame figures of a row that reads range-Doppler maps (:class:`~pmsr_nn.methods.kind_metrics.TBDFrames`);
     lists have one entry per frame (``snr_db``: per frame and map)."""
 
     update: str

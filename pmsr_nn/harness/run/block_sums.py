@@ -51,7 +51,8 @@ def shard_blocks(n_blocks: int, shard: tuple[int, int]) -> range:
 @dataclass
 class BlockSums:
     """Raw per-block results of a shard: ``sums[case][method][q]`` stacks the blocks' sums of
-    quantity ``q`` (:mod:`.scoring`; those in :data:`.scoring.PER_RUN` concatenate the runs),
+    quantity ``q`` (:mod:`.scoring` and the kinds' metrics; those kept per run, :func:`.scoring.per_run`,
+    concatenate the runs),
     ``seconds[case][method]`` ``(blocks,)``, ``example[case][method]`` run 0's position
     estimates ``(K, N, 2)`` (only a shard holding block 0 has them; ``truth`` too)."""
 
@@ -72,7 +73,7 @@ class BlockSums:
         out = BlockSums(self.blocks, example=self.example)
         for c, per in self.sums.items():
             for m, qs in per.items():
-                out.sums.setdefault(c, {})[m] = {q: (np.concatenate(v) if q in scoring.PER_RUN else np.stack(v))
+                out.sums.setdefault(c, {})[m] = {q: (np.concatenate(v) if scoring.per_run(q) else np.stack(v))
                                                  if isinstance(v, list) else v for q, v in qs.items()}
                 s = self.seconds[c][m]
                 out.seconds.setdefault(c, {})[m] = np.asarray(s, dtype=np.float64)
@@ -118,7 +119,7 @@ class BlockSums:
             part = BlockSums([b], example=self.example if b == 0 else {})
             for c, per in self.sums.items():
                 for m, qs in per.items():
-                    part.sums.setdefault(c, {})[m] = {q: a[starts[i]:starts[i + 1]] if q in scoring.PER_RUN else a[i:i + 1]
+                    part.sums.setdefault(c, {})[m] = {q: a[starts[i]:starts[i + 1]] if scoring.per_run(q) else a[i:i + 1]
                                                       for q, a in qs.items()}
                     part.seconds.setdefault(c, {})[m] = self.seconds[c][m][i:i + 1]
             parts.append(part)

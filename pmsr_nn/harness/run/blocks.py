@@ -4,7 +4,8 @@ Takes a :class:`~pmsr_nn.harness.scenario.prepared.Setup` and the blocks of ``bl
 run (all, or a shard's slice, :func:`~.block_sums.shard_blocks`); gives the blocks' raw sums
 (:class:`~.block_sums.BlockSums`). Per case and block the runner draws the truth, makes each sensor product the methods read
 (:mod:`pmsr_nn.simulation.products`), calls every method on the whole block through its
-registered kind (:mod:`pmsr_nn.methods`) and keeps the block's sums (:mod:`.scoring`).
+registered kind (:mod:`pmsr_nn.methods`) and keeps the block's sums (:mod:`.scoring`, and those of
+the metrics the kind declares, :mod:`pmsr_nn.methods.kind_metrics`).
 
 Random streams: with ``per_block`` (the default, and the only choice of the older studies) one
 generator seeded by ``(seed, case, block)`` gives the truth, then the product, then the initiation
@@ -35,6 +36,7 @@ from tqdm.auto import tqdm
 from ... import interrupts
 from ...filters import Gaussian
 from ...methods import MethodCall
+from ...methods.kind_metrics import BlockContext
 from ...product_kinds import PRODUCTS
 from ...rng import seeded_generator
 from ...simulation.products import Truth
@@ -92,10 +94,11 @@ def _first_runs(products: dict, B: int = 1) -> dict:
     return out
 
 
-def score(setup: Setup, case: Case, est, truth: Truth, space=None) -> dict[str, np.ndarray]:
-    """Every sum :mod:`.scoring` keeps for one method's estimates of one block; ``space``: the
-    :class:`~pmsr_nn.methods.EstimateSpace` the estimates live in (``truth`` then projected into it,
-    :func:`truth_in`), whose columns ``pos`` / ``vel`` are scored as position and velocity."""
+def score(setup: Setup, case: Case, est, truth: Truth, space=None, metrics: tuple = ()) -> dict[str, np.ndarray]:
+    """Every sum :mod:`.scoring` keeps for one method's estimates of one block, then those of the
+    kind's own ``metrics`` (:class:`~pmsr_nn.methods.kind_metrics.Metric`, ``MethodKind.metrics``);
+    ``space``: the :class:`~pmsr_nn.methods.EstimateSpace` the estimates live in (``truth`` then
+    projected into it, :func:`truth_in`), whose columns ``pos`` / ``vel`` are scored as position and velocity."""
     pos, vel = list(setup.models.motion.pos_idx), list(setup.models.motion.vel_idx)
     if space is not None:
         pos, vel = list(space.pos), list(space.vel)
@@ -111,17 +114,11 @@ def score(setup: Setup, case: Case, est, truth: Truth, space=None) -> dict[str, 
         out.update(scoring.set_sums(est, truth, pos, *setup.set_metric, sc=sets, mapping=mapping))
         out.update(scoring.gospa_per_run(sets, case.set_scan_mask))
         out.update(scoring.track_sums(mapping, est.exists, truth))
-        if not est.extras.get("unlabelled"):  # a set without identities has no trajectories to score
+        if all(m.labelled(est) for m in metrics):  # a set without identities has no trajectories to score
             out.update(scoring.trajectory_sums(est, truth, pos, *setup.set_metric, case.set_scan_mask))
-    if setup.loss is not None:
-        out.update(scoring.loss_counts(est, setup.loss.successive_scans, setup.loss.gate_range_sd_m))
-    if "max_duality_gap" in est.extras:
-        out["gap"] = np.asarray(float(est.extras["max_duality_gap"]))
-    out.update(scoring.extra_sums(est.extras))
-    if est.extras.get("unlabelled"):
-        out["unlabelled"] = np.asarray(1.0)
-    if "tbd_detected" in est.extras:  # a track-before-detect method's per-frame figures
-        out.update(scoring.tbd_sums(est, truth, pos, vel))
+    ctx = BlockContext(pos, vel, setup.loss)
+    for metric in metrics:
+        out.update(metric.update(est, truth, ctx))
     return out
 
 
@@ -177,7 +174,8 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                     # labellings) counts in full in every method that reads it
                     seconds = time.perf_counter() - t0 + float(est.extras.get("shared_seconds", 0.0))
                     space = method_space(setup, spec, case)
-                    out.add(case.name, spec.name, score(setup, case, est, truth_in(space, truth, projected), space), seconds)
+                    sums = score(setup, case, est, truth_in(space, truth, projected), space, setup.kinds[spec.name].metrics)
+                    out.add(case.name, spec.name, sums, seconds)
                     if block == 0 and space is None:
                         x = torch.where(est.exists[0, ..., None], est.x[0][..., pos], float("nan"))
                         out.example.setdefault(case.name, {})[spec.name] = x.numpy()

@@ -17,9 +17,10 @@ tracks), from the labelled estimates as sets: OSPA and GOSPA (split into localis
 false parts) per scan, the cardinality error, per-target squared error after the best fixed
 assignment of track labels to targets over the run (``assigned_pos``, ``assigned_count``), label
 switches per target, trajectory GOSPA with a switching cost (:func:`trajectory_sums`; labelled
-tracks only), the swaps of the S-MSJPDA study (at the last scan, a track nearer another
-target than its own; paired slots only) and, for trackers that report the flags, the paper's
-track-loss rule. Label switches, identity switches (a target's track changing from the last one
+tracks only) and the swaps of the S-MSJPDA study (at the last scan, a track nearer another
+target than its own; paired slots only). A kind's own figures (the paper's track-loss rule, a
+PHD's integral, the per-frame figures of track-before-detect) are the sums of the metrics it
+declares (:mod:`pmsr_nn.methods.kind_metrics`). Label switches, identity switches (a target's track changing from the last one
 it had, also across scans without one) and the track-level sums (:func:`track_sums`) come from
 the persistent (CLEAR MOT) mapping of :func:`track_mapping`: a track stays on its target while it
 is within the cut-off, so two tracks that each follow their own target through a crossing are not
@@ -37,13 +38,20 @@ import numpy as np
 import torch
 
 from ...metrics import (SetScores, identity_switches, label_switches, labelled_assignment, matched_tracks,
-                       normalised_nees, persistent_assignment, set_scores, squared_error, track_loss, track_scores,
+                       normalised_nees, persistent_assignment, set_scores, squared_error, track_scores,
                        trajectory_gospa)
+from ...methods.kind_metrics import PER_RUN_SUMS
 from ...simulation.products import Truth
 from ...trackers.base import Estimates
 
-PER_RUN = ("run_mse", "gospa_run", "ospa_run", "tbd_run_pos_err", "tgospa_run")
-"""Quantities kept per run (concatenated over blocks); every other one is summed per block."""
+PER_RUN = ("run_mse", "gospa_run", "ospa_run", "tgospa_run")
+"""The harness's quantities kept per run (concatenated over blocks); every other one is summed per block."""
+
+
+def per_run(q: str) -> bool:
+    """Whether quantity ``q`` is kept per run: one of :data:`PER_RUN` or of a kind's metric's
+    (:data:`~pmsr_nn.methods.kind_metrics.PER_RUN_SUMS`)."""
+    return q in PER_RUN or q in PER_RUN_SUMS
 
 
 def _masked_sum(values: torch.Tensor, mask: torch.Tensor) -> np.ndarray:
@@ -84,15 +92,6 @@ def swaps(est: Estimates, truth: Truth, pos: list[int]) -> dict[str, np.ndarray]
     ok = est.exists[:, -1] & alive  # (B, N)
     swapped = ok & (d.argmin(-1) != torch.arange(est.x.shape[2]))
     return {"swap": swapped.sum(0).to(torch.float64).numpy(), "swap_n": ok.sum(0).to(torch.float64).numpy()}
-
-
-def loss_counts(est: Estimates, successive: int, gate_limit_m: float) -> dict[str, np.ndarray]:
-    """``lost (N,)``: runs in which the paper's rule declares target ``t``'s track lost (only for
-    trackers whose extras carry ``dummy_most_probable`` and ``gate_range_sd_m``)."""
-    if "dummy_most_probable" not in est.extras:
-        return {}
-    lost = track_loss(est.extras["dummy_most_probable"], est.extras["gate_range_sd_m"], successive, gate_limit_m)
-    return {"lost": (lost >= 0).sum(0).to(torch.float64).numpy()}
 
 
 def per_scan_sets(est: Estimates, truth: Truth, pos: list[int], c: float, p: float) -> SetScores:
@@ -207,49 +206,3 @@ def set_sums(est: Estimates, truth: Truth, pos: list[int], c: float, p: float,
     out["switches"] = label_switches(mapping, t_mask).sum(0).to(torch.float64).numpy()
     out["id_switches"] = identity_switches(mapping, t_mask).sum(0).to(torch.float64).numpy()
     return out
-
-
-def extra_sums(extras: dict) -> dict[str, np.ndarray]:
-    """Sums over a block's runs of the diagnostics a tracker reports in ``extras`` (where it does):
-    a labelling's ``labels (B,)`` (labels confirmed per run) and GTDA's ``repaired (B,)`` (conflicts
-    resolved after the game) and ``game_rounds (K,)`` (rounds played per scan, one count for the
-    block); a PHD filter's ``phd_expected (B, K)`` (its integral after each update) and
-    ``phd_particles (B, K)`` per scan, and ``phd_seconds`` (the filter's seconds on the block)."""
-    out = {}
-    for key in ("labels", "repaired"):
-        if key in extras:
-            out[key] = np.asarray(float(extras[key].to(torch.float64).sum()))
-    if "game_rounds" in extras:
-        out["game_rounds"] = extras["game_rounds"].to(torch.float64).numpy()
-    for key in ("phd_expected", "phd_particles"):
-        if key in extras:
-            out[key] = extras[key].to(torch.float64).sum(0).numpy()
-    if "phd_seconds" in extras:
-        out["phd_seconds"] = np.asarray(float(extras["phd_seconds"]))
-    return out
-
-
-def tbd_sums(est: Estimates, truth: Truth, pos: list[int], vel: list[int]) -> dict[str, np.ndarray]:
-    """Per-frame sums over the runs of a track-before-detect method (its ``extras``,
-    :mod:`pmsr_nn.methods.tbd`), the Remote Sensing 2020 seed's figures: ``tbd_detected (K,)``
-    runs with some component above the threshold; ``tbd_pos``, ``tbd_vel (K,)`` squared position /
-    velocity error of the most probable component against the nearest living target, over
-    ``tbd_hits (K,)`` runs that detect while a target lives; ``tbd_existence (K,)`` the most
-    probable component's existence; ``tbd_snr_db (K, S)`` the SNRs the updates used (one map per pair);
-    ``tbd_particles (K,)``; per run ``tbd_run_pos_err (B, K)`` the position error (NaN where the
-    run does not detect or no target lives)."""
-    ex = est.extras
-    det, xb = ex["tbd_detected"], ex["tbd_best_x"]  # (B, K), (B, K, n)
-    t = truth.x  # (B, K, N, n)
-    e_p = ((xb[:, :, None][..., pos] - t[..., pos]) ** 2).sum(-1)  # (B, K, N)
-    e_v = ((xb[:, :, None][..., vel] - t[..., vel]) ** 2).sum(-1)
-    e_p = torch.where(truth.alive, e_p, torch.full_like(e_p, float("inf")))
-    e_p, nearest = e_p.min(-1)  # (B, K): the nearest living target
-    e_v = e_v.gather(-1, nearest[..., None])[..., 0]
-    hit = det & truth.alive.any(1)
-    zero = torch.zeros((), dtype=e_p.dtype)
-    return {"tbd_detected": det.sum(0).double().numpy(), "tbd_pos": torch.where(hit, e_p, zero).sum(0).numpy(),
-            "tbd_vel": torch.where(hit, e_v, zero).sum(0).numpy(), "tbd_hits": hit.sum(0).double().numpy(),
-            "tbd_existence": ex["tbd_best_r"].sum(0).numpy(), "tbd_snr_db": ex["tbd_snr_db"].sum(0).numpy(),
-            "tbd_particles": ex["tbd_particles"].sum(0).double().numpy(),
-            "tbd_run_pos_err": torch.where(hit, e_p.sqrt(), torch.full_like(e_p, float("nan"))).numpy()}
