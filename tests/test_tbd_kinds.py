@@ -21,6 +21,7 @@ import yaml
 from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness import evaluate, merge
+from pmsr_nn.harness.run import blocks
 from pmsr_nn.harness.run.blocks import call_method, draw_block, run_blocks
 from pmsr_nn.harness.run.runner import prepare
 from pmsr_nn.harness.scenario.schema import scenario_from_dict
@@ -206,8 +207,9 @@ def test_the_warm_up_calls_each_method_once_on_the_first_run_untimed(tmp_path, m
     """The runner's warm-up (one call per method on run 0 of its first case, generator words
     ``(seed, 2**30)``) reads a selection of the block's maps equal to run 0's; the timed calls
     then get the whole block with ``(seed, case, block)``; a method a case does not name is not
-    called in it."""
-    d = tiny(mc_runs=2, block_runs=2)
+    called in it. A second evaluation in the same process warms nothing again."""
+    monkeypatch.setattr(blocks, "WARMED", set())  # as in a fresh process
+    d = tiny(mc_runs=4, block_runs=2)
     d["methods"].append({"name": "p", "kind": "pmb", "options": dict(SMALL)})
     d["cases"].append({"name": "only_p", "targets": [dict(TARGET)], "end_s": 4.0, "methods": ["p"]})
     setup = prepare(scenario_from_dict(d, tmp_path))
@@ -221,7 +223,10 @@ def test_the_warm_up_calls_each_method_once_on_the_first_run_untimed(tmp_path, m
     assert [(n, b, s) for n, b, s, _ in calls] == [("m", 1, (3, 1 << 30)), ("p", 1, (3, 1 << 30)),
                                                   ("m", 2, (3, 0, 0)), ("p", 2, (3, 0, 0)), ("p", 2, (3, 1, 0))]
     assert torch.equal(calls[0][3], calls[2][3])  # the warm-up's run 0 maps are the block's run 0 maps
-    assert setup.warm == {"m", "p"}  # each method warmed once, in its first case
+    assert blocks.WARMED == {blocks.warm_key(m) for m in setup.methods}  # each method warmed once, in its first case
+    calls.clear()
+    run_blocks(setup, range(1, 2), progress=False)  # e.g. the next block of a bank, or a second study
+    assert [s for _, _, s, _ in calls] == [(3, 0, 1), (3, 0, 1), (3, 1, 1)]
 
 
 def test_shards_merge_to_exactly_the_unsharded_figures(tmp_path):

@@ -135,6 +135,18 @@ def truth_in(space, truth: Truth, projected: dict) -> Truth:
     return projected[space.key]
 
 
+WARMED: set[tuple] = set()
+"""The :func:`warm_key` of every method this process has called once, untimed, before its timed
+calls (the warm-up of :func:`run_blocks`): a later evaluation in the same process (a merge's
+evaluation, the next bank block, a notebook's second study, the tests) does not warm it again."""
+
+
+def warm_key(spec: MethodSpec) -> tuple:
+    """What a warm-up covers: the kind, its checkpoint and its options (another option may take
+    another code path through the kind, with start-up costs of its own)."""
+    return spec.kind, spec.checkpoint, repr(sorted(spec.options.items()))
+
+
 def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
     """Run every method of every case on the given blocks of Monte Carlo runs."""
     sc = setup.scenario
@@ -155,12 +167,12 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                             out.example.setdefault(case.name, {}).update(record.example)
                     if block == 0 and hasattr(product, "examples"):  # e.g. run 0's range-Doppler maps ("@" keys)
                         out.example.setdefault(case.name, {}).update(product.examples())
-                todo = [m for m in called if case.runs(m) and m.name not in setup.warm]
-                if todo:  # untimed, once per method (in its first case): start-up costs stay out of the timing
+                todo = [m for m in called if case.runs(m) and warm_key(m) not in WARMED]
+                if todo:  # untimed, once per process and kind (in its first case): start-up costs stay out of the timing
                     first = _first_runs(products)
                     for spec in todo:
                         call_method(setup, spec, case, first, (sc.seed, 1 << 30))
-                        setup.warm.add(spec.name)
+                        WARMED.add(warm_key(spec))
                 pos = list(setup.models.motion.pos_idx)
                 projected = {}  # the block's truth in each estimate space some method reads (truth_in)
                 for spec in called:

@@ -129,7 +129,6 @@ class Setup:
     tuning: dict = field(default_factory=dict)
     recipe: TrackRecipe | None = None
     prior_sd: torch.Tensor | None = None
-    warm: set = field(default_factory=set)  # the methods called once (untimed) by run_blocks so far
     spaces: dict = field(default_factory=dict)  # (case, method) -> EstimateSpace or None (method_space)
 
     @property

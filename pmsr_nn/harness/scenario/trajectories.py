@@ -11,6 +11,7 @@ one at the sample time, turning with the velocity in a turn).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -20,21 +21,21 @@ from ...motion import ConstantAcceleration
 from ...simulation.flight import ca_sample, flight_substep
 from ...simulation.recipe import TrackRecipe
 from ...simulation.tracks import build_models, envelope_violations
-from .case_spec import CaseSpec
+from .case_spec import CaseSpec, SegmentSpec
 
 SUBSTEPS = 100
 """Integration sub-steps per sampling interval (semi-implicit; error far below a millimetre)."""
 
 
-def commanded_acceleration(case: CaseSpec, t: float, ramp_s: float) -> tuple[float, float]:
-    """(along, across) acceleration (m/s^2) asked for at time ``t`` (s)."""
+def commanded_acceleration(segments: tuple[SegmentSpec, ...], t: float, ramp_s: float) -> tuple[float, float]:
+    """(along, across) acceleration (m/s^2) the ``segments`` ask for at time ``t`` (s)."""
     start, prev = 0.0, (0.0, 0.0)
-    for i, seg in enumerate(case.segments):
+    for i, seg in enumerate(segments):
         target = (seg.along_mps2, seg.across_mps2)
         if i == 0:
             prev = target  # the flight starts already in its first segment
         end = start + seg.duration_s
-        if t < end or i == len(case.segments) - 1:
+        if t < end or i == len(segments) - 1:
             w = 1.0 if ramp_s <= 0 else min(1.0, max(0.0, (t - start) / ramp_s))
             return tuple(p + w * (c - p) for p, c in zip(prev, target))
         start, prev = end, target
@@ -61,16 +62,25 @@ def design_trajectory(case: CaseSpec, recipe: TrackRecipe, ramp_s: float) -> tor
         x, y = ox + case.start_range_m * math.sin(b), oy + case.start_range_m * math.cos(b)
         psi = math.radians(case.heading_deg)
         v = case.speed_mps
+    return _flown(tuple(case.segments), float(x), float(y), float(v), float(psi), K, float(dt), float(ramp_s)).clone()
+
+
+@functools.lru_cache(maxsize=256)
+def _flown(segments: tuple[SegmentSpec, ...], x: float, y: float, v: float, psi: float, K: int, dt: float,
+           ramp_s: float) -> torch.Tensor:
+    """The integrated flight ``(K, 6)``, kept per process: a scenario prepared again (a merge after
+    its evaluation, each shard or bank block, the tests) does not integrate its flights again,
+    ``SUBSTEPS`` scalar sub-steps per sample. Callers get a clone."""
     h = dt / SUBSTEPS
     out = []
     t = 0.0
     for k in range(K):
         for s in range(SUBSTEPS if k else 0):
-            along, across = commanded_acceleration(case, t, ramp_s)
+            along, across = commanded_acceleration(segments, t, ramp_s)
             x, y, v, psi = flight_substep(x, y, v, psi, along, across, h)
             t += h
         t = k * dt  # no drift of the clock over many sub-steps
-        along, across = commanded_acceleration(case, t, ramp_s)
+        along, across = commanded_acceleration(segments, t, ramp_s)
         out.append(ca_sample(x, y, v, psi, along, across))
     return torch.tensor(out, dtype=torch.float64)
 
