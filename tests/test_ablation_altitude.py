@@ -183,6 +183,7 @@ def test_a_failing_run_is_isolated_kept_and_counted(monkeypatch):
     torch.testing.assert_close(x[keep], ok[keep])
 
 
+@pytest.mark.figures
 def test_cli_writes_outputs_atomically(tmp_path, capsys):
     out = tmp_path / "alt"
     args = ["--out", str(out), "--tracks", "12", "--steps", "30", "--warmup", "10", "--altitudes", "0", "300",

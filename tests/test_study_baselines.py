@@ -5,11 +5,13 @@ import importlib.util
 import json
 from pathlib import Path
 
+import pytest
 from figure_check import assert_drawn_png
 
 SCRIPT = Path(__file__).resolve().parents[1] / "evaluate" / "baselines_vs_bounds.py"
 
 
+@pytest.mark.figures
 def test_study_runs_end_to_end_and_writes_results(tmp_path, capsys):
     spec = importlib.util.spec_from_file_location("baselines_vs_bounds", SCRIPT)
     study = importlib.util.module_from_spec(spec)

@@ -247,6 +247,7 @@ def test_shards_merge_to_exactly_the_unsharded_figures(tmp_path):
     assert (tmp_path / "m" / "c_maps.png").is_file()  # run 0's maps travel in shard 1's examples
 
 
+@pytest.mark.figures
 def test_pmsr_evaluate_writes_the_remote_sensing_figures(tmp_path):
     """`pmsr evaluate` on a tiny TBD scenario: per-frame figures for every method, Table 2 beside
     the paper's rows, and the figures the report names (port of the former study's test)."""
