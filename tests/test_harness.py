@@ -25,16 +25,16 @@ SHIPPED = ROOT / "evaluate" / "fitee2023_three_trajectories.yaml"
 
 
 def tiny(tmp_path: Path, **over) -> dict:
-    """A small scenario: two 150-s cases, 4 runs in blocks of 2, EKF, UKF, SI+KF and a released MDFNN."""
+    """A small scenario: two 100-s cases (the MDFNN's window), 4 runs in blocks of 2, EKF, UKF, SI+KF and a released MDFNN."""
     d = {
-        "name": "tiny", "seed": 3, "mc_runs": 4, "block_runs": 2, "warmup_steps": 100,
+        "name": "tiny", "seed": 3, "mc_runs": 4, "block_runs": 2, "warmup_steps": 50,
         "reference": {"file": str(ROOT / "evaluate/reference/paper_tables.json"),
                       "table": "fitee2023_mdfnn.table6_methods_rmse_pos_m"},
         "cases": [
             {"name": "trajectory_1", "start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0,
-             "heading_deg": 20.0, "segments": [{"duration_s": 150.0}]},
+             "heading_deg": 20.0, "segments": [{"duration_s": 100.0}]},
             {"name": "trajectory_3", "start_range_m": 7800.0, "start_bearing_deg": 140.0, "speed_mps": 12.0,
-             "heading_deg": 0.0, "segments": [{"duration_s": 50.0}, {"duration_s": 100.0, "across_mps2": 0.02}]},
+             "heading_deg": 0.0, "segments": [{"duration_s": 30.0}, {"duration_s": 70.0, "across_mps2": 0.02}]},
         ],
         "methods": [{"name": "EKF", "kind": "ekf"}, {"name": "UKF", "kind": "ukf"}, {"name": "SI+KF", "kind": "si_kf"},
                     {"name": "MDFNN", "kind": "learned", "checkpoint": str(ROOT / "models/released/mdfnn.pt")}],
@@ -113,8 +113,9 @@ def test_every_method_sees_the_same_draws_and_the_rmse_is_eq31(tmp_path):
     err2 = ((x - case.truth.x[:, 0])[..., [0, 3]] ** 2).sum(-1)  # (runs, K)
     curve = err2.mean(0).sqrt()
     r = res["cases"]["trajectory_1"]["methods"]["EKF"]
-    assert r["rmse_pos_m"] == pytest.approx(float(curve[100:].mean()), rel=1e-12)
-    assert r["rmse_pos_pooled_m"] == pytest.approx(float(err2[:, 100:].mean().sqrt()), rel=1e-12)
+    w = sc.warmup_steps
+    assert r["rmse_pos_m"] == pytest.approx(float(curve[w:].mean()), rel=1e-12)
+    assert r["rmse_pos_pooled_m"] == pytest.approx(float(err2[:, w:].mean().sqrt()), rel=1e-12)
     # the measurements are the truth plus noise of the scenario's deviations
     resid = m.model.residual(z, m.model.h(case.truth.x[:, 0]))
     std = resid.reshape(-1, resid.shape[-1]).std(0)
@@ -311,8 +312,9 @@ def test_learned_rows_get_their_finite_memory_bound_seed_summary_and_paired_marg
                {"name": "NN [seed 1]", "kind": "learned", "checkpoint": str(ROOT / "models/released/dfnn.pt")}]
     path = tiny(tmp_path, methods=methods, mc_runs=2, block_runs=1)
     res = evaluate(path, tmp_path / "o", progress=False)
-    setup = prepare(load_scenario(path))
-    case, w = setup.cases[1], 100
+    sc = load_scenario(path)
+    setup = prepare(sc)
+    case, w = setup.cases[1], sc.warmup_steps
     m = setup.models
     rows = res["cases"][case.name]["methods"]
     for name, ckpt, scans in (("NN [seed 0]", "mdfnn.pt", 39), ("NN [seed 1]", "dfnn.pt", 1)):
