@@ -41,13 +41,13 @@ def _mean_se(values: list[float]) -> tuple[float, float | None]:
     return mean, (statistics.stdev(values) / len(values) ** 0.5 if len(values) > 1 else None)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=6, help="the first RUNS runs of the study (default 6)")
     ap.add_argument("--scenario", type=Path, default=SCENARIO,
                     help=f"a scenario with rows {' and '.join(ROWS)}, one run per block (default {SCENARIO.name})")
     ap.add_argument("--json", type=Path, help="write the figures here")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     data = load_yaml(args.scenario)
     if not 1 <= args.runs <= int(data["mc_runs"]):
         ap.error(f"--runs must be in [1, {data['mc_runs']}] (the study's runs), got {args.runs}")
