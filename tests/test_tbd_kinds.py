@@ -428,3 +428,15 @@ def test_a_reused_component_slot_starts_a_new_track():
     assert exists[0].tolist() == [[True, False], [True, False], [False, True], [False, True]]
     assert torch.equal(states[0, 1, 0], x[0, 1, 0]) and torch.equal(states[0, 3, 1], x[0, 3, 0])
     assert existence[0, :, 0].tolist() == [0.8, 0.9, 0.0, 0.0] and existence[0, :, 1].tolist() == [0.0, 0.0, 0.6, 0.7]
+
+
+def test_the_progress_bar_says_when_a_method_warms_up(tmp_path, monkeypatch, capsys):
+    """The untimed warm-up shows as such on the bar, not as the previous row's work."""
+    monkeypatch.setattr(blocks, "WARMED", set())
+    setup = prepare(scenario_from_dict(tiny(mc_runs=1, block_runs=1), tmp_path))
+    run_blocks(setup, range(1), progress=True)
+    err = capsys.readouterr().err
+    assert "c m (warm-up, untimed)" in err
+    capsys.readouterr()
+    run_blocks(setup, range(1), progress=True)  # warmed: no warm-up to show
+    assert "warm-up" not in capsys.readouterr().err

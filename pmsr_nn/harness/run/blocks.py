@@ -171,6 +171,7 @@ def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
                 if todo:  # untimed, once per process and kind (in its first case): start-up costs stay out of the timing
                     first = _first_runs(products)
                     for spec in todo:
+                        bar.set_postfix_str(f"{case.name} {spec.name} (warm-up, untimed)")  # not charged to a row
                         call_method(setup, spec, case, first, (sc.seed, 1 << 30))
                         WARMED.add(warm_key(spec))
                 pos = list(setup.models.motion.pos_idx)
