@@ -37,6 +37,19 @@ def test_a_record_reproduces_itself_and_one_changed_value_is_caught(tool):
     assert not v["reproduces"] and v["other_differ"] == 1
 
 
+def test_a_field_the_record_predates_is_counted_apart_and_does_not_fail_it(tool):
+    """A record made before the code wrote some field (e.g. trajectory GOSPA) still reproduces on
+    the values it has; the new field is counted, not compared."""
+    res = json.loads((ROOT / "evaluate/results/dense_crossing_bp/results.json").read_text())
+    case, row = next((c, m) for c, cc in res["cases"].items() for m in cc["methods"])
+    older = copy.deepcopy(res)
+    del older["cases"][case]["methods"][row]["false_tracks_per_run"]
+    v = tool.verdict(older, res)
+    assert v["reproduces"] and v["fields_the_record_predates"] == 1 and v["other_differ"] == 0
+    v = tool.verdict(res, older)  # a field the re-run lacks is a difference
+    assert not v["reproduces"] and v["other_differ"] == 1
+
+
 def test_the_re_run_time_is_the_records_rows_seconds_times_runs(tool):
     res = {"cases": {"a": {"methods": {"X": {"seconds_per_run": 3.0, "runs": 10}, "bound": {"runs": 10}}},
                      "b": {"methods": {"Y": {"seconds_per_run": 1.5, "runs": 4}}}}}
