@@ -59,7 +59,8 @@ def test_the_re_run_time_is_the_records_rows_seconds_times_runs(tool):
 def test_only_studies_with_their_scenario_are_listed_and_an_unknown_name_is_refused(tool, tmp_path, capsys):
     names = tool.studies(None)
     assert "dense_crossing_bp" in names and "one_sky_bp_bank" not in names
-    assert all((ROOT / "evaluate" / f"{n}.yaml").is_file() for n in names)
+    assert (ROOT / "evaluate/results/shared_drones_hybrid/results.json").is_file()
+    assert "shared_drones_hybrid" not in names  # a record whose scenario has another name cannot be re-run by name
     assert tool.main(["--out", str(tmp_path / "new"), "--only", "no_such_study"]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         f"reproduce_records: --only: no recorded study no_such_study (known: {', '.join(names)})"]
