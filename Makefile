@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.pmsr-installed
 
-.PHONY: setup demo test test-all bench clean
+.PHONY: setup demo test test-integration test-all bench clean
 
 setup: $(STAMP)
 
@@ -22,6 +22,10 @@ demo: setup
 # Two pytest-xdist workers, one thread each: the 2 cores of the development machine, no oversubscription.
 test: setup
 	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist worksteal
+
+# End-to-end runs and the longer checks (each 4 s or more): CI runs them after `test`.
+test-integration: setup
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "integration and not slow"
 
 test-all: setup
 	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist worksteal -m ""

@@ -226,6 +226,7 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, bad,
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.integration
 def test_bad_input_from_the_command_line(tmp_path):
     out = tmp_path / "alt"
     proc = subprocess.run([sys.executable, str(SCRIPT), "--out", str(out), "--tracks", "-1"],

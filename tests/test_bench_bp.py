@@ -23,6 +23,7 @@ def _bench(*args: str) -> subprocess.CompletedProcess:
                           env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
 
 
+@pytest.mark.integration
 def test_the_record_holds_each_runs_times_and_their_ratios(tmp_path):
     """Two runs of a small scene: per run and clock, the ratio is BP's seconds over S-MSJPDA's, its
     mean and standard error are those of the two ratios, and the ratio of sums the summed times'."""

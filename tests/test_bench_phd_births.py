@@ -13,6 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.integration
 def test_bench_phd_births_records_what_it_prints(tmp_path):
     """The --json record of benchmarks/bench_phd_births.py (a tiny scene): every call, and ratios that
     are the calls' own minimum CPU seconds at 30 over those at 10."""

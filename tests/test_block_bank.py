@@ -27,6 +27,7 @@ def snapshot(folder):
             for p in folder.rglob("*") if p.is_file()}
 
 
+@pytest.mark.integration
 def test_a_bank_filled_in_two_sittings_merges_to_the_unsharded_run(tmp_path):
     path = tiny(tmp_path, block_runs=1)  # 4 blocks of one run
     whole = evaluate(path, tmp_path / "whole", progress=False)
@@ -96,6 +97,7 @@ def test_a_bank_refuses_another_scenario_and_never_replaces_what_is_not_a_block(
     assert sorted(os.listdir(plain)) == ["data.csv"]
 
 
+@pytest.mark.integration
 def test_a_bank_that_lost_its_bank_json_gets_it_back_from_its_blocks_or_is_refused(tmp_path, capsys):
     """Every block's shard.json names the scenario and its folder, as bank.json did: the same command
     writes bank.json again (the bytes its first command wrote) and runs what is missing; a command
@@ -190,6 +192,7 @@ def test_every_block_records_the_environment_the_process_started_with(tmp_path, 
         assert json.loads((block_folder(tmp_path / "bank", b) / "shard.json").read_text())["environment"] == {"commit": "c1"}
 
 
+@pytest.mark.integration
 def test_a_preview_merges_the_first_runs_and_says_it_is_one(tmp_path, capsys):
     """``pmsr merge --runs K``: the first K runs of a bank still filling give the figures of the
     scenario run with K runs, bit for bit, and the results and report say they are a preview."""
@@ -228,6 +231,7 @@ def test_a_block_a_live_process_holds_is_passed_over_and_a_dead_ones_claim_is_ta
     assert not list((tmp_path / "bank").glob(".block-*.claim-*"))
 
 
+@pytest.mark.integration
 def test_two_processes_fill_one_bank_and_run_every_block_once(tmp_path):
     import subprocess
     import sys
@@ -246,6 +250,7 @@ def test_two_processes_fill_one_bank_and_run_every_block_once(tmp_path):
     assert accuracy(merge([tmp_path / "bank"], tmp_path / "merged")) == accuracy(whole)
 
 
+@pytest.mark.integration
 def test_a_shards_blocks_filed_into_a_bank_merge_as_if_the_bank_had_run_them(tmp_path):
     """Blocks of 2, 2 and 1 runs: shard 2/2 holds the last two; filed into a bank (split per block)
     beside block 0 run by the bank, they merge to the unsharded figures bit for bit."""

@@ -165,6 +165,7 @@ def test_info_and_verify(tmp_path, capsys):
     assert main(["info", str(tmp_path)]) == 2
 
 
+@pytest.mark.integration
 def test_console_script_help_and_error_without_traceback(tmp_path):
     exe = Path(sys.executable).with_name("pmsr")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "pmsr_nn.cli"]

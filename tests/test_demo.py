@@ -41,6 +41,7 @@ def check_demo_folder(out, mc_runs, one_sky_rows=demo.ONE_SKY_METHODS):
         assert (out / "one_sky" / f).is_file()
 
 
+@pytest.mark.integration
 def test_demo_runs_end_to_end_and_replaces_only_its_own_folder(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(demo, "DEMO_DATA", {**demo.DEMO_DATA, "tracks": 12, "batch_size": 16})
     monkeypatch.setattr(demo, "DEMO_TRAINER", {**demo.DEMO_TRAINER, "max_epochs": 1, "train_batches_per_epoch": 2,

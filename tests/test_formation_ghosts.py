@@ -13,6 +13,7 @@ from script_loader import ROOT, load_script
 from test_one_scenario import two_drones
 
 
+@pytest.mark.integration
 def test_the_per_run_gospa_is_the_reports(tmp_path):
     # tracks confirmed at once, reported from existence 0.05 and kept 5 scans without a detection, in
     # 30 clutter points a scan: false tracks in every run, so the split of their charge is put to the test
@@ -72,6 +73,7 @@ def test_false_tracks_are_classed_outlived_beside_or_far():
     assert beside[1, 2].item() == 30.0 and int(beside.isfinite().sum()) == 1  # the duplicate, 30 m from target 1
 
 
+@pytest.mark.integration
 def test_seed_and_options_re_draw_and_re_run_as_the_scenario_with_them_would(tmp_path, capsys):
     """``--seed`` and ``--options`` give the report's GOSPA of the scenario with that seed and the
     chosen rows' options changed (``pmsr evaluate`` on an edited copy), and differ from the

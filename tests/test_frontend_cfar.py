@@ -305,6 +305,7 @@ def _nearest(c, d0, u0):
     return pick, close.sum(1)
 
 
+@pytest.mark.integration
 def test_centroid_error_and_deviation_model_at_20_db():
     """1000 targets at uniform sub-bin positions, 20 dB: one component per peak, RMS errors below
     0.2 (Doppler: the sinc^2 power centroid's shape bias, RMS 0.107, dominates) and 0.12 (range)

@@ -144,6 +144,7 @@ methods: [{name: J, kind: s_msjpda}, {name: T, kind: true_assignment}]
 """
 
 
+@pytest.mark.integration
 @pytest.mark.figures
 def test_evaluate_runs_signals_to_tracks_and_writes_the_maps(tmp_path):
     import h5py

@@ -129,6 +129,7 @@ def test_every_method_sees_the_same_draws_and_the_rmse_is_eq31(tmp_path):
     assert res["cases"]["trajectory_1"]["methods"]["MDFNN"]["causal"] is True
 
 
+@pytest.mark.integration
 def test_same_seed_same_figures_and_shards_merge_to_the_unsharded_run(tmp_path):
     path = tiny(tmp_path)
     a = evaluate(path, tmp_path / "a", progress=False)

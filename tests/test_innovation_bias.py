@@ -118,6 +118,7 @@ def track_count(range_bias_m: float, bias: BiasTest | None, B: int = 40, K: int 
     return rep.exists.any(1).sum(-1)
 
 
+@pytest.mark.integration
 def test_s_msjpda_keeps_a_consistent_track_and_deletes_one_its_detections_pull_aside():
     test = BiasTest(window=20.0, probability=0.999, burn_in=10)
     # unbiased: a run loses its track to the test with probability at most 60 x 0.001 (union bound

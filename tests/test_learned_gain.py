@@ -368,6 +368,7 @@ def _scenario_and_checkpoint(tmp_path, **noise):
     return path
 
 
+@pytest.mark.integration
 def test_an_untrained_checkpoint_scores_as_s_msjpda_in_pmsr_evaluate(tmp_path):
     from pmsr_nn.harness import evaluate
 
@@ -407,6 +408,7 @@ def test_commands_for_clean_stream_trackers_refuse_the_hybrids_checkpoint_in_one
 
 # -- training ----------------------------------------------------------------------------------------
 
+@pytest.mark.integration
 def test_a_tiny_trained_gain_beats_the_untrained_one_where_the_model_is_wrong():
     """The tracker is sure there is no acceleration (prior deviation 1e-3 m/s^2, q = 1e-9) while the
     target accelerates: S-MSJPDA lags. Eight Adam steps on one draw must at least halve the mean

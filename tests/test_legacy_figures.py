@@ -107,6 +107,7 @@ def _leaves(old, new, path=""):
 # msjpda_pd_subset runs the msjpda_subset's trackers again at other Pd: the slow tier
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "msjpda_pd_subset" else n
                                   for n in sorted(RECORDED)])
+@pytest.mark.integration
 def test_older_studies_give_their_recorded_figures(name, tmp_path):
     res = evaluate(LEGACY / f"{name}.yaml", tmp_path / "out", progress=False)
     learned = _learned(name)

@@ -175,6 +175,7 @@ def _reference_turn_fraction(man: ManoeuvreSpec, steps: int, tracks: int, rng: n
     return (lateral > 1.0).mean(1)
 
 
+@pytest.mark.integration
 def test_turns_take_the_share_of_time_their_description_implies():
     man = ManoeuvreSpec(quiet_s=(30.0, 60.0), turn_probability=1.0, turn_accel_mps2=(2.0, 3.0), turn_s=(20.0, 40.0),
                         max_turn_rate_deg_s=90.0, ramp_s=1.0)  # cap 1.57 rad/s x >= 10 m/s: never active

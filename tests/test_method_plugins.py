@@ -83,6 +83,7 @@ def one_target(tmp_path: Path, kind: str) -> Path:
     return path
 
 
+@pytest.mark.integration
 def test_a_kind_of_another_package_is_listed_in_a_fresh_process(site):
     install(site, ORIGIN)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), str(ROOT)])}

@@ -77,6 +77,7 @@ def test_same_seed_same_figures_and_blocks_independent_of_mc_runs(tmp_path):
     assert key(c) == key(d)
 
 
+@pytest.mark.integration
 def test_sweep_report_has_the_sweep_table(tmp_path):
     two = {"count": 2, "centre_m": [-25000.0, -20000.0], "velocity_mps": [200.0, 244.1], "spacing_m": 2000.0}
     p = _small(tmp_path, sweep="pd", cases=[{"name": "pd_0.6", "detections": {"pd": 0.6}, "reference_key": "0.6",
@@ -203,6 +204,7 @@ def _worst_runs_module():
     return load_script("evaluate/msjpda_worst_runs.py")
 
 
+@pytest.mark.integration
 def test_per_run_errors_use_the_harness_draws(tmp_path):
     mod = _worst_runs_module()
     p = _small(tmp_path)

@@ -98,6 +98,7 @@ def reference(root: Path, runs: int) -> dict:
 
 # -- kill and resume ---------------------------------------------------------------------------------
 
+@pytest.mark.integration
 def test_a_bank_worker_killed_outright_is_resumed_to_the_uninterrupted_figures(tmp_path, tmp_path_factory):
     from pmsr_nn.cli import main
 
@@ -255,6 +256,7 @@ def check_full_disk(res: dict) -> None:
     assert any(k.startswith("earlier/") and k.endswith("results.json") for k in res["before"])
 
 
+@pytest.mark.integration
 def test_a_disk_that_fills_mid_evaluate_is_one_line_and_loses_nothing(tmp_path):
     check_full_disk(full_disk_run(tmp_path, 60))
 

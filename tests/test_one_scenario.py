@@ -42,6 +42,7 @@ def two_drones(tmp_path: Path, methods=None, **over) -> Path:
     return path
 
 
+@pytest.mark.integration
 def test_births_and_deaths_give_the_cardinality_and_lives(tmp_path):
     res = evaluate(two_drones(tmp_path), tmp_path / "out", progress=False)
     case = res["cases"]["c"]
@@ -128,6 +129,7 @@ def test_a_new_method_kind_is_one_registration(tmp_path):
         del REGISTRY["hold_prior"]
 
 
+@pytest.mark.integration
 def test_shards_of_a_multi_target_scenario_merge_to_the_whole(tmp_path):
     path = two_drones(tmp_path, mc_runs=6)
     whole = evaluate(path, tmp_path / "whole", progress=False)

@@ -18,6 +18,7 @@ from test_one_scenario import two_drones
 ROWS = [{"name": "oracle", "kind": "s_msjpda"}, {"name": "own", "kind": "s_msjpda", "options": {"initiation": "detections"}}]
 
 
+@pytest.mark.integration
 def test_the_paired_figures_are_the_reports_and_the_re_drawn_runs(tmp_path):
     path = two_drones(tmp_path, methods=ROWS, mc_runs=4, block_runs=2)
     execute(open_run(path, tmp_path / "bank", target="bank", progress=False))

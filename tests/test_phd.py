@@ -66,6 +66,7 @@ def kalman_rmse(z: torch.Tensor, truth: torch.Tensor, from_scan: int) -> torch.T
     return torch.stack(err).pow(2).mean((0, 1)).sqrt()
 
 
+@pytest.mark.integration
 def test_one_target_no_clutter_pd_1_cardinality_and_error_against_the_kalman_filter():
     g = torch.Generator().manual_seed(1)
     B, K, burn = 40, 60, 10
@@ -348,6 +349,7 @@ def tiny_setup(tmp_path, text: str = TINY):
     return prepare(load_any(tmp_path / "s.yaml"))
 
 
+@pytest.mark.integration
 def test_the_kinds_run_through_the_runner_and_the_report_has_the_studys_figures(tmp_path):
     from pmsr_nn.cli import main
 
@@ -456,6 +458,7 @@ def test_an_estimate_offset_by_d_in_range_scores_d_below_the_cut_off_and_c_above
         assert s["count"].sum() == 0
 
 
+@pytest.mark.integration
 def test_shards_of_a_phd_scenario_merge_to_the_unsharded_results(tmp_path):
     from pmsr_nn.harness.evaluate import evaluate, merge
 
@@ -557,6 +560,7 @@ def test_a_designed_scenario_without_the_detections_the_kind_reads_is_refused(tm
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.integration
 def test_a_case_can_take_its_detections_from_the_fm_front_end(tmp_path):
     """The signal chain's Doppler, turned into range-rate by the kind, feeds the PHD."""
     from pmsr_nn.cli import main

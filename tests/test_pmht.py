@@ -363,6 +363,7 @@ def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(t
             assert float(err.max()) < 150.0, float(err.max())
 
 
+@pytest.mark.integration
 def test_managed_pmht_reads_the_marginal_e_step(tmp_path):
     """``e_step: marginal`` with ``initiation: detections`` (once silently the point E-step): at Pd
     0.8 with 10 clutter points per pair both E-steps keep one track per target and no false one,

@@ -209,6 +209,7 @@ def test_pmht_3d_starts_confirms_and_ends_tracks_from_pooled_lists(tmp_path):
             assert float(err.max()) < 150.0, float(err.max())
 
 
+@pytest.mark.integration
 def test_the_report_says_which_lists_each_detection_tracker_read(tmp_path):
     methods = [{"name": "PMHT-3D", "kind": "pmht_3d", "options": {"initiation": "detections"}},
                {"name": "PMHT", "kind": "pmht", "options": {"initiation": "detections"}}]

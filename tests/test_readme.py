@@ -72,6 +72,7 @@ def has_placeholder(command: str) -> bool:
 class Rule:
     """How a README command runs small: ``pattern`` matches it; ``tiny(argv) -> argv`` shrinks it;
     ``setup``: commands (argv lists, as given, already tiny) or callables run first; ``slow``: only in the slow tier;
+    ``integration``: in the integration tier (4 s or more, run by CI after the default tier);
     ``refused``: an example of what pmsr refuses (exit code 2 expected); ``own_process``: run as
     ``python -m pmsr_nn.cli`` (DDP starts its workers by re-running the command line, which
     in-process would be pytest's)."""
@@ -80,6 +81,7 @@ class Rule:
     tiny: callable = lambda argv: argv
     setup: list[list[str]] = field(default_factory=list)
     slow: bool = False
+    integration: bool = False
     refused: bool = False
     own_process: bool = False
 
@@ -150,10 +152,11 @@ RULES = [
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval", _mc1, slow=True),
     # ... with your own network: that row alone, on one run
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval --mc-runs 20 "
-         r"--checkpoint MDFNN=runs/mdfnn/tracker\.pt", lambda a: _set(_mc1(a), "--methods", "MDFNN"), setup=[MDFNN]),
+         r"--checkpoint MDFNN=runs/mdfnn/tracker\.pt", lambda a: _set(_mc1(a), "--methods", "MDFNN"), setup=[MDFNN],
+         integration=True),
     # ... on another seed's draws: the EKF row on one run
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/eval_seed1 --seed 1",
-         lambda a: _set(_mc1(a), "--methods", "EKF")),
+         lambda a: _set(_mc1(a), "--methods", "EKF"), integration=True),
     # ... sharded: the EKF row on two blocks of 10 runs, one per shard
     # (shards and their merge are checked in-process in tests/test_harness.py: these three run in the slow tier)
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/s([12]) --shard \1/2",
@@ -171,7 +174,7 @@ RULES = [
          setup=[SMOKE, ["simulate", "datasets/fitee2023_ca.yaml", "--out", "data/z", "--tracks", "3", "--quiet"],
                 ["export", "data/z", "--out", "z.csv"]]),
     Rule(r"pmsr front-end iq\.h5 --settings evaluate/fm_front_end\.yaml --out runs/iq",
-         setup=[["python", "evaluate/make_fm_recording.py", "--out", "iq.h5", "--cpis", "2"]]),
+         setup=[["python", "evaluate/make_fm_recording.py", "--out", "iq.h5", "--cpis", "2"]], integration=True),
     Rule(r"pmsr train train/smoke\.yaml --out runs/smoke", lambda a: [*a, "trainer.max_epochs=1"]),
     Rule(r"pmsr select train/mdfnn\.yaml --out runs/select --members 10",
          lambda a: [*_set(a, "--members", "2"), "--fresh-tracks", "2", *TINY_TRAIN]),
@@ -420,7 +423,8 @@ def _run_with_rule(command: str) -> None:
         run(argv, own_process=r.own_process)
 
 
-@pytest.mark.parametrize("command", _other_commands(slow=False))
+@pytest.mark.parametrize("command", [pytest.param(c, marks=pytest.mark.integration) if rule_for(c).integration else c
+                                     for c in _other_commands(slow=False)])
 def test_readme_command_runs_on_a_tiny_configuration(sandbox, command):
     _run_with_rule(command)
 

@@ -37,6 +37,7 @@ def test_the_empty_set_gospa_of_seed_0_is_the_records(tmp_path):
     assert seed0["gospa_empty_set_m"] == pytest.approx(want["gospa_empty_set_m"], rel=1e-12)
 
 
+@pytest.mark.integration
 def test_the_burn_in_restarts_are_the_records(tmp_path):
     """The runs in which the test restarts a right track, at burn-ins 0 and 20: the record's counts
     (the draws are seeded: the same runs, the same tracks)."""

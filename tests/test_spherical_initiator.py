@@ -211,6 +211,7 @@ def brute_force_chi2(model, z: np.ndarray, starts: list[np.ndarray]) -> float:
     return min(2 * least_squares(resid, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).cost for x0 in starts)
 
 
+@pytest.mark.integration
 def test_the_greedy_selection_is_the_brute_force_one():
     """2 runs, 3 pairs, 3 detections each: three targets 1.5 km apart (1 km range deviation), so
     that mixed combinations pass the gate too and the greedy order decides. Every one of the 27

@@ -59,6 +59,7 @@ def _sd_scaled(a: np.ndarray, b: np.ndarray, P: np.ndarray) -> tuple[float, floa
 # ------------------------------------------------------------------------- without Stone Soup
 
 
+@pytest.mark.integration
 def test_nothing_imports_stonesoup_at_import_time():
     code = ("import sys; import pmsr_nn, pmsr_nn.interop, pmsr_nn.harness, pmsr_nn.cli; from pmsr_nn.methods import "
             "registry; assert 'stonesoup' in registry(); bad = sorted(m for m in sys.modules if m == 'stonesoup' or "

@@ -88,6 +88,7 @@ def test_range_doppler_for_a_receiver_away_from_the_origin_matches_direct_geomet
     assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
 
 
+@pytest.mark.integration
 def test_two_targets_give_two_lobes_each_at_its_snr_with_its_own_phase():
     """Two targets at integer cells far apart (other target's response exactly zero there) in
     8 dB and 3 dB maps, 3,000 runs x 2 maps: at a target's cell |z|^2 / sigma^2 is non-central
@@ -247,6 +248,7 @@ def test_shards_merge_to_exactly_the_unsharded_figures(tmp_path):
     assert (tmp_path / "m" / "c_maps.png").is_file()  # run 0's maps travel in shard 1's examples
 
 
+@pytest.mark.integration
 @pytest.mark.figures
 def test_pmsr_evaluate_writes_the_remote_sensing_figures(tmp_path):
     """`pmsr evaluate` on a tiny TBD scenario: per-frame figures for every method, Table 2 beside

@@ -74,6 +74,7 @@ def _static_estimates(snr_db: float, B: int = 300, seed: int = 0):
     return seed_max, boot
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("snr_db", [8.0, 10.0])
 def test_the_bootstrap_removes_part_of_the_maximums_bias_without_overshooting(snr_db):
     """Mean estimated power over 300 maps, in dB against the true SNR: the seed's maximum is biased

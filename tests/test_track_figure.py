@@ -90,6 +90,7 @@ def test_one_panel_per_row_with_title_and_legend_inside_the_figure(captured, tmp
     assert top <= min(ax.get_tightbbox(renderer).y0 for ax in panels)  # the entries below every panel and its labels
 
 
+@pytest.mark.integration
 @pytest.mark.figures
 def test_the_report_links_the_figure_and_draws_it(tmp_path):
     """write_report on dense_crossing's recorded results (written before trajectory GOSPA and

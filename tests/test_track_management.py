@@ -235,6 +235,7 @@ def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(t
             assert est.exists[b, k0 + 1:k1, slot[b]].all() and not est.exists[b, k1:, slot[b]].any()
 
 
+@pytest.mark.integration
 def test_initiation_from_detections_is_scored_as_tracks_in_the_report(tmp_path):
     path = scenario(tmp_path, pd=0.9, clutter=3, methods=[{"name": "S-MSJPDA", "kind": "s_msjpda"},
                     {"name": "S-MSJPDA (initiates)", "kind": "s_msjpda", "options": {"initiation": "detections"}}])

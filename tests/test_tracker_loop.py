@@ -91,6 +91,7 @@ def test_own_tracks_on_the_loop_start_one_confirmed_track_per_separated_target(g
     assert float(nees.max()) < chi2.ppf(0.9999, 2), nees.max()
 
 
+@pytest.mark.integration
 def test_the_gnn_kind_runs_through_evaluate(gnn, tmp_path):
     path = two_drones(tmp_path, methods=[{"name": "GNN", "kind": "gnn_example"}], mc_runs=2)
     res = evaluate(path, tmp_path / "out", progress=False)

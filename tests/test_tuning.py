@@ -157,6 +157,7 @@ def test_grid_points_batched_in_one_call_score_as_one_by_one(known_q):
     assert len(set(alone)) == 4  # the options reach the filter
 
 
+@pytest.mark.integration
 def test_tuned_and_imm_methods_in_a_full_run(known_q, tmp_path):
     d = scenario(known_q, mc_runs=4, tuning={"tracks": 10, "seed": 3, "q_grid": [1e-4, 1e-3],
                                              "q_quiet_grid": [1e-5, 1e-3], "q_manoeuvre_grid": [0.1],
