@@ -330,12 +330,13 @@ def test_a_pooled_list_is_one_association_over_the_illuminators_as_enumerated():
 
 def test_the_managed_companion_is_one_sky_bp_but_for_its_rows():
     """``evaluate/one_sky_managed.yaml``: one_sky_bp's draws and scoring, S-MSJPDA with the
-    duplicate-free management's options."""
+    duplicate-free management's options, S- and P-MSJPDA."""
     from pmsr_nn.methods.track_management import DUPLICATE_FREE
 
     root = Path(__file__).resolve().parents[1] / "evaluate"
     bp, managed = (yaml.safe_load((root / f).read_text()) for f in ("one_sky_bp.yaml", "one_sky_managed.yaml"))
     rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
     assert rest(managed) == rest(bp)
-    [row] = managed["methods"]
-    assert row["kind"] == "s_msjpda" and row["options"] == {"initiation": "detections", **DUPLICATE_FREE}
+    assert [row["kind"] for row in managed["methods"]] == ["s_msjpda", "p_msjpda"]
+    for row in managed["methods"]:
+        assert row["options"] == {"initiation": "detections", **DUPLICATE_FREE}

@@ -55,6 +55,7 @@ def test_m_of_n_confirms_and_gives_up_as_worked_by_hand():
     (lambda: Confirmer(4, 3), "M = 4, N = 3: a track could never be confirmed"),
     (lambda: Confirmer(0, 3), "1 <= M <= N"),
     (lambda: Deleter(0), "0 would delete every track at its birth"),
+    (lambda: Deleter(2, min_existence=1.0), "delete_existence must be in"),
     (lambda: FixInitiator(min_pairs=0), "min_pairs must be at least 1"),
 ])
 def test_components_that_could_never_work_are_refused(make, message):
@@ -161,6 +162,24 @@ def test_the_table_starts_confirms_and_deletes_as_worked_by_hand():
     assert not bool(t.active.any())
 
 
+def test_a_track_whose_existence_falls_below_delete_existence_is_deleted_tentative_or_confirmed():
+    """JIPDA's termination: existences 0.004 (confirmed), 0.02 (confirmed), 0.009 (tentative), 0.6
+    (confirmed), each detected at every pair (no miss counts): below 0.01 goes, whatever its status;
+    without the threshold (0, the default) nothing does."""
+    t = TrackTable.empty(1, 6, torch.zeros(6, dtype=torch.float64), capacity=4)
+    t.add(Gaussian(torch.zeros(1, 4, 6, dtype=torch.float64), torch.eye(6, dtype=torch.float64).expand(1, 4, 6, 6)),
+          torch.ones(1, 4, dtype=torch.bool))
+    t.status = torch.tensor([[CONFIRMED, CONFIRMED, TENTATIVE, CONFIRMED]])
+    t.existence = torch.tensor([[0.004, 0.02, 0.009, 0.6]], dtype=torch.float64)
+    kept = TrackTable(**{k: getattr(t, k) for k in t.__dataclass_fields__})
+    t.record(torch.full((1, 4), 3), hit_pairs=2)
+    kept.record(torch.full((1, 4), 3), hit_pairs=2)
+    kept.manage(Confirmer(2, 3), Deleter(misses=2), list(CA_POS))
+    assert kept.status.tolist() == [[CONFIRMED, CONFIRMED, CONFIRMED, CONFIRMED]]  # 2 hits confirm the tentative one
+    t.manage(Confirmer(2, 3), Deleter(misses=2, min_existence=0.01), list(CA_POS))
+    assert t.status.tolist() == [[FREE, CONFIRMED, FREE, CONFIRMED]]
+
+
 def test_existence_follows_the_ipda_update():
     t = TrackTable.empty(1, 6, torch.zeros(6, dtype=torch.float64), capacity=2)
     t.add(Gaussian(torch.zeros(1, 2, 6, dtype=torch.float64), torch.eye(6, dtype=torch.float64).expand(1, 2, 6, 6)),
@@ -235,6 +254,25 @@ def test_births_and_deaths_without_clutter_give_one_confirmed_track_per_target(t
             assert est.exists[b, k0 + 1:k1, slot[b]].all() and not est.exists[b, k1:, slot[b]].any()
 
 
+@pytest.mark.parametrize("kind", ["s_msjpda", "p_msjpda"])
+def test_one_of_one_confirms_and_reports_a_track_at_the_scan_that_starts_it(tmp_path, kind):
+    """``confirm_m: 1`` (the initiation scan is a hit): the same scenes as above, each target
+    reported from its birth scan, one track each, none false, with its fix as its state there."""
+    options = {"initiation": "detections", "confirm_m": 1, "confirm_n": 1}
+    setup = prepare(load_scenario(scenario(tmp_path, methods=[{"name": "S", "kind": kind, "options": options}])))
+    case = setup.cases[0]
+    truth, products = draw_block(setup, 0, 0)
+    est = call_method(setup, setup.methods[0], case, products, (3, 0, 0))
+    B, K, _ = est.exists.shape
+    alive = case.alive.expand(B, K, 2)
+    sets = set_scores(est.x[..., [0, 3]], est.exists, truth.x[..., [0, 3]], alive, 300.0, 2.0)
+    ts = track_scores(sets.assignment, est.exists, alive)
+    assert ts.tracks_per_target.tolist() == [[1.0, 1.0]] * B and ts.false_tracks.tolist() == [0.0] * B
+    assert ts.scans_to_first_track.tolist() == [[0.0, 0.0]] * B and ts.missed_scans.tolist() == [[0.0, 0.0]] * B
+    # missed 0 with c = 300 m: at its birth scan each target's track (the multi-pair fix) is within 300 m
+    assert bool(est.exists[:, 0].any(-1).all()) and int(est.exists[:, 14].sum()) == B  # b is born at 15 s
+
+
 @pytest.mark.integration
 def test_initiation_from_detections_is_scored_as_tracks_in_the_report(tmp_path):
     path = scenario(tmp_path, pd=0.9, clutter=3, methods=[{"name": "S-MSJPDA", "kind": "s_msjpda"},
@@ -258,6 +296,8 @@ def test_initiation_from_detections_is_scored_as_tracks_in_the_report(tmp_path):
     ({"hit_pairs": 4}, "method 'S': initiation from detections: hit_pairs (4) must be in [1, 3]"),
     ({"init_pairs": 4}, "method 'S': min_pairs (4) is more than the 3 pairs"),
     ({"report_existence": 1.5}, "method 'S': option report_existence must be a number in [0.0, 1.0], got 1.5"),
+    ({"delete_existence": 0.0}, "method 'S': option delete_existence must be"),
+    ({"delete_existence": 0.5}, "method 'S': delete_existence (0.5) must be below report_existence (0.5)"),
 ])
 def test_settings_that_never_confirm_are_one_line_errors_and_write_nothing(tmp_path, capsys, options, message):
     path = scenario(tmp_path, methods=[{"name": "S", "kind": "s_msjpda",

@@ -93,3 +93,9 @@ class OwnTracks(TableTracks):
             table.add(*new, mg.initial_existence)
             C = table.active.shape[1]
             self.started = table.active & ~torch.cat([before, before.new_zeros(before.shape[0], C - before.shape[1])], 1)
+            # the initiation scan is a hit: with confirm_m 1 a new track is confirmed, and
+            # reported, at the scan that started it
+            at_once = self.started & mg.confirmer.confirms(table.hits)
+            if bool(at_once.any()):
+                table.confirm(at_once)
+                self.report.write(k, table, mg.report_existence, only=at_once)
