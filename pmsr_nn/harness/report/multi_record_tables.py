@@ -11,6 +11,8 @@ from .msjpda_record_tables import MSJPDA_INITIATION
 from .study_record_tables import DENSE, ONE_SKY, ONE_SKY_HYBRID, SHARED, SHARED_HYBRID
 
 ONE_SKY_BP = "evaluate/results/one_sky_bp/results.json"
+ONE_SKY_MANAGED = "evaluate/results/one_sky_managed/results.json"
+ONE_SKY_MANAGED_PMHT = "evaluate/results/one_sky_managed_pmht/results.json"
 DENSE_BP = "evaluate/results/dense_crossing_bp/results.json"
 SHARED_BP = "evaluate/results/shared_drones_bp/results.json"
 DENSE_GHOSTS = "evaluate/results/dense_crossing_ghosts/results.json"
@@ -40,16 +42,18 @@ def _seeds(methods: dict, name: str) -> str:
     return " / ".join(_gospa(methods[name.format(seed=s)]) for s in range(3))
 
 
-READ_DETECTIONS_SOURCES = (SHARED_BP, SHARED, SHARED_HYBRID, ONE_SKY_BP, ONE_SKY, ONE_SKY_HYBRID,
+READ_DETECTIONS_SOURCES = (SHARED_BP, SHARED, SHARED_HYBRID, ONE_SKY_BP, ONE_SKY, ONE_SKY_HYBRID, ONE_SKY_MANAGED,
+                           ONE_SKY_MANAGED_PMHT,
                            DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION)
 
 
 def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, one_sky_bp: dict, one_sky: dict,
-                           one_sky_hybrid: dict, dense_bp: dict, dense: dict, dense_ghosts: dict,
+                           one_sky_hybrid: dict, one_sky_managed: dict, one_sky_managed_pmht: dict, dense_bp: dict, dense: dict, dense_ghosts: dict,
                            access: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
-    rows (the scenarios' studies) and the learned gain's three seeds, per scenario; the Access
-    initiation study's nominal case (range and Doppler only) last."""
+    rows (the scenarios' studies) and the learned gain's three seeds, per scenario, with one_sky's
+    duplicate-free rows (BP's scoring) below its own; the Access initiation study's nominal case
+    (range and Doppler only) last."""
     gain = "S-MSJPDA + learned gain [seed {seed}]"
     out = ["| scenario | BP | S-MSJPDA | P-MSJPDA | PMHT | SMC-PHD + GTDA | S-MSJPDA + learned gain, seeds 0 / 1 / 2 |",
            "|---|---:|---:|---:|---:|---:|---|"]
@@ -62,6 +66,11 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                     "`one_sky_hybrid.yaml`, the same runs)", _gospa(_methods(one_sky_bp)["BP"]) + " *",
                     _gospa(o["S-MSJPDA"]), _gospa(o["P-MSJPDA"]), _gospa(o["PMHT"]), _gospa(o["SMC-PHD + GTDA"]),
                     _seeds(_methods(one_sky_hybrid), gain)]))
+    m = _methods(one_sky_managed)
+    out.append(row(["`one_sky_managed.yaml` (the same runs and BP's scoring; S- and P-MSJPDA with the duplicate-free "
+                    "management; PMHT from `one_sky_managed_pmht.yaml`)", _gospa(_methods(one_sky_bp)["BP"]), _gospa(m["S-MSJPDA (duplicate-free)"]),
+                    _gospa(m["P-MSJPDA (duplicate-free)"]),
+                    _gospa(_methods(one_sky_managed_pmht)["PMHT (duplicate-free)"]) + " (first 10 runs)", "-", "-"]))
     d = _methods(dense)
     out.append(row(["`dense_crossing.yaml` (Pd 0.7, 40 clutter points per pair, 10 runs)",
                     _gospa(_methods(dense_bp)["BP"]), _gospa(d["S-MSJPDA"]), _gospa(d["P-MSJPDA"]), _gospa(d["PMHT"]),
@@ -163,12 +172,15 @@ ONE_SKY_BP_SECOND = "evaluate/results/history/one_sky_bp_c9234c4.json"
 ONE_SKY_BP_FIRST = "evaluate/results/history/one_sky_bp_ed6bff1.json"
 """one_sky_bp's two previous records (BP's second and first defaults), as git held them at c9234c4
 and ed6bff1."""
-ONE_SKY_MANAGED = "evaluate/results/one_sky_managed/results.json"
+ONE_SKY_MANAGED_FIRST = "evaluate/results/history/one_sky_managed_a5ceb4a.json"
+"""one_sky_managed's previous record (S-MSJPDA with the duplicate-free management before its
+existence deletion), as git held it at a5ceb4a."""
 
 
-def one_sky_bp(current: dict, second: dict, first: dict, managed: dict) -> list[str]:
+def one_sky_bp(current: dict, second: dict, first: dict, managed: dict, managed_first: dict) -> list[str]:
     """BP's one_sky study: its record's rows, BP of the two earlier records (the earlier defaults,
-    restored from git), and S-MSJPDA with the duplicate-free management (its own record)."""
+    restored from git), and S- and P-MSJPDA with the duplicate-free management (its own record, and
+    S-MSJPDA's previous one without the existence deletion)."""
     dt = current["settings"]["dt_s"]
     now = _methods(current)
 
@@ -191,8 +203,11 @@ def one_sky_bp(current: dict, second: dict, first: dict, managed: dict) -> list[
                                    f"{then['S-MSJPDA']['seconds_per_run']:.1f})")]),
            row(["BP (first defaults), the record before", *cells(_methods(first)["BP"], "(other processes)")]),
            row(["S-MSJPDA", *cells(now["S-MSJPDA"], fixed(now["S-MSJPDA"]["seconds_per_run"], 1))]),
-           row(["S-MSJPDA (duplicate-free), `one_sky_managed.yaml`",
-                *cells(_methods(managed)["S-MSJPDA (duplicate-free)"], "(other processes)")])]
+           *(row([f"{name} (duplicate-free), `one_sky_managed.yaml`",
+                  *cells(m, f"{m['seconds_per_run']:.1f} (beside its twin)")])
+             for name in ("S-MSJPDA", "P-MSJPDA") for m in [_methods(managed)[f"{name} (duplicate-free)"]]),
+           row(["S-MSJPDA (duplicate-free, no existence deletion), the previous record",
+                *cells(_methods(managed_first)["S-MSJPDA (duplicate-free)"], "(other processes)")])]
     return out
 
 

@@ -128,7 +128,8 @@ TABLES: dict[str, Table] = {
     # tables that quote several records
     "readme_from_detections": Table(multi.READ_DETECTIONS_SOURCES, multi.readme_from_detections),
     "dense_crossing_bp": Table((multi.DENSE_BP, study.DENSE), multi.dense_crossing_bp),
-    "one_sky_bp": Table((multi.ONE_SKY_BP, multi.ONE_SKY_BP_SECOND, multi.ONE_SKY_BP_FIRST, multi.ONE_SKY_MANAGED),
+    "one_sky_bp": Table((multi.ONE_SKY_BP, multi.ONE_SKY_BP_SECOND, multi.ONE_SKY_BP_FIRST, multi.ONE_SKY_MANAGED,
+                         multi.ONE_SKY_MANAGED_FIRST),
                         multi.one_sky_bp),
     "tbd_subarea": Table((multi.TBD, multi.TBD_FIRST), multi.tbd_subarea),
     "set_tracker_diagnosis": Table(multi.SET_TRACKER_DIAGNOSIS, multi.set_tracker_diagnosis),
