@@ -39,9 +39,10 @@ Options:
   delete_existence: 0.01``, chosen on one_sky draws no recorded study uses, seed 1000) is the
   duplicate-free management of issue 55: without the existence deletion, two tracks on one drone
   whose JIPDA existences both fade stay unreported and take its detections, so no new track
-  starts (a drone of one_sky's formation went 58 scans without a track that way). It is not the default yet: the recorded studies' rows that start their own tracks
-  were made with the defaults above and reproduce from them; it becomes the default when they
-  are re-recorded (evaluate/RESULTS.md, "Belief propagation", what is left);
+  starts (a drone of one_sky's formation went 58 scans without a track that way). It is not the
+  default yet: the recorded studies' rows that start their own tracks were made with the
+  defaults above and reproduce from them; it becomes the default when they are re-recorded
+  (evaluate/RESULTS.md, "Belief propagation", what is left);
 * the innovation bias test (:data:`BIAS_OPTIONS`: ``bias_window`` null for none).
 """
 
@@ -165,7 +166,8 @@ def management(spec, sensing, pooled: bool = False) -> Management:
     else:
         single = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
     merge = o("merge_scans")
-    return Management(initiator(single, spec), Confirmer(int(o("confirm_m")), int(o("confirm_n"))), Deleter(int(o("delete_misses")), min_existence=float(o("delete_existence") or 0.0)),
+    deleter = Deleter(int(o("delete_misses")), min_existence=float(o("delete_existence") or 0.0))
+    return Management(initiator(single, spec), Confirmer(int(o("confirm_m")), int(o("confirm_n"))), deleter,
                       sensing.prior_sd, int(o("hit_pairs")), float(o("survival")), float(o("initial_existence")),
                       float(o("report_existence")), bias_test(spec),
                       None if merge is None else Coalescence(int(merge), float(o("merge_probability"))),
