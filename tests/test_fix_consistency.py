@@ -1,0 +1,73 @@
+"""``evaluate/fix_consistency.py``: the fix initiator's position NEES over many draws. Where the
+fix is linear in the noise (a tiny azimuth deviation) the script's NEES must be chi-square(2);
+with the recorded settings it reproduces its record."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from test_track_management import model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("fix_consistency", ROOT / "evaluate" / "fix_consistency.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_in_the_linear_regime_the_nees_is_chi_square_2():
+    """Azimuth deviation 0.01 deg and range 0.1 m: the linearisation is exact to far below the noise,
+    so each NEES is chi-square(2): median 1.386, mean 2, 0.1 % beyond 13.8. Tolerances: 4 standard
+    errors of each statistic over the sample (median: 1 / (2 f(m) sqrt(n)), f(m) = 1/4; mean: 2 /
+    sqrt(n); share: the binomial's)."""
+    fc = _script()
+    m = dataclasses.replace(model(), noise_std=(0.1, 2.0, math.radians(0.01)))
+    out = fc.draw_fixes(m, 3000, (3000.0, 12000.0), seed=0)
+    for name in ("single", "fused"):
+        s = out[name]
+        n = s["n"]
+        assert n >= 3000 * 0.9, (name, n)
+        assert abs(s["median"] - 2 * math.log(2)) < 4 / (2 * 0.25 * math.sqrt(n)), (name, s)
+        assert abs(s["mean"] - 2.0) < 4 * 2 / math.sqrt(n), (name, s)
+        assert abs(s["share_beyond_999"] - 1e-3) < 4 * math.sqrt(1e-3 * (1 - 1e-3) / n), (name, s)
+
+
+def test_the_3_degree_fixes_are_not_consistent_and_the_check_would_see_it():
+    """The same draws at the scenarios' 3 deg azimuth: the single fixes' tail is many times the
+    0.1 % a consistent covariance gives (what evaluate/RESULTS.md reports; a change that makes the
+    covariance consistent must change this test and that record)."""
+    out = _script().draw_fixes(model(), 3000, (3000.0, 12000.0), seed=0)
+    s = out["single"]
+    assert s["share_beyond_999"] > 1e-3 + 4 * math.sqrt(1e-3 / s["n"]) and s["mean"] > 2.0 + 4 * 2 / math.sqrt(s["n"])
+
+
+@pytest.mark.integration
+def test_the_record_reproduces(tmp_path):
+    record = json.loads((ROOT / "evaluate/results/fix_consistency.json").read_text())
+    out = tmp_path / "fc.json"
+    args = ["--draws", str(record["draws"]), "--seed", str(record["seed"]), "--radii", ",".join(str(r) for r in record["radii_m"]),
+            "--json", str(out)]
+    assert _script().main(args) == 0
+    new = json.loads(out.read_text())
+    for name in ("single", "fused"):
+        assert new[name]["n"] == record[name]["n"]
+        for key in ("median", "mean"):
+            assert new[name][key] == pytest.approx(record[name][key], rel=1e-6)
+        # a NEES at the threshold may cross it by rounding on another CPU: one sample's worth
+        assert abs(new[name]["share_beyond_999"] - record[name]["share_beyond_999"]) <= 1.0 / record[name]["n"] + 1e-12
+
+
+def test_bad_settings_are_one_line_and_write_nothing(tmp_path, capsys):
+    out = tmp_path / "fc.json"
+    assert _script().main(["--radii", "5000,1000", "--json", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--radii" in err[0] and not out.exists()
