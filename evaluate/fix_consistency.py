@@ -12,7 +12,10 @@ It then prints the position NEES of:
 
 For each, the NEES's median and mean, and the share beyond the chi-square(2) 99.9 % point (13.8),
 overall and by the fix's distance from its receiver. A consistent covariance gives a median of
-1.39, a mean of 2 and a share of 0.1 %.
+1.39, a mean of 2 and a share of 0.1 %. It also gives, at three fixed positions, the fixes' empirical deviation
+along each principal axis of the linearised covariance at the true measurement over that axis's
+linearised deviation (:func:`fixed_points`): where it is far from 1 the linearisation itself
+misses the spread, wherever it is evaluated.
 
     python evaluate/fix_consistency.py [--scenario evaluate/one_sky_bp.yaml] [--draws 4000] [--seed 0]
         [--radii 2000,12000] [--json evaluate/results/fix_consistency.json]
@@ -37,11 +40,6 @@ DISTANCE_BANDS_M = (0.0, 3000.0, 6000.0, 9000.0, 12000.0, math.inf)
 """The bands of a fix's distance from its receiver (m) the single fixes' NEES is given for."""
 
 
-def nees(err: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
-    """``err (..., 2)`` under ``cov (..., 2, 2)``: ``err^T cov^-1 err`` ``(...)``."""
-    return (err.unsqueeze(-2) @ torch.linalg.solve(cov, err.unsqueeze(-1))).flatten(-3)
-
-
 def summary(v: torch.Tensor) -> dict:
     """The NEES sample's count, median, mean and share beyond :data:`CHI2_2_999`."""
     return {"n": int(v.numel()), "median": float(v.median()), "mean": float(v.mean()),
@@ -52,6 +50,7 @@ def draw_fixes(model, draws: int, radii: tuple[float, float], seed: int) -> dict
     """NEES of the single and fused fixes of ``draws`` positions (module docstring), measured by
     ``model`` (a pair-layout :class:`~pmsr_nn.measurements.MeasurementModel` with azimuth)."""
     from pmsr_nn.trackers.fix_initiator import FixInitiator
+    from pmsr_nn.trackers.gating import mahalanobis
 
     g = torch.Generator().manual_seed(seed)
     lo, hi = radii
@@ -67,7 +66,7 @@ def draw_fixes(model, draws: int, radii: tuple[float, float], seed: int) -> dict
     ini = FixInitiator()
     pos, cov, ok = ini.fixes(z, model, n)
     truth = x[:, pos_idx]
-    single = nees(pos[:, :, 0] - truth[:, None], cov[:, :, 0])  # (draws, S)
+    single = mahalanobis(pos[:, :, 0] - truth[:, None], cov[:, :, 0])  # (draws, S)
     ok = ok[:, :, 0]
     dist = (pos[:, :, 0] - model.geometry.pair_rx_positions(torch.float64)[None]).norm(dim=-1)
     bands = []
@@ -79,9 +78,46 @@ def draw_fixes(model, draws: int, radii: tuple[float, float], seed: int) -> dict
     gs, real = ini.initiate(z, torch.ones(draws, S, 1, dtype=torch.bool), model, n, other)
     first = real[:, 0]
     P = gs.P[first, 0][:, pos_idx][:, :, pos_idx]
-    fused = nees(gs.x[first, 0][:, pos_idx] - truth[first], P)
+    fused = mahalanobis(gs.x[first, 0][:, pos_idx] - truth[first], P)
     return {"single": summary(single[ok]), "single_by_distance": bands, "fused": summary(fused),
             "fused_share_of_draws": float(first.double().mean())}
+
+
+def fixed_points(model, radius: float, draws: int, seed: int) -> dict:
+    """At three fixed positions ``radius`` m out (bearings 30, 150 and 270 deg), each pair's fixes of
+    ``draws`` noisy measurements: the empirical deviation of their errors along each principal axis
+    of the linearised covariance at the true measurement, over that axis's linearised deviation
+    (1 where the linearisation holds). ``ratios`` ``[point][pair][axis]``, the short axis first
+    (None: no fix there), and each axis's range of ratios."""
+    from pmsr_nn.trackers.fix_initiator import FixInitiator
+
+    g = torch.Generator().manual_seed(seed)
+    n, pos_idx = 3 * len(model.pos_idx), list(model.pos_idx)
+    S, d = model.n_pairs, len(model.components)
+    sd = torch.tensor(model.noise_std, dtype=torch.float64)
+    ini, ratios = FixInitiator(), []
+    for bearing in (30.0, 150.0, 270.0):
+        x = torch.zeros(1, n, dtype=torch.float64)
+        x[0, pos_idx[0]], x[0, pos_idx[1]] = radius * math.sin(math.radians(bearing)), radius * math.cos(math.radians(bearing))
+        clean = model.h(x).reshape(1, S, d)
+        _, cov0, ok0 = ini.fixes(clean.unsqueeze(2), model, n)
+        z = (clean + torch.randn(draws, S, d, generator=g, dtype=torch.float64) * sd).unsqueeze(2)
+        pos, _, ok = ini.fixes(z, model, n)
+        err = pos[:, :, 0] - x[:, pos_idx]  # (draws, S, 2)
+        row = []
+        for s_ in range(S):
+            keep = ok[:, s_, 0]
+            if not bool(ok0[0, s_, 0]) or int(keep.sum()) < draws // 2:
+                row.append(None)
+                continue
+            lam, vec = torch.linalg.eigh(cov0[0, s_, 0])
+            proj = err[keep, s_] @ vec  # (kept, 2): errors along the principal axes
+            row.append([float(v) for v in proj.std(0) / lam.sqrt()])
+        ratios.append(row)
+    kept = [r for row in ratios for r in row if r is not None]
+    return {"radius_m": radius, "draws": draws, "ratios": ratios,
+            "short_axis_ratio_range": [min(r[0] for r in kept), max(r[0] for r in kept)],
+            "long_axis_ratio_range": [min(r[1] for r in kept), max(r[1] for r in kept)]}
 
 
 def main(argv=None) -> int:
@@ -111,10 +147,16 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     with torch.no_grad():
         out = draw_fixes(model, a.draws, radii, a.seed)
+        out["fixed_points"] = fixed_points(model, (radii[0] + radii[1]) / 2, 5 * a.draws, a.seed + 1)
     for name in ("single", "fused"):
         s = out[name]
         print(f"{name} fixes ({s['n']}): NEES median {s['median']:.2f} (1.39), mean {s['mean']:.1f} (2), "
               f"beyond the 99.9 % point {100 * s['share_beyond_999']:.1f} % (0.1 %)")
+    fp = out["fixed_points"]
+    short, long_ = fp["short_axis_ratio_range"], fp["long_axis_ratio_range"]
+    print(f"at three fixed positions {fp['radius_m']:.0f} m out, {fp['draws']} draws each, the fixes' empirical deviation "
+          f"over the linearised one: short axis {short[0]:.2f}-{short[1]:.2f}, long axis {long_[0]:.2f}-{long_[1]:.2f} (1: "
+          f"the linearisation holds)")
     for band in out["single_by_distance"]:
         print(f"  single, {band['from_m']:.0f}-{band['to_m'] or 'inf'} m from the receiver ({band['n']}): median "
               f"{band['median']:.2f}, beyond 99.9 % {100 * band['share_beyond_999']:.1f} %")

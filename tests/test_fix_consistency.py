@@ -39,15 +39,25 @@ def test_in_the_linear_regime_the_nees_is_chi_square_2():
         assert abs(s["median"] - 2 * math.log(2)) < 4 / (2 * 0.25 * math.sqrt(n)), (name, s)
         assert abs(s["mean"] - 2.0) < 4 * 2 / math.sqrt(n), (name, s)
         assert abs(s["share_beyond_999"] - 1e-3) < 4 * math.sqrt(1e-3 * (1 - 1e-3) / n), (name, s)
+    # at fixed positions each axis's empirical deviation is the linearised one: within 4 standard
+    # errors of a sample deviation's ratio, 1 / sqrt(2 N) each
+    fp = fc.fixed_points(m, 7000.0, 2000, seed=1)
+    tol = 4 / math.sqrt(2 * 2000)
+    for axis in ("short_axis_ratio_range", "long_axis_ratio_range"):
+        assert all(abs(v - 1) < tol for v in fp[axis]), (axis, fp[axis])
 
 
 def test_the_3_degree_fixes_are_not_consistent_and_the_check_would_see_it():
     """The same draws at the scenarios' 3 deg azimuth: the single fixes' tail is many times the
-    0.1 % a consistent covariance gives (what evaluate/RESULTS.md reports; a change that makes the
-    covariance consistent must change this test and that record)."""
-    out = _script().draw_fixes(model(), 3000, (3000.0, 12000.0), seed=0)
+    0.1 % a consistent covariance gives, and at fixed positions the fixes spread along the short
+    axis beyond the linearised deviation (what evaluate/RESULTS.md reports; a change that makes
+    the covariance consistent must change this test and that record)."""
+    fc = _script()
+    out = fc.draw_fixes(model(), 3000, (3000.0, 12000.0), seed=0)
     s = out["single"]
     assert s["share_beyond_999"] > 1e-3 + 4 * math.sqrt(1e-3 / s["n"]) and s["mean"] > 2.0 + 4 * 2 / math.sqrt(s["n"])
+    # the fixes spread along the short axis beyond what the linearisation gives
+    assert fc.fixed_points(model(), 7000.0, 2000, seed=1)["short_axis_ratio_range"][1] > 1 + 4 / math.sqrt(2 * 2000)
 
 
 @pytest.mark.integration
@@ -64,6 +74,8 @@ def test_the_record_reproduces(tmp_path):
             assert new[name][key] == pytest.approx(record[name][key], rel=1e-6)
         # a NEES at the threshold may cross it by rounding on another CPU: one sample's worth
         assert abs(new[name]["share_beyond_999"] - record[name]["share_beyond_999"]) <= 1.0 / record[name]["n"] + 1e-12
+    for axis in ("short_axis_ratio_range", "long_axis_ratio_range"):
+        assert new["fixed_points"][axis] == pytest.approx(record["fixed_points"][axis], rel=1e-6)
 
 
 def test_bad_settings_are_one_line_and_write_nothing(tmp_path, capsys):
