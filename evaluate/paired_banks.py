@@ -1,7 +1,9 @@
 """Two rows compared run by run from block banks (``pmsr evaluate --per-block``), without re-running anything.
 
 Each block of a bank keeps every row's per-run GOSPA^p (``gospa_run``: the run's mean over its
-scored scans). For row A of bank A and row B of bank B, on the runs both banks hold, this prints:
+scored scans); a block scored over other scans than its case's set scans (made before issue 55's
+fix) is read as ``pmsr merge`` reads it, re-derived from its per-scan sums
+(:mod:`pmsr_nn.harness.run.set_window`). For row A of bank A and row B of bank B, on the runs both banks hold, this prints:
 
 * each row's GOSPA over those runs (the p-th root of the mean GOSPA^p, as the report gives it);
 * the paired difference B - A of the runs' own GOSPA (the p-th root of each run's GOSPA^p), its
@@ -27,6 +29,9 @@ import numpy as np
 
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness.run.block_bank import BANK_FILE, bank_blocks, is_bank, made_per_block
+from pmsr_nn.harness.run.block_sums import read_shard
+from pmsr_nn.harness.run.set_window import rescore_runs
+from pmsr_nn.harness.scenario.prepared import set_scans_after
 
 
 def run_powers(bank: Path, case: str | None, row: str) -> tuple[dict[int, float], float]:
@@ -38,19 +43,21 @@ def run_powers(bank: Path, case: str | None, row: str) -> tuple[dict[int, float]
         scenario = json.loads((bank_blocks(bank)[0] / "shard.json").read_text(encoding="utf-8"))["scenario"]
     else:
         raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
-    p, runs_per_block = float(scenario["set_metrics"]["p"]), int(scenario["block_runs"])
+    p, runs_per_block, mc_runs = float(scenario["set_metrics"]["p"]), int(scenario["block_runs"]), int(scenario["mc_runs"])
     cases = [c["name"] for c in scenario["cases"]]
     if case is None and len(cases) != 1:
         raise ConfigError(f"{bank} has cases {', '.join(cases)}: give --case")
     case = case or cases[0]
+    runs_of = lambda b: len(range(b * runs_per_block, min(mc_runs, (b + 1) * runs_per_block)))
     out: dict[int, float] = {}
     for folder in bank_blocks(bank):
-        block = int(folder.name.split("-")[1])
-        with np.load(folder / "blocks.npz", allow_pickle=False) as z:
-            key = f"sums/{case}/{row}/gospa_run"
-            if key not in z.files:
-                raise ConfigError(f"{folder} has no GOSPA per run of row {row!r} in case {case!r}")
-            out.update({block * runs_per_block + i: float(v) for i, v in enumerate(z[key])})
+        _, bs = read_shard(folder)
+        qs = bs.sums.get(case, {}).get(row)
+        if qs is None or "gospa_run" not in qs:
+            raise ConfigError(f"{folder} has no GOSPA per run of row {row!r} in case {case!r}")
+        bs.sums = {case: {row: qs}}
+        rescore_runs([bs], {case: set_scans_after(qs["ospa"].shape[-1], int(scenario["warmup_steps"])).numpy()}, runs_of)
+        out.update({bs.blocks[0] * runs_per_block + i: float(v) for i, v in enumerate(qs["gospa_run"])})
     return out, p
 
 
@@ -70,7 +77,7 @@ def compare(a: dict[int, float], b: dict[int, float], p: float, same_m: float = 
     return {"runs": n, "gospa_a_m": ma ** (1 / p), "gospa_b_m": mb ** (1 / p), "paired_b_minus_a_m": d.mean(),
             "paired_se_m": d.std(ddof=1) / math.sqrt(n), "better": int((d < -same_m).sum()),
             "worse": int((d > same_m).sum()), "same": int((abs(d) <= same_m).sum()), "ratio_a_over_b": ratio,
-            "ratio_se": math.sqrt(float(grad @ cov @ grad)),
+            "ratio_se": math.sqrt(max(float(grad @ cov @ grad), 0.0)),  # a quadratic form >= 0 but for rounding
             "run_ratios": ga / np.maximum(gb, 1e-300),
             "largest_relative_difference": float(np.max(np.abs(pb - pa) / np.maximum(np.abs(pa), 1e-300)))}
 

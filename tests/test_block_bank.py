@@ -15,6 +15,7 @@ from pmsr_nn.harness.evaluate import execute
 from pmsr_nn.harness.run.block_bank import bank_blocks, block_folder
 from pmsr_nn.harness.run.runner import open_run
 from test_harness import ROOT, accuracy, tiny
+from test_one_scenario import two_drones
 
 
 def bank(path, out, shard=(1, 1)):
@@ -313,3 +314,57 @@ def test_a_bank_that_records_its_scenario_folder_absolute_still_continues_and_me
         f.write_text(json.dumps({**meta, "base_dir": str(tmp_path.resolve())}))
     assert bank(path, tmp_path / "bank")["skipped"] == [0]
     assert accuracy(merge([tmp_path / "bank"], tmp_path / "merged")) == accuracy(whole)
+
+
+def _score_every_scan(folder):
+    """Rewrite a block's per-run GOSPA and OSPA as blocks made before issue 55's fix kept them in a
+    scenario with maps: averaged over every scan, not the set scans, and without the trajectory
+    GOSPA (kept since). Returns each block's run figures before and after."""
+    path = folder / "blocks.npz"
+    arrays = {k: v for k, v in np.load(path).items() if "/tgospa_" not in k}
+    changed = []
+    for key in [k for k in arrays if k.endswith("/gospa_run")]:
+        pre = key[:-len("gospa_run")]
+        per_scan = arrays[pre + "gospa_loc"] + arrays[pre + "gospa_missed"] + arrays[pre + "gospa_false"]
+        runs = len(arrays[key])
+        # a block of several runs keeps the sums of its runs' per-scan values: split them evenly
+        old = np.repeat(per_scan.mean(1) / runs, runs)
+        changed.append((arrays[key].copy(), old))
+        arrays[key] = old
+        arrays[pre + "ospa_run"] = np.repeat(arrays[pre + "ospa"].mean(1) / runs, runs)
+    np.savez(path, **arrays)
+    return changed
+
+
+def test_blocks_scored_over_every_scan_are_re_derived_on_the_set_scans_or_refused(tmp_path):
+    """Blocks made before issue 55's fix averaged the per-run figures over every scan: a merge
+    re-derives a one-run block's from its per-scan sums over the set scans (the figures of a fresh
+    run, to float64 rounding, and the record and report say which blocks), and refuses a block of
+    several runs, whose per-scan sums add its runs, writing nothing."""
+    path = two_drones(tmp_path, block_runs=1)  # warm-up 10 scans; EKF on each drone's stream, S-MSJPDA
+    whole = evaluate(path, tmp_path / "whole", progress=False)
+    bank(path, tmp_path / "bank")
+    untouched = merge([tmp_path / "bank"], tmp_path / "untouched")
+    assert "per_run_rescored_blocks" not in untouched["environment"]  # today's blocks agree with the set scans
+    for folder in bank_blocks(tmp_path / "bank"):
+        for kept, old in _score_every_scan(folder):
+            assert abs(old[0] / kept[0] - 1) > 1e-3  # the window matters here: the check has something to find
+    merged = merge([tmp_path / "bank"], tmp_path / "merged")
+    assert merged["environment"]["per_run_rescored_blocks"] == "0-3"
+    assert merged["environment"]["shard_machines"] == [json.loads(
+        (block_folder(tmp_path / "bank", 0) / "shard.json").read_text())["environment"]["machine"]]
+    assert "Blocks 0-3 were scored over other scans" in (tmp_path / "merged" / "report.md").read_text()
+    for c, case in whole["cases"].items():
+        for m, row in case["methods"].items():
+            for key in ("gospa_m", "gospa_se_m", "ospa_m", "ospa_se_m", "gospa_median_run_m", "gospa_run_quantiles_m"):
+                np.testing.assert_allclose(merged["cases"][c]["methods"][m][key], row[key], rtol=1e-12,
+                                           err_msg=f"{c} {m} {key}")
+    (tmp_path / "two").mkdir()
+    several = two_drones(tmp_path / "two")  # blocks of 2 runs
+    bank(several, tmp_path / "two" / "bank")
+    for folder in bank_blocks(tmp_path / "two" / "bank"):
+        _score_every_scan(folder)
+    with pytest.raises(ConfigError, match=r"block 0 \(c, EKF\) was scored over other scans than the "
+                                          r"case's set scans \(scans 10\.\.99\) and holds 2 runs"):
+        merge([tmp_path / "two" / "bank"], tmp_path / "two" / "merged")
+    assert not (tmp_path / "two" / "merged").exists()

@@ -11,8 +11,10 @@ import pytest
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness import merge
 from pmsr_nn.harness.evaluate import execute
+from pmsr_nn.harness.run.block_bank import bank_blocks
 from pmsr_nn.harness.run.runner import open_run
 from script_loader import load_script
+from test_block_bank import _score_every_scan
 from test_one_scenario import two_drones
 
 ROWS = [{"name": "oracle", "kind": "s_msjpda"}, {"name": "own", "kind": "s_msjpda", "options": {"initiation": "detections"}}]
@@ -63,3 +65,15 @@ def test_too_few_shared_runs_or_a_foreign_folder_are_refused(tmp_path):
         script.compare({0: 1.0, 1: 2.0}, {1: 2.0, 2: 3.0}, 2.0)
     with pytest.raises(ConfigError, match="not a block bank"):
         script.run_powers(tmp_path, None, "own")
+
+
+def test_blocks_scored_over_every_scan_are_read_as_the_merge_reads_them(tmp_path):
+    """A bank made before issue 55's fix of the set scans: each run's GOSPA^p is re-derived from its
+    block's per-scan sums, so the pairs are the fresh run's, like the merged record's figures."""
+    path = two_drones(tmp_path, methods=ROWS, mc_runs=2, block_runs=1)
+    execute(open_run(path, tmp_path / "bank", target="bank", progress=False))
+    script = load_script("evaluate/paired_banks.py")
+    fresh, _ = script.run_powers(tmp_path / "bank", None, "own")
+    rewritten = [pair for folder in bank_blocks(tmp_path / "bank") for pair in _score_every_scan(folder)]
+    assert max(abs(old[0] / kept[0] - 1) for kept, old in rewritten) > 1e-3  # the blocks now disagree
+    assert script.run_powers(tmp_path / "bank", None, "own")[0] == pytest.approx(fresh, rel=1e-12)

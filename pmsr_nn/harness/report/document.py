@@ -127,6 +127,10 @@ def write_report(res: Results | dict, out: Path, examples: dict, geometry, ref: 
     if env.get("preview_of_runs"):  # pmsr merge --runs: the first runs of a recording still running
         lines += [f"**A preview: the first {results.mc_runs} of the scenario's {env['preview_of_runs']} runs**, merged "
                   "from the shards of a recording in progress; every figure and error below is of these runs.", ""]
+    if env.get("per_run_rescored_blocks"):  # pmsr merge of blocks made before the set scans' fix (issue 55)
+        lines += [f"Blocks {env['per_run_rescored_blocks']} were scored over other scans than the set scans (made before "
+                  "issue 55's fix); the merge re-derived their per-run GOSPA and OSPA (Monte Carlo errors, run "
+                  "quantiles, paired comparisons) from their per-scan sums over the set scans.", ""]
     if results.description:
         lines += [results.description.strip(), ""]
     lines += setting_lines(results)

@@ -4,6 +4,8 @@ whose sums are the shards' (nothing left to run).
 
 A merge of shards gives the unsharded run's figures bit for bit, timings aside: the sums are
 concatenated in block order (:meth:`~.block_sums.BlockSums.concatenate`) and reduced like one run's.
+Blocks scored over other scans than the case's set scans (made before issue 55's fix) have their
+per-run figures re-derived, or are refused (:mod:`.set_window`); the record names them.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from ..scenario.schema import Scenario, scenario_from_dict
 from .block_bank import bank_blocks, is_bank, made_per_block
 from .block_sums import BlockSums, read_shard
 from .runner import RESULT_COMMANDS, Run, prepare
+from .set_window import rescore_runs
 
 
 def open_merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False,
@@ -46,20 +49,25 @@ def open_merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite:
         if m["scenario"] != first["scenario"]:
             raise ConfigError(f"{d} comes from another scenario or settings than {shards[0]}")
     sc = scenario_from_dict(first["scenario"], first["base_dir"])
-    extra = {"shard_commits": sorted({str(m.get("environment", {}).get("commit")) for m in metas})}
+    shard_env = lambda key: sorted({str(m.get("environment", {}).get(key)) for m in metas})
+    extra = {"shard_commits": shard_env("commit"), "shard_machines": shard_env("machine")}
     if runs is not None:
         parts = _first_runs(sc, runs, shards, parts)
         extra["preview_of_runs"] = sc.mc_runs
         sc = sc.with_mc_runs(runs)
-    merged = BlockSums.concatenate(parts)
-    if merged.blocks != list(range(sc.n_blocks)):
-        missing = sorted(set(range(sc.n_blocks)) - set(merged.blocks))
-        twice = sorted({b for b in merged.blocks if merged.blocks.count(b) > 1})
+    blocks = [b for p in sorted(parts, key=lambda p: p.blocks[0] if p.blocks else -1) for b in p.blocks]  # merged order
+    if blocks != list(range(sc.n_blocks)):
+        missing = sorted(set(range(sc.n_blocks)) - set(blocks))
+        twice = sorted({b for b in blocks if blocks.count(b) > 1})
         raise ConfigError(f"the shards lack blocks {_ranges(missing) or 'none'} and repeat {_ranges(twice) or 'none'}; "
                           f"the scenario has blocks 0..{sc.n_blocks - 1}, each needed exactly once")
     setup = prepare(sc, device)
+    redone = rescore_runs(parts, {c.name: c.set_scans.numpy() for c in setup.cases},
+                          lambda b: len(sc.block_runs_range(b)))
+    if redone:
+        extra["per_run_rescored_blocks"] = _ranges(redone)
     return Run(setup, range(0), Path(out), "results", inputs=tuple(shards), device=device, overwrite=overwrite,
-               sums=merged, merged=extra)
+               sums=BlockSums.concatenate(parts), merged=extra)
 
 
 def _first_runs(sc: Scenario, runs: int, shards: list[Path], parts: list[BlockSums]) -> list[BlockSums]:
