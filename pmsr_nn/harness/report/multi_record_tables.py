@@ -52,7 +52,7 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                            access: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
     rows (the scenarios' studies) and the learned gain's three seeds, per scenario, with one_sky's
-    duplicate-free rows (BP's scoring) below its own; the Access initiation study's nominal case
+    duplicate-free rows below its own; the Access initiation study's nominal case
     (range and Doppler only) last."""
     gain = "S-MSJPDA + learned gain [seed {seed}]"
     out = ["| scenario | BP | S-MSJPDA | P-MSJPDA | PMHT | SMC-PHD + GTDA | S-MSJPDA + learned gain, seeds 0 / 1 / 2 |",
@@ -63,11 +63,11 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                     _gospa(s["PMHT from detections"]), "-", _seeds(_methods(shared_hybrid), gain)]))
     o = _methods(one_sky)
     out.append(row(["`one_sky.yaml` (eight drones, Pd 0.85, 10 clutter points per pair, 50 runs; hybrid rows from "
-                    "`one_sky_hybrid.yaml`, the same runs)", _gospa(_methods(one_sky_bp)["BP"]) + " *",
+                    "`one_sky_hybrid.yaml`, the same runs)", _gospa(_methods(one_sky_bp)["BP"]),
                     _gospa(o["S-MSJPDA"]), _gospa(o["P-MSJPDA"]), _gospa(o["PMHT"]), _gospa(o["SMC-PHD + GTDA"]),
                     _seeds(_methods(one_sky_hybrid), gain)]))
     m = _methods(one_sky_managed)
-    out.append(row(["`one_sky_managed.yaml` (the same runs and BP's scoring; S- and P-MSJPDA with the duplicate-free "
+    out.append(row(["`one_sky_managed.yaml` (the same runs; S- and P-MSJPDA with the duplicate-free "
                     "management; PMHT from `one_sky_managed_pmht.yaml`)", _gospa(_methods(one_sky_bp)["BP"]), _gospa(m["S-MSJPDA (duplicate-free)"]),
                     _gospa(m["P-MSJPDA (duplicate-free)"]),
                     _gospa(_methods(one_sky_managed_pmht)["PMHT (duplicate-free)"]) + " (first 10 runs)", "-", "-"]))
