@@ -70,7 +70,7 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
     out.append(row(["`one_sky_managed.yaml` (the same runs; S- and P-MSJPDA with the duplicate-free "
                     "management; PMHT from `one_sky_managed_pmht.yaml`)", _gospa(_methods(one_sky_bp)["BP"]), _gospa(m["S-MSJPDA (duplicate-free)"]),
                     _gospa(m["P-MSJPDA (duplicate-free)"]),
-                    _gospa(_methods(one_sky_managed_pmht)["PMHT (duplicate-free)"]) + " (first 10 runs)", "-", "-"]))
+                    _gospa(_methods(one_sky_managed_pmht)["PMHT (duplicate-free)"]), "-", "-"]))
     d = _methods(dense)
     out.append(row(["`dense_crossing.yaml` (Pd 0.7, 40 clutter points per pair, 10 runs)",
                     _gospa(_methods(dense_bp)["BP"]), _gospa(d["S-MSJPDA"]), _gospa(d["P-MSJPDA"]), _gospa(d["PMHT"]),
