@@ -1,0 +1,91 @@
+"""The shares of a row's mean GOSPA^p that are localisation, missed targets and false tracks, with
+their Monte Carlo standard errors, from a block bank of one run per block (``pmsr evaluate
+--per-block``), without re-running anything.
+
+The report gives each share as the ratio of two means over the runs, ``mean(part) / mean(total)``
+(each run's part and total: its per-scan GOSPA^p parts averaged over the set scans). Its standard
+error here is the delta method's on the runs' (part, total) pairs, their covariance counted:
+
+    se^2 = (var(part) / T^2 - 2 cov(part, total) part_mean / T^3 + var(total) part_mean^2 / T^4) / n
+
+with ``T`` the mean total and ``n`` the runs. Each block must hold one run (a block's per-scan sums
+add its runs, so its runs' own parts are not kept).
+
+    python evaluate/gospa_shares.py evaluate/results/one_sky_bp_bank --row BP
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from pmsr_nn.errors import ConfigError
+from pmsr_nn.harness.run.block_bank import BANK_FILE, bank_blocks, is_bank, made_per_block
+from pmsr_nn.harness.run.block_sums import read_shard
+from pmsr_nn.harness.scenario.prepared import set_scans_after
+
+PARTS = {"localisation": "gospa_loc", "missed": "gospa_missed", "false": "gospa_false"}
+
+
+def run_parts(bank: Path, case: str | None, row: str) -> dict[str, np.ndarray]:
+    """``{part: (runs,)}``: each run's mean over the set scans of its GOSPA^p part (``PARTS``)."""
+    if is_bank(bank):
+        scenario = json.loads((Path(bank) / BANK_FILE).read_text(encoding="utf-8"))["scenario"]
+    elif made_per_block(bank) and bank_blocks(bank):  # bank.json deleted: every block names the scenario too
+        scenario = json.loads((bank_blocks(bank)[0] / "shard.json").read_text(encoding="utf-8"))["scenario"]
+    else:
+        raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
+    if int(scenario["block_runs"]) != 1:
+        raise ConfigError(f"{bank} has blocks of {scenario['block_runs']} runs: each run's parts need one run per block")
+    cases = [c["name"] for c in scenario["cases"]]
+    if case is None and len(cases) != 1:
+        raise ConfigError(f"{bank} has cases {', '.join(cases)}: give --case")
+    case = case or cases[0]
+    out: dict[str, list[float]] = {p: [] for p in PARTS}
+    for folder in bank_blocks(bank):
+        qs = read_shard(folder)[1].sums.get(case, {}).get(row)
+        if qs is None or "gospa_false" not in qs:
+            raise ConfigError(f"{folder} has no GOSPA parts of row {row!r} in case {case!r}")
+        k = set_scans_after(qs["gospa_false"].shape[-1], int(scenario["warmup_steps"])).numpy()
+        for part, q in PARTS.items():
+            out[part].append(float(qs[q][0, k].mean()))
+    return {p: np.asarray(v) for p, v in out.items()}
+
+
+def shares(parts: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
+    """``{part: (share, standard error)}`` of the runs' parts (module docstring)."""
+    total = sum(parts.values())
+    n, T = len(total), float(total.mean())
+    if n < 2 or T <= 0:
+        raise ConfigError(f"{n} run(s) with mean GOSPA^p {T:g}: a share and its error need 2 runs and a positive total")
+    out = {}
+    for part, v in parts.items():
+        c = np.cov(np.stack([v, total]), ddof=1)
+        m = float(v.mean())
+        var = (c[0, 0] / T**2 - 2 * c[0, 1] * m / T**3 + c[1, 1] * m**2 / T**4) / n
+        out[part] = (m / T, math.sqrt(max(var, 0.0)))  # a variance >= 0 but for rounding
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("bank", type=Path)
+    ap.add_argument("--row", required=True, help="the row of the bank")
+    ap.add_argument("--case", help="the case (default: the bank's only case)")
+    a = ap.parse_args()
+    parts = run_parts(a.bank, a.case, a.row)
+    n = len(parts["false"])
+    print(f"{a.row!r} over {n} runs; runs with any false-track charge: {int((parts['false'] > 0).sum())}")
+    for part, (share, se) in shares(parts).items():
+        print(f"{part} share of the mean GOSPA^p: {100 * share:.1f} ± {100 * se:.1f} %")
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except ConfigError as exc:
+        raise SystemExit(f"error: {exc}") from None
