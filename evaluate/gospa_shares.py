@@ -17,14 +17,13 @@ add its runs, so its runs' own parts are not kept).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.run.block_bank import BANK_FILE, bank_blocks, is_bank, made_per_block
+from pmsr_nn.harness.run.block_bank import bank_blocks, bank_scenario
 from pmsr_nn.harness.run.block_sums import read_shard
 from pmsr_nn.harness.scenario.prepared import set_scans_after
 
@@ -33,12 +32,7 @@ PARTS = {"localisation": "gospa_loc", "missed": "gospa_missed", "false": "gospa_
 
 def run_parts(bank: Path, case: str | None, row: str) -> dict[str, np.ndarray]:
     """``{part: (runs,)}``: each run's mean over the set scans of its GOSPA^p part (``PARTS``)."""
-    if is_bank(bank):
-        scenario = json.loads((Path(bank) / BANK_FILE).read_text(encoding="utf-8"))["scenario"]
-    elif made_per_block(bank) and bank_blocks(bank):  # bank.json deleted: every block names the scenario too
-        scenario = json.loads((bank_blocks(bank)[0] / "shard.json").read_text(encoding="utf-8"))["scenario"]
-    else:
-        raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
+    scenario = bank_scenario(bank)
     if int(scenario["block_runs"]) != 1:
         raise ConfigError(f"{bank} has blocks of {scenario['block_runs']} runs: each run's parts need one run per block")
     cases = [c["name"] for c in scenario["cases"]]

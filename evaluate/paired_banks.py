@@ -21,14 +21,13 @@ fix) is read as ``pmsr merge`` reads it, re-derived from its per-scan sums
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.run.block_bank import BANK_FILE, bank_blocks, is_bank, made_per_block
+from pmsr_nn.harness.run.block_bank import bank_blocks, bank_scenario
 from pmsr_nn.harness.run.block_sums import read_shard
 from pmsr_nn.harness.run.set_window import rescore_runs
 from pmsr_nn.harness.scenario.prepared import set_scans_after
@@ -37,12 +36,7 @@ from pmsr_nn.harness.scenario.prepared import set_scans_after
 def run_powers(bank: Path, case: str | None, row: str) -> tuple[dict[int, float], float]:
     """``{run index: GOSPA^p}`` of ``row`` in ``case`` (None: the bank's only case) over the blocks
     ``bank`` holds, and the order ``p`` of its scenario's set metrics."""
-    if is_bank(bank):
-        scenario = json.loads((Path(bank) / BANK_FILE).read_text(encoding="utf-8"))["scenario"]
-    elif made_per_block(bank) and bank_blocks(bank):  # bank.json deleted: every block names the scenario too
-        scenario = json.loads((bank_blocks(bank)[0] / "shard.json").read_text(encoding="utf-8"))["scenario"]
-    else:
-        raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
+    scenario = bank_scenario(bank)
     p, runs_per_block, mc_runs = float(scenario["set_metrics"]["p"]), int(scenario["block_runs"]), int(scenario["mc_runs"])
     cases = [c["name"] for c in scenario["cases"]]
     if case is None and len(cases) != 1:

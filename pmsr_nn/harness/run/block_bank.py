@@ -62,6 +62,17 @@ def made_per_block(path: Path) -> bool:
         return False
 
 
+def bank_scenario(bank: Path) -> dict:
+    """The scenario (as ``Scenario.to_dict`` wrote it) that bank ``bank`` runs: from its
+    ``bank.json``, or, where that was deleted, from a block's ``shard.json``; anything else at
+    ``bank`` is refused in one line."""
+    if is_bank(bank):
+        return json.loads((Path(bank) / BANK_FILE).read_text(encoding="utf-8"))["scenario"]
+    if made_per_block(bank) and bank_blocks(bank):  # bank.json deleted: every block names the scenario too
+        return json.loads((bank_blocks(bank)[0] / "shard.json").read_text(encoding="utf-8"))["scenario"]
+    raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
+
+
 def bank_blocks(bank: Path) -> list[Path]:
     """The block folders of a bank, in block order (complete ones: a killed block leaves only a
     hidden temporary, which is not listed)."""
