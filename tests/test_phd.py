@@ -611,3 +611,43 @@ def test_labels_go_only_to_confirmed_tracks(method):
 def test_a_labelling_that_could_never_confirm_is_refused():
     with pytest.raises(ConfigError, match="M = 4, N = 3: a track could never be confirmed"):
         LabelSpec(confirm_m=4, confirm_n=3)
+
+
+@pytest.mark.parametrize("method", ["gtda", "hungarian"])
+def test_the_coalescence_test_ends_the_younger_of_two_labels_on_one_target(method):
+    """Hand-made estimates over 6 scans (one run, [r, rdot]): a steady target at 10 km and, from
+    scan 1, a second estimate 5 m beside it (a PHD's duplicate). 1 of 1 labels the duplicate at
+    once (label 1), after that scan's test (a track is compared from the scan after it starts).
+    With ``merge_scans: 2`` the two labels agree at scans 2 and 3, so label 1 ends at scan 3 (not
+    reported there, and its estimate starts nothing); the duplicate's next estimate starts label 2
+    at scan 4, which agrees at scan 5 and would end at scan 6. Label 0, the older, is reported
+    throughout. Without the test label 1 lives from scan 1 to the end."""
+    from pmsr_nn.trackers.coalescence import Coalescence
+
+    F, Q = cv_matrices(1.0, 20.0)
+    K = 6
+    x = torch.full((1, K, 2, 2), float("nan"), dtype=torch.float64)
+    exists = torch.zeros(1, K, 2, dtype=torch.bool)
+    for k in range(K):
+        x[0, k, 0], exists[0, k, 0] = torch.tensor([10_000.0 + 100.0 * k, 100.0]), True
+        if k >= 1:
+            x[0, k, 1], exists[0, k, 1] = torch.tensor([10_005.0 + 100.0 * k, 100.0]), True
+    P = torch.diag(SD**2).expand(1, K, 2, 2, 2).clone()
+    plain = label_tracks(x, P, exists, F, Q, LabelSpec(method=method), torch.Generator().manual_seed(0))
+    assert plain.extras["labels"].tolist() == [2]
+    assert plain.exists[0, :, 1].tolist() == [False] + [True] * 5
+    merged = label_tracks(x, P, exists, F, Q, LabelSpec(method=method, coalescence=Coalescence(2)),
+                          torch.Generator().manual_seed(0))
+    assert merged.extras["labels"].tolist() == [3]
+    assert merged.exists[0, :, 0].tolist() == [True] * 6
+    assert merged.exists[0, :, 1].tolist() == [False, True, True, False, False, False]
+    assert merged.exists[0, :, 2].tolist() == [False, False, False, False, True, True]
+    assert torch.equal(merged.x[0, 1, 1], x[0, 1, 1])
+
+
+def test_a_phd_row_refuses_a_merge_window_of_no_scans(tmp_path):
+    from pmsr_nn.methods.phd import label_spec
+    from pmsr_nn.harness.scenario.schema import MethodSpec
+
+    with pytest.raises(ConfigError, match="merge window needs at least 1 scan"):
+        label_spec(MethodSpec(name="PHD", kind="smc_phd", options={"merge_scans": 0}))

@@ -8,7 +8,9 @@ targets from position fixes of the previous scan's detections, which needs (bist
 azimuth) in 2-D (:func:`check_sensing` refuses other detection models). The labelling confirms a
 new track once it took an estimate in ``confirm_m`` of its first ``confirm_n`` scans and ends one
 that missed more than ``max_missed`` scans in a row (the defaults are evaluate/daniyan_smcphd.yaml's);
-the result is unpaired tracks, scored as tracks.
+with ``merge_scans`` (default null: none), two labels whose positions and velocities agree for that
+many scans hold one drone and the younger ends (the coalescence test of issue 55's duplicate-free
+management, :mod:`pmsr_nn.trackers.coalescence`); the result is unpaired tracks, scored as tracks.
 
 The PHD uses the case's Pd and each pair's clutter intensity (the simulated clutter rate over the
 clutter box's volume in (m, m/s or Hz, rad), floored as the PMHT's); its motion model is the
@@ -31,6 +33,7 @@ from ..trackers.labelling import LabelSpec, label_tracks
 from ..trackers.phd_cartesian import CartesianPHD, CartesianPHDSpec, check_model
 from . import MIN_CLUTTER_PER_SCAN, MethodCall, MethodKind, Option, method_stream, register
 from .kind_metrics import Labelling, PHDFigures
+from .track_management import COALESCENCE_OPTIONS, coalescence
 
 
 def clutter_intensity(sensing) -> float:
@@ -57,7 +60,7 @@ def label_spec(spec) -> LabelSpec:
     o = spec.option
     return LabelSpec(method=o("labelling"), gate_probability=float(o("label_gate_probability")),
                      max_missed=int(o("max_missed")), confirm_m=int(o("confirm_m")), confirm_n=int(o("confirm_n")),
-                     game=GameSpec())
+                     game=GameSpec(), coalescence=coalescence(o))
 
 
 def run_smc_phd(call: MethodCall) -> Estimates:
@@ -77,8 +80,9 @@ def run_smc_phd(call: MethodCall) -> Estimates:
     perm = torch.tensor(pos + [i for i in range(n) if i not in pos])
     back = torch.argsort(perm)
     square = lambda P, idx: P[..., idx, :][..., idx]
+    merge_idx = [perm.tolist().index(i) for i in (*pos, *m.motion.vel_idx)]  # the coalescence test's: position, velocity
     lab = label_tracks(est.x[..., perm], square(est.P, perm), est.exists, square(phd.F, perm), square(phd.Q, perm),
-                       label_spec(spec), seeded_generator(*call.seed, method_stream(spec.name), 1))
+                       label_spec(spec), seeded_generator(*call.seed, method_stream(spec.name), 1), merge_idx)
     extras = {**lab.extras, "phd_expected": est.expected, "phd_particles": est.particles}
     return Estimates(lab.x[..., back], lab.exists, square(lab.P, back), extras, paired=False)
 
@@ -108,6 +112,7 @@ OPTIONS = {
     "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),
     "max_missed": Option(3, int, 0, 10_000),
     "label_gate_probability": Option(0.999, float, **PROBABILITY),
+    **COALESCENCE_OPTIONS,
 }
 register(MethodKind("smc_phd", "detections", run_smc_phd, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
                     metrics=(Labelling(), PHDFigures()),

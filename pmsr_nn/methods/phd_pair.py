@@ -43,6 +43,7 @@ its own labelling, so each row costs what it would alone.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import torch
 
@@ -56,6 +57,7 @@ from ..trackers.labelling import LabelSpec, label_tracks
 from ..trackers.phd import PHDSpec, SMCPHD, cv_matrices
 from . import MIN_CLUTTER_PER_SCAN, EstimateSpace, MethodCall, MethodKind, Option, ReadWhen, method_stream, register
 from .kind_metrics import Labelling, PHDFigures, Unlabelled
+from .track_management import COALESCENCE_OPTIONS, coalescence
 
 PHD_STREAM = method_stream("smcphd")
 """Last seed word of the PHD filter's generator (the former study's, so its draws are the same)."""
@@ -160,7 +162,8 @@ def label_settings(spec) -> LabelSpec:
     return LabelSpec(method=o("labelling"), gate_probability=float(o("label_gate_probability")),
                      max_missed=int(o("max_missed")), confirm_m=int(o("confirm_m")), confirm_n=int(o("confirm_n")),
                      game=GameSpec(forgetting=float(o("forgetting")), iterations=int(o("game_iterations")),
-                                   conflict=float(o("conflict")), alpha_scale=float(o("alpha_scale"))))
+                                   conflict=float(o("conflict")), alpha_scale=float(o("alpha_scale"))),
+                     coalescence=coalescence(o))
 
 
 def run_smc_phd_pair(call: MethodCall) -> Estimates:
@@ -285,6 +288,8 @@ OPTIONS = {
     "game_iterations": Option(50, int, 1, 100_000, read_when=GTDA),
     "conflict": Option(1.0, float, 1e-6, 1.0e6, read_when=GTDA),
     "alpha_scale": Option(2.0, float, 1.0, 1.0e6, read_when=GTDA),  # above 1: GameSpec refuses 1 itself
+    "merge_scans": replace(COALESCENCE_OPTIONS["merge_scans"], read_when=LABELLED),
+    "merge_probability": COALESCENCE_OPTIONS["merge_probability"],
 }
 register(MethodKind("smc_phd_pair", "detections", run_smc_phd_pair, OPTIONS, check_sensing=check_pair_sensing,
                     starts_tracks=True, space=pair_space, metrics=(Labelling(), PHDFigures(), Unlabelled()),

@@ -82,6 +82,17 @@ INIT_SCAN_OPTIONS = {"init_scans": Option(1, int, 1, MAX_INIT_SCANS),
 """Multi-scan initiation (module docstring): shared with the kinds whose initiator is the
 spherical or fix one (``bp`` without azimuth)."""
 
+COALESCENCE_OPTIONS = {"merge_scans": Option(None, int, 0, 10_000, nullable=True, null="no merging"),
+                       "merge_probability": Option(0.99, float, 1e-6, 1.0 - 1e-12, read_when=ReadWhen("merge_scans"))}
+"""The coalescence test's options (:func:`coalescence`): the trackers' and the PHD labelling's."""
+
+
+def coalescence(option) -> Coalescence | None:
+    """The coalescence rule of a row's options (``option``: :meth:`MethodSpec.option`); None without ``merge_scans``."""
+    merge = option("merge_scans")
+    return None if merge is None else Coalescence(int(merge), float(option("merge_probability")))
+
+
 OWN_TRACK_OPTIONS = {"init_pairs": Option(None, int, 1, 64, nullable=True,
                                           null="2 with azimuth (fix initiator; 3 from lists pooled per receiver), else "
                                                "every pair (spherical initiator)"),
@@ -96,8 +107,7 @@ OWN_TRACK_OPTIONS = {"init_pairs": Option(None, int, 1, 64, nullable=True,
                      "report_existence": Option(0.5, float, 0.0, 1.0),
                      "existence": Option("ipda", str, choices=EXISTENCE_UPDATES),
                      "explained_by": Option("gate", str, choices=EXPLAINED_BY),
-                     "merge_scans": Option(None, int, 0, 10_000, nullable=True, null="no merging"),
-                     "merge_probability": Option(0.99, float, 1e-6, 1.0 - 1e-12, read_when=ReadWhen("merge_scans"))}
+                     **COALESCENCE_OPTIONS}
 """The management options of a kind that always starts its own tracks."""
 
 DUPLICATE_FREE = {"existence": "jipda", "explained_by": "association", "merge_scans": MERGE_SCANS,
@@ -165,12 +175,11 @@ def management(spec, sensing, pooled: bool = False) -> Management:
         single = FixInitiator(velocity_sd, (3 if pooled else 2) if pairs is None else int(pairs), gate)
     else:
         single = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
-    merge = o("merge_scans")
     deleter = Deleter(int(o("delete_misses")), min_existence=float(o("delete_existence") or 0.0))
     return Management(initiator(single, spec), Confirmer(int(o("confirm_m")), int(o("confirm_n"))), deleter,
                       sensing.prior_sd, int(o("hit_pairs")), float(o("survival")), float(o("initial_existence")),
                       float(o("report_existence")), bias_test(spec),
-                      None if merge is None else Coalescence(int(merge), float(o("merge_probability"))),
+                      coalescence(o),
                       o("existence") == "jipda", o("explained_by"))
 
 

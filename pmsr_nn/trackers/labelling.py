@@ -16,7 +16,10 @@ the shared M-of-N :class:`~.management.Confirmer` (``confirm_m`` estimates taken
 reported, from that scan on; one that can no longer be confirmed ends. Labels count up per run
 from 0, in order of confirmation. A living confirmed track that took no estimate reports its
 prediction (it coasts) once it has taken at least two estimates, so a missed detection does not
-cut a labelled track while a one-scan false estimate does not linger.
+cut a labelled track while a one-scan false estimate does not linger. With a coalescence rule
+(``LabelSpec.coalescence``, :mod:`.coalescence`: issue 55's duplicate-free management), two
+labelled tracks whose states agree for its ``scans`` scans in a row hold one target: the younger
+label (the higher number) ends and the older one goes on.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from scipy.optimize import linear_sum_assignment
 from ..config import require
 from .gating import gate_threshold, inside_gate, mahalanobis
 from .base import Estimates
+from .coalescence import Coalescence, CoalescenceTest
 from .gtda import GameSpec, play
 from .management import Confirmer
 
@@ -39,7 +43,8 @@ from .management import Confirmer
 class LabelSpec:
     """``method`` (``gtda`` or ``hungarian``), ``gate`` on ``d2``, ``max_missed`` scans a track
     coasts before it ends, ``confirm_m`` of its first ``confirm_n`` scans a new track must take an
-    estimate in before it is reported, ``game`` the GTDA settings."""
+    estimate in before it is reported, ``game`` the GTDA settings, ``coalescence`` the rule that
+    ends the younger of two labelled tracks holding one target (None: none)."""
 
     method: Literal["gtda", "hungarian"] = "gtda"
     gate_probability: float = 0.999
@@ -47,6 +52,7 @@ class LabelSpec:
     confirm_m: int = 1
     confirm_n: int = 1
     game: GameSpec = field(default_factory=GameSpec)
+    coalescence: Coalescence | None = None
 
     @property
     def confirmer(self) -> Confirmer:
@@ -92,9 +98,10 @@ def hungarian(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor,
 
 
 def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torch.Tensor, Q: torch.Tensor,
-                 spec: LabelSpec, g: torch.Generator) -> Estimates:
-    """Labelled tracks (module docstring) of estimates ``x (B, K, C, 2)``, ``P (B, K, C, 2, 2)``,
-    ``exists (B, K, C)``: :class:`~.base.Estimates` with one slot per label (unpaired); extras
+                 spec: LabelSpec, g: torch.Generator, merge_idx: list[int] | None = None) -> Estimates:
+    """Labelled tracks (module docstring) of estimates ``x (B, K, C, n)`` (positions first),
+    ``P (B, K, C, n, n)``, ``exists (B, K, C)``; ``merge_idx``: the state entries the coalescence
+    test compares (None: all): :class:`~.base.Estimates` with one slot per label (unpaired); extras
     ``game_rounds (K,)`` and ``repaired (B,)`` (GTDA only), ``labels (B,)`` labels confirmed per run,
     ``started (B,)`` tracks started per run (tentative ones included)."""
     B, K, C, n = x.shape
@@ -113,6 +120,8 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
     rounds, repaired = [], torch.zeros(B, dtype=torch.int64)
     rows_out = []  # per scan: (b, label, estimate index)
     gate = spec.gate
+    merging = None if spec.coalescence is None else CoalescenceTest(
+        spec.coalescence, B, list(range(n)) if merge_idx is None else merge_idx)
     for k in range(K):
         tx, tP = tx @ F.T, F @ tP @ F.T + Q
         ek, Pk, ok = torch.nan_to_num(x[:, k]), P[:, k], exists[:, k]
@@ -139,7 +148,11 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
         rank = new_conf.cumsum(1) - 1
         label = torch.where(new_conf, next_label[:, None] + rank, label)
         next_label += new_conf.sum(1)
-        shown = took & (label >= 0)
+        ended = torch.zeros_like(alive)
+        if merging is not None:  # the younger of two labels agreeing for the rule's scans ends; its
+            ended = merging.step(tx, tP, alive & (label >= 0), label).any(1)  # estimate starts nothing
+            alive = alive & ~ended
+        shown = took & ~ended & (label >= 0)
         b, p = shown.nonzero(as_tuple=True)
         rows_out.append((k, b, label[b, p], ek[b, choice[b, p]], Pk[b, choice[b, p]]))
         b, p = (alive & ~took & (hits >= 2) & (label >= 0)).nonzero(as_tuple=True)  # coasting: the prediction under the label
