@@ -346,3 +346,27 @@ def test_the_managed_companion_is_one_sky_bp_but_for_its_rows():
     assert rest(pmht) == rest(bp) and pmht["block_runs"] == 1
     [row] = pmht["methods"]
     assert row["kind"] == "pmht" and row["options"] == {"initiation": "detections", **DUPLICATE_FREE}
+
+
+@pytest.mark.parametrize("study", ["dense_crossing", "shared_drones"])
+def test_the_duplicate_free_companions_are_their_studies_but_for_their_rows(study):
+    """``evaluate/{study}_duplicate_free.yaml``: the study's draws and scoring; its rows with the
+    default management are the study's own (so they reproduce its record), and each
+    duplicate-free row is one of them with DUPLICATE_FREE added."""
+    from pmsr_nn.methods.track_management import DUPLICATE_FREE
+
+    root = Path(__file__).resolve().parents[1] / "evaluate"
+    main_study, free = (yaml.safe_load((root / f).read_text()) for f in (f"{study}.yaml", f"{study}_duplicate_free.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(free) == rest(main_study)
+    own = {m["name"]: m for m in main_study["methods"]}
+    twins = {m["kind"]: m for m in main_study["methods"] if m.get("options", {}).get("initiation") == "detections"}
+    new = [m for m in free["methods"] if m["name"] not in own]
+    assert [m["kind"] for m in new] == ["s_msjpda", "p_msjpda", "pmht"]
+    for m in free["methods"]:
+        if m["name"] in own:
+            assert m == own[m["name"]]
+        else:
+            assert m["options"] == {**twins[m["kind"]]["options"], **DUPLICATE_FREE}
+    assert {m["kind"] for m in free["methods"] if m["name"] in own and "initiation" in m.get("options", {})} == \
+        {"s_msjpda", "p_msjpda", "pmht"}

@@ -125,6 +125,7 @@ TABLES: dict[str, Table] = {
     "access2019_msjpda_clutter": Table(msjpda.MSJPDA_CLUTTER, msjpda.access2019_msjpda_clutter),
     "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
     "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
+    "duplicate_free": Table((multi.DENSE_DUPLICATE_FREE, multi.SHARED_DUPLICATE_FREE), multi.duplicate_free),
     # tables that quote several records
     "readme_from_detections": Table(multi.READ_DETECTIONS_SOURCES, multi.readme_from_detections),
     "dense_crossing_bp": Table((multi.DENSE_BP, study.DENSE), multi.dense_crossing_bp),
