@@ -5,6 +5,10 @@ import torch
 
 from pmsr_nn.simulation.recipe import TrackRecipe
 
+# pmsr evaluate runs on every core by default; the suite already spreads over the cores (xdist), so
+# each evaluate here stays in one process unless a test asks for workers
+os.environ.setdefault("PMSR_WORKERS", "1")
+
 
 @pytest.fixture(autouse=True)
 def _float64_and_threads():

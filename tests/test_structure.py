@@ -267,7 +267,7 @@ HARNESS = "pmsr_nn.harness"
 STAGES = ("scenario", "run", "results", "report")
 """The harness's stage packages, in order: a stage imports only the stages before it."""
 
-HARNESS_ENTRIES = {"evaluate", "dispatch", "demo", "ablation"}
+HARNESS_ENTRIES = {"evaluate", "dispatch", "workers", "demo", "ablation"}
 """The harness's modules outside the stages: entry paths that compose all four (nothing in a stage
 imports them)."""
 

@@ -36,6 +36,9 @@ def add_evaluate(sub) -> None:
                     "blocks already in OUT (or being run by another process) are skipped, so the same command "
                     "continues an interrupted recording and several processes can fill one bank; combine with "
                     "'pmsr merge OUT'")
+    ev.add_argument("--workers", metavar="N",
+                    help="worker processes, one thread each, that share the blocks of runs (default: every core, or "
+                         "$PMSR_WORKERS; 1 on a GPU); the figures are one process's, bit for bit")
     ev.add_argument("--device", default="cpu", help="torch device for the learned trackers (default cpu)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
@@ -143,6 +146,15 @@ def cmd_evaluate(args) -> int:
     shard = parse_shard(args.shard)
     resolve_device(args.device)
     t0 = time.perf_counter()
+    if args.workers is not None:
+        from ..harness.workers import check_workers
+
+        check_workers(args.workers)
+        for given, what in ((args.executor, "--executor (its jobs are the processes)"),
+                            (args.per_block, "--per-block (start one command per process)"),
+                            (shard != (1, 1), "--shard (a shard runs in one process)")):
+            if given:
+                raise ConfigError(f"--workers runs the whole scenario on this machine: give it or {what}, not both")
     if args.executor:
         from ..harness.dispatch import dispatch
 
@@ -183,8 +195,17 @@ def cmd_evaluate(args) -> int:
         execute(open_run(scenario, args.out, target="bank", shard=shard, mc_runs=runs, checkpoints=checkpoints,
                          seed=args.seed, device=args.device, progress=not args.quiet, source=args.scenario))
         return 0
-    res = evaluate(scenario, args.out, mc_runs=runs, checkpoints=checkpoints, shard=shard, device=args.device,
-                   progress=not args.quiet, overwrite=args.overwrite, seed=args.seed)
+    if shard == (1, 1):
+        from ..harness.workers import check_workers, default_workers, evaluate_in_workers
+
+        workers = default_workers(args.device) if args.workers is None else check_workers(args.workers)
+        res = evaluate_in_workers(scenario, args.out, workers=workers, mc_runs=runs, checkpoints=checkpoints,
+                                  seed=args.seed, device=args.device, overwrite=args.overwrite, progress=not args.quiet,
+                                  source=args.scenario if scenario is not args.scenario else None,
+                                  warn=args.workers is not None)
+    else:
+        res = evaluate(scenario, args.out, mc_runs=runs, checkpoints=checkpoints, shard=shard, device=args.device,
+                       progress=not args.quiet, overwrite=args.overwrite, seed=args.seed)
     if args.quiet:
         return 0
     if shard != (1, 1):
