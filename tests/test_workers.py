@@ -12,8 +12,8 @@ from test_harness import accuracy
 from test_one_scenario import two_drones
 
 
-@pytest.mark.integration
 def test_two_workers_give_one_process_figures_bit_for_bit_and_leave_only_the_results(tmp_path, capsys):
+    """In the default tier (issue 57): the processes' figures are one process's, bit for bit."""
     path = two_drones(tmp_path, mc_runs=4, block_runs=1)  # 4 blocks, EKF and S-MSJPDA
     assert main(["evaluate", str(path), "--out", str(tmp_path / "one"), "--workers", "1", "--quiet"]) == 0
     assert main(["evaluate", str(path), "--out", str(tmp_path / "two"), "--workers", "2", "--quiet"]) == 0
