@@ -73,3 +73,19 @@ def test_the_default_is_every_core_or_the_environment(monkeypatch):
     assert default_workers() == cores and default_workers("cuda") == 1
     monkeypatch.setenv("PMSR_WORKERS", "3")
     assert default_workers() == 3
+
+
+def test_a_foreign_staging_bank_is_refused_in_one_line_before_any_worker_starts(tmp_path, capsys):
+    from pmsr_nn.harness.evaluate import execute
+    from pmsr_nn.harness.run.runner import open_run
+
+    path = two_drones(tmp_path, mc_runs=4, block_runs=1)
+    (tmp_path / "other").mkdir()
+    other = two_drones(tmp_path / "other", mc_runs=2, block_runs=1)
+    bank = staging_bank(tmp_path / "out")
+    execute(open_run(other, bank, target="bank", progress=False))  # an earlier command's blocks, of 2 runs
+    before = {str(p.relative_to(tmp_path)): p.stat().st_mtime_ns for p in tmp_path.rglob("*")}
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out"), "--workers", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "where --workers stages the blocks of" in err[0] and "another scenario" in err[0], err
+    assert {str(p.relative_to(tmp_path)): p.stat().st_mtime_ns for p in tmp_path.rglob("*")} == before

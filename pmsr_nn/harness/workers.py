@@ -19,8 +19,8 @@ import sys
 import time
 from pathlib import Path
 
-from ..errors import ConfigError, OutputError
-from .run.block_bank import BANK_FILE, bank_blocks, is_bank
+from ..errors import ConfigError, OutputError, PmsrError
+from .run.block_bank import BANK_FILE, bank_blocks, is_bank, open_bank
 from .run.runner import RESULT_COMMANDS, open_run
 
 WORKERS_ENV = "PMSR_WORKERS"
@@ -56,13 +56,21 @@ def staging_bank(out: Path) -> Path:
 
 
 def _work(scenario, bank: Path, options: dict) -> None:
-    """One worker: one thread, the bank's unclaimed blocks until none is left."""
+    """One worker: one thread, the bank's unclaimed blocks until none is left. An error is one
+    line on stderr, as the command's own (exit 2 for bad input, 1 for anything else)."""
     import torch
 
     torch.set_num_threads(1)
     from .evaluate import execute
 
-    execute(open_run(scenario, bank, target="bank", progress=False, **options))
+    try:
+        execute(open_run(scenario, bank, target="bank", progress=False, **options))
+    except PmsrError as exc:
+        print(f"pmsr: error: {mp.current_process().name}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    except Exception as exc:  # a bug: one line, as the command's own handler gives it
+        print(f"pmsr: error: {mp.current_process().name}: unexpected {type(exc).__name__}: {exc}", file=sys.stderr)
+        raise SystemExit(1) from None
 
 
 def evaluate_in_workers(scenario, out: Path, *, workers: int, mc_runs: int | None = None,
@@ -93,6 +101,13 @@ def evaluate_in_workers(scenario, out: Path, *, workers: int, mc_runs: int | Non
     if workers == 1 and not bank.exists():  # nothing to share out, nothing banked to continue from
         return evaluate(scenario, out, mc_runs=mc_runs, checkpoints=checkpoints, device=device, progress=progress,
                         overwrite=overwrite, seed=seed)
+    try:
+        note = open_bank(run)  # here, not in the workers: a foreign bank is one line before any starts
+    except ConfigError:
+        raise ConfigError(f"{bank}, where --workers stages the blocks of {out}, holds blocks of another scenario or "
+                          "other settings (an earlier command's); move it away, or run that command again") from None
+    if note and progress:
+        log(note)
     ctx = mp.get_context("spawn")  # a fresh interpreter each: no state forked from this one
     env_threads = os.environ.get("OMP_NUM_THREADS")
     os.environ["OMP_NUM_THREADS"] = "1"  # read by the workers' torch at start-up
@@ -128,8 +143,8 @@ def _wait(procs, bank: Path, n_blocks: int, progress: bool, log) -> None:
         alive = [p for p in procs if p.is_alive()]
         failed = [p for p in procs if not p.is_alive() and p.exitcode not in (0, None)]
         if failed:
-            raise ConfigError(f"worker {failed[0].name} stopped with exit code {failed[0].exitcode} (its error is printed "
-                              f"above); the blocks done are kept in {bank}: run the same command again to continue")
+            raise ConfigError(f"worker {failed[0].name} stopped with exit code {failed[0].exitcode} (its line is above); "
+                              f"the blocks done are kept in {bank}: run the same command again to continue")
         done = len(bank_blocks(bank))
         if progress and done != shown:
             log(f"workers: {done} of {n_blocks} block(s) done ({len(alive)} worker(s) running)")

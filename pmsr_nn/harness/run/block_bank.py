@@ -216,6 +216,14 @@ def _complete(folder: Path, identity: dict) -> bool:
     return True
 
 
+def open_bank(run: Run) -> str | None:
+    """Open the bank of ``run`` (target ``bank``) without running a block: create it, or check
+    that the one there is this scenario's (a foreign one is refused in one line); returns the line
+    that says a lost ``bank.json`` was rebuilt, if one was."""
+    sc = run.scenario
+    return _open_bank(run.out, {"scenario": sc.to_dict(), "base_dir": sc.base_dir})
+
+
 def run_bank(run: Run, log=print) -> dict:
     """Run the blocks of ``run`` (a :class:`~.runner.Run` with target ``bank``: its shard's blocks)
     that its bank lacks and no live process holds, each written when done; returns the blocks it
