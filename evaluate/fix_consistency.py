@@ -18,7 +18,7 @@ linearised deviation (:func:`fixed_points`): where it is far from 1 the linearis
 misses the spread, wherever it is evaluated.
 
     python evaluate/fix_consistency.py [--scenario evaluate/one_sky_bp.yaml] [--draws 4000] [--seed 0]
-        [--radii 2000,12000] [--json evaluate/results/fix_consistency.json]
+        [--radii 2000,12000] [--covariance linearised|unscented] [--json evaluate/results/fix_consistency.json]
 """
 
 from __future__ import annotations
@@ -46,9 +46,10 @@ def summary(v: torch.Tensor) -> dict:
             "share_beyond_999": float((v > CHI2_2_999).double().mean())}
 
 
-def draw_fixes(model, draws: int, radii: tuple[float, float], seed: int) -> dict:
+def draw_fixes(model, draws: int, radii: tuple[float, float], seed: int, covariance: str = "linearised") -> dict:
     """NEES of the single and fused fixes of ``draws`` positions (module docstring), measured by
-    ``model`` (a pair-layout :class:`~pmsr_nn.measurements.MeasurementModel` with azimuth)."""
+    ``model`` (a pair-layout :class:`~pmsr_nn.measurements.MeasurementModel` with azimuth), with the
+    fix covariance ``covariance`` (:data:`~pmsr_nn.trackers.fix_initiator.FIX_COVARIANCES`)."""
     from pmsr_nn.trackers.fix_initiator import FixInitiator
     from pmsr_nn.trackers.gating import mahalanobis
 
@@ -63,7 +64,7 @@ def draw_fixes(model, draws: int, radii: tuple[float, float], seed: int) -> dict
     S, d = model.n_pairs, len(model.components)
     sd = torch.tensor(model.noise_std, dtype=torch.float64)
     z = (model.h(x).reshape(draws, S, d) + torch.randn(draws, S, d, generator=g, dtype=torch.float64) * sd).unsqueeze(2)
-    ini = FixInitiator()
+    ini = FixInitiator(covariance=covariance)
     pos, cov, ok = ini.fixes(z, model, n)
     truth = x[:, pos_idx]
     single = mahalanobis(pos[:, :, 0] - truth[:, None], cov[:, :, 0])  # (draws, S)
@@ -130,6 +131,8 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=4000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--radii", default="2000,12000", help="inner,outer radius (m) of the drawn positions")
+    ap.add_argument("--covariance", default="linearised", choices=("linearised", "unscented"),
+                    help="the fix covariance whose NEES is measured (the initiator's option fix_covariance)")
     ap.add_argument("--json", help="write the record here")
     a = ap.parse_args(argv)
     try:
@@ -146,7 +149,7 @@ def main(argv=None) -> int:
         return 2
     start = time.perf_counter()
     with torch.no_grad():
-        out = draw_fixes(model, a.draws, radii, a.seed)
+        out = draw_fixes(model, a.draws, radii, a.seed, a.covariance)
         out["fixed_points"] = fixed_points(model, (radii[0] + radii[1]) / 2, 5 * a.draws, a.seed + 1)
     for name in ("single", "fused"):
         s = out[name]
@@ -163,6 +166,7 @@ def main(argv=None) -> int:
     scenario = Path(a.scenario).resolve()
     record = {"scenario": scenario.relative_to(ROOT).as_posix() if scenario.is_relative_to(ROOT) else a.scenario,
               "draws": a.draws, "seed": a.seed, "radii_m": list(radii), "noise_std": list(model.noise_std),
+              "covariance": a.covariance,
               "chi2_2_999": CHI2_2_999, **out,
               "info": {"date": date.today().isoformat(), "seconds": round(time.perf_counter() - start, 1),
                        "command": "python evaluate/fix_consistency.py " + " ".join(argv if argv is not None else sys.argv[1:])}}

@@ -370,3 +370,18 @@ def test_the_duplicate_free_companions_are_their_studies_but_for_their_rows(stud
             assert m["options"] == {**twins[m["kind"]]["options"], **DUPLICATE_FREE}
     assert {m["kind"] for m in free["methods"] if m["name"] in own and "initiation" in m.get("options", {})} == \
         {"s_msjpda", "p_msjpda", "pmht"}
+
+
+def test_the_unscented_fixes_companion_is_one_sky_managed_with_the_unscented_fix_covariance():
+    """``evaluate/one_sky_unscented_fixes.yaml``: one_sky_bp's draws and scoring; S-, P-MSJPDA and
+    PMHT with the duplicate-free management (one_sky_managed's and one_sky_managed_pmht's rows)
+    and ``fix_covariance: unscented``, nothing else changed."""
+    from pmsr_nn.methods.track_management import DUPLICATE_FREE
+
+    root = Path(__file__).resolve().parents[1] / "evaluate"
+    bp, unscented = (yaml.safe_load((root / f).read_text()) for f in ("one_sky_bp.yaml", "one_sky_unscented_fixes.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(unscented) == rest(bp)
+    assert [row["kind"] for row in unscented["methods"]] == ["s_msjpda", "p_msjpda", "pmht"]
+    for row in unscented["methods"]:
+        assert row["options"] == {"initiation": "detections", **DUPLICATE_FREE, "fix_covariance": "unscented"}

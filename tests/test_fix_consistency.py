@@ -24,14 +24,15 @@ def _script():
     return module
 
 
-def test_in_the_linear_regime_the_nees_is_chi_square_2():
+@pytest.mark.parametrize("covariance", ["linearised", "unscented"])
+def test_in_the_linear_regime_the_nees_is_chi_square_2(covariance):
     """Azimuth deviation 0.01 deg and range 0.1 m: the linearisation is exact to far below the noise,
     so each NEES is chi-square(2): median 1.386, mean 2, 0.1 % beyond 13.8. Tolerances: 4 standard
     errors of each statistic over the sample (median: 1 / (2 f(m) sqrt(n)), f(m) = 1/4; mean: 2 /
     sqrt(n); share: the binomial's)."""
     fc = _script()
     m = dataclasses.replace(model(), noise_std=(0.1, 2.0, math.radians(0.01)))
-    out = fc.draw_fixes(m, 3000, (3000.0, 12000.0), seed=0)
+    out = fc.draw_fixes(m, 3000, (3000.0, 12000.0), seed=0, covariance=covariance)
     for name in ("single", "fused"):
         s = out[name]
         n = s["n"]
@@ -83,3 +84,40 @@ def test_bad_settings_are_one_line_and_write_nothing(tmp_path, capsys):
     assert _script().main(["--radii", "5000,1000", "--json", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--radii" in err[0] and not out.exists()
+
+
+def test_the_unscented_fix_covariance_is_the_linearised_one_where_the_fix_is_linear_and_wider_across_the_range():
+    """``fix_spread`` (the fix initiator's ``covariance: unscented``, BP's seed covariance): with a
+    0.01 deg azimuth and 0.1 m range deviation the sigma points' fixes move linearly, so the spread
+    is ``H^-1 R H^-T`` to the second-order term's share, (sqrt(3) sigma rho / radius of curvature)
+    below 1e-4 here: rtol 1e-3. At the scenarios' 3 deg it is wider than the linearised covariance
+    along the short axis, where the fixes spread (the test above)."""
+    import torch
+
+    from pmsr_nn.trackers.fix_initiator import FixInitiator
+
+    for noise, linear in (((0.1, 2.0, math.radians(0.01)), True), (None, False)):
+        m = model() if noise is None else dataclasses.replace(model(), noise_std=noise)
+        n = 3 * len(m.pos_idx)
+        x = torch.zeros(5, n, dtype=torch.float64)
+        x[:, m.pos_idx[0]] = torch.tensor([3000.0, 5000.0, 7000.0, -4000.0, 9000.0])
+        x[:, m.pos_idx[1]] = torch.tensor([4000.0, -6000.0, 2000.0, 5000.0, 8000.0])
+        z = m.h(x).reshape(5, m.n_pairs, len(m.components)).unsqueeze(2)
+        _, lin, ok = FixInitiator().fixes(z, m, n)
+        _, uns, ok_u = FixInitiator(covariance="unscented").fixes(z, m, n)
+        assert torch.equal(ok, ok_u) and bool(ok.any())
+        if linear:
+            torch.testing.assert_close(uns[ok], lin[ok], rtol=1e-3, atol=0.0)
+        else:  # wider along the linearised short axis
+            lam, vec = torch.linalg.eigh(lin[ok])
+            short = vec[..., 0]
+            across = (short.unsqueeze(-2) @ uns[ok] @ short.unsqueeze(-1)).squeeze() / lam[..., 0]
+            assert bool((across > 1.2).any()), across
+
+
+def test_a_fix_covariance_other_than_the_two_is_refused():
+    from pmsr_nn.errors import ConfigError
+    from pmsr_nn.trackers.fix_initiator import FixInitiator
+
+    with pytest.raises(ConfigError, match="fix_covariance must be one of linearised, unscented, got 'exact'"):
+        FixInitiator(covariance="exact")

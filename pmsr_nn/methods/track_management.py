@@ -14,7 +14,10 @@ Options:
   what the detections measure: with azimuth, the fix initiator (each pair's (range, azimuth)
   fixes a position; fixes of ``init_pairs`` pairs that agree start a track); without, the
   spherical initiator (every combination of one detection per pair whose joint fit of ranges and
-  rates passes the gate);
+  rates passes the gate). ``fix_covariance`` (the fix initiator's): ``linearised`` (default,
+  ``H^-1 R H^-T``) or ``unscented`` (the spread of the fixes of sigma points, BP's seed
+  covariance: consistent where the linearised one is overconfident across the range,
+  evaluate/fix_consistency.py);
 * ``init_scans``: 1 (default) a tentative track starts from one scan's candidate; 2 or 3 only
   from candidates consistent over that many consecutive scans (the multi-scan initiator,
   :mod:`pmsr_nn.trackers.multi_scan_initiator`, around the single-scan one), scan to scan within
@@ -51,7 +54,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ..errors import ConfigError
-from ..trackers.fix_initiator import FixInitiator
+from ..trackers.fix_initiator import FIX_COVARIANCES, FixInitiator
 from ..trackers.jpda import floored_clutter_density
 from ..trackers.coalescence import Coalescence
 from ..trackers.management import DELETE_EXISTENCE, EXPLAINED_BY, MERGE_SCANS, BiasTest, Confirmer, Deleter, Management
@@ -97,6 +100,7 @@ OWN_TRACK_OPTIONS = {"init_pairs": Option(None, int, 1, 64, nullable=True,
                                           null="2 with azimuth (fix initiator; 3 from lists pooled per receiver), else "
                                                "every pair (spherical initiator)"),
                      "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
+                     "fix_covariance": Option("linearised", str, choices=FIX_COVARIANCES),
                      **INIT_SCAN_OPTIONS,
                      "birth_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
                      "confirm_m": Option(2, int, 1, 62), "confirm_n": Option(3, int, 1, 62),
@@ -172,7 +176,8 @@ def management(spec, sensing, pooled: bool = False) -> Management:
     pairs = o("init_pairs")
     velocity_sd, gate = float(o("birth_velocity_sd_mps")), float(o("init_gate_probability"))
     if "azimuth" in sensing.detection_model.components:
-        single = FixInitiator(velocity_sd, (3 if pooled else 2) if pairs is None else int(pairs), gate)
+        single = FixInitiator(velocity_sd, (3 if pooled else 2) if pairs is None else int(pairs), gate,
+                              o("fix_covariance"))
     else:
         single = SphericalInitiator(velocity_sd, None if pairs is None else int(pairs), gate)
     deleter = Deleter(int(o("delete_misses")), min_existence=float(o("delete_existence") or 0.0))

@@ -25,7 +25,6 @@ state dimension, ``d`` measurement components per pair.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -37,7 +36,7 @@ from ..measurements import MeasurementModel
 from ..motion import KinematicModel
 from ..simulation.detections import Scans
 from .bp_associator import Births, BPAssociator, BPStep
-from .fix_initiator import FixInitiator, list_of_pairs, range_azimuth_fix
+from .fix_initiator import FixInitiator, fix_spread, list_of_pairs
 from .initiators import rate_component
 from .loop import run_tracker
 from .management import TENTATIVE, TableTracks, TrackReport, parked_state
@@ -105,12 +104,7 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
     and made the seed about twice as slow on one_sky (cProfile of two runs, seed 1000)."""
     initiator = FixInitiator(velocity_sd_mps, min_pairs=1)
     park = parked_state(model, n, dtype)
-    comps = model.components
-    d = len(comps)
-    rows = [comps.index("range"), comps.index("azimuth")]
-    # sigma points of (range, azimuth) at +-sqrt(3) deviations (the unscented transform's kappa = 1)
-    steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=dtype)
-    moves = [(c, sign * step) for c, step in zip(rows, steps) for sign in (1.0, -1.0)]
+    d = len(model.components)
     pi, vi = list(model.pos_idx), list(model.vel_idx)
     rate = rate_component(model)
     eye2 = torch.eye(2, dtype=dtype)
@@ -124,18 +118,8 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
     def seed(z: torch.Tensor, valid: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
         B, S, M = valid.shape
         pos, _, ok = initiator.fixes(z, model, n)
-        # the fix's covariance about it from its sigma points: the ellipse's curvature, tens of
-        # metres across the range where the azimuth spreads a fix over hundreds, counts too
-        moved = z.expand(len(moves), *z.shape).clone()  # the sigma points, fixed in one call
-        for i, (c, step) in enumerate(moves):
-            moved[i, ..., c] = moved[i, ..., c] + step
-        p, fine = range_azimuth_fix(moved, model)
-        spread = torch.zeros(B, S, M, 2, 2, dtype=z.dtype)
-        for i in range(len(moves)):
-            dp = p[i] - pos
-            spread = spread + dp.unsqueeze(-1) * dp.unsqueeze(-2) / 6.0
-            ok = ok & fine[i]
-        real = ok & valid
+        spread, fine = fix_spread(z, model, pos)  # the fix's unscented covariance (the ellipse's curvature)
+        real = ok & fine & valid
         # FixInitiator.states for one member: the information-weighted mean of one fix
         info = torch.where(real[..., None, None], torch.linalg.inv(torch.where(real[..., None, None], spread, eye2)),
                            torch.zeros((), dtype=z.dtype))

@@ -38,6 +38,36 @@ def range_azimuth_fix(z: torch.Tensor, model: MeasurementModel) -> tuple[torch.T
     return torch.where(ok.unsqueeze(-1), pos, torch.zeros((), dtype=z.dtype)), ok
 
 
+FIX_COVARIANCES = ("linearised", "unscented")
+"""How a fix's covariance is computed (:attr:`FixInitiator.covariance`)."""
+
+
+def fix_spread(z: torch.Tensor, model: MeasurementModel, pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The unscented covariance of the fixes ``pos (..., 2)`` of detections ``z (..., d)``:
+    ``spread (..., 2, 2)``, the spread of the fixes of (range, azimuth) sigma points about ``pos``
+    (points ``z +- sqrt(3) sd`` along each of the two, weights 1/6; the centre's 1/3 adds nothing
+    about itself; the unscented transform's kappa = 1, which matches a Gaussian's moments to the
+    fourth), and ``fine (...)``: every sigma point has a fix. Unlike the linearised ``H^-1 R
+    H^-T`` it follows the iso-range ellipse's curvature over the azimuth error's reach (the fix
+    moves along the ellipse, not its tangent): tens of metres across the range where the azimuth
+    spreads a fix over hundreds. In the linear regime the two agree."""
+    comps = model.components
+    rows = [comps.index("range"), comps.index("azimuth")]
+    steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=z.dtype)
+    moves = [(c, sign * step) for c, step in zip(rows, steps) for sign in (1.0, -1.0)]
+    moved = z.expand(len(moves), *z.shape).clone()  # the sigma points, fixed in one call
+    for i, (c, step) in enumerate(moves):
+        moved[i, ..., c] = moved[i, ..., c] + step
+    p, fine = range_azimuth_fix(moved, model)
+    spread = torch.zeros(*pos.shape, 2, dtype=z.dtype)
+    every = torch.ones(pos.shape[:-1], dtype=torch.bool)
+    for i in range(len(moves)):
+        dp = p[i] - pos
+        spread = spread + dp.unsqueeze(-1) * dp.unsqueeze(-2) / 6.0
+        every = every & fine[i]
+    return spread, every
+
+
 @dataclass(frozen=True)
 class FixInitiator:
     """Tentative tracks from the detections no track gated, one per group of detections of
@@ -47,7 +77,9 @@ class FixInitiator:
     that azimuth meets the ellipse with the pair's foci. Its covariance is the linearised
     ``H^-1 R H^-T`` (``H`` the model's Jacobian of range and azimuth by position). Two fixes of
     different pairs agree when their squared Mahalanobis distance under the sum of their
-    covariances is within the chi-square gate ``gate_probability`` (2 degrees of freedom). A
+    covariances is within the chi-square gate ``gate_probability`` (2 degrees of freedom;
+    ``covariance: unscented`` gives each fix the spread of its sigma points' fixes instead,
+    :func:`fix_spread`). A
     group's position is the information-weighted mean of its fixes; its velocity the linear
     least-squares fit of the group's range-rates (or Dopplers, linear in velocity at a known
     position) under a prior ``N(0, velocity_sd_mps^2)`` per axis; other state entries (e.g.
@@ -57,8 +89,11 @@ class FixInitiator:
     velocity_sd_mps: float = 20.0
     min_pairs: int = 2
     gate_probability: float = 0.999
+    covariance: str = "linearised"
 
     def __post_init__(self) -> None:
+        require(self.covariance in FIX_COVARIANCES,
+                f"fix_covariance must be one of {', '.join(FIX_COVARIANCES)}, got {self.covariance!r}")
         require(self.velocity_sd_mps > 0 and math.isfinite(self.velocity_sd_mps),
                 f"the initiator's velocity deviation must be positive, got {self.velocity_sd_mps}")
         require(self.min_pairs >= 1, f"min_pairs must be at least 1, got {self.min_pairs}")
@@ -97,7 +132,11 @@ class FixInitiator:
         ok = ok & (det.abs() > 1e-6 * H[..., 0, :].norm(dim=-1) * H[..., 1, :].norm(dim=-1))
         H = torch.where(ok[..., None, None], H, torch.eye(2, dtype=z.dtype))
         Hinv = torch.linalg.inv(H)
-        return pos, Hinv @ torch.diag(sd**2) @ Hinv.transpose(-1, -2), ok
+        cov = Hinv @ torch.diag(sd**2) @ Hinv.transpose(-1, -2)
+        if self.covariance == "unscented":  # where a sigma point has no fix, the linearised one
+            spread, fine = fix_spread(z, model, pos)
+            cov = torch.where((ok & fine)[..., None, None], spread, cov)
+        return pos, cov, ok
 
     def groups(self, pos: torch.Tensor, cov: torch.Tensor, ok: torch.Tensor,
                lists: torch.Tensor | None = None) -> torch.Tensor:
