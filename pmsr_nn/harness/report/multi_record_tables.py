@@ -13,6 +13,7 @@ from .study_record_tables import DENSE, ONE_SKY, ONE_SKY_HYBRID, SHARED, SHARED_
 ONE_SKY_BP = "evaluate/results/one_sky_bp/results.json"
 ONE_SKY_MANAGED = "evaluate/results/one_sky_managed/results.json"
 ONE_SKY_MANAGED_PMHT = "evaluate/results/one_sky_managed_pmht/results.json"
+ONE_SKY_UNSCENTED = "evaluate/results/one_sky_unscented_fixes/results.json"
 DENSE_BP = "evaluate/results/dense_crossing_bp/results.json"
 SHARED_BP = "evaluate/results/shared_drones_bp/results.json"
 DENSE_GHOSTS = "evaluate/results/dense_crossing_ghosts/results.json"
@@ -45,16 +46,16 @@ def _seeds(methods: dict, name: str) -> str:
 
 
 READ_DETECTIONS_SOURCES = (SHARED_BP, SHARED, SHARED_HYBRID, ONE_SKY_BP, ONE_SKY, ONE_SKY_HYBRID, ONE_SKY_MANAGED,
-                           ONE_SKY_MANAGED_PMHT,
+                           ONE_SKY_MANAGED_PMHT, ONE_SKY_UNSCENTED,
                            DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION)
 
 
 def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, one_sky_bp: dict, one_sky: dict,
-                           one_sky_hybrid: dict, one_sky_managed: dict, one_sky_managed_pmht: dict, dense_bp: dict, dense: dict, dense_ghosts: dict,
-                           access: dict) -> list[str]:
+                           one_sky_hybrid: dict, one_sky_managed: dict, one_sky_managed_pmht: dict, one_sky_unscented: dict,
+                           dense_bp: dict, dense: dict, dense_ghosts: dict, access: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
     rows (the scenarios' studies) and the learned gain's three seeds, per scenario, with one_sky's
-    duplicate-free rows below its own; the Access initiation study's nominal case
+    duplicate-free rows (linearised and unscented fix covariances) below its own; the Access initiation study's nominal case
     (range and Doppler only) last."""
     gain = "S-MSJPDA + learned gain [seed {seed}]"
     out = ["| scenario | BP | S-MSJPDA | P-MSJPDA | PMHT | SMC-PHD + GTDA | S-MSJPDA + learned gain, seeds 0 / 1 / 2 |",
@@ -73,6 +74,11 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                     "management; PMHT from `one_sky_managed_pmht.yaml`)", _gospa(_methods(one_sky_bp)["BP"]), _gospa(m["S-MSJPDA (duplicate-free)"]),
                     _gospa(m["P-MSJPDA (duplicate-free)"]),
                     _gospa(_methods(one_sky_managed_pmht)["PMHT (duplicate-free)"]), "-", "-"]))
+    u = _methods(one_sky_unscented)
+    out.append(row(["`one_sky_unscented_fixes.yaml` (the same runs; the duplicate-free management with the fix "
+                    "initiator's unscented covariance)", _gospa(_methods(one_sky_bp)["BP"]),
+                    *(_gospa(u[f"{name} (duplicate-free, unscented fixes)"]) for name in ("S-MSJPDA", "P-MSJPDA", "PMHT")),
+                    "-", "-"]))
     d = _methods(dense)
     out.append(row(["`dense_crossing.yaml` (Pd 0.7, 40 clutter points per pair, 10 runs)",
                     _gospa(_methods(dense_bp)["BP"]), _gospa(d["S-MSJPDA"]), _gospa(d["P-MSJPDA"]), _gospa(d["PMHT"]),
@@ -236,6 +242,25 @@ def one_sky_bp(current: dict, second: dict, first: dict, managed: dict, managed_
              for name in ("S-MSJPDA", "P-MSJPDA") for m in [_methods(managed)[f"{name} (duplicate-free)"]]),
            row(["S-MSJPDA (duplicate-free, no existence deletion), the previous record",
                 *cells(_methods(managed_first)["S-MSJPDA (duplicate-free)"], "(other processes)")])]
+    return out
+
+
+def one_sky_unscented_fixes(managed: dict, managed_pmht: dict, unscented: dict) -> list[str]:
+    """S-, P-MSJPDA and PMHT with the duplicate-free management on one_sky, each with the fix
+    initiator's linearised covariance (one_sky_managed's and one_sky_managed_pmht's records) and
+    beneath it with the unscented one (one_sky_unscented_fixes')."""
+    dt = unscented["settings"]["dt_s"]
+    out = ["| row | fix covariance | GOSPA (m) ± s.e. | median / 75 % / 90 % / worst run (m) | % loc. / missed / false "
+           "| false tracks / run | tracks / drone | first track after birth (s) | s / run |",
+           "|---|---|---:|---|---|---:|---:|---:|---:|"]
+    before = {**_methods(managed), **_methods(managed_pmht)}
+    after = _methods(unscented)
+    for name in ("S-MSJPDA", "P-MSJPDA", "PMHT"):
+        for label, m in (("linearised", before[f"{name} (duplicate-free)"]),
+                         ("**unscented**", after[f"{name} (duplicate-free, unscented fixes)"])):
+            out.append(row([f"{name} (duplicate-free)", label, _gospa(m), _quantiles(m, slice(1, None)), _shares(m),
+                            fixed(m["false_tracks_per_run"], 2), fixed(m["confirmed_tracks_per_target"], 2),
+                            fixed(m["scans_to_first_track"] * dt, 2), fixed(m["seconds_per_run"], 1)]))
     return out
 
 

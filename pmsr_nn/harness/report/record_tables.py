@@ -126,6 +126,8 @@ TABLES: dict[str, Table] = {
     "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
     "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
     "duplicate_free": Table((multi.DENSE_DUPLICATE_FREE, multi.SHARED_DUPLICATE_FREE), multi.duplicate_free),
+    "one_sky_unscented_fixes": Table((multi.ONE_SKY_MANAGED, multi.ONE_SKY_MANAGED_PMHT, multi.ONE_SKY_UNSCENTED),
+                                     multi.one_sky_unscented_fixes),
     # tables that quote several records
     "readme_from_detections": Table(multi.READ_DETECTIONS_SOURCES, multi.readme_from_detections),
     "dense_crossing_bp": Table((multi.DENSE_BP, study.DENSE), multi.dense_crossing_bp),
