@@ -385,3 +385,18 @@ def test_the_unscented_fixes_companion_is_one_sky_managed_with_the_unscented_fix
     assert [row["kind"] for row in unscented["methods"]] == ["s_msjpda", "p_msjpda", "pmht"]
     for row in unscented["methods"]:
         assert row["options"] == {"initiation": "detections", **DUPLICATE_FREE, "fix_covariance": "unscented"}
+
+
+@pytest.mark.parametrize("study", ["dense_crossing", "shared_drones"])
+def test_the_unscented_fixes_companions_are_the_duplicate_free_rows_with_the_unscented_fix_covariance(study):
+    """``evaluate/{study}_unscented_fixes.yaml``: the study's draws and scoring; each row is the
+    duplicate-free companion's row of its kind with ``fix_covariance: unscented`` added."""
+    root = Path(__file__).resolve().parents[1] / "evaluate"
+    main_study, free, unscented = (yaml.safe_load((root / f).read_text()) for f in (
+        f"{study}.yaml", f"{study}_duplicate_free.yaml", f"{study}_unscented_fixes.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+    assert rest(unscented) == rest(main_study)
+    twins = {m["kind"]: m for m in free["methods"] if "(duplicate-free)" in m["name"]}
+    assert [m["kind"] for m in unscented["methods"]] == ["s_msjpda", "p_msjpda", "pmht"]
+    for m in unscented["methods"]:
+        assert m["options"] == {**twins[m["kind"]]["options"], "fix_covariance": "unscented"}

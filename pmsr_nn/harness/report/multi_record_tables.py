@@ -20,6 +20,8 @@ DENSE_GHOSTS = "evaluate/results/dense_crossing_ghosts/results.json"
 STONESOUP = "evaluate/results/one_sky_stonesoup/results.json"
 DENSE_DUPLICATE_FREE = "evaluate/results/dense_crossing_duplicate_free/results.json"
 SHARED_DUPLICATE_FREE = "evaluate/results/shared_drones_duplicate_free/results.json"
+DENSE_UNSCENTED = "evaluate/results/dense_crossing_unscented_fixes/results.json"
+SHARED_UNSCENTED = "evaluate/results/shared_drones_unscented_fixes/results.json"
 
 
 def _methods(rec: dict) -> dict:
@@ -132,23 +134,25 @@ def shared_drones_bp(rec: dict) -> list[str]:
     return out
 
 
-def duplicate_free(dense: dict, shared: dict) -> list[str]:
+def duplicate_free(dense: dict, shared: dict, dense_unscented: dict, shared_unscented: dict) -> list[str]:
     """The duplicate-free management on dense_crossing and shared_drones: per study, the row handed
-    the births, then S-, P-MSJPDA and PMHT with the default management and each with the
-    duplicate-free one beneath it (GOSPA, the runs' median / 90 % / worst, shares, false tracks,
-    first track after birth, seconds per run)."""
+    the births, then S-, P-MSJPDA and PMHT with the default management and beneath each the
+    duplicate-free one, then that with the unscented fix covariance (its own record; GOSPA, the
+    runs' median / 90 % / worst, shares, false tracks, first track after birth, seconds per run)."""
     out = ["| study | row | GOSPA (m) ± s.e. | median / 90 % / worst run (m) | % loc. / missed / false "
            "| false tracks / run | first track after birth (s) | s / run |",
            "|---|---|---:|---|---|---:|---:|---:|"]
-    studies = (("dense_crossing (10 runs)", dense, "S-MSJPDA (oracle births)", ("S-MSJPDA", "P-MSJPDA", "PMHT")),
-               ("shared_drones (50 runs)", shared, "S-MSJPDA",
+    studies = (("dense_crossing (10 runs)", dense, dense_unscented, "S-MSJPDA (oracle births)",
+                ("S-MSJPDA", "P-MSJPDA", "PMHT")),
+               ("shared_drones (50 runs)", shared, shared_unscented, "S-MSJPDA",
                 ("S-MSJPDA from detections", "P-MSJPDA from detections", "PMHT from detections")))
-    for study, rec, oracle, defaults in studies:
-        methods, dt = _methods(rec), rec["settings"]["dt_s"]
+    for study, rec, unscented, oracle, defaults in studies:
+        methods, dt = {**_methods(rec), **_methods(unscented)}, rec["settings"]["dt_s"]
         names = [(oracle, "S-MSJPDA (oracle births)")]
         for name in defaults:
             tracker = name.split(" ")[0]
-            names += [(name, tracker), (f"{tracker} (duplicate-free)", f"{tracker} (duplicate-free)")]
+            names += [(name, tracker), (f"{tracker} (duplicate-free)", f"{tracker} (duplicate-free)"),
+                      (f"{tracker} (duplicate-free, unscented fixes)", f"{tracker} (duplicate-free, **unscented fixes**)")]
         for name, label in names:
             m = methods[name]
             q = m["gospa_run_quantiles_m"]

@@ -125,7 +125,8 @@ TABLES: dict[str, Table] = {
     "access2019_msjpda_clutter": Table(msjpda.MSJPDA_CLUTTER, msjpda.access2019_msjpda_clutter),
     "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
     "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
-    "duplicate_free": Table((multi.DENSE_DUPLICATE_FREE, multi.SHARED_DUPLICATE_FREE), multi.duplicate_free),
+    "duplicate_free": Table((multi.DENSE_DUPLICATE_FREE, multi.SHARED_DUPLICATE_FREE, multi.DENSE_UNSCENTED,
+                             multi.SHARED_UNSCENTED), multi.duplicate_free),
     "one_sky_unscented_fixes": Table((multi.ONE_SKY_MANAGED, multi.ONE_SKY_MANAGED_PMHT, multi.ONE_SKY_UNSCENTED),
                                      multi.one_sky_unscented_fixes),
     # tables that quote several records
