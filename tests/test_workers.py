@@ -89,3 +89,22 @@ def test_a_foreign_staging_bank_is_refused_in_one_line_before_any_worker_starts(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "where --workers stages the blocks of" in err[0] and "another scenario" in err[0], err
     assert {str(p.relative_to(tmp_path)): p.stat().st_mtime_ns for p in tmp_path.rglob("*")} == before
+
+
+@pytest.mark.integration
+def test_the_staging_bank_goes_only_as_far_as_it_is_the_banks_own(tmp_path, capsys):
+    """A file someone put into the staging bank (and one added inside a block) stays, with a
+    warning; the bank's own files and the untouched blocks go; the results are written."""
+    from pmsr_nn.harness.evaluate import execute
+    from pmsr_nn.harness.run.runner import open_run
+
+    path = two_drones(tmp_path, mc_runs=4, block_runs=1)
+    bank = staging_bank(tmp_path / "out")
+    execute(open_run(path, bank, target="bank", shard=(1, 2), progress=False))  # blocks 0-1
+    (bank / "notes.txt").write_text("mine")
+    (bank / "block-0001" / "extra.txt").write_text("mine too")
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out"), "--workers", "2", "--quiet"]) == 0
+    assert "keeps 2 file(s) this command did not write (block-0001, ...)" in capsys.readouterr().err
+    assert sorted(p.name for p in bank.iterdir()) == ["block-0001", "notes.txt"]
+    assert (bank / "notes.txt").read_text() == "mine" and (bank / "block-0001" / "extra.txt").read_text() == "mine too"
+    assert (tmp_path / "out" / "results.json").is_file()

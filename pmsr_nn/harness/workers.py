@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from ..errors import ConfigError, OutputError, PmsrError
+from ..outputs import MARKER, foreign_files, is_ours
 from .run.block_bank import BANK_FILE, bank_blocks, is_bank, open_bank
 from .run.runner import RESULT_COMMANDS, open_run
 
@@ -131,9 +132,32 @@ def evaluate_in_workers(scenario, out: Path, *, workers: int, mc_runs: int | Non
             p.join()
         raise
     res = merge([bank], out, device=device, overwrite=overwrite)
-    if (bank / BANK_FILE).exists():  # the staging bank this command made (and the blocks its workers filed)
-        shutil.rmtree(bank)
+    kept = remove_staging(bank)
+    if kept:
+        print(f"warning: {bank} keeps {len(kept)} file(s) this command did not write ({kept[0]}{', ...' if len(kept) > 1 else ''}); "
+              "the staging bank's own files are gone", file=sys.stderr)
     return res
+
+
+def remove_staging(bank: Path) -> list[str]:
+    """Remove staging bank ``bank`` (``.<out>.blocks``, beside an output checked to be no input,
+    working folder or parent of it) as far as it is the bank's own: its ``bank.json`` and marker,
+    and each ``block-NNNN`` folder that carries our marker and holds nothing its marker does not
+    list; the folder itself only once empty. Returns what was left (anything else found there)."""
+    bank = Path(bank)
+    if bank.is_symlink() or not is_bank(bank):
+        return [bank.name]
+    left, blocks = [], set(bank_blocks(bank))
+    for entry in sorted(bank.iterdir()):
+        if entry.name in (BANK_FILE, MARKER) and entry.is_file() and not entry.is_symlink():
+            entry.unlink()
+        elif entry in blocks and not entry.is_symlink() and is_ours(entry) and not foreign_files(entry):
+            shutil.rmtree(entry)
+        else:
+            left.append(entry.name)
+    if not left:
+        bank.rmdir()
+    return left
 
 
 def _wait(procs, bank: Path, n_blocks: int, progress: bool, log) -> None:
