@@ -56,7 +56,8 @@ def execute(run: Run) -> dict:
         return run_bank(run)
     command = "evaluate" if run.sums is None else "merge"
     with atomic_dir(run.out, run.overwrite, command=command, inputs=run.inputs) as tmp:
-        bs = run.sums if run.sums is not None else run_blocks(run.setup, run.blocks, progress=run.progress)
+        bs = run.sums if run.sums is not None else run_blocks(run.setup, run.blocks, progress=run.progress,
+                                                                     batch_runs=run.batch_runs)
         if run.target == "results":
             return write_outputs(run.setup, bs, tmp, run.device, run.merged)
         sc = run.scenario
@@ -66,12 +67,13 @@ def execute(run: Run) -> dict:
 
 def evaluate(scenario: Scenario | str | Path, out: Path, *, mc_runs: int | None = None,
              checkpoints: dict[str, str] | None = None, shard: tuple[int, int] = (1, 1), device: str = "cpu",
-             progress: bool = True, overwrite: bool = False, seed: int | None = None) -> dict:
+             progress: bool = True, overwrite: bool = False, seed: int | None = None, batch_runs: int = 1) -> dict:
     """Run a scenario (or one shard) into ``out``; returns results.json's content (or shard.json's).
-    ``seed`` replaces the scenario's seed (other draws of the same scenario)."""
+    ``seed`` replaces the scenario's seed (other draws of the same scenario); ``batch_runs``: runs
+    per call of a batchable kind (:mod:`.run.batches`)."""
     target = "results" if tuple(shard) == (1, 1) else "shard"
     return execute(open_run(scenario, out, target=target, shard=shard, mc_runs=mc_runs, checkpoints=checkpoints,
-                            seed=seed, device=device, progress=progress, overwrite=overwrite))
+                            seed=seed, device=device, progress=progress, overwrite=overwrite, batch_runs=batch_runs))
 
 
 def merge(shards: list[Path], out: Path, *, device: str = "cpu", overwrite: bool = False,

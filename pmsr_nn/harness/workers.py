@@ -77,7 +77,7 @@ def _work(scenario, bank: Path, options: dict) -> None:
 def evaluate_in_workers(scenario, out: Path, *, workers: int, mc_runs: int | None = None,
                         checkpoints: dict[str, str] | None = None, seed: int | None = None, device: str = "cpu",
                         overwrite: bool = False, progress: bool = True, source: Path | None = None,
-                        warn: bool = True, log=print) -> dict:
+                        warn: bool = True, log=print, batch_runs: int = 1) -> dict:
     """Run ``scenario`` (a YAML file, or a loaded scenario with ``source`` its file) with
     ``workers`` processes into ``out`` (module docstring); returns results.json's content. More
     workers than blocks: one per block, with a warning where ``warn``; one in all: this process
@@ -91,7 +91,8 @@ def evaluate_in_workers(scenario, out: Path, *, workers: int, mc_runs: int | Non
     bank = staging_bank(out)
     if bank.exists() and not is_bank(bank) and any(bank.iterdir()):
         raise OutputError(f"{bank}, where --workers stages the blocks of {out}, holds something else; move it away")
-    options = {"mc_runs": mc_runs, "checkpoints": checkpoints, "seed": seed, "device": device, "source": source}
+    options = {"mc_runs": mc_runs, "checkpoints": checkpoints, "seed": seed, "device": device, "source": source,
+               "batch_runs": batch_runs}
     run = open_run(scenario, bank, target="bank", progress=False, **options)  # refusals before any worker starts
     n_blocks = run.scenario.n_blocks
     if workers > n_blocks:
@@ -101,7 +102,7 @@ def evaluate_in_workers(scenario, out: Path, *, workers: int, mc_runs: int | Non
         workers = n_blocks
     if workers == 1 and not bank.exists():  # nothing to share out, nothing banked to continue from
         return evaluate(scenario, out, mc_runs=mc_runs, checkpoints=checkpoints, device=device, progress=progress,
-                        overwrite=overwrite, seed=seed)
+                        overwrite=overwrite, seed=seed, batch_runs=batch_runs)
     try:
         note = open_bank(run)  # here, not in the workers: a foreign bank is one line before any starts
     except ConfigError:

@@ -132,7 +132,9 @@ class MethodKind:
     that reads the detections' origins); ``pooled_lists``: where the scenario pools the detections per receiver (a
     single-frequency network), the kind reads those lists (the illuminator unknown); the other readers of
     ``detections`` read the per-pair lists (the illuminator given); ``metrics``: the kind's own figures beside the
-    runner's (:class:`~.kind_metrics.Metric` objects; none by default)."""
+    runner's (:class:`~.kind_metrics.Metric` objects; none by default); ``batchable``: a run's estimates do not depend
+    on the other runs of its call (nothing drawn from the block's stream, no per-call state), so the runner may call
+    the kind on several blocks' runs at once (``--batch-runs``, :mod:`pmsr_nn.harness.run.batches`)."""
 
     name: str
     reads: str
@@ -150,6 +152,7 @@ class MethodKind:
     initiation: str = ""
     pooled_lists: bool = False
     metrics: tuple = ()
+    batchable: bool = False
 
 
 def lists_read(kind: MethodKind) -> str:

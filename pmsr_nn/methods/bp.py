@@ -121,10 +121,10 @@ OPTIONS = {"gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
                                                                        "azimuth)"),
            "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12), **INIT_SCAN_OPTIONS,
            "iterations": Option(100, int, 1, 100_000), "tolerance": Option(1e-8, float, 0.0, 1.0)}
-register(MethodKind("bp", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
+register(MethodKind("bp", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True, batchable=True,
                     description="multisensor belief-propagation tracker (TOMB/P with BP association, Meyer et al., "
                                 "Proc. IEEE 2018), pair by pair; starts, confirms and deletes its own tracks by existence"))
 register(MethodKind("bp_3d", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
-                    pooled_lists=True,
+                    pooled_lists=True, batchable=True,
                     description="the belief-propagation tracker on the lists a single-frequency-network receiver has "
                                 "(pooled, the illuminator unknown: each pair reads its receiver's list); elsewhere as bp"))

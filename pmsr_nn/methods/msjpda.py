@@ -88,12 +88,13 @@ OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.9
            "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS,
            **BIAS_OPTIONS}  # the innovation bias test: S-MSJPDA from detections only
 register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation, metrics=(TrackLoss(),),
+                    batchable=True,
                     description="sequential multi-sensor JPDA (Lyu & Wang, IEEE Access 2019), pair by pair; "
                                 "initiation: oracle (handed the births) or detections (starts its own tracks)"))
 register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
-                    metrics=(TrackLoss(), DualityGap()),
+                    metrics=(TrackLoss(), DualityGap()), batchable=True,  # the gap of a joined call: its largest
                     description="parallel multi-sensor JPDA, (N+1)-D joint events (Lyu & Wang, IEEE Access 2019); "
                                 "initiation: oracle or detections"))
-register(MethodKind("true_assignment", "detections", run_true_assignment, {}, check=_all_from_start,
+register(MethodKind("true_assignment", "detections", run_true_assignment, {}, check=_all_from_start, batchable=True,
                     metrics=(TrackLoss(),),
                     description="reference: a UKF per target on exactly its own detections (true origins)"))

@@ -167,4 +167,5 @@ for _kind, _options, _extra in (
      {"needs_checkpoint": True, "load": _load_learned, "causal": lambda t: not t.looks_ahead, "check": _check_learned,
       "description": "a trained DFNN, MDFNN, RNN or KalmanNet (pmsr train) from its checkpoint"}),
 ):
-    register(MethodKind(_kind, "measurements", per_target, _options, **_extra))
+    # the particle filter draws from the block's stream; the others are per run
+    register(MethodKind(_kind, "measurements", per_target, _options, batchable=_kind != "particle_filter", **_extra))

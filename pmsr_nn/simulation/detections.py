@@ -80,6 +80,15 @@ class ClutterSpec:
         return self.density_of()
 
 
+def pad_lists(t: torch.Tensor, M: int, fill) -> torch.Tensor:
+    """``t (B, K, S, M', ...)`` with its list axis padded to ``M`` with ``fill``."""
+    if t.shape[3] >= M:
+        return t
+    shape = list(t.shape)
+    shape[3] = M - t.shape[3]
+    return torch.cat([t, t.new_full(shape, fill)], 3)
+
+
 @dataclass
 class Scans:
     """Detections of ``B`` runs over ``K`` scans from ``S`` sensors (pairs), padded to ``M`` per list.
@@ -97,6 +106,15 @@ class Scans:
     def shape(self) -> tuple[int, int, int, int]:
         B, K, S, M = self.valid.shape
         return B, K, S, M
+
+    @classmethod
+    def concat(cls, parts: list["Scans"]) -> "Scans":
+        """The runs of ``parts`` one after another, each padded to the longest list ``M`` (padding
+        is invalid, NaN, origin :data:`PADDING`: a tracker reads only valid detections)."""
+        M = max(p.shape[3] for p in parts)
+        return cls(torch.cat([pad_lists(p.z, M, math.nan) for p in parts]),
+                   torch.cat([pad_lists(p.valid, M, False) for p in parts]),
+                   torch.cat([pad_lists(p.origin, M, PADDING) for p in parts]))
 
     def target_measurements(self, n_targets: int) -> torch.Tensor:
         """The detection each target caused, ``(B, K, N, S, m)`` (NaN where missed): what a tracker
@@ -190,6 +208,13 @@ class PooledScans:
     scans: Scans
     pair: torch.Tensor
     routes: torch.Tensor
+
+    @classmethod
+    def concat(cls, parts: list["PooledScans"]) -> "PooledScans":
+        """The runs of ``parts`` one after another (:meth:`Scans.concat`; the same network's routes)."""
+        M = max(p.scans.shape[3] for p in parts)
+        return cls(Scans.concat([p.scans for p in parts]), torch.cat([pad_lists(p.pair, M, -1) for p in parts]),
+                   parts[0].routes)
 
 
 def receiver_routes(model: MeasurementModel) -> torch.Tensor:

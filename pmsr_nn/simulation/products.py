@@ -149,6 +149,15 @@ class Streams:
     z: torch.Tensor
     prior: Gaussian
 
+    @classmethod
+    def concat(cls, parts: list["Streams"]) -> "Streams":
+        """The runs of ``parts`` one after another."""
+        return cls(torch.cat([p.z for p in parts]), _concat_priors(parts))
+
+
+def _concat_priors(parts) -> Gaussian:
+    return Gaussian(torch.cat([p.prior.x for p in parts]), torch.cat([p.prior.P for p in parts]))
+
 
 @dataclass
 class Detections:
@@ -162,6 +171,15 @@ class Detections:
     prior: Gaussian
     pooled: PooledScans | None = None
     front_end: object | None = None
+
+    @classmethod
+    def concat(cls, parts: list["Detections"]) -> "Detections":
+        """The runs of ``parts`` one after another (lists padded: :meth:`~.detections.Scans.concat`);
+        detections from signals are not joined (each block keeps its own front-end record)."""
+        if any(p.front_end is not None for p in parts):
+            raise ValueError("detections from signals carry one front-end record per block; they are not joined")
+        pooled = None if parts[0].pooled is None else PooledScans.concat([p.pooled for p in parts])
+        return cls(Scans.concat([p.scans for p in parts]), _concat_priors(parts), pooled)
 
     def runs(self, i: slice) -> "Detections":
         """The product of runs ``i``."""

@@ -30,6 +30,7 @@ from pathlib import Path
 from ...environment import environment
 from ...errors import ConfigError, OutputError
 from ...outputs import MARKER, atomic_folder, check_target, make_parents, output_kind, process_alive, write_marker
+from .batches import batch_groups, blocks_per_call
 from .block_sums import portable_base, read_shard, resolved_base, write_shard
 from .blocks import run_blocks
 from .runner import Run
@@ -240,24 +241,35 @@ def run_bank(run: Run, log=print) -> dict:
     if progress and skipped:
         log(f"bank {out}: {len(skipped)} of shard {shard[0]}/{shard[1]}'s {len(blocks)} block(s) already there")
     ran, others = [], []
-    for b in (b for b in blocks if b not in skipped):
-        claim = _claim(out, b)
-        if claim is None:  # another process is running it
-            others.append(b)
-            continue
+    todo = [b for b in blocks if b not in skipped]
+    for group in batch_groups(todo, blocks_per_call(run.batch_runs, sc.block_runs)):
+        claims = {}
         try:
-            if _complete(block_folder(out, b), identity):  # finished by another process since the look above
-                skipped.append(b)
+            for b in group:
+                claim = _claim(out, b)
+                if claim is None:  # another process is running it
+                    others.append(b)
+                elif _complete(block_folder(out, b), identity):  # finished by another process since the look above
+                    claim.unlink(missing_ok=True)
+                    skipped.append(b)
+                else:
+                    claims[b] = claim
+            if not claims:
                 continue
+            mine = sorted(claims)
             t0 = time.perf_counter()
-            with atomic_folder(block_folder(out, b), command="evaluate", inputs=inputs, allow=("evaluate",)) as tmp:
-                bs = run_blocks(setup, range(b, b + 1), progress=progress)
-                write_shard(tmp, bs, (b + 1, sc.n_blocks), [b], identity, env)
-            ran.append(b)
+            bs = run_blocks(setup, mine, progress=progress, batch_runs=run.batch_runs)
+            parts = bs.split([len(sc.block_runs_range(b)) for b in mine]) if len(mine) > 1 else [bs]
+            for b, part in zip(mine, parts):
+                with atomic_folder(block_folder(out, b), command="evaluate", inputs=inputs, allow=("evaluate",)) as tmp:
+                    write_shard(tmp, part, (b + 1, sc.n_blocks), [b], identity, env)
+                ran.append(b)
+                if progress:
+                    log(f"block {b + 1}/{sc.n_blocks} -> {block_folder(out, b)} "
+                        f"({(time.perf_counter() - t0) / len(mine):.0f} s)")
         finally:
-            claim.unlink(missing_ok=True)
-        if progress:
-            log(f"block {b + 1}/{sc.n_blocks} -> {block_folder(out, b)} ({time.perf_counter() - t0:.0f} s)")
+            for claim in claims.values():
+                claim.unlink(missing_ok=True)
     done = len(bank_blocks(out))
     if progress:
         busy = f"; {len(others)} being run by other processes" if others else ""

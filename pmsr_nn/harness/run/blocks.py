@@ -42,7 +42,7 @@ from ...rng import seeded_generator
 from ...simulation.products import Truth
 from ..scenario.method_spec import MethodSpec
 from ..scenario.prepared import Case, Setup, method_space
-from . import scoring
+from . import batches, scoring
 from .block_sums import FRONT_END, BlockSums
 
 INIT_STREAM = 0x696E6974
@@ -147,58 +147,83 @@ def warm_key(spec: MethodSpec) -> tuple:
     return spec.kind, spec.checkpoint, repr(sorted(spec.options.items()))
 
 
-def run_blocks(setup: Setup, blocks: range, progress: bool = True) -> BlockSums:
-    """Run every method of every case on the given blocks of Monte Carlo runs."""
+def _method_calls(setup: Setup, spec: MethodSpec, case: Case, ci: int, group: list[int], drawn: dict):
+    """``(block, estimates, seconds)`` of one method on every block of ``group``: one joined call
+    where the kind is batchable and its product joins (:mod:`.batches`), else one call per block.
+    A joined call's seconds are shared by the blocks in proportion to their runs."""
     sc = setup.scenario
+    reads = setup.kinds[spec.name].reads
+    parts = [drawn[b][1][reads] for b in group]
+    if len(group) > 1 and setup.kinds[spec.name].batchable and batches.joinable(parts):
+        runs = [len(sc.block_runs_range(b)) for b in group]
+        t0 = time.perf_counter()
+        est = call_method(setup, spec, case, {reads: batches.join(parts)}, (sc.seed, ci, group[0]))
+        seconds = time.perf_counter() - t0
+        for b, r, part in zip(group, runs, batches.split_estimates(est, runs)):
+            yield b, part, seconds * r / sum(runs)
+        return
+    for b in group:
+        t0 = time.perf_counter()
+        est = call_method(setup, spec, case, drawn[b][1], (sc.seed, ci, b))
+        # work reused from another method's call of this block (one PHD run for several
+        # labellings) counts in full in every method that reads it
+        yield b, est, time.perf_counter() - t0 + float(est.extras.get("shared_seconds", 0.0))
+
+
+def run_blocks(setup: Setup, blocks, progress: bool = True, batch_runs: int = 1) -> BlockSums:
+    """Run every method of every case on the given blocks of Monte Carlo runs (ascending block
+    indices); ``batch_runs``: call a batchable kind on that many runs at once, in whole blocks
+    (:mod:`.batches`; 1: block by block)."""
+    sc = setup.scenario
+    blocks = sorted(blocks)
     out = BlockSums(list(blocks))
     called = [m for m in setup.methods if not setup.kinds[m.name].bound]  # a bound's row is filled by finalise
     bar = tqdm(total=len(blocks) * sum(case.runs(m) for case in setup.cases for m in called), disable=not progress,
                unit="method-block",
                desc=f"{sc.name}", leave=False)
+    groups = batches.batch_groups(blocks, batches.blocks_per_call(batch_runs, sc.block_runs))
+    pos = list(setup.models.motion.pos_idx)
     with torch.no_grad():
         for ci, case in enumerate(setup.cases):
-            for block in blocks:
-                truth, products = draw_block(setup, ci, block)
-                for product in products.values():  # what a signal chain measured on the way
-                    record = getattr(product, "front_end", None)
-                    if record is not None:
-                        out.add(case.name, FRONT_END, record.sums, 0.0)
-                        if block == 0:
-                            out.example.setdefault(case.name, {}).update(record.example)
-                    if block == 0 and hasattr(product, "examples"):  # e.g. run 0's range-Doppler maps ("@" keys)
-                        out.example.setdefault(case.name, {}).update(product.examples())
+            for group in groups:
+                drawn = {b: draw_block(setup, ci, b) for b in group}
+                for block in group:
+                    for product in drawn[block][1].values():  # what a signal chain measured on the way
+                        record = getattr(product, "front_end", None)
+                        if record is not None:
+                            out.add(case.name, FRONT_END, record.sums, 0.0)
+                            if block == 0:
+                                out.example.setdefault(case.name, {}).update(record.example)
+                        if block == 0 and hasattr(product, "examples"):  # e.g. run 0's range-Doppler maps ("@" keys)
+                            out.example.setdefault(case.name, {}).update(product.examples())
                 todo = [m for m in called if case.runs(m) and warm_key(m) not in WARMED]
                 if todo:  # untimed, once per process and kind (in its first case): start-up costs stay out of the timing
-                    first = _first_runs(products)
+                    first = _first_runs(drawn[group[0]][1])
                     for spec in todo:
                         bar.set_postfix_str(f"{case.name} {spec.name} (warm-up, untimed)")  # not charged to a row
                         call_method(setup, spec, case, first, (sc.seed, 1 << 30))
                         WARMED.add(warm_key(spec))
-                pos = list(setup.models.motion.pos_idx)
-                projected = {}  # the block's truth in each estimate space some method reads (truth_in)
+                projected = {b: {} for b in group}  # each block's truth in the estimate spaces methods read (truth_in)
                 for spec in called:
                     if not case.runs(spec):
                         continue
                     interrupts.check()
                     bar.set_postfix_str(f"{case.name} {spec.name}", refresh=False)
-                    t0 = time.perf_counter()
-                    est = call_method(setup, spec, case, products, (sc.seed, ci, block))
-                    # work reused from another method's call of this block (one PHD run for several
-                    # labellings) counts in full in every method that reads it
-                    seconds = time.perf_counter() - t0 + float(est.extras.get("shared_seconds", 0.0))
                     space = method_space(setup, spec, case)
-                    sums = score(setup, case, est, truth_in(space, truth, projected), space, setup.kinds[spec.name].metrics)
-                    out.add(case.name, spec.name, sums, seconds)
-                    if block == 0 and space is None:
-                        x = torch.where(est.exists[0, ..., None], est.x[0][..., pos], float("nan"))
-                        out.example.setdefault(case.name, {})[spec.name] = x.numpy()
-                    elif block == 0:  # not a position: kept apart from the map's tracks ("@" keys)
-                        x = torch.where(est.exists[0, ..., None], est.x[0], float("nan"))
-                        out.example.setdefault(case.name, {})[f"@{spec.name}"] = x.numpy()
-                    bar.update()
-                if block == 0:
-                    out.example.setdefault(case.name, {})["truth"] = truth.x[0][..., pos].numpy()
-                    for key, t in projected.items():
+                    for block, est, seconds in _method_calls(setup, spec, case, ci, group, drawn):
+                        truth = truth_in(space, drawn[block][0], projected[block])
+                        sums = score(setup, case, est, truth, space, setup.kinds[spec.name].metrics)
+                        out.add(case.name, spec.name, sums, seconds)
+                        if block == 0 and space is None:
+                            x = torch.where(est.exists[0, ..., None], est.x[0][..., pos], float("nan"))
+                            out.example.setdefault(case.name, {})[spec.name] = x.numpy()
+                        elif block == 0:  # not a position: kept apart from the map's tracks ("@" keys)
+                            x = torch.where(est.exists[0, ..., None], est.x[0], float("nan"))
+                            out.example.setdefault(case.name, {})[f"@{spec.name}"] = x.numpy()
+                        bar.update()
+                if 0 in group:
+                    out.example.setdefault(case.name, {})["truth"] = drawn[0][0].x[0][..., pos].numpy()
+                    for key, t in projected[0].items():
                         out.example[case.name][f"@truth {key}"] = t.x[0].numpy()
     bar.close()
     return out.stacked()

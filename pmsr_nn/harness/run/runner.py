@@ -72,6 +72,7 @@ class Run:
     overwrite: bool = False
     sums: BlockSums | None = None
     merged: dict | None = None
+    batch_runs: int = 1
 
     @property
     def scenario(self) -> Scenario:
@@ -82,13 +83,14 @@ class Run:
 def open_run(scenario: Scenario | str | Path, out: Path, *, target: str = "results", shard: tuple[int, int] = (1, 1),
              mc_runs: int | None = None, checkpoints: dict[str, str] | None = None, seed: int | None = None,
              device: str = "cpu", progress: bool = True, overwrite: bool = False,
-             source: str | Path | None = None, check: Callable[[Scenario], None] | None = None) -> Run:
+             source: str | Path | None = None, check: Callable[[Scenario], None] | None = None,
+             batch_runs: int = 1) -> Run:
     """The :class:`Run` of ``scenario`` (a YAML file, or a loaded scenario) into ``out``: the
     output checked (a results or shard folder before loading, as far as it can be), the scenario
     loaded with the options applied, ``check`` (an entry path's own checks of the loaded scenario),
     the output checked against every file the run reads, the shard's blocks, the preparation and
     the scenario's reference. ``source``: the scenario file when ``scenario`` is one loaded from it
-    (an input too)."""
+    (an input too); ``batch_runs``: runs per call of a batchable kind (:mod:`.batches`)."""
     if target not in TARGETS:
         raise ValueError(f"target must be one of {TARGETS}, got {target!r}")
     if target != "bank":  # a bank is continued, never replaced: only what is never safe is refused
@@ -104,4 +106,5 @@ def open_run(scenario: Scenario | str | Path, out: Path, *, target: str = "resul
     blocks = shard_blocks(sc.n_blocks, shard)
     setup = prepare(sc, device)
     scenario_references(sc)  # a bad reference entry fails now, not after the run
-    return Run(setup, blocks, Path(out), target, tuple(shard), tuple(inputs), device, progress, overwrite)
+    return Run(setup, blocks, Path(out), target, tuple(shard), tuple(inputs), device, progress, overwrite,
+               batch_runs=batch_runs)
