@@ -54,6 +54,10 @@ class Models:
     R: torch.Tensor
     noise_std: torch.Tensor
 
+    def to(self, device: torch.device | str) -> "Models":
+        """The same models with their tensors (``R``, ``noise_std``) on ``device``."""
+        return Models(self.motion, self.model, self.dt, self.q, self.R.to(device), self.noise_std.to(device))
+
 
 @dataclass
 class MethodCall:
@@ -69,6 +73,13 @@ class MethodCall:
     sensing: SensorSetup
     resource: Any = None
     seed: tuple[int, ...] = ()
+
+    def to(self, device: torch.device | str) -> "MethodCall":
+        """The same call with its product, the lives, the models and the sensing on ``device``
+        (the product a ``.to(device)`` of its own, :mod:`pmsr_nn.simulation.products`); the
+        ``resource`` was made on the run's device by the kind's ``load``."""
+        return MethodCall(self.spec, self.product.to(device), self.alive.to(device), self.models.to(device),
+                          self.sensing.to(device), self.resource, self.seed)
 
 
 MIN_CLUTTER_PER_SCAN = 1e-3
@@ -132,7 +143,11 @@ class MethodKind:
     that reads the detections' origins); ``pooled_lists``: where the scenario pools the detections per receiver (a
     single-frequency network), the kind reads those lists (the illuminator unknown); the other readers of
     ``detections`` read the per-pair lists (the illuminator given); ``metrics``: the kind's own figures beside the
-    runner's (:class:`~.kind_metrics.Metric` objects; none by default)."""
+    runner's (:class:`~.kind_metrics.Metric` objects; none by default); ``any_device``: the kind
+    runs on the device of its inputs (``pmsr evaluate --device cuda``: every tensor it makes is
+    made there, tests/test_device_agnostic.py), or ``(spec, sensing) -> (bool, why not)`` where that
+    depends on the row (:func:`runs_on_any_device`); a kind or row without it runs on the CPU only and
+    is refused, in one line, on any other device."""
 
     name: str
     reads: str
@@ -150,6 +165,18 @@ class MethodKind:
     initiation: str = ""
     pooled_lists: bool = False
     metrics: tuple = ()
+    any_device: bool | Callable = False
+
+
+def runs_on_any_device(kind: MethodKind, spec, sensing: SensorSetup) -> tuple[bool, str]:
+    """Whether a row (``spec``) of ``kind`` on a case's ``sensing`` runs on any device
+    (``MethodKind.any_device``: a bool, or ``(spec, sensing) -> (bool, why not)`` where it depends
+    on the row), and if not, why (``""`` or `` (reason)``). A bound is never called: any device."""
+    if kind.bound:
+        return True, ""
+    if callable(kind.any_device):
+        return kind.any_device(spec, sensing)
+    return bool(kind.any_device), ""
 
 
 def lists_read(kind: MethodKind) -> str:

@@ -98,6 +98,10 @@ class Scans:
         B, K, S, M = self.valid.shape
         return B, K, S, M
 
+    def to(self, device: torch.device | str) -> "Scans":
+        """The same detections on ``device``."""
+        return Scans(self.z.to(device), self.valid.to(device), self.origin.to(device))
+
     def target_measurements(self, n_targets: int) -> torch.Tensor:
         """The detection each target caused, ``(B, K, N, S, m)`` (NaN where missed): what a tracker
         that knew the true assignment would use."""
@@ -190,6 +194,10 @@ class PooledScans:
     scans: Scans
     pair: torch.Tensor
     routes: torch.Tensor
+
+    def to(self, device: torch.device | str) -> "PooledScans":
+        """The same lists on ``device``."""
+        return PooledScans(self.scans.to(device), self.pair.to(device), self.routes.to(device))
 
 
 def receiver_routes(model: MeasurementModel) -> torch.Tensor:
