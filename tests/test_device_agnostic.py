@@ -238,3 +238,113 @@ def test_the_rows_a_kind_runs_on_any_device_are_those_that_pass(scenes):
             assert ok == (spec.name not in XFAIL) and (ok or why == "" or why.startswith(" ")), (spec.name, why)
             seen.add(spec.kind)
     assert seen == set(registry()) - {"pcrb"}  # every kind but the bound (never called) has a row above
+
+
+# -- what the meta check can not see ---------------------------------------------------------------
+
+PACKAGE = ROOT / "pmsr_nn"
+SCANNED = ("trackers", "filters", "methods")
+OUT_OF_SCOPE = {"trackers/pmht.py", "trackers/pmht_em.py", "trackers/pmht_managed.py", "trackers/pmht_model.py",
+                "trackers/phd.py", "trackers/phd_cartesian.py", "trackers/gtda.py", "trackers/fix_initiator.py",
+                "trackers/labelling.py", "methods/pmht.py", "methods/phd.py", "methods/phd_pair.py", "methods/tbd.py",
+                "methods/stonesoup.py", "methods/kind_metrics.py"}
+"""Files of kinds that run on the CPU only (strict xfails above), and the kinds' metrics, which
+read the estimates after the runner has moved them to the CPU."""
+CPU_LITERAL = re.compile(r"""device\s*=\s*["']cpu["']|torch\.device\(\s*["']cpu["']\s*\)""")
+
+
+def _sources(skip=frozenset()):
+    for sub in SCANNED:
+        for path in sorted((PACKAGE / sub).glob("*.py")):
+            rel = f"{sub}/{path.name}"
+            if rel not in skip:
+                yield rel, path.read_text().splitlines()
+
+
+def _calls(text: str, opener: str):
+    """``(line number, the text after the call)`` of each ``opener(...)`` call in ``text``."""
+    for m in re.finditer(re.escape(opener), text):
+        depth, i = 1, m.end()
+        while depth:
+            depth += {"(": 1, ")": -1}.get(text[i], 0)
+            i += 1
+        yield text.count("\n", 0, m.start()) + 1, text[i:i + 4]
+
+
+def test_no_tensor_is_made_on_a_literal_cpu_without_saying_why():
+    """A literal CPU device (``device="cpu"``, ``torch.device("cpu")``) in the trackers, filters and
+    methods only with a comment on its line saying why (``# device: ...``, e.g. a check of the
+    geometry alone); ``.cpu()`` on the way to numpy is the next test's."""
+    found = [f"{rel}:{i + 1}: {line.strip()}" for rel, lines in _sources() for i, line in enumerate(lines)
+             if CPU_LITERAL.search(line.split("#")[0]) and "# device:" not in line]
+    assert not found, found
+
+
+def test_numpy_is_read_from_the_cpu_and_its_tensors_go_back_to_the_device():
+    """Outside the CPU-only files: every ``.numpy()`` is a ``.cpu().numpy()`` (a no-op on the CPU,
+    a copy from a GPU) and every ``torch.from_numpy(...)`` is moved ``.to(...)`` the tracker's
+    device, unless its line says ``# cpu:`` why it stays there."""
+    bad = []
+    for rel, lines in _sources(OUT_OF_SCOPE):
+        text = "\n".join(lines)
+        for i, line in enumerate(lines):
+            code = line.split("#")[0]
+            if re.search(r"(?<!\.cpu\(\))\.numpy\(\)", code) and "# cpu:" not in line:
+                bad.append(f"{rel}:{i + 1}: {line.strip()}")
+        for n, after in _calls(text, "torch.from_numpy("):
+            if not after.startswith(".to(") and "# cpu:" not in lines[n - 1]:
+                bad.append(f"{rel}:{n}: {lines[n - 1].strip()}")
+    assert not bad, bad
+
+
+def test_the_static_checks_find_what_they_look_for():
+    assert CPU_LITERAL.search('x = torch.zeros(3, device="cpu")') and CPU_LITERAL.search("torch.device('cpu')")
+    assert not CPU_LITERAL.search("y = torch.zeros(3, device=x.device)")
+    assert [a for _, a in _calls("a = torch.from_numpy(f(b)).to(d)\nc = torch.from_numpy(e) + 1", "torch.from_numpy(")] \
+        == [".to(", " + 1"]
+
+
+# -- the runner on another device ------------------------------------------------------------------
+
+def test_the_runner_moves_a_call_to_the_device_and_its_estimates_back(scenes, monkeypatch):
+    """On ``setup.device`` other than the CPU, :func:`call_method` hands the kind its product,
+    lives, models and sensing on that device and gives the estimates back on the CPU."""
+    import dataclasses
+
+    from pmsr_nn.trackers.base import Estimates
+
+    setup, products = scenes("range_rate")
+    spec = setup.methods[0]
+    seen = {}
+
+    def run(call):
+        seen.update(z=call.product.scans.z.device, prior=call.product.prior.x.device, alive=call.alive.device,
+                    R=call.models.R.device, sd=call.sensing.prior_sd.device)
+        B, K, N = 2, call.alive.shape[0], call.alive.shape[1]
+        return Estimates(torch.zeros(B, K, N, 6, device="meta"), torch.zeros(B, K, N, dtype=torch.bool, device="meta"))
+
+    kind = dataclasses.replace(setup.kinds[spec.name], run=run)
+    moved = dataclasses.replace(setup, device="meta", kinds={**setup.kinds, spec.name: kind})
+    with pytest.raises(NotImplementedError, match="meta"):  # the estimates are brought back: from meta, no data
+        call_method(moved, spec, moved.cases[0], products, (3, 0, 0))
+    assert {str(d) for d in seen.values()} == {"meta"} and len(seen) == 5
+    assert products["detections"].scans.z.device.type == "cpu"  # the draws stay where they were made
+
+
+def test_kinds_that_run_on_the_cpu_only_are_refused_on_another_device_in_one_line(tmp_path):
+    d = _designed([{"name": "S", "kind": "s_msjpda"}, {"name": "stone", "kind": "stonesoup"},
+                   {"name": "own", "kind": "s_msjpda", "options": {"initiation": "detections"}},
+                   {"name": "P", "kind": "pmht"}], targets=[TWO[0]], detections={"pd": 0.9, "clutter": CLUTTER})
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
+    sc = load_scenario(tmp_path / "s.yaml")
+    prepare(sc)  # the CPU runs every kind
+    with pytest.raises(ConfigError) as err:
+        prepare(sc, "cuda")
+    text = str(err.value)
+    assert "\n" not in text and "'S'" not in text
+    assert "method 'stone': kind stonesoup runs on the CPU only (Stone Soup is NumPy); --device cuda is refused" in text
+    assert "method 'own': kind s_msjpda runs on the CPU only where it starts tracks from detections with azimuth" in text
+    assert "method 'P': kind pmht runs on the CPU only; --device cuda is refused (use --device cpu)" in text
+    d["methods"] = d["methods"][:1]
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
+    assert prepare(load_scenario(tmp_path / "s.yaml"), "cuda").device == "cuda"  # nothing refused, nothing run yet
