@@ -39,7 +39,7 @@ def add_evaluate(sub) -> None:
     ev.add_argument("--workers", metavar="N",
                     help="worker processes, one thread each, that share the blocks of runs (default: every core, or "
                          "$PMSR_WORKERS; 1 on a GPU); the figures are one process's, bit for bit")
-    ev.add_argument("--device", default="cpu", help="torch device for the learned trackers (default cpu)")
+    ev.add_argument("--device", default="cpu", help="torch device the methods run on (default cpu; the draws and the scoring stay on the CPU; docs/cli.md lists the kinds that run on a GPU)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
     ev.add_argument("--executor", choices=("local", "slurm"),
