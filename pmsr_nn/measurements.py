@@ -147,9 +147,13 @@ class MeasurementModel:
 
     @property
     def angle_mask(self) -> torch.Tensor:
-        """Boolean ``(dim_z,)``: which rows are angles (wrapped on subtraction)."""
+        """Boolean ``(dim_z,)``: which rows are angles (wrapped on subtraction), on the default device."""
+        return self.angle_rows()
+
+    def angle_rows(self, device: torch.device | str | None = None) -> torch.Tensor:
+        """:attr:`angle_mask` on ``device`` (a tracker's: that of its inputs)."""
         rows = [[c == "azimuth"] * self.n_pairs for c in self.components]
-        return torch.tensor(self._arrange_list(rows), dtype=torch.bool)
+        return torch.tensor(self._arrange_list(rows), dtype=torch.bool, device=device)
 
     def _arrange_list(self, per_component: list[list]) -> list:
         if self.layout == "component":
@@ -279,8 +283,7 @@ class MeasurementModel:
     def residual(self, z: torch.Tensor, z_pred: torch.Tensor) -> torch.Tensor:
         """``z - z_pred`` with angle rows wrapped to (-pi, pi]."""
         d = z - z_pred
-        mask = self.angle_mask.to(d.device)
-        return torch.where(mask, wrap_angle(d), d)
+        return torch.where(self.angle_rows(d.device), wrap_angle(d), d)
 
     def near_sensor(self, x: torch.Tensor, radius_m: float) -> torch.Tensor:
         """Boolean ``(...,)``: the target is within ``radius_m`` of any transmitter or receiver."""
@@ -298,7 +301,7 @@ class MeasurementModel:
             std = std.reshape(*std.shape[:-1], *([1] * (z.dim() - std.dim())), std.shape[-1])
         noise = standard_normal(z.shape, generator, z.dtype, z.device)
         z = z.addcmul_(noise, std)
-        angles = self.angle_mask.nonzero().squeeze(-1).to(z.device)
+        angles = self.angle_rows(z.device).nonzero().squeeze(-1)
         if len(angles):
             z[..., angles] = wrap_angle(z[..., angles])
         return z
@@ -323,9 +326,10 @@ class LinearMeasurementModel:
             raise ConfigError(f"need {self.H.shape[0]} positive noise deviations, got {self.noise_std}")
 
     @classmethod
-    def position(cls, dim_x: int, pos_idx: Sequence[int], noise_std_m: float) -> "LinearMeasurementModel":
-        """Direct position measurement (m) with the same deviation on every axis."""
-        H = torch.zeros(len(pos_idx), dim_x, dtype=torch.float64)
+    def position(cls, dim_x: int, pos_idx: Sequence[int], noise_std_m: float,
+                 device: torch.device | str | None = None) -> "LinearMeasurementModel":
+        """Direct position measurement (m) with the same deviation on every axis; ``H`` on ``device``."""
+        H = torch.zeros(len(pos_idx), dim_x, dtype=torch.float64, device=device)
         H[range(len(pos_idx)), list(pos_idx)] = 1.0
         return cls(H, (float(noise_std_m),) * len(pos_idx))
 
@@ -335,7 +339,10 @@ class LinearMeasurementModel:
 
     @property
     def angle_mask(self) -> torch.Tensor:
-        return torch.zeros(self.dim_z, dtype=torch.bool)
+        return self.angle_rows()
+
+    def angle_rows(self, device: torch.device | str | None = None) -> torch.Tensor:
+        return torch.zeros(self.dim_z, dtype=torch.bool, device=device)
 
     def h(self, x: torch.Tensor) -> torch.Tensor:
         return x @ self.H.to(x).transpose(-1, -2)

@@ -11,7 +11,8 @@ import yaml
 
 from pmsr_nn.cli import main
 from pmsr_nn.harness import evaluate
-from pmsr_nn.methods import catalogue, method_kind
+from pmsr_nn.methods import method_kind
+from pmsr_nn.methods.listing import catalogue
 
 FLIGHT = {"start_range_m": 4000.0, "start_bearing_deg": 130.0, "speed_mps": 10.0, "heading_deg": 20.0,
           "segments": [{"duration_s": 120.0}]}

@@ -11,7 +11,8 @@ import pytest
 
 from pmsr_nn.cli import main
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.methods import ELSEWHERE, PRODUCTS, Option, describe_option, method_kind, registry
+from pmsr_nn.methods import ELSEWHERE, PRODUCTS, Option, method_kind, registry
+from pmsr_nn.methods.listing import describe_option
 
 ROOT = Path(__file__).resolve().parents[1]
 

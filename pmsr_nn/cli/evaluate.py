@@ -42,7 +42,7 @@ def add_evaluate(sub) -> None:
     ev.add_argument("--batch-runs", metavar="N", default=1, type=positive_int,
                     help="call each tracker that allows it on N runs at once, in whole blocks of runs (default 1: "
                          "block by block); a study of one-run blocks runs several times faster, its draws unchanged")
-    ev.add_argument("--device", default="cpu", help="torch device for the learned trackers (default cpu)")
+    ev.add_argument("--device", default="cpu", help="torch device the methods run on (default cpu; the draws and the scoring stay on the CPU; docs/cli.md lists the kinds that run on a GPU)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
     ev.add_argument("--executor", choices=("local", "slurm"),

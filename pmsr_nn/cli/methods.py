@@ -12,7 +12,7 @@ def add_methods(sub) -> None:
 
 
 def cmd_methods(args) -> int:
-    from ..methods import catalogue
+    from ..methods.listing import catalogue
 
     print("\n".join(catalogue(args.kinds)).rstrip())
     return 0

@@ -32,6 +32,10 @@ class Gaussian:
     x: torch.Tensor
     P: torch.Tensor
 
+    def to(self, device: torch.device | str) -> "Gaussian":
+        """The same Gaussian on ``device`` (itself where it is there already)."""
+        return Gaussian(self.x.to(device), self.P.to(device))
+
 
 @dataclass
 class MeasurementMoments:
@@ -118,7 +122,7 @@ def unscented_moments(g: Gaussian, model: MeasurementModel, R: torch.Tensor, sig
     """UKF moments from sigma points through ``h``; angle rows use circular means and wrapped residuals."""
     X, wm, wc = sigma.points(g)
     Z = model.h(X)  # (..., 2n+1, m)
-    angles = model.angle_mask.to(Z.device)
+    angles = model.angle_rows(Z.device)
     z_lin = (wm[:, None] * Z).sum(-2)
     z_circ = torch.atan2((wm[:, None] * torch.sin(Z)).sum(-2), (wm[:, None] * torch.cos(Z)).sum(-2))
     z_mean = torch.where(angles, z_circ, z_lin)
@@ -186,7 +190,8 @@ def sequential_update(g: Gaussian, z: torch.Tensor, model: MeasurementModel, R: 
     blocks = [model.rows_for_pairs([p]) for p in order]
     mask = torch.zeros(model.dim_z, model.dim_z, dtype=torch.bool, device=R.device)
     for rows in blocks:
-        mask[torch.tensor(rows)[:, None], torch.tensor(rows)] = True
+        idx = torch.tensor(rows, device=R.device)
+        mask[idx[:, None], idx] = True
     if bool((R.masked_fill(mask, 0) != 0).any()):
         raise ConfigError("sequential_update needs R block-diagonal across pairs (independent sensors)")
     nis = z.new_zeros(torch.broadcast_shapes(g.x.shape[:-1], z.shape[:-1]))

@@ -59,9 +59,9 @@ class IMMResult(FilterResult):
     mode_probs: torch.Tensor
 
 
-def markov_transition(r: int, stay: float) -> torch.Tensor:
-    """``(r, r)`` float64 Markov matrix with ``stay`` on the diagonal and ``(1 - stay) / (r - 1)``
-    elsewhere. With ``r = 1`` only ``stay = 1`` gives a Markov matrix."""
+def markov_transition(r: int, stay: float, device: torch.device | str | None = None) -> torch.Tensor:
+    """``(r, r)`` float64 Markov matrix on ``device`` with ``stay`` on the diagonal and
+    ``(1 - stay) / (r - 1)`` elsewhere. With ``r = 1`` only ``stay = 1`` gives a Markov matrix."""
     if int(r) != r or r < 1:
         raise ConfigError(f"markov_transition needs at least one mode, got r={r}")
     if not (math.isfinite(stay) and 0.0 <= stay <= 1.0):
@@ -69,8 +69,8 @@ def markov_transition(r: int, stay: float) -> torch.Tensor:
     if r == 1:
         if stay != 1.0:
             raise ConfigError(f"markov_transition: with one mode stay must be 1 (the only Markov matrix is [[1]]), got {stay}")
-        return torch.ones(1, 1, dtype=torch.float64)
-    T = torch.full((r, r), (1.0 - stay) / (r - 1), dtype=torch.float64)
+        return torch.ones(1, 1, dtype=torch.float64, device=device)
+    T = torch.full((r, r), (1.0 - stay) / (r - 1), dtype=torch.float64, device=device)
     T.fill_diagonal_(stay)
     return T
 

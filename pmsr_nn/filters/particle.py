@@ -111,17 +111,18 @@ def segmented_resample(x: torch.Tensor, logw: torch.Tensor, comp: torch.Tensor, 
     B, n_components = counts.shape
     order = torch.argsort(comp, dim=1, stable=True)
     comp_s = comp.gather(1, order)
-    w = torch.where(comp_s < n_components, logw.gather(1, order).exp(), torch.zeros((), dtype=logw.dtype))
+    w = torch.where(comp_s < n_components, logw.gather(1, order).exp(),
+                    torch.zeros((), dtype=logw.dtype, device=logw.device))
     cum = w.cumsum(1)
     base = active.to(w.dtype).cumsum(1) - active.to(w.dtype)  # (B, n_components): components before q
     ends = counts.cumsum(1)
     total = ends[:, -1]
     Mn = int(total.max()) if B else 0
-    j = torch.arange(Mn).expand(B, Mn)
+    j = torch.arange(Mn, device=counts.device).expand(B, Mn)
     q = torch.searchsorted(ends, j.contiguous(), right=True).clamp(max=n_components - 1)  # (B, Mn)
     start = (ends - counts).gather(1, q)
     L = counts.gather(1, q).clamp(min=1).to(w.dtype)
-    U = torch.rand((B, n_components), generator=g, dtype=w.dtype).gather(1, q)
+    U = torch.rand((B, n_components), generator=g, dtype=w.dtype, device=w.device).gather(1, q)
     target = base.gather(1, q) + ((j - start).to(w.dtype) + U) / L
     idx = torch.searchsorted(cum, target.contiguous())
     # stay inside component q whatever the rounding of the running sum

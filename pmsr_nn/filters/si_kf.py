@@ -158,7 +158,7 @@ def si_kf(z: torch.Tensor, model: MeasurementModel, motion: KinematicModel, dt: 
                                                  init_acceleration_std_mps2, init_altitude_std_m)
     fixes, R = fixes.to(dtype), R.to(dtype)
     prior = Gaussian(prior.x.to(dtype), prior.P.to(dtype))
-    lin = LinearMeasurementModel.position(motion.dim_x, motion.pos_idx, 1.0)
+    lin = LinearMeasurementModel.position(motion.dim_x, motion.pos_idx, 1.0, dev)
     res = kalman_filter(prior, fixes, motion, dt, q, lin, R)
     return SIKFResult(res.x, res.P, res.nu, res.nis, fixes, R, rejected, alt_dropped, init_step, prior)
 

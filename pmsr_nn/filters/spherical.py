@@ -96,6 +96,10 @@ fix to count as well conditioned; below it the fix is missed. In float64 a solve
 WORK_DTYPE = torch.float64
 """The dtype every fix and covariance is computed in."""
 
+FRAME_DEVICE = torch.device("cpu")  # device: a geometry's frame is made once, here, and moved (WorkingFrame.to)
+"""Where :func:`working_frame` makes (and caches) a geometry's frame; callers move it to their
+device (:meth:`WorkingFrame.to`)."""
+
 
 # --------------------------------------------------------------------------------------------
 # Geometry in the working frame
@@ -129,9 +133,9 @@ class WorkingFrame:
 
 @functools.lru_cache(maxsize=32)
 def working_frame(geometry) -> WorkingFrame:
-    """Working frame of a geometry; :class:`ConfigError` if SI cannot solve it."""
-    tx = geometry.pair_tx_positions(WORK_DTYPE)
-    rx = geometry.pair_rx_positions(WORK_DTYPE)
+    """Working frame of a geometry, on :data:`FRAME_DEVICE`; :class:`ConfigError` if SI cannot solve it."""
+    tx = geometry.pair_tx_positions(WORK_DTYPE, FRAME_DEVICE)
+    rx = geometry.pair_rx_positions(WORK_DTYPE, FRAME_DEVICE)
     sensors = torch.cat([tx, rx])
     centre = sensors.mean(0)
     scale = float(torch.linalg.vector_norm(sensors - centre, dim=-1).max())
@@ -141,10 +145,10 @@ def working_frame(geometry) -> WorkingFrame:
     d_lin = 2 if ground else dim
     used = sorted({i for i, _ in geometry.pairs})
     col = {t: c for c, t in enumerate(used)}
-    onehot = torch.zeros(geometry.n_pairs, len(used), dtype=WORK_DTYPE)
+    onehot = torch.zeros(geometry.n_pairs, len(used), dtype=WORK_DTYPE, device=FRAME_DEVICE)
     for s, (i, _) in enumerate(geometry.pairs):
         onehot[s, col[i]] = 1.0
-    tx_used = torch.tensor([geometry.transmitters[i].position_m for i in used], dtype=WORK_DTYPE)
+    tx_used = torch.tensor([geometry.transmitters[i].position_m for i in used], dtype=WORK_DTYPE, device=FRAME_DEVICE)
     frame = WorkingFrame(dim, d_lin, ground, centre, scale, (tx - centre) / scale, (rx - centre) / scale, onehot,
                          (tx_used - centre) / scale)
     need = d_lin + len(used)

@@ -54,6 +54,10 @@ class Models:
     R: torch.Tensor
     noise_std: torch.Tensor
 
+    def to(self, device: torch.device | str) -> "Models":
+        """The same models with their tensors (``R``, ``noise_std``) on ``device``."""
+        return Models(self.motion, self.model, self.dt, self.q, self.R.to(device), self.noise_std.to(device))
+
 
 @dataclass
 class MethodCall:
@@ -69,6 +73,13 @@ class MethodCall:
     sensing: SensorSetup
     resource: Any = None
     seed: tuple[int, ...] = ()
+
+    def to(self, device: torch.device | str) -> "MethodCall":
+        """The same call with its product, the lives, the models and the sensing on ``device``
+        (the product a ``.to(device)`` of its own, :mod:`pmsr_nn.simulation.products`); the
+        ``resource`` was made on the run's device by the kind's ``load``."""
+        return MethodCall(self.spec, self.product.to(device), self.alive.to(device), self.models.to(device),
+                          self.sensing.to(device), self.resource, self.seed)
 
 
 MIN_CLUTTER_PER_SCAN = 1e-3
@@ -132,7 +143,11 @@ class MethodKind:
     that reads the detections' origins); ``pooled_lists``: where the scenario pools the detections per receiver (a
     single-frequency network), the kind reads those lists (the illuminator unknown); the other readers of
     ``detections`` read the per-pair lists (the illuminator given); ``metrics``: the kind's own figures beside the
-    runner's (:class:`~.kind_metrics.Metric` objects; none by default); ``batchable``: a run's estimates do not depend
+    runner's (:class:`~.kind_metrics.Metric` objects; none by default); ``any_device``: the kind
+    runs on the device of its inputs (``pmsr evaluate --device cuda``: every tensor it makes is
+    made there, tests/test_device_agnostic.py), or ``(spec, sensing) -> (bool, why not)`` where that
+    depends on the row (:func:`runs_on_any_device`); a kind or row without it runs on the CPU only and
+    is refused, in one line, on any other device; ``batchable``: a run's estimates do not depend
     on the other runs of its call (nothing drawn from the block's stream, no per-call state), so the runner may call
     the kind on several blocks' runs at once (``--batch-runs``, :mod:`pmsr_nn.harness.run.batches`)."""
 
@@ -152,7 +167,19 @@ class MethodKind:
     initiation: str = ""
     pooled_lists: bool = False
     metrics: tuple = ()
+    any_device: bool | Callable = False
     batchable: bool = False
+
+
+def runs_on_any_device(kind: MethodKind, spec, sensing: SensorSetup) -> tuple[bool, str]:
+    """Whether a row (``spec``) of ``kind`` on a case's ``sensing`` runs on any device
+    (``MethodKind.any_device``: a bool, or ``(spec, sensing) -> (bool, why not)`` where it depends
+    on the row), and if not, why (``""`` or `` (reason)``). A bound is never called: any device."""
+    if kind.bound:
+        return True, ""
+    if callable(kind.any_device):
+        return kind.any_device(spec, sensing)
+    return bool(kind.any_device), ""
 
 
 def lists_read(kind: MethodKind) -> str:
@@ -407,45 +434,6 @@ def method_kind(name: str) -> MethodKind:
     hint = f" (did you mean {' or '.join(near)}?)" if near else ""
     raise ConfigError(f"unknown method kind {name!r}{hint}; known: {', '.join(sorted(kinds))} "
                       "('pmsr methods' describes each)")
-
-
-def describe_option(name: str, o: Option) -> str:
-    """``name: default`` and its range, choices or null meaning, in one line."""
-    if o.choices:
-        allowed = " | ".join(o.choices)
-        when = f", read only with {o.read_when}" if o.read_when is not None else ""
-        return f"{name}: {o.default} (one of {allowed}{when})"
-    default = "null" if o.default is None else f"{o.default:g}" if isinstance(o.default, float) else str(o.default)
-    kind = "integer" if o.kind is int else "number"
-    # an open end (e.g. a probability below 1) shows as ")": "1" alone would read as allowed
-    close = "]" if float(f"{o.hi:g}") == o.hi else ")"
-    text = f"{name}: {default} ({kind} in [{o.lo:g}, {o.hi:g}{close}"
-    text += f", or null: {o.null or 'a default taken elsewhere'}" if o.nullable else ""
-    text += ", tunable" if o.tunable else ""
-    text += f", read only with {o.read_when})" if o.read_when is not None else ")"
-    return text
-
-
-def catalogue(names: list[str] | None = None) -> list[str]:
-    """The lines of ``pmsr methods``: each kind (or those ``names``) with the product it reads,
-    its description and options."""
-    kinds = registry()
-    chosen = [method_kind(n) for n in names] if names else [kinds[k] for k in sorted(kinds)]
-    lines = ["Method kinds of a scenario's 'methods:' list ({name: ..., kind: KIND, options: {...}}):", ""]
-    for k in chosen:
-        pooled = "; the lists pooled per receiver where the illuminator is unknown" if k.pooled_lists else ""
-        lines.append(f"{k.name}  (reads {k.reads}: {PRODUCTS.get(k.reads, k.reads)}{pooled})")
-        lines.append(f"    {k.description}")
-        if k.name in PLUGINS:
-            lines.append(f"    from: module {PLUGINS[k.name].module}, {PLUGINS[k.name]}")
-        if k.needs_checkpoint:
-            lines.append("    needs: checkpoint: PATH (a tracker.pt of pmsr train)")
-        lines.extend(f"    {describe_option(n, o)}" for n, o in k.options.items())
-        lines.append("")
-    if not names:
-        lines.append("Names that are not method kinds, and the kinds they mean:")
-        lines.extend(f"  - {', '.join(names)}: {where}" for names, where in ELSEWHERE)
-    return lines
 
 
 def method_stream(name: str) -> int:

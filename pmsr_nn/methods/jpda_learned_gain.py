@@ -17,6 +17,8 @@ run on the model's gain), ``delete`` deletes them as S-MSJPDA does.
 
 from __future__ import annotations
 
+import torch
+
 from ..errors import ConfigError
 from ..trackers.base import Estimates
 from ..trackers.gating import gate_threshold
@@ -25,7 +27,7 @@ from ..trackers.msjpda import msjpda
 from ..trackers.msjpda_managed import managed_msjpda
 from . import MethodCall, MethodKind, Option, ReadWhen, register
 from .msjpda import OPTIONS, settings
-from .track_management import check_initiation, management
+from .track_management import any_device_initiation, check_initiation, management
 
 
 def _load(spec, context):
@@ -39,6 +41,10 @@ def _load(spec, context):
                           "(add a detections section)")
     ck = load_gain_checkpoint(context.path(spec.checkpoint))
     check_gain_compatible(ck, context.geometry, det.components, det.noise_std, context.dt, len(ck.s_x), where)
+    device = torch.device(context.device)
+    if device.type != "cpu":  # the network and its scales where the tracks will be
+        ck.net.to(device)
+        ck.s_z, ck.s_x = ck.s_z.to(device), ck.s_x.to(device)
     return ck
 
 
@@ -55,9 +61,7 @@ def run_learned_gain(call: MethodCall) -> Estimates:
     training = ck.meta.get("training", {}).get("config", {})
     corr = GainCorrection(ck.net, ck.s_z, ck.s_x, horizon, consistency, training.get("learned_on") == "confirmed")
     assoc = call.spec.option("association")
-    R = s.detection_model.R()
-    import torch
-
+    R = s.detection_model.R(device=det.scans.z.device)
     with torch.no_grad():
         if call.spec.option("initiation") == "detections":
             rep = managed_msjpda(det.scans, m.motion, m.dt, m.q, s.detection_model, R, settings(call), "sequential",
@@ -76,6 +80,6 @@ register(MethodKind("jpda_learned_gain", "detections", run_learned_gain,
                      "bias_action": Option("delete", str, choices=("delete", "learn"), read_when=ReadWhen("bias_window")),
                      "consistency_probability": Option(0.99, float, 0.5, 1.0 - 1e-12, nullable=True,
                                                        null="the learned gain acts at every step")},
-                    needs_checkpoint=True, load=_load, check_sensing=check_initiation,
+                    needs_checkpoint=True, load=_load, check_sensing=check_initiation, any_device=any_device_initiation,
                     description="S-MSJPDA with a learned correction of its gain (pmsr train train/jpda_gain.yaml); "
                                 "initiation: oracle or detections"))

@@ -33,7 +33,8 @@ from ..trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
 from ..trackers.msjpda_managed import managed_msjpda
 from . import MethodCall, MethodKind, Option, ReadWhen, register
 from .kind_metrics import DualityGap, TrackLoss
-from .track_management import BIAS_OPTIONS, MANAGEMENT_OPTIONS, check_initiation, clutter_density, management
+from .track_management import (BIAS_OPTIONS, MANAGEMENT_OPTIONS, any_device_initiation, check_initiation,
+                               clutter_density, management)
 
 ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
 
@@ -60,19 +61,21 @@ def _estimates(res, alive: torch.Tensor, gap: float | None) -> Estimates:
 def run_msjpda(call: MethodCall) -> Estimates:
     m, s = call.models, call.sensing
     det = call.product
+    R = s.detection_model.R(device=det.scans.z.device)
     if call.spec.option("initiation") == "detections":
-        rep = managed_msjpda(det.scans, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(), settings(call),
+        rep = managed_msjpda(det.scans, m.motion, m.dt, m.q, s.detection_model, R, settings(call),
                              ARCHITECTURE[call.spec.kind], management(call.spec, s))
         return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
     active = None if bool(call.alive.all()) else call.alive
-    res = msjpda(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(), settings(call),
+    res = msjpda(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, R, settings(call),
                  ARCHITECTURE[call.spec.kind], active=active)
     return _estimates(res, call.alive, res.max_duality_gap if call.spec.kind == "p_msjpda" else None)
 
 
 def run_true_assignment(call: MethodCall) -> Estimates:
     m, s, det = call.models, call.sensing, call.product
-    res = true_assignment_ukf(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R())
+    res = true_assignment_ukf(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model,
+                              s.detection_model.R(device=det.scans.z.device))
     return _estimates(res, call.alive, None)
 
 
@@ -88,13 +91,14 @@ OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.9
            "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS,
            **BIAS_OPTIONS}  # the innovation bias test: S-MSJPDA from detections only
 register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation, metrics=(TrackLoss(),),
-                    batchable=True,
+                    any_device=any_device_initiation, batchable=True,
                     description="sequential multi-sensor JPDA (Lyu & Wang, IEEE Access 2019), pair by pair; "
                                 "initiation: oracle (handed the births) or detections (starts its own tracks)"))
 register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
-                    metrics=(TrackLoss(), DualityGap()), batchable=True,  # the gap of a joined call: its largest
+                    metrics=(TrackLoss(), DualityGap()), any_device=any_device_initiation,
+                    batchable=True,  # the gap of a joined call: its largest
                     description="parallel multi-sensor JPDA, (N+1)-D joint events (Lyu & Wang, IEEE Access 2019); "
                                 "initiation: oracle or detections"))
-register(MethodKind("true_assignment", "detections", run_true_assignment, {}, check=_all_from_start, batchable=True,
-                    metrics=(TrackLoss(),),
+register(MethodKind("true_assignment", "detections", run_true_assignment, {}, check=_all_from_start,
+                    metrics=(TrackLoss(),), any_device=True, batchable=True,
                     description="reference: a UKF per target on exactly its own detections (true origins)"))

@@ -65,14 +65,14 @@ def run_single(spec, z: torch.Tensor, prior: Gaussian, m: Models, resource, seed
         return MethodOutput(r.x, r.P)
     if spec.kind == "imm":
         modes = [IMMMode(m.motion, _q(spec, "q_quiet", m, per_run)), IMMMode(m.motion, _q(spec, "q_manoeuvre", m, per_run))]
-        r = imm(prior, z, modes, markov_transition(2, _number(spec, "stay")), m.dt, m.model, m.R)
+        r = imm(prior, z, modes, markov_transition(2, _number(spec, "stay"), z.device), m.dt, m.model, m.R)
         return MethodOutput(r.x, r.P)
     if spec.kind == "si_kf":
         std = m.noise_std.expand(z.shape[0], -1)
         r = si_kf(z, m.model, m.motion, m.dt, m.q, noise_std=std, prior=prior, refine_steps=int(spec.option("refine_steps")))
         return MethodOutput(r.x, r.P)
     if spec.kind == "particle_filter":
-        g = seeded_generator(*seed, method_stream(spec.name))
+        g = seeded_generator(*seed, method_stream(spec.name), device=z.device)  # the filter's draws: on its device
         r = particle_filter(prior, z, m.motion, m.dt, m.q, m.model, m.R, n_particles=int(spec.option("particles")),
                             generator=g, roughening=float(spec.option("roughening")), on_lost="flag")
         return MethodOutput(r.x, r.P)
@@ -168,4 +168,5 @@ for _kind, _options, _extra in (
       "description": "a trained DFNN, MDFNN, RNN or KalmanNet (pmsr train) from its checkpoint"}),
 ):
     # the particle filter draws from the block's stream; the others are per run
-    register(MethodKind(_kind, "measurements", per_target, _options, batchable=_kind != "particle_filter", **_extra))
+    register(MethodKind(_kind, "measurements", per_target, _options, any_device=True,
+                        batchable=_kind != "particle_filter", **_extra))

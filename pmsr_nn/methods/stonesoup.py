@@ -279,6 +279,6 @@ OPTIONS = {"tracker": Option("jpda", str, choices=TRACKERS), "gate_probability":
            "delete_after_misses": Option(3, int, 1, 10_000), "init_velocity_sd_mps": Option(20.0, float, 1e-3, 1e5),
            "init_position_sd_m": Option(2000.0, float, 1.0, 1e7)}
 register(MethodKind("stonesoup", "detections", run_stonesoup, OPTIONS, check=_check, check_sensing=_check_sensing,
-                    metrics=(TrackLoss(),),
+                    metrics=(TrackLoss(),), any_device=lambda spec, sensing: (False, " (Stone Soup is NumPy)"),
                     description="Stone Soup 1.9.1's JPDA or GNN (EKF, sequential over pairs), tracks started as "
                                 "S-MSJPDA's or by its own initiator and deleter: a peer beside ours"))

@@ -26,8 +26,9 @@ from .networks import build_network
 from .representation import Representation
 
 
-def splice_plan(steps: int, window: int, stride: int, context: tuple[int | None, int]):
-    """Window starts ``(W,)`` and, per sample, the window ``(K,)`` and offset ``(K,)`` it comes from.
+def splice_plan(steps: int, window: int, stride: int, context: tuple[int | None, int], device=None):
+    """Window starts ``(W,)`` and, per sample, the window ``(K,)`` and offset ``(K,)`` it comes from,
+    on ``device``.
 
     Each sample goes to the window where the context it is missing (behind and ahead, clipped
     at the sequence ends where every window misses the same) is smallest; ties go to the
@@ -38,8 +39,8 @@ def splice_plan(steps: int, window: int, stride: int, context: tuple[int | None,
     starts = list(range(0, steps - window + 1, stride))
     if starts[-1] != steps - window:
         starts.append(steps - window)
-    a = torch.tensor(starts)
-    t = torch.arange(steps)
+    a = torch.tensor(starts, device=device)
+    t = torch.arange(steps, device=device)
     off = t[:, None] - a[None, :]  # (K, W)
     inside = (off >= 0) & (off < window)
     behind = window - 1 if context[0] is None else context[0]
@@ -201,19 +202,20 @@ class Tracker:
                                        f"{self.model.kind} reads {self.net.context[0] + 1} scans")
             if K < window:
                 raise MeasurementError(f"sequence of {K} samples is shorter than the network's window of {window}")
-            window, starts, which, offset = K, torch.zeros(1, dtype=torch.long), torch.zeros(K, dtype=torch.long), \
-                torch.arange(K)
+            dev = z.device
+            window, starts, which, offset = K, torch.zeros(1, dtype=torch.long, device=dev), \
+                torch.zeros(K, dtype=torch.long, device=dev), torch.arange(K, device=dev)
         else:
-            starts, which, offset = splice_plan(K, window, stride, self.net.context)
+            starts, which, offset = splice_plan(K, window, stride, self.net.context, z.device)
         p = next(self.net.parameters())
         device = p.device
         rep = self.representation
         fixes = rep.fixes(z) if rep.needs_fixes else None
         zn = rep.features(z, fixes).to(p.dtype)  # whole sequences: a window's first inputs read the scan before it
-        t = starts[:, None] + torch.arange(window)  # (W, window)
+        t = starts[:, None] + torch.arange(window, device=z.device)  # (W, window)
         windows = zn[:, t]  # (B, W, window, dim_z)
         flat = windows.reshape(-1, window, zn.shape[-1])
-        out = torch.cat([self.net(flat[i : i + windows_per_batch].to(device)).cpu()
+        out = torch.cat([self.net(flat[i : i + windows_per_batch].to(device)).to(z.device)
                          for i in range(0, len(flat), windows_per_batch)])
         out = out.reshape(B, len(starts), window, -1)
         est = out[:, which, offset]  # (B, K, dim_x)

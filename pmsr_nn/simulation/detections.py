@@ -116,6 +116,10 @@ class Scans:
                    torch.cat([pad_lists(p.valid, M, False) for p in parts]),
                    torch.cat([pad_lists(p.origin, M, PADDING) for p in parts]))
 
+    def to(self, device: torch.device | str) -> "Scans":
+        """The same detections on ``device``."""
+        return Scans(self.z.to(device), self.valid.to(device), self.origin.to(device))
+
     def target_measurements(self, n_targets: int) -> torch.Tensor:
         """The detection each target caused, ``(B, K, N, S, m)`` (NaN where missed): what a tracker
         that knew the true assignment would use."""
@@ -215,6 +219,10 @@ class PooledScans:
         M = max(p.scans.shape[3] for p in parts)
         return cls(Scans.concat([p.scans for p in parts]), torch.cat([pad_lists(p.pair, M, -1) for p in parts]),
                    parts[0].routes)
+
+    def to(self, device: torch.device | str) -> "PooledScans":
+        """The same lists on ``device``."""
+        return PooledScans(self.scans.to(device), self.pair.to(device), self.routes.to(device))
 
 
 def receiver_routes(model: MeasurementModel) -> torch.Tensor:

@@ -111,6 +111,12 @@ class SensorSetup:
     front_end: object | None = None  # a frontend.chain.FrontEndSpec: detections from simulated signals
     rd_maps: object | None = None  # a tbd.scene.MapScene: range-Doppler maps for track-before-detect
 
+    def to(self, device: torch.device | str) -> "SensorSetup":
+        """The same sensing with its tensor (``prior_sd``) on ``device``."""
+        import dataclasses
+
+        return dataclasses.replace(self, prior_sd=self.prior_sd.to(device))
+
     def pair_clutter(self) -> ClutterSpec:
         """Clutter drawn per pair and scan: the scenario's per list, split evenly over a
         receiver's pairs when the detections are pooled per receiver (a Poisson rate splits
@@ -149,6 +155,10 @@ class Streams:
     z: torch.Tensor
     prior: Gaussian
 
+    def to(self, device: torch.device | str) -> "Streams":
+        """The same streams and prior on ``device``."""
+        return Streams(self.z.to(device), self.prior.to(device))
+
     @classmethod
     def concat(cls, parts: list["Streams"]) -> "Streams":
         """The runs of ``parts`` one after another."""
@@ -180,6 +190,11 @@ class Detections:
             raise ValueError("detections from signals carry one front-end record per block; they are not joined")
         pooled = None if parts[0].pooled is None else PooledScans.concat([p.pooled for p in parts])
         return cls(Scans.concat([p.scans for p in parts]), _concat_priors(parts), pooled)
+
+    def to(self, device: torch.device | str) -> "Detections":
+        """The same detections and prior on ``device`` (what the signal chain measured stays as it is)."""
+        pooled = None if self.pooled is None else self.pooled.to(device)
+        return Detections(self.scans.to(device), self.prior.to(device), pooled, self.front_end)
 
     def runs(self, i: slice) -> "Detections":
         """The product of runs ``i``."""

@@ -49,7 +49,14 @@ class Estimates:
         if self.existence is not None and tuple(self.existence.shape) != (B, K, M):
             raise ValueError(f"existence must be (B, K, M) = {(B, K, M)}, got {tuple(self.existence.shape)}")
 
+    def to(self, device: torch.device | str) -> "Estimates":
+        """The same estimates on ``device``, their tensor ``extras`` too."""
+        extras = {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in self.extras.items()}
+        move = lambda t: None if t is None else t.to(device)  # noqa: E731
+        return Estimates(self.x.to(device), self.exists.to(device), move(self.P), extras, self.paired,
+                         move(self.existence))
+
     @property
     def labels(self) -> torch.Tensor:
         """Track ids ``(M,)``: slot ``i`` is track ``i`` for the whole run."""
-        return torch.arange(self.x.shape[2])
+        return torch.arange(self.x.shape[2], device=self.x.device)

@@ -98,15 +98,15 @@ def bp_associate(ratio: torch.Tensor, existence: torch.Tensor, pd: float | torch
     dtype = ratio.dtype
     if valid is not None:
         ratio = torch.where(valid.unsqueeze(1), ratio, 0.0)
-    mu_b = torch.zeros(B, M, dtype=dtype) if birth is None else birth.to(dtype)
+    mu_b = ratio.new_zeros(B, M) if birth is None else birth.to(dtype)
     if valid is not None:
         mu_b = torch.where(valid, mu_b, 0.0)
-    pd = torch.broadcast_to(torch.as_tensor(pd, dtype=dtype), (B, C))
+    pd = torch.broadcast_to(torch.as_tensor(pd, dtype=dtype, device=ratio.device), (B, C))
     r = existence.to(dtype)
     beta = (r * pd).unsqueeze(-1) * ratio  # (B, C, M)
     beta0 = 1.0 - r * pd  # (B, C)
     xi = 1.0 + mu_b  # (B, M)
-    nu = torch.ones(B, C, M, dtype=dtype)
+    nu = ratio.new_ones(B, C, M)
     passes, change = 0, 0.0
     while passes < iterations:
         mu = beta / (beta0.unsqueeze(-1) + leave_one_out_sum(beta * nu, -1))  # tracks -> detections

@@ -135,12 +135,13 @@ class BPAssociator(Associator):
                   learned: torch.Tensor | None = None) -> BPStep:
         B, C = g.x.shape[:2]
         dtype = g.x.dtype
-        active = torch.ones(B, C, dtype=torch.bool) if associating is None else associating
-        r = torch.ones(B, C, dtype=dtype) if self.existence is None else self.existence().to(dtype).clone()
-        born = torch.zeros(B, C, dtype=torch.bool)
+        dev = g.x.device
+        active = torch.ones(B, C, dtype=torch.bool, device=dev) if associating is None else associating
+        r = torch.ones(B, C, dtype=dtype, device=dev) if self.existence is None else self.existence().to(dtype).clone()
+        born = torch.zeros(B, C, dtype=torch.bool, device=dev)
         births = self.births
         mu_u = births.undetected().to(dtype).clone() if births is not None else None
-        per_pair, explained, passes = {}, torch.zeros(valid.shape, dtype=torch.bool), 0
+        per_pair, explained, passes = {}, torch.zeros(valid.shape, dtype=torch.bool, device=dev), 0
         if births is not None:  # every pair's seeds at once: they read the detections alone
             seeds, seedable = births.seed(z[:, self.lists], valid[:, self.lists])
         for pairs in self.groups:
@@ -152,7 +153,7 @@ class BPAssociator(Associator):
             # one node per (track, pair) of the list: a detection is at most one of them
             ratio = torch.cat([torch.where(gate, inn.log_lik.exp() / self.density, 0.0) for inn, gate in zip(inns, gates)], 1)
             if births is None:
-                birth = torch.full(vl.shape, float(self.birth), dtype=dtype)
+                birth = torch.full(vl.shape, float(self.birth), dtype=dtype, device=dev)
             else:  # a new target under any of the list's illuminators
                 birth = (mu_u * births.pd / births.clutter_count * J).unsqueeze(-1).expand(B, M)
             prior = torch.where(active, r, 0.0)

@@ -103,11 +103,12 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
     on groups spanning every pair (one member each) fits each velocity with every pair's Jacobian,
     and made the seed about twice as slow on one_sky (cProfile of two runs, seed 1000)."""
     initiator = FixInitiator(velocity_sd_mps, min_pairs=1)
-    park = parked_state(model, n, dtype)
+    dev = other_sd.device
+    park = parked_state(model, n, dtype, dev)
     d = len(model.components)
     pi, vi = list(model.pos_idx), list(model.vel_idx)
     rate = rate_component(model)
-    eye2 = torch.eye(2, dtype=dtype)
+    eye2 = torch.eye(2, dtype=dtype, device=dev)
     precision = eye2 / velocity_sd_mps**2
     base_P = torch.diag_embed(other_sd.to(dtype) ** 2)
     base_P[pi, :] = 0.0
@@ -122,7 +123,7 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
         real = ok & fine & valid
         # FixInitiator.states for one member: the information-weighted mean of one fix
         info = torch.where(real[..., None, None], torch.linalg.inv(torch.where(real[..., None, None], spread, eye2)),
-                           torch.zeros((), dtype=z.dtype))
+                           z.new_zeros(()))
         Pp = torch.linalg.inv(info + torch.where(real, 0.0, 1.0)[..., None, None] * eye2)
         x = z.new_zeros(B, S, M, n)
         x[..., pi] = (Pp @ (info @ pos.unsqueeze(-1))).squeeze(-1)
@@ -133,16 +134,17 @@ def one_detection_seed(model: MeasurementModel, n: int, other_sd: torch.Tensor, 
             J = model.jacobian(x).unflatten(-2, (S, d))  # (B, S, M, S, d, n): every pair's rows
             g = torch.diagonal(J[..., rate, :], dim1=1, dim2=3).movedim(-1, 1)[..., vi]  # (B, S, M, 2)
             w = real.to(z.dtype) / model.noise_std[rate] ** 2
-            zr = torch.where(real, z[..., rate], torch.zeros((), dtype=z.dtype))
+            zr = torch.where(real, z[..., rate], z.new_zeros(()))
             Lam = Lam + w[..., None, None] * g.unsqueeze(-1) * g.unsqueeze(-2)
             eta = eta + (w * zr)[..., None] * g
         Pv = torch.linalg.inv(Lam)
         x[..., vi] = (Pv @ eta.unsqueeze(-1)).squeeze(-1)
         P = base_P.expand(B, S, M, n, n).clone()
-        P[..., torch.tensor(pi)[:, None], torch.tensor(pi)] = Pp
-        P[..., torch.tensor(vi)[:, None], torch.tensor(vi)] = Pv
+        pt, vt = torch.tensor(pi, device=P.device), torch.tensor(vi, device=P.device)
+        P[..., pt[:, None], pt] = Pp
+        P[..., vt[:, None], vt] = Pv
         x = torch.where(real[..., None], x, park)
-        P = torch.where(real[..., None, None], P, torch.eye(n, dtype=P.dtype))
+        P = torch.where(real[..., None, None], P, torch.eye(n, dtype=P.dtype, device=P.device))
         return Gaussian(x, P), real
 
     return seed
@@ -161,10 +163,11 @@ class BPTracks(TableTracks):
         self.started = None
 
     def begin(self, B: int, K: int, F: torch.Tensor | None = None, Q: torch.Tensor | None = None) -> None:
-        self.start_table(B, K, self.model, self.n, self.dtype)
+        device = None if F is None else F.device
+        self.start_table(B, K, self.model, self.n, self.dtype, device)
         if self.initiator is not None:
             self.initiator.begin(B, F, Q)
-        self.undetected = torch.full((B,), float(self.s.initial_targets), dtype=self.dtype)
+        self.undetected = torch.full((B,), float(self.s.initial_targets), dtype=self.dtype, device=device)
 
     def predicted(self, k: int) -> None:
         self.predict_table(self.s.survival)

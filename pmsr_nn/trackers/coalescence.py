@@ -47,17 +47,18 @@ class Coalescence:
         e = torch.linalg.solve_triangular(L, D.unsqueeze(-1), upper=False).squeeze(-1)
         d2 = (e * e).sum(-1)
         C = x.shape[1]
-        both = confirmed[:, :, None] & confirmed[:, None, :] & ~torch.eye(C, dtype=torch.bool)
+        both = confirmed[:, :, None] & confirmed[:, None, :] & ~torch.eye(C, dtype=torch.bool, device=confirmed.device)
         return both & (d2 <= gate_threshold(self.probability, len(idx)))
 
 
 class CoalescenceTest:
     """The running counts of one tracker's coalescence test over ``B`` runs: ``count (B, C, C)``
-    the consecutive scans each slot pair has agreed (slots grow as the track table does)."""
+    the consecutive scans each slot pair has agreed (slots grow as the track table does), on
+    ``device`` (the tracks')."""
 
-    def __init__(self, rule: Coalescence, B: int, idx: list[int]):
+    def __init__(self, rule: Coalescence, B: int, idx: list[int], device: torch.device | str | None = None):
         self.rule, self.idx = rule, list(idx)
-        self.count = torch.zeros(B, 0, 0, dtype=torch.int64)
+        self.count = torch.zeros(B, 0, 0, dtype=torch.int64, device=device)
 
     def step(self, x: torch.Tensor, P: torch.Tensor, confirmed: torch.Tensor, track_id: torch.Tensor) -> torch.Tensor:
         """One scan of tracks ``x (B, C, n)``, ``P``, ``confirmed (B, C)`` with ids ``track_id (B,
@@ -82,5 +83,5 @@ class CoalescenceTest:
 def merged_existence(existence: torch.Tensor, merged: torch.Tensor) -> torch.Tensor:
     """``existence (B, C)`` with each surviving track of ``merged (B, C, C)`` (:meth:`CoalescenceTest.step`)
     raised to the largest existence of the tracks merged into it."""
-    into = torch.where(merged, existence[:, None, :], torch.zeros((), dtype=existence.dtype)).amax(-1)
+    into = torch.where(merged, existence[:, None, :], existence.new_zeros(())).amax(-1)
     return torch.maximum(existence, into)

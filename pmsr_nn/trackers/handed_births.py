@@ -40,7 +40,8 @@ def lifespans(active: torch.Tensor | None, B: int, K: int, N: int) -> tuple[torc
     if active.shape not in ((K, N), (B, K, N)):
         raise ConfigError(f"active must be (K={K}, N={N}) or (B={B}, K, N), got {tuple(active.shape)}")
     active = active.expand(B, K, N)
-    first = torch.where(active.any(1), active.to(torch.int64).argmax(1), torch.full((B, N), K))
+    first = torch.where(active.any(1), active.to(torch.int64).argmax(1),
+                        torch.full((B, N), K, device=active.device))
     return active, first
 
 
@@ -63,7 +64,7 @@ class HandedBirths:
         self.g = self.prior
         new = self.prior.x.new_empty
         self.x, self.P, self.gate_sd = new(B, K, N, n), new(B, K, N, n, n), new(B, K, N)
-        self.dummy = torch.zeros(B, K, N, dtype=torch.bool)
+        self.dummy = torch.zeros(B, K, N, dtype=torch.bool, device=self.prior.x.device)
         self.gap = 0.0
 
     def predicted(self, k: int) -> None:

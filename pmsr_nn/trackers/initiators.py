@@ -47,7 +47,7 @@ def velocity_fit(model: MeasurementModel, x: torch.Tensor, z: torch.Tensor, has:
         for s in range(has.shape[-1]):
             g = model.for_pairs([s]).jacobian(x)[..., c, :][..., vi]  # (..., D)
             w = has[..., s].to(x.dtype) / var
-            zr = torch.where(has[..., s], z[..., s, c], torch.zeros((), dtype=x.dtype))
+            zr = torch.where(has[..., s], z[..., s, c], x.new_zeros(()))
             Lam = Lam + w[..., None, None] * g.unsqueeze(-1) * g.unsqueeze(-2)
             eta = eta + (w * zr)[..., None] * g
     Pv = torch.linalg.inv(Lam)

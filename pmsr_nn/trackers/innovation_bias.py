@@ -80,7 +80,7 @@ class BiasTest:
         a = self.weight
         v = a / (2.0 - a) * (1.0 - (1.0 - a) ** (2 * updates.to(mean.dtype)))
         q = (mean * mean).sum((-1, -2)) / v.clamp(min=1e-300)
-        return torch.where(updates > 0, q, torch.zeros((), dtype=mean.dtype))
+        return torch.where(updates > 0, q, mean.new_zeros(()))
 
     def flags(self, mean: torch.Tensor, updates: torch.Tensor) -> torch.Tensor:
         """``(B, C)`` bool: the statistic beyond the quantile."""

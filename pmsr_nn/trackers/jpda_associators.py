@@ -45,8 +45,9 @@ def pda_marginals(log_lik: torch.Tensor, gated: torch.Tensor, pd: float, density
     and fewer gated detections than the JPDA's ``m_best`` both agree). Returns ``alpha (..., M + 1)``,
     the last column the miss. Batched over every axis.
     """
-    det = torch.where(gated, log_lik + math.log(pd) - math.log(density), torch.tensor(-math.inf, dtype=log_lik.dtype))
-    miss = torch.full((*log_lik.shape[:-1], 1), -miss_cost(pd), dtype=log_lik.dtype)
+    det = torch.where(gated, log_lik + math.log(pd) - math.log(density),
+                      torch.tensor(-math.inf, dtype=log_lik.dtype, device=log_lik.device))
+    miss = torch.full((*log_lik.shape[:-1], 1), -miss_cost(pd), dtype=log_lik.dtype, device=log_lik.device)
     return torch.softmax(torch.cat([det, miss], -1), -1)
 
 
@@ -140,20 +141,20 @@ def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measurem
     log_lik = inn.log_lik.masked_fill(~valid.unsqueeze(1), math.nan)
     gate = inside_gate(d2, gamma) & valid.unsqueeze(1)
     gate = gate if active is None else gate & active.unsqueeze(-1)
-    gated = gate.numpy()
+    gated = gate.cpu().numpy()
     M = gated.shape[-1]
     if association == "pda":
         w = pda_marginals(log_lik.detach(), gate, pd, clutter_density)
     else:
-        cost = np.where(gated, detection_costs(log_lik.detach().numpy(), pd, clutter_density), np.inf)
-        w = torch.from_numpy(batched_single_sensor_marginals(cost, miss_cost(pd), m_best))
-    alpha = w.numpy()
+        cost = np.where(gated, detection_costs(log_lik.detach().cpu().numpy(), pd, clutter_density), np.inf)
+        w = torch.from_numpy(batched_single_sensor_marginals(cost, miss_cost(pd), m_best)).to(z.device)
+    alpha = w.cpu().numpy()
     miss = alpha[..., M] >= alpha[..., :M].max(-1, initial=0.0)
-    ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype)).sum(-1)
+    ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype, device=log_lik.device)).sum(-1)
     out = pda_collapse(g, mom, L, e, gate, w)
     if correction is not None:
         out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active if learned is None else learned), out.P)
-    e_c = (w[..., :M, None] * torch.where(gate[..., None], e, torch.zeros((), dtype=e.dtype))).sum(-2)
+    e_c = (w[..., :M, None] * torch.where(gate[..., None], e, torch.zeros((), dtype=e.dtype, device=e.device))).sum(-2)
     ratio = ratio.detach() / clutter_density
     return PairUpdate(out, miss, mom.S[..., 0, 0].sqrt(), gated, ratio, e_c, w[..., :M].sum(1), shared_ratio(w, pd, ratio))
 
@@ -181,14 +182,15 @@ class SequentialJPDA(Associator):
                                self.gamma, associating, self.association, self.correction, j, learned)
             g = step.posterior
             steps.append(step)
-        detected = torch.zeros(g.x.shape[:2], dtype=torch.int64)
+        dev = g.x.device
+        detected = torch.zeros(g.x.shape[:2], dtype=torch.int64, device=dev)
         for step in steps:
-            hit = torch.from_numpy(~step.miss_likeliest)
+            hit = torch.from_numpy(~step.miss_likeliest).to(dev)
             detected += hit if associating is None else hit & associating
         return AssociationStep(
             g, detected, torch.stack([st.ratio for st in steps], -1),
-            torch.from_numpy(np.stack([st.gated.any(1) for st in steps], 1)),
-            torch.from_numpy(np.logical_and.reduce([st.miss_likeliest for st in steps])),
+            torch.from_numpy(np.stack([st.gated.any(1) for st in steps], 1)).to(dev),
+            torch.from_numpy(np.logical_and.reduce([st.miss_likeliest for st in steps])).to(dev),
             torch.stack([st.range_sd_m for st in steps], -1).amax(-1), torch.stack([st.whitened for st in steps], 2),
             taken=torch.stack([st.taken for st in steps], 1), shared_ratio=torch.stack([st.shared_ratio for st in steps], -1))
 
@@ -197,7 +199,7 @@ def _wrap(nu: torch.Tensor, model: MeasurementModel) -> torch.Tensor:
     """Angle components of per-pair residuals ``(..., d)`` wrapped to (-pi, pi]."""
     if "azimuth" not in model.components:
         return nu
-    angles = torch.tensor([c == "azimuth" for c in model.components])
+    angles = torch.tensor([c == "azimuth" for c in model.components], device=nu.device)
     return torch.where(angles, wrap_angle(nu), nu)
 
 
@@ -210,12 +212,12 @@ def _pattern_inverses(S: torch.Tensor, n_pairs: int, d: int) -> tuple[np.ndarray
     for p in range(1, 2**n_pairs):
         rows = [s * d + j for s in range(n_pairs) if p >> s & 1 for j in range(d)]
         L = safe_cholesky(S[..., rows, :][..., rows])
-        eye = torch.eye(len(rows), dtype=S.dtype).expand_as(L)
+        eye = torch.eye(len(rows), dtype=S.dtype, device=S.device).expand_as(L)
         Linv = torch.linalg.solve_triangular(L, eye, upper=False)
-        idx = torch.tensor(rows)
+        idx = torch.tensor(rows, device=S.device)
         inv[..., p, idx[:, None], idx] = Linv.transpose(-1, -2) @ Linv
         half_logdet[..., p] = torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
-    return inv.numpy(), half_logdet.numpy()
+    return inv.cpu().numpy(), half_logdet.cpu().numpy()
 
 
 class ParallelJPDA(Associator):
@@ -243,8 +245,9 @@ class ParallelJPDA(Associator):
         nu = _wrap(z.unsqueeze(1) - zhat.unsqueeze(3), model)  # (B, C, S, M, d)
         d2, block_log_lik = gaussian_log_likelihood(nu, S_blocks)
         gate = inside_gate(d2, self.gamma) & valid.unsqueeze(1)
-        gated = (gate if associating is None else gate & associating[:, :, None, None]).numpy()  # (B, C, S, M)
-        cand_z, cand_w, miss, detected, gap, taken, p_miss = self._candidates(gated, z.numpy(), zhat.numpy(), mom.S)
+        gated = (gate if associating is None else gate & associating[:, :, None, None]).cpu().numpy()  # (B, C, S, M)
+        cand_z, cand_w, miss, detected, gap, taken, p_miss = self._candidates(gated, z.cpu().numpy(), zhat.cpu().numpy(),
+                                                                               mom.S)
         Lmax = max(len(w) for row in cand_w for w in row)
         Zc = np.full((B, C, Lmax, S * d), np.nan)
         Wc = np.zeros((B, C, Lmax))
@@ -252,15 +255,18 @@ class ParallelJPDA(Associator):
             for t in range(C):
                 L = len(cand_w[b][t])
                 Zc[b, t, :L], Wc[b, t, :L] = cand_z[b][t], cand_w[b][t]
-        post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), torch.from_numpy(Zc),
+        dev = g.x.device
+        post, _, _ = kalman_update(Gaussian(g.x.unsqueeze(-2), g.P.unsqueeze(-3)), torch.from_numpy(Zc).to(dev),
                                    expand_moments(mom), model)
         range_sd = mom.S.diagonal(dim1=-2, dim2=-1)[..., 0::d].sqrt().amax(-1)
-        ratio = torch.where(torch.from_numpy(gated), block_log_lik.exp(), torch.zeros((), dtype=d2.dtype)).sum(-1)
+        ratio = torch.where(torch.from_numpy(gated).to(dev), block_log_lik.exp(),
+                            torch.zeros((), dtype=d2.dtype, device=dev)).sum(-1)
         ratio = ratio / s.clutter_density
-        return AssociationStep(collapse(torch.from_numpy(Wc), post.x, post.P), torch.from_numpy(detected),
-                               ratio, torch.from_numpy(gated.any(1)), torch.from_numpy(miss),
-                               range_sd, None, gap, taken=torch.from_numpy(taken),
-                               shared_ratio=shared_ratio(torch.from_numpy(np.stack([1.0 - p_miss, p_miss], -1)), s.pd, ratio))
+        return AssociationStep(collapse(torch.from_numpy(Wc).to(dev), post.x, post.P), torch.from_numpy(detected).to(dev),
+                               ratio, torch.from_numpy(gated.any(1)).to(dev), torch.from_numpy(miss).to(dev),
+                               range_sd, None, gap, taken=torch.from_numpy(taken).to(dev),
+                               shared_ratio=shared_ratio(torch.from_numpy(np.stack([1.0 - p_miss, p_miss], -1)).to(dev),
+                                                         s.pd, ratio))
 
     def _candidates(self, gated: np.ndarray, zn: np.ndarray, zhat_n: np.ndarray, S_joint: torch.Tensor):
         """Per run and track, the candidate measurements ``(L, S d)`` and their marginal weights
@@ -294,7 +300,7 @@ class ParallelJPDA(Associator):
                     meas = np.where(hit[..., None], zn[b, np.arange(S), np.maximum(idx, 0)], np.nan)  # (L, S, d)
                     r = meas - zhat_n[b, t]
                     if wrap:
-                        r = _wrap(torch.from_numpy(r), model).numpy()
+                        r = _wrap(torch.from_numpy(r), model).numpy()  # cpu: numpy in, numpy out
                     r = np.where(hit[..., None], r, 0.0).reshape(len(idx), S * d)
                     pattern = (hit * (1 << np.arange(S))).sum(1)
                     quad = np.einsum("li,lij,lj->l", r, inv[b, t, pattern], r)

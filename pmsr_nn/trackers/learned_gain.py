@@ -59,7 +59,7 @@ def gain_features(pair: int, n_pairs: int, w: torch.Tensor, nu: torch.Tensor, ga
     ``log(1 + nu_c^T S^-1 nu_c)``; the sensor's one-hot."""
     M = nu.shape[-2]
     a = w[..., :M].unsqueeze(-1)
-    nu0 = torch.where(gate.unsqueeze(-1), nu, torch.zeros((), dtype=nu.dtype))
+    nu0 = torch.where(gate.unsqueeze(-1), nu, nu.new_zeros(()))
     nu_c = (a * nu0).sum(-2)
     var = torch.diagonal(S, dim1=-2, dim2=-1).clamp(min=1e-30)
     spread = ((a * nu0 * nu0).sum(-2) - nu_c * nu_c).clamp(min=0.0) / var
@@ -105,8 +105,9 @@ class GainCorrection:
         self.age: torch.Tensor | None = None
 
     def start(self, B: int, T: int) -> None:
-        self.memory = torch.zeros(B, T, self.net.hidden_size)
-        self.age = torch.zeros(B, T, dtype=torch.int64)
+        """Empty memories of ``B`` runs x ``T`` slots, on the device of the scales ``s_x``."""
+        self.memory = torch.zeros(B, T, self.net.hidden_size, device=self.s_x.device)
+        self.age = torch.zeros(B, T, dtype=torch.int64, device=self.s_x.device)
 
     def _grown(self, T: int) -> torch.Tensor:
         """The memory of ``T`` slots (a track table grows; new slots start empty)."""
@@ -126,7 +127,7 @@ class GainCorrection:
         memory = self._grown(T)
         if self.horizon is not None:
             old = self.age >= self.horizon
-            memory = torch.where(old[..., None], torch.zeros((), dtype=memory.dtype), memory)
+            memory = torch.where(old[..., None], memory.new_zeros(()), memory)
             self.age = torch.where(old, 0, self.age)
         s_z = self.s_z.to(nu.dtype)
         nu_c, feats = gain_features(pair, self.net.n_pairs, w, nu, gate, mom.S, s_z)
@@ -137,20 +138,20 @@ class GainCorrection:
         G = G.reshape(B, T, -1, d).to(nu.dtype)
         scale = scale.reshape(B, T).to(nu.dtype)
         if active is not None:
-            new = torch.where(active[..., None], new, torch.zeros((), dtype=new.dtype))
-            scale = torch.where(active, scale, torch.zeros((), dtype=scale.dtype))
-            G = torch.where(active[..., None, None], G, torch.zeros((), dtype=G.dtype))
+            new = torch.where(active[..., None], new, new.new_zeros(()))
+            scale = torch.where(active, scale, scale.new_zeros(()))
+            G = torch.where(active[..., None, None], G, G.new_zeros(()))
         self.memory = new
         self.age = self.age + 1 if active is None else torch.where(active, self.age + 1, 0)
         K = torch.linalg.solve(mom.S, mom.C.transpose(-1, -2)).transpose(-1, -2)  # C S^-1 (S symmetric)
         dK = scale[..., None, None] * K + self.s_x.to(nu.dtype)[:, None] * G / s_z
         if self.consistency is not None:  # the model's gain alone where the combined innovation is not consistent with S
             nis = (nu_c * torch.linalg.solve(mom.S, nu_c.unsqueeze(-1)).squeeze(-1)).sum(-1)
-            dK = torch.where((nis > self.consistency)[..., None, None], torch.zeros((), dtype=dK.dtype), dK)
+            dK = torch.where((nis > self.consistency)[..., None, None], dK.new_zeros(()), dK)
         return (dK @ nu_c.unsqueeze(-1)).squeeze(-1)
 
     def forget(self, where: torch.Tensor) -> None:
         """Clear the memory of the slots ``where (B, C)`` (their tracks were deleted)."""
         memory = self._grown(where.shape[1])
-        self.memory = torch.where(where[..., None], torch.zeros((), dtype=memory.dtype), memory)
+        self.memory = torch.where(where[..., None], memory.new_zeros(()), memory)
         self.age = torch.where(where, 0, self.age)

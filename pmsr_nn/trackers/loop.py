@@ -30,7 +30,7 @@ def run_tracker(scans: Scans | AssociationLists, motion: KinematicModel, dt: flo
     ``motion`` over ``dt`` and process noise ``q``; returns ``management.result()``."""
     B, K = scans.z.shape[:2]
     dtype = scans.z.dtype
-    F, Q = motion.F(dt, dtype), motion.Q(dt, q, dtype)
+    F, Q = motion.F(dt, dtype, scans.z.device), motion.Q(dt, q, dtype, scans.z.device)
     management.begin(B, K, F, Q)
     correction = associator.correction
     if correction is not None:

@@ -167,10 +167,10 @@ class Management:
                                                       f"{model.n_pairs}] (the pairs): a track could never be confirmed")
 
 
-def parked_state(model: MeasurementModel, n: int, dtype=torch.float64) -> torch.Tensor:
-    """A state ``(n,)`` far from every sensor, at rest: what free slots hold."""
-    sensors = torch.cat([model.geometry.pair_tx_positions(dtype), model.geometry.pair_rx_positions(dtype)])
-    x = torch.zeros(n, dtype=dtype)
+def parked_state(model: MeasurementModel, n: int, dtype=torch.float64, device=None) -> torch.Tensor:
+    """A state ``(n,)`` on ``device``, far from every sensor, at rest: what free slots hold."""
+    sensors = torch.cat([model.geometry.pair_tx_positions(dtype, device), model.geometry.pair_rx_positions(dtype, device)])
+    x = torch.zeros(n, dtype=dtype, device=device)
     x[list(model.pos_idx)] = sensors.abs().amax(0) + 1.0e6
     return x
 
@@ -204,10 +204,11 @@ class TrackTable:
     def empty(cls, B: int, n: int, park: torch.Tensor, capacity: int = 8) -> "TrackTable":
         """No tracks; ``park (n,)`` the state free slots hold."""
         x = park.expand(B, capacity, n).clone()
-        P = torch.eye(n, dtype=park.dtype).expand(B, capacity, n, n).clone()
-        z = lambda: torch.zeros(B, capacity, dtype=torch.int64)
-        return cls(Gaussian(x, P), z(), z(), z(), z(), torch.full((B, capacity), -1, dtype=torch.int64),
-                   torch.zeros(B, dtype=torch.int64), park, torch.zeros(B, capacity, dtype=park.dtype))
+        dev = park.device
+        P = torch.eye(n, dtype=park.dtype, device=dev).expand(B, capacity, n, n).clone()
+        z = lambda: torch.zeros(B, capacity, dtype=torch.int64, device=dev)
+        return cls(Gaussian(x, P), z(), z(), z(), z(), torch.full((B, capacity), -1, dtype=torch.int64, device=dev),
+                   torch.zeros(B, dtype=torch.int64, device=dev), park, torch.zeros(B, capacity, dtype=park.dtype, device=dev))
 
     @property
     def active(self) -> torch.Tensor:
@@ -231,7 +232,7 @@ class TrackTable:
 
     def _clear_bias(self, where: torch.Tensor) -> None:
         if self.bias_mean is not None:
-            self.bias_mean = torch.where(where[..., None, None], torch.zeros((), dtype=self.bias_mean.dtype), self.bias_mean)
+            self.bias_mean = torch.where(where[..., None, None], self.bias_mean.new_zeros(()), self.bias_mean)
 
     def update_bias(self, test: BiasTest, pair: int, n_pairs: int, e: torch.Tensor) -> None:
         """Fold pair ``pair``'s whitened combined innovations ``e (B, C, d)`` of the active tracks
@@ -256,7 +257,8 @@ class TrackTable:
         self.existence = torch.where(where, 0.0, self.existence)
         self.track_id = torch.where(where, -1, self.track_id)
         self.g = Gaussian(torch.where(where[..., None], self.park, self.g.x),
-                          torch.where(where[..., None, None], torch.eye(self.g.x.shape[-1], dtype=self.g.x.dtype),
+                          torch.where(where[..., None, None],
+                                      torch.eye(self.g.x.shape[-1], dtype=self.g.x.dtype, device=self.g.x.device),
                                       self.g.P))
 
     def predict_existence(self, survival: float) -> None:
@@ -322,8 +324,8 @@ class TrackTable:
         # new track j goes to the free slot whose rank is its rank
         filled = free & (slot_rank < count[:, None])
         # by_rank[b, r]: the index in g of run b's new track of rank r (column G collects the others)
-        by_rank = torch.zeros(B, G + 1, dtype=torch.int64).scatter(
-            1, torch.where(real, new_rank, torch.full_like(new_rank, G)), torch.arange(G).expand(B, G))
+        by_rank = torch.zeros(B, G + 1, dtype=torch.int64, device=real.device).scatter(
+            1, torch.where(real, new_rank, torch.full_like(new_rank, G)), torch.arange(G, device=real.device).expand(B, G))
         j = by_rank.gather(1, torch.where(filled, slot_rank, 0))  # (B, C): the new track that fills the slot
         xj = g.x.gather(1, j[..., None].expand(B, C, n))
         Pj = g.P.gather(1, j[..., None, None].expand(B, C, n, n))
@@ -347,9 +349,9 @@ class TableTracks:
     table: TrackTable
     report: "TrackReport"
 
-    def start_table(self, B: int, K: int, model: MeasurementModel, n: int, dtype) -> None:
-        self.table = TrackTable.empty(B, n, parked_state(model, n, dtype))
-        self.report = TrackReport.empty(B, K, n, dtype)
+    def start_table(self, B: int, K: int, model: MeasurementModel, n: int, dtype, device=None) -> None:
+        self.table = TrackTable.empty(B, n, parked_state(model, n, dtype, device))
+        self.report = TrackReport.empty(B, K, n, dtype, device)
 
     @property
     def g(self) -> Gaussian:
@@ -382,9 +384,10 @@ class TrackReport:
     existence: torch.Tensor
 
     @classmethod
-    def empty(cls, B: int, K: int, n: int, dtype=torch.float64) -> "TrackReport":
-        return cls(torch.full((B, K, 0, n), math.nan, dtype=dtype), torch.zeros(B, K, 0, n, n, dtype=dtype),
-                   torch.zeros(B, K, 0, dtype=torch.bool), torch.zeros(B, K, 0, dtype=dtype))
+    def empty(cls, B: int, K: int, n: int, dtype=torch.float64, device=None) -> "TrackReport":
+        return cls(torch.full((B, K, 0, n), math.nan, dtype=dtype, device=device),
+                   torch.zeros(B, K, 0, n, n, dtype=dtype, device=device),
+                   torch.zeros(B, K, 0, dtype=torch.bool, device=device), torch.zeros(B, K, 0, dtype=dtype, device=device))
 
     def write(self, k: int, table: TrackTable, report_existence: float = 0.0, only: torch.Tensor | None = None) -> None:
         """The table's confirmed tracks at scan ``k`` whose existence is at least ``report_existence``

@@ -148,5 +148,5 @@ def true_assignment_ukf(scans: Scans, prior: Gaussian, motion: KinematicModel, d
     P = r.P.reshape(B, N, K, n, n).transpose(1, 2)
     d = len(model.components)
     missed = torch.isnan(z.reshape(B, N, K, S, d)[..., 0]).all(-1).transpose(1, 2)
-    no_gate = torch.zeros(B, K, N, dtype=x.dtype)  # the reference has no gate, so the gate rule never fires
+    no_gate = x.new_zeros(B, K, N)  # the reference has no gate, so the gate rule never fires
     return MultiTargetResult(x, P, missed, no_gate)

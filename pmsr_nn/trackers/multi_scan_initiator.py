@@ -99,19 +99,19 @@ class MultiScanInitiator:
         require(self.F is not None, "MultiScanInitiator.begin must be called before initiate")
         cand, real = self.base.initiate(z, unused, model, n, other_sd, **where)
         B, G = real.shape
-        dtype = cand.x.dtype
-        eye = torch.eye(n, dtype=dtype)
+        dtype, dev = cand.x.dtype, cand.x.device
+        eye = torch.eye(n, dtype=dtype, device=dev)
         P = torch.where(real[..., None, None], cand.P, eye)
         info = torch.linalg.inv(P)
         Y = info - self.prior_information(model, n, other_sd, dtype)
         Y = 0.5 * (Y + Y.transpose(-1, -2))
         y = (info @ torch.where(real[..., None], cand.x, 0.0).unsqueeze(-1)).squeeze(-1)
         pv = list(model.pos_idx) + list(model.vel_idx)
-        new = [Chains(Gaussian(cand.x, P), real, torch.zeros(B, G, dtype=dtype),
-                      torch.arange(G).expand(B, G).unsqueeze(-1))]
+        new = [Chains(Gaussian(cand.x, P), real, torch.zeros(B, G, dtype=dtype, device=dev),
+                      torch.arange(G, device=dev).expand(B, G).unsqueeze(-1))]
         for prev in self.chains[: self.scans - 1]:
             new.append(self._extend(prev, Gaussian(cand.x, P), real, Y, y, pv))
-        started = torch.zeros(B, 0, dtype=torch.int64)
+        started = torch.zeros(B, 0, dtype=torch.int64, device=dev)
         if len(new) == self.scans:
             started = exclusive(new[-1])
         done = new[-1] if len(new) == self.scans else None
@@ -121,7 +121,8 @@ class MultiScanInitiator:
                 c.real &= ~clashes(c.members, picked)
         self.chains = new[: self.scans - 1]
         if done is None or not started.shape[1]:
-            return Gaussian(z.new_zeros(B, 0, n), z.new_zeros(B, 0, n, n)), torch.zeros(B, 0, dtype=torch.bool)
+            return Gaussian(z.new_zeros(B, 0, n), z.new_zeros(B, 0, n, n)), torch.zeros(B, 0, dtype=torch.bool,
+                                                                                        device=z.device)
         ok = started >= 0
         i = started.clamp(min=0)
         x = done.g.x.gather(1, i[..., None].expand(-1, -1, n))
@@ -140,7 +141,7 @@ class MultiScanInitiator:
         xp = prev.g.x @ F.T
         Pp = F @ prev.g.P @ F.T + Q
         gamma = gate_threshold(self.gate_probability, len(pv))
-        idx = torch.tensor(pv)
+        idx = torch.tensor(pv, device=cand.x.device)
         hits = []
         if H and G:
             # a necessary condition first, cheap on every pair: each entry within its own
@@ -170,8 +171,8 @@ class MultiScanInitiator:
         if hits:
             b, h, g, d2 = (torch.cat(t) for t in zip(*hits))
         else:
-            b, h, g = (torch.zeros(0, dtype=torch.int64) for _ in range(3))
-            d2 = torch.zeros(0, dtype=cand.x.dtype)
+            b, h, g = (torch.zeros(0, dtype=torch.int64, device=cand.x.device) for _ in range(3))
+            d2 = cand.x.new_zeros(0)
         # the fusion, in information form: the predicted chain updated with the candidate's likelihood
         Lp = torch.linalg.inv(Pp[b, h])
         Pf = torch.linalg.inv(Lp + Y[b, g])
@@ -190,14 +191,15 @@ def padded(b: torch.Tensor, chi2: torch.Tensor, x: torch.Tensor, P: torch.Tensor
     order = order[torch.argsort(b[order], stable=True)]  # by run, then chi-square
     b, chi2, x, P, members = b[order], chi2[order], x[order], P[order], members[order]
     per = torch.bincount(b, minlength=B)
-    slot = torch.arange(len(b)) - (per.cumsum(0) - per)[b]
+    slot = torch.arange(len(b), device=b.device) - (per.cumsum(0) - per)[b]
     keep = slot < MAX_CHAINS
     b, slot, chi2, x, P, members = b[keep], slot[keep], chi2[keep], x[keep], P[keep], members[keep]
     H = int(slot.max()) + 1 if len(slot) else 0
-    dtype = x.dtype
-    out = Chains(Gaussian(torch.zeros(B, H, n, dtype=dtype), torch.eye(n, dtype=dtype).repeat(B, H, 1, 1)),
-                 torch.zeros(B, H, dtype=torch.bool), torch.full((B, H), torch.inf, dtype=dtype),
-                 torch.full((B, H, j), -1, dtype=torch.int64))
+    dtype, dev = x.dtype, x.device
+    out = Chains(Gaussian(torch.zeros(B, H, n, dtype=dtype, device=dev),
+                          torch.eye(n, dtype=dtype, device=dev).repeat(B, H, 1, 1)),
+                 torch.zeros(B, H, dtype=torch.bool, device=dev), torch.full((B, H), torch.inf, dtype=dtype, device=dev),
+                 torch.full((B, H, j), -1, dtype=torch.int64, device=dev))
     out.g.x[b, slot], out.g.P[b, slot] = x, P
     out.real[b, slot], out.chi2[b, slot], out.members[b, slot] = True, chi2, members
     return out
@@ -234,4 +236,4 @@ def exclusive(chains: Chains) -> torch.Tensor:
         clash = ((chains.members == pick) & (pick >= 0)).any(-1) & go[:, None]
         key = torch.where(clash, torch.inf, key)
         taken.append(torch.where(go, best, -1))
-    return torch.stack(taken, 1) if taken else torch.zeros(B, 0, dtype=torch.int64)
+    return torch.stack(taken, 1) if taken else torch.zeros(B, 0, dtype=torch.int64, device=chains.real.device)

@@ -43,10 +43,11 @@ class OwnTracks(TableTracks):
         self.started = None
 
     def begin(self, B: int, K: int, F: torch.Tensor | None = None, Q: torch.Tensor | None = None) -> None:
-        self.start_table(B, K, self.model, self.n, self.dtype)
+        self.start_table(B, K, self.model, self.n, self.dtype, None if F is None else F.device)
         self.mg.initiator.begin(B, F, Q)
         rule = self.mg.coalescence
-        self.merging = None if rule is None else CoalescenceTest(rule, B, self.pos + list(self.model.vel_idx))
+        self.merging = None if rule is None else CoalescenceTest(rule, B, self.pos + list(self.model.vel_idx),
+                                                                 None if F is None else F.device)
 
     def predicted(self, k: int) -> None:
         self.predict_table(self.mg.survival)

@@ -49,7 +49,7 @@ def _solve(A: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor
     x, info = torch.linalg.solve_ex(A, y.unsqueeze(-1))
     x = x.squeeze(-1)
     ok = (info == 0) & torch.isfinite(x).all(-1)
-    return torch.where(ok.unsqueeze(-1), x, torch.zeros((), dtype=x.dtype)), ok
+    return torch.where(ok.unsqueeze(-1), x, x.new_zeros(())), ok
 
 
 def _range_fix(rho: torch.Tensor, w: torch.Tensor, o: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -182,7 +182,7 @@ class SphericalInitiator:
                               "(use initiation: oracle)")
         require(self.pairs_needed(model) <= S, f"min_pairs ({self.min_pairs}) is more than the {S} pairs: no track "
                                                "could ever start")
-        c, others = self._sensors(model, torch.float64)
+        c, others = self._sensors(model, torch.float64, torch.device("cpu"))  # device: the geometry's rank, a check
         if int(torch.linalg.matrix_rank(others - c)) < 2:
             raise ConfigError(f"{what} from range and range-rate: the pairs' other sensors lie on one line through the "
                               "shared one, so a position and its mirror image give the same ranges (use initiation: "
@@ -196,9 +196,9 @@ class SphericalInitiator:
         return model.n_pairs if self.min_pairs is None else self.min_pairs
 
     @staticmethod
-    def _sensors(model: MeasurementModel, dtype) -> tuple[torch.Tensor, torch.Tensor]:
-        """The shared sensor ``(2,)`` and each pair's other one ``(S, 2)``, in m."""
-        tx, rx = model.geometry.pair_tx_positions(dtype), model.geometry.pair_rx_positions(dtype)
+    def _sensors(model: MeasurementModel, dtype, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The shared sensor ``(2,)`` and each pair's other one ``(S, 2)``, in m, on ``device``."""
+        tx, rx = model.geometry.pair_tx_positions(dtype, device), model.geometry.pair_rx_positions(dtype, device)
         if bool((tx == tx[0]).all()):
             return tx[0], rx
         return rx[0], tx
@@ -212,18 +212,18 @@ class SphericalInitiator:
         comps = model.components
         cr, cv = comps.index("range"), rate_component(model)
         sd_r, sd_v = model.noise_std[cr], model.noise_std[cv]
-        dtype = zq.dtype
+        dtype, dev = zq.dtype, zq.device
         n_comb, S = has.shape
         k = has.sum(-1)
         gamma = torch.tensor([math.inf] * 3 + [gate_threshold(self.gate_probability, 2 * j - 4)
-                                               for j in range(3, S + 1)], dtype=dtype)[k]
+                                               for j in range(3, S + 1)], dtype=dtype, device=dev)[k]
         w = has.to(dtype)
-        rho = torch.where(has, zq[..., cr], torch.zeros((), dtype=dtype))
-        rates = torch.where(has, zq[..., cv], torch.zeros((), dtype=dtype))
+        rho = torch.where(has, zq[..., cr], zq.new_zeros(()))
+        rates = torch.where(has, zq[..., cv], zq.new_zeros(()))
         pi, vi = list(model.pos_idx), list(model.vel_idx)
         # 1-2. the range-only ML fix (working frame: see _range_fix); its range chi-square
         # bounds the joint one from below, so most clutter combinations stop here
-        c, others = self._sensors(model, dtype)
+        c, others = self._sensors(model, dtype, dev)
         scale = float((others - c).norm(dim=-1).max())
         p, chi2_r, ok = _range_fix(rho / scale, w, (others - c) / scale)
         chi2_r = chi2_r * (scale / sd_r) ** 2
@@ -232,7 +232,7 @@ class SphericalInitiator:
         x[:, pi] = c + scale * p[keep]
         # 3. the joint ML estimate of the survivors, from the rates' velocity fit at the range fix
         w, rho, rates, gamma, has, zq = (t[keep] for t in (w, rho, rates, gamma, has, zq))
-        prec = torch.eye(len(vi), dtype=dtype) / self.velocity_sd_mps**2
+        prec = torch.eye(len(vi), dtype=dtype, device=dev) / self.velocity_sd_mps**2
         x[:, vi] = velocity_fit(model, x, zq, has, prec)[0]
         labels = model.labels
         rows = [labels.index(f"range_{s + 1}") for s in range(S)] + [labels.index(f"{comps[cv]}_{s + 1}")
@@ -240,7 +240,7 @@ class SphericalInitiator:
         idx = pi + vi
         zr = torch.cat([rho, rates], -1)  # (q, 2S)
         wr = torch.cat([w / sd_r**2, w / sd_v**2], -1)
-        ok = torch.ones(len(keep), dtype=torch.bool)
+        ok = torch.ones(len(keep), dtype=torch.bool, device=dev)
         for _ in range(JOINT_STEPS):
             J = model.jacobian(x)[:, rows][..., idx]  # (q, 2S, 2D)
             step, good = _solve(torch.einsum("qra,qr,qrb->qab", J, wr, J),
@@ -252,9 +252,9 @@ class SphericalInitiator:
         J = model.jacobian(x)[:, rows][..., idx]
         info = torch.einsum("qra,qr,qrb->qab", J, wr, J)
         ok = ok & torch.isfinite(chi2) & (torch.linalg.cholesky_ex(info).info == 0) & inside_gate(chi2, gamma)
-        passed = torch.zeros(n_comb, dtype=torch.bool)
+        passed = torch.zeros(n_comb, dtype=torch.bool, device=dev)
         passed[keep] = ok
-        full = lambda t, fill: torch.full((n_comb, *t.shape[1:]), fill, dtype=t.dtype).index_copy_(0, keep, t)
+        full = lambda t, fill: torch.full((n_comb, *t.shape[1:]), fill, dtype=t.dtype, device=dev).index_copy_(0, keep, t)
         return passed, full(chi2, math.nan), full(x[:, idx], math.nan), full(info, 0.0)
 
     def select(self, z: torch.Tensor, unused: torch.Tensor, model: MeasurementModel, n: int):
@@ -264,7 +264,7 @@ class SphericalInitiator:
         joint estimates ``theta (B, G, 2D)`` (position m, velocity m/s) and Fisher information
         ``(B, G, 2D, 2D)`` (class docstring), in the order the greedy selection took them."""
         B, S, M, d = z.shape
-        work = torch.float64
+        work, dev = torch.float64, z.device
         D = len(model.pos_idx)
         kmin = self.pairs_needed(model)
         ok = unused & torch.isfinite(z).all(-1)
@@ -275,41 +275,42 @@ class SphericalInitiator:
         L = Mu + (1 if kmin < S else 0)  # entry Mu: the pair takes no part
         zz = z.gather(2, order[..., None].expand(B, S, M, d))[:, :, :Mu].to(work)
         per = max(1, SPHERICAL_CHUNK // max(B, 1))
-        radix = L ** torch.arange(S - 1, -1, -1)
+        radix = L ** torch.arange(S - 1, -1, -1, device=dev)
+        pairs = torch.arange(S, device=dev)
         found = []
         for f0 in range(0, L**S if Mu else 0, per):
-            digit = (torch.arange(f0, min(L**S, f0 + per))[:, None] // radix) % L  # (C, S)
+            digit = (torch.arange(f0, min(L**S, f0 + per), device=dev)[:, None] // radix) % L  # (C, S)
             has = digit < count[:, None, :]  # (B, C, S)
             real = (has | (digit == Mu)).all(-1) & (has.sum(-1) >= kmin)
             b, ci = torch.nonzero(real, as_tuple=True)
             if not len(b):
                 continue
             dq, hq = digit[ci], has[b, ci]
-            zq = zz[b[:, None], torch.arange(S), dq.clamp(max=Mu - 1)]  # (n_comb, S, d)
+            zq = zz[b[:, None], pairs, dq.clamp(max=Mu - 1)]  # (n_comb, S, d)
             passed, chi2, theta, info = self._fit(zq, hq, model, n)
-            det = torch.where(hq, order[b[:, None], torch.arange(S), dq.clamp(max=Mu - 1)], -1)
+            det = torch.where(hq, order[b[:, None], pairs, dq.clamp(max=Mu - 1)], -1)
             found.append((b[passed], det[passed], hq[passed].sum(-1), chi2[passed], theta[passed], info[passed]))
         if found:
             b, det, k, chi2, theta, info = (torch.cat(t) for t in zip(*found))
         else:
-            b, det, k = (torch.zeros(0, *shape, dtype=torch.int64) for shape in ((), (S,), ()))
-            chi2, theta, info = (torch.zeros(0, *shape, dtype=work) for shape in ((), (2 * D,), (2 * D, 2 * D)))
+            b, det, k = (torch.zeros(0, *shape, dtype=torch.int64, device=dev) for shape in ((), (S,), ()))
+            chi2, theta, info = (torch.zeros(0, *shape, dtype=work, device=dev) for shape in ((), (2 * D,), (2 * D, 2 * D)))
         # per run, padded to (B, n_found): key +inf on padding
         per_run = torch.bincount(b, minlength=B)
         n_found = int(per_run.max()) if len(b) else 0
         srt = torch.argsort(b, stable=True)
         b, det, k, chi2, theta, info = b[srt], det[srt], k[srt], chi2[srt], theta[srt], info[srt]
-        slot = torch.arange(len(b)) - (per_run.cumsum(0) - per_run)[b]
-        key = torch.full((B, n_found), math.inf, dtype=work)
+        slot = torch.arange(len(b), device=dev) - (per_run.cumsum(0) - per_run)[b]
+        key = torch.full((B, n_found), math.inf, dtype=work, device=dev)
         # more pairs first, then the chi-square tail probability (in [0, 1): the dof may differ)
         key[b, slot] = (S - k).to(work) + torch.special.gammainc(k.to(work) - 2.0, chi2 / 2.0)
-        combos = torch.full((B, n_found, S), -1, dtype=torch.int64)
+        combos = torch.full((B, n_found, S), -1, dtype=torch.int64, device=dev)
         combos[b, slot] = det
-        chi2_p = torch.full((B, n_found), math.nan, dtype=work)
+        chi2_p = torch.full((B, n_found), math.nan, dtype=work, device=dev)
         chi2_p[b, slot] = chi2
-        theta_p = torch.zeros(B, n_found, 2 * D, dtype=work)
+        theta_p = torch.zeros(B, n_found, 2 * D, dtype=work, device=dev)
         theta_p[b, slot] = theta
-        info_p = torch.eye(2 * D, dtype=work).repeat(B, n_found, 1, 1)
+        info_p = torch.eye(2 * D, dtype=work, device=dev).repeat(B, n_found, 1, 1)
         info_p[b, slot] = info
         # 5. greedy, batched over runs: each round every run takes its best combination left and
         # drops every combination that shares a detection with it (that one included); or, not
@@ -330,11 +331,11 @@ class SphericalInitiator:
             taken.append(torch.where(go, best, n_found))
         G = len(taken)
         # column n_found: an all -1 padding row
-        t = torch.stack(taken, 1) if G else torch.zeros(B, 0, dtype=torch.int64)  # (B, G)
-        pad = lambda x, fill: torch.cat([x, torch.full((B, 1, *x.shape[2:]), fill, dtype=x.dtype)], 1)
+        t = torch.stack(taken, 1) if G else torch.zeros(B, 0, dtype=torch.int64, device=dev)  # (B, G)
+        pad = lambda x, fill: torch.cat([x, torch.full((B, 1, *x.shape[2:]), fill, dtype=x.dtype, device=dev)], 1)
         take = lambda x: x.gather(1, t[(...,) + (None,) * (x.dim() - 2)].expand(B, G, *x.shape[2:]))
         return (take(pad(combos, -1)), take(pad(chi2_p, math.nan)), take(pad(theta_p, 0.0)),
-                take(torch.cat([info_p, torch.eye(2 * D, dtype=work).expand(B, 1, 2 * D, 2 * D)], 1)))
+                take(torch.cat([info_p, torch.eye(2 * D, dtype=work, device=dev).expand(B, 1, 2 * D, 2 * D)], 1)))
 
     def initiate(self, z: torch.Tensor, unused: torch.Tensor, model: MeasurementModel, n: int,
                  other_sd: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
@@ -345,11 +346,11 @@ class SphericalInitiator:
         real = (combos >= 0).any(-1)
         D = len(model.pos_idx)
         # the Gaussian likelihood N(theta; ., info^-1) times the velocity prior N(0, sd^2 I)
-        prior = torch.zeros(2 * D, 2 * D, dtype=info.dtype)
-        prior[D:, D:] = torch.eye(D, dtype=info.dtype) / self.velocity_sd_mps**2
+        prior = torch.zeros(2 * D, 2 * D, dtype=info.dtype, device=info.device)
+        prior[D:, D:] = torch.eye(D, dtype=info.dtype, device=info.device) / self.velocity_sd_mps**2
         P4 = torch.linalg.inv(info + prior)
         m4 = (P4 @ (info @ theta.unsqueeze(-1))).squeeze(-1)
-        idx = torch.tensor(list(model.pos_idx) + list(model.vel_idx))
+        idx = torch.tensor(list(model.pos_idx) + list(model.vel_idx), device=z.device)
         x = z.new_zeros(B, G, n)
         x[..., idx] = m4.to(z.dtype)
         P = torch.diag_embed(other_sd.to(z.dtype) ** 2).expand(B, G, n, n).clone()

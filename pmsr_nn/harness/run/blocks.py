@@ -77,10 +77,16 @@ def stream_block(setup: Setup, case_index: int, block: int):
 
 
 def call_method(setup: Setup, spec: MethodSpec, case: Case, products: dict, seed: tuple[int, ...]):
-    """One method on one block through its registered kind: :class:`~pmsr_nn.trackers.base.Estimates`."""
+    """One method on one block through its registered kind: :class:`~pmsr_nn.trackers.base.Estimates`
+    on the CPU. On another device (``setup.device``) the call's product, lives, models and sensing
+    are moved there first (:meth:`~pmsr_nn.methods.MethodCall.to`; they were drawn on the CPU) and
+    the estimates back after; on the CPU the call is made as it is."""
     kind = setup.kinds[spec.name]
     call = MethodCall(spec, products[kind.reads], case.alive, setup.models, case.sensing, setup.resources[spec.name], seed)
-    return kind.run(call)
+    device = torch.device(setup.device)
+    if device.type == "cpu":
+        return kind.run(call)
+    return kind.run(call.to(device)).to("cpu")
 
 
 def _first_runs(products: dict, B: int = 1) -> dict:

@@ -37,7 +37,7 @@ from ...simulation.tracks import MEASUREMENT_COMPONENTS, build_models
 from ...tbd.scene import build_scene
 from .case_bounds import case_bounds, memory_bounds
 from .definitions import designed_definitions, world_definitions
-from .prepared import Case, Setup, method_refusals, raise_refusals, set_scans_after
+from .prepared import Case, Setup, device_refusals, method_refusals, raise_refusals, set_scans_after
 from .schema import Scenario
 from .trajectories import check_inside, design_trajectory
 from .tuning import tune
@@ -179,6 +179,7 @@ def prepare_designed(sc: Scenario, device: str = "cpu") -> Setup:
         case_sensing, maps_info, maps_refusals = case_maps(sc, c, recipe, models, sensing, x, alive, targets)
         refusals += maps_refusals
         refusals += method_refusals(sc.case_methods(c), kinds, resources, alive, c.name, case_sensing)
+        refusals += device_refusals(sc.case_methods(c), kinds, case_sensing, device)
         if refusals:
             continue  # said once every case is checked; no bound is worth computing now
         # the PCRB is the recipe's measurement model's: a case only maps are formed of has none
@@ -197,7 +198,7 @@ def prepare_designed(sc: Scenario, device: str = "cpu") -> Setup:
     definitions = designed_definitions(sc.rd_maps is not None)
     return Setup(sc, models, cases, methods, kinds, resources, causal, sc.random_streams,
                  (sc.set_metrics.c_m, sc.set_metrics.p), settings, definitions, recipe.geometry.build(2),
-                 divergence_m=sc.divergence_m, tuning=tuning, recipe=recipe, prior_sd=prior_sd)
+                 divergence_m=sc.divergence_m, tuning=tuning, recipe=recipe, prior_sd=prior_sd, device=str(device))
 
 
 def describe_designed(sc: Scenario, recipe: TrackRecipe, models: Models, prior_sd: torch.Tensor, tuning: dict,
@@ -290,8 +291,6 @@ def world_truth(sc: Scenario, c, models: Models, P0: torch.Tensor):
 
 def prepare_world(sc: Scenario, device: str = "cpu") -> Setup:
     """A world scenario as a runner :class:`~.prepared.Setup` (see the module's docstring)."""
-    if device != "cpu":
-        raise ConfigError("the multi-target trackers run on the CPU (their assignment step is NumPy/SciPy)")
     w = sc.world
     models, geometry = world_models(sc)
     kinds = {m.name: method_kind(m.kind) for m in sc.methods}
@@ -308,6 +307,7 @@ def prepare_world(sc: Scenario, device: str = "cpu") -> Setup:
                               illuminator_known=det.illuminator_known, front_end=det.front_end)
         scored = _scored(alive, sc.warmup_steps, c.name, names)
         refusals += method_refusals(sc.case_methods(c), kinds, {}, alive, c.name, sensing)
+        refusals += device_refusals(sc.case_methods(c), kinds, sensing, device)
         info = {"pd": det.pd, "clutter_per_scan": det.clutter.per_scan,
                 "spacing_m": c.formation.spacing_m if c.formation else None, "prior": to_dict(prior),
                 "reference_key": c.reference_key, "formation": c.formation is not None,
@@ -321,7 +321,7 @@ def prepare_world(sc: Scenario, device: str = "cpu") -> Setup:
     causal = {m.name: bool(kinds[m.name].causal(None)) for m in sc.methods}
     return Setup(sc, models, cases, sc.methods, kinds, {m.name: None for m in sc.methods}, causal, "per_block",
                  (sc.set_metrics.c_m, sc.set_metrics.p), describe_world(sc, models.model), definitions, geometry,
-                 loss=sc.loss, divergence_m=sc.divergence_m)
+                 loss=sc.loss, divergence_m=sc.divergence_m, device=str(device))
 
 
 def _jpda_options(m) -> dict:

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from ...errors import ConfigError
-from ...methods import MethodKind, Models
+from ...methods import MethodKind, Models, runs_on_any_device
 from ...product_kinds import PRODUCTS
 from ...simulation.products import DesignedTruth, SampledTruth, SensorSetup
 from ...simulation.recipe import TrackRecipe
@@ -130,6 +130,7 @@ class Setup:
     recipe: TrackRecipe | None = None
     prior_sd: torch.Tensor | None = None
     spaces: dict = field(default_factory=dict)  # (case, method) -> EstimateSpace or None (method_space)
+    device: str = "cpu"  # where the methods run (pmsr evaluate --device); the draws and the scoring stay on the CPU
 
     @property
     def products(self) -> list[str]:
@@ -164,6 +165,16 @@ def method_refusals(methods, kinds: dict, resources: dict, alive: torch.Tensor, 
             except ConfigError as exc:
                 out.append(str(exc))
     return out
+
+
+def device_refusals(methods, kinds: dict, sensing: SensorSetup, device) -> list[str]:
+    """Where the run's ``device`` is not the CPU: one message per method whose kind (or whose row
+    of that kind, :func:`~pmsr_nn.methods.runs_on_any_device`) runs on the CPU only."""
+    if torch.device(device).type == "cpu":
+        return []
+    return [f"method {spec.name!r}: kind {spec.kind} runs on the CPU only{runs_on_any_device(kinds[spec.name], spec, sensing)[1]}"
+            f"; --device {device} is refused (use --device cpu)"
+            for spec in methods if not runs_on_any_device(kinds[spec.name], spec, sensing)[0]]
 
 
 def raise_refusals(refusals: list[str]) -> None:
