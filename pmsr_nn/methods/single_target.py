@@ -89,6 +89,8 @@ def lives(alive: torch.Tensor) -> list[tuple[int, int, int]]:
     out = []
     for t in range(alive.shape[1]):
         on = torch.nonzero(alive[:, t]).flatten()
+        if not len(on):  # not alive in these scans (a slice of them): no estimates
+            continue
         out.append((t, int(on[0]), int(on[-1]) + 1))
     return out
 

@@ -159,6 +159,10 @@ class Streams:
         """The same streams and prior on ``device``."""
         return Streams(self.z.to(device), self.prior.to(device))
 
+    def first_scans(self, W: int) -> "Streams":
+        """The streams of the first ``W`` scans (the prior as it is)."""
+        return Streams(self.z[:, :, :W], self.prior)
+
     @classmethod
     def concat(cls, parts: list["Streams"]) -> "Streams":
         """The runs of ``parts`` one after another."""
@@ -195,6 +199,16 @@ class Detections:
         """The same detections and prior on ``device`` (what the signal chain measured stays as it is)."""
         pooled = None if self.pooled is None else self.pooled.to(device)
         return Detections(self.scans.to(device), self.prior.to(device), pooled, self.front_end)
+
+    def first_scans(self, W: int) -> "Detections":
+        """The detections of the first ``W`` scans (the prior as it is; no front-end record)."""
+        s = self.scans
+        pooled = None
+        if self.pooled is not None:
+            p = self.pooled
+            pooled = PooledScans(Scans(p.scans.z[:, :W], p.scans.valid[:, :W], p.scans.origin[:, :W]), p.pair[:, :W],
+                                 p.routes)
+        return Detections(Scans(s.z[:, :W], s.valid[:, :W], s.origin[:, :W]), self.prior, pooled)
 
     def runs(self, i: slice) -> "Detections":
         """The product of runs ``i``."""

@@ -22,6 +22,7 @@ Every living target of the truth adds its response (its own random phase per fra
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -368,6 +369,12 @@ class RangeDopplerMaps:
         maps = simulate_frame(rng.transpose(1, 2), dop.transpose(1, 2), present, torch.tensor(sc.snr_db, dtype=torch.float64),
                               sc.grid, sc.maps, g)
         return maps if self.select is None else maps[self.select]
+
+    def first_scans(self, W: int) -> "RangeDopplerMaps":
+        """The maps of the first ``W`` frames (each frame's maps those of the whole product)."""
+        W = min(W, self.scene.frames)
+        return RangeDopplerMaps(dataclasses.replace(self.scene, frames=W), self.truth_x[:, :W], self.present[:W],
+                                self.seed, self.select)
 
     def runs(self, i: slice) -> "RangeDopplerMaps":
         """The product of runs ``i`` of the block (a slice of the block's runs)."""

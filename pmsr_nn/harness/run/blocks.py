@@ -76,17 +76,44 @@ def stream_block(setup: Setup, case_index: int, block: int):
     return s.z[:, 0], Gaussian(s.prior.x[:, 0], s.prior.P[:, 0])
 
 
-def call_method(setup: Setup, spec: MethodSpec, case: Case, products: dict, seed: tuple[int, ...]):
+def call_method(setup: Setup, spec: MethodSpec, case: Case, products: dict, seed: tuple[int, ...],
+                alive: torch.Tensor | None = None):
     """One method on one block through its registered kind: :class:`~pmsr_nn.trackers.base.Estimates`
     on the CPU. On another device (``setup.device``) the call's product, lives, models and sensing
     are moved there first (:meth:`~pmsr_nn.methods.MethodCall.to`; they were drawn on the CPU) and
-    the estimates back after; on the CPU the call is made as it is."""
+    the estimates back after; on the CPU the call is made as it is. ``alive``: the targets' lives
+    of ``products`` where they cover fewer scans than the case (the warm-up's slice)."""
     kind = setup.kinds[spec.name]
-    call = MethodCall(spec, products[kind.reads], case.alive, setup.models, case.sensing, setup.resources[spec.name], seed)
+    alive = case.alive if alive is None else alive
+    call = MethodCall(spec, products[kind.reads], alive, setup.models, case.sensing, setup.resources[spec.name], seed)
     device = torch.device(setup.device)
     if device.type == "cpu":
         return kind.run(call)
     return kind.run(call.to(device)).to("cpu")
+
+
+WARM_SCANS = 30
+"""Scans of the warm-up's slice after the case's first birth (:func:`warm_up`)."""
+
+
+def warm_up(setup: Setup, spec: MethodSpec, case: Case, products: dict) -> None:
+    """One untimed call of ``spec`` to pay its start-up costs (first calls of torch's kernels,
+    lazy imports, a network's first pass) outside the timing: on the first run, over the scans up
+    to ``WARM_SCANS`` after the case's first birth, so that a one-run study does not run twice. A
+    kind the slice does not suit (a network whose window is longer than the slice) warms up on the
+    whole first run instead; an error there is the kind's own and is raised."""
+    first = _first_runs(products)
+    alive = case.alive
+    born = torch.nonzero(alive.any(1))
+    W = min(alive.shape[0], (int(born[0]) if len(born) else 0) + WARM_SCANS)
+    seed = (setup.scenario.seed, 1 << 30)
+    if W < alive.shape[0]:
+        try:
+            call_method(setup, spec, case, {k: p.first_scans(W) for k, p in first.items()}, seed, alive[:W])
+            return
+        except Exception:  # noqa: BLE001 - the slice is only a shortcut; the whole run below decides
+            pass
+    call_method(setup, spec, case, first, seed)
 
 
 def _first_runs(products: dict, B: int = 1) -> dict:
@@ -203,12 +230,10 @@ def run_blocks(setup: Setup, blocks, progress: bool = True, batch_runs: int = 1)
                         if block == 0 and hasattr(product, "examples"):  # e.g. run 0's range-Doppler maps ("@" keys)
                             out.example.setdefault(case.name, {}).update(product.examples())
                 todo = [m for m in called if case.runs(m) and warm_key(m) not in WARMED]
-                if todo:  # untimed, once per process and kind (in its first case): start-up costs stay out of the timing
-                    first = _first_runs(drawn[group[0]][1])
-                    for spec in todo:
-                        bar.set_postfix_str(f"{case.name} {spec.name} (warm-up, untimed)")  # not charged to a row
-                        call_method(setup, spec, case, first, (sc.seed, 1 << 30))
-                        WARMED.add(warm_key(spec))
+                for spec in todo:  # untimed, once per process and kind (in its first case): start-up costs stay out of the timing
+                    bar.set_postfix_str(f"{case.name} {spec.name} (warm-up, untimed)")  # not charged to a row
+                    warm_up(setup, spec, case, drawn[group[0]][1])
+                    WARMED.add(warm_key(spec))
                 projected = {b: {} for b in group}  # each block's truth in the estimate spaces methods read (truth_in)
                 for spec in called:
                     if not case.runs(spec):
