@@ -43,7 +43,7 @@ from pmsr_nn.rng import seeded_generator
 from pmsr_nn.simulation.detections import CLUTTER, ClutterSpec, Scans, pool_by_receiver, simulate_scans
 from pmsr_nn.trackers.pmht import pmht
 from pmsr_nn.trackers.pmht_em import (_log_terms, _smooth, association_weights, em_step,
-                                      expected_complete_log_likelihood)
+                                      expected_complete_log_likelihood, window_evidence)
 from pmsr_nn.trackers.pmht_managed import managed_pmht
 from pmsr_nn.trackers.pmht_model import AssociationLists, PMHTSettings, pair_h, problem
 from test_track_management import scenario as births_scenario
@@ -186,7 +186,7 @@ def test_em_never_decreases_the_expected_complete_data_log_likelihood():
     X = torch.stack([prior.x @ torch.linalg.matrix_power(pr.F, k).T for k in range(K)], 1)
     gains = []
     for _ in range(s.em_iterations):
-        X_new, _, _, w = em_step(pr, X, g, lists)
+        X_new, _, _, w = em_step(pr, X, g, lists, weights=True)
         q_old = expected_complete_log_likelihood(pr, X, prior, lists, w)
         q_new = expected_complete_log_likelihood(pr, X_new, prior, lists, w)
         assert bool((q_new >= q_old - 1e-9 * q_old.abs()).all()), (q_new - q_old)
@@ -564,6 +564,34 @@ def test_e_step_weights_equal_the_log_sum_exp_formulation(marginal):
         assert torch.allclose(w, ref, rtol=1e-9, atol=1e-300)
         assert bool((w[ref == 0] == 0).all())
     assert float(ref.amax()) > 0.5 and bool(((ref > 0) & (ref < 1e-300)).any()) and bool((~lists.valid).any())
+
+
+@pytest.mark.parametrize("pooled", [False, True])
+def test_window_evidence_equals_its_log_sum_exp_formulation(pooled):
+    """What track management reads from a window, computed over each list's candidate pairs only,
+    equals the same sums over every pair from :func:`_log_terms` (rtol 1e-9: the exponents'
+    rounding, as the E-step's test; the compact form drops terms below exp(-700) of a detection's
+    largest, < 1e-300 relative)."""
+    B, K = 2, 6
+    model = _model(2)
+    truth = _truth(B, K)
+    g = seeded_generator(11)
+    scans = simulate_scans(truth, model, 0.9, CLUTTER_BOX, g)
+    lists = AssociationLists.pooled(pool_by_receiver(scans, model, g)) if pooled else AssociationLists.per_pair(scans)
+    pr = problem(model, MOTION, 1.0, 5.0, model.R(), _settings(model, kappa=(1.0, 4.0)))
+    X = truth + torch.randn(truth.shape, generator=g, dtype=torch.float64) * torch.tensor([60.0, 3.0] * 3)
+    alive = torch.ones(B, K, 3, dtype=torch.bool)
+    alive[1, 3:, 2] = False
+    _, log_t, log_clutter = _log_terms(pr, X, lists, 1.0, alive)
+    w = torch.exp(log_t - torch.logsumexp(torch.cat([log_clutter.unsqueeze(-1), log_t.flatten(-3)], -1), -1)[..., None, None, None])
+    ratio = torch.exp(log_t - log_clutter[..., None, None, None]).sum((2, 3, 6)) / pr.settings.pd
+    shared = (w / (1.0 - w.sum((5, 6), keepdim=True)).clamp(min=1e-300)).sum((2, 3, 6)) / pr.settings.pd
+    reference = (w.sum((2, 3, 6)), ratio, w.sum((4, 5, 6)), shared)
+    for got, want in zip(window_evidence(pr, X, lists, alive), reference):
+        assert got.shape == want.shape
+        assert torch.allclose(got, want, rtol=1e-9, atol=1e-300)
+    assert float(reference[0].amax()) > 0.5 and float(reference[1].amax()) > 1.0  # tracks explain detections
+    assert float(reference[1][1, 3:, 2].abs().max()) == 0.0  # a track not alive has no evidence
 
 
 def test_point_e_step_skips_covariances_without_changing_the_states():

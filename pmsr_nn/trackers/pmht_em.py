@@ -84,19 +84,48 @@ EXP_FLOOR = -700.0
 that cost 10-300x the ordinary one, and most detection-track terms are that far out."""
 
 
-def _residual_components(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists) -> list[torch.Tensor]:
-    """Residuals ``z_r - h_s(x_t)`` as ``d`` contiguous ``(B, W, L, M, N, S)`` tensors, one per
-    value of a pair (angles wrapped): elementwise work on them avoids the tiny trailing ``d`` axis."""
+def candidate_pairs(lists: AssociationLists) -> tuple[torch.Tensor, torch.Tensor]:
+    """The pairs each list's detections may come from, ``idx (L, Sc)`` (``Sc`` the most any list
+    has: 1 per pair's own list, a receiver's pairs for pooled lists; a list with fewer is padded
+    with pairs none of its detections may come from), and ``on (B, W, L, M, Sc)``: detection ``r``
+    may come from pair ``idx[l, c]`` and is valid. The E-step weighs only these: a per-pair list
+    would otherwise carry ``S - 1`` pairs of zeros per detection and track."""
+    any_l = lists.candidates.any(3).any(1).any(0)  # (L, S)
+    Sc = max(int(any_l.sum(-1).max()), 1)
+    idx = torch.argsort((~any_l).to(torch.int8), dim=-1, stable=True)[:, :Sc]  # candidates first, in pair order
+    B, W, L, M, _ = lists.candidates.shape
+    on = lists.candidates.gather(-1, idx[None, None, :, None, :].expand(B, W, L, M, Sc)) & lists.valid[..., None]
+    return idx, on
+
+
+def _residual_components(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
+                         idx: torch.Tensor) -> list[torch.Tensor]:
+    """Residuals ``z_r - h_s(x_t)`` of each list's candidate pairs ``idx (L, Sc)``
+    (:func:`candidate_pairs`) as ``d`` contiguous ``(B, W, L, M, N, Sc)`` tensors, one per value
+    of a pair (angles wrapped): elementwise work on them avoids the tiny trailing ``d`` axis."""
     B, W, N, _ = X.shape
     S, d = pr.pairs, pr.R_inv_chol.shape[-1]
-    h = pr.h(X).reshape(B, W, N, S, d)
+    h = pr.h(X).reshape(B, W, N, S, d)[:, :, :, idx].permute(0, 1, 3, 2, 4, 5)  # (B, W, L, N, Sc, d)
     z = torch.nan_to_num(lists.z)
     angles = pr.angles.tolist()
     out = []
     for i in range(d):
-        nu = z[:, :, :, :, None, None, i] - h[:, :, None, None, :, :, i]
+        nu = z[:, :, :, :, None, None, i] - h[:, :, :, None, :, :, i]
         out.append(wrap_angle(nu) if angles[i] else nu)
     return out
+
+
+def _per_list(t: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """``t (B, W, N, S, ...)`` at each list's candidate pairs: ``(B, W, L, 1, N, Sc, ...)``."""
+    return t[:, :, :, idx].transpose(2, 3).unsqueeze(3)
+
+
+def to_pairs(t: torch.Tensor, idx: torch.Tensor, S: int) -> torch.Tensor:
+    """Sums over each list's candidates ``t (B, W, L, N, Sc)`` gathered per pair: ``(B, W, N, S)``
+    (a padded candidate carries 0)."""
+    B, W, L, N, Sc = t.shape
+    out = t.new_zeros(B, W, N, S)
+    return out.index_add_(3, idx.flatten(), t.permute(0, 1, 3, 2, 4).reshape(B, W, N, L * Sc))
 
 
 def _marginal_terms(pr: PMHTProblem, X: torch.Tensor, P: torch.Tensor,
@@ -119,37 +148,59 @@ def _marginal_terms(pr: PMHTProblem, X: torch.Tensor, P: torch.Tensor,
 def association_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflate: float = 1.0,
                         alive: torch.Tensor | None = None,
                         P: torch.Tensor | None = None) -> tuple[torch.Tensor, list[torch.Tensor]]:
-    """E-step: weights ``w (B, W, L, M, N, S, n_components)`` (0 on padding and where a track is not
-    ``alive (B, W, N)``) and the residuals (:func:`_residual_components`); ``P (B, W, N, n, n)``: the
-    marginal E-step (:func:`marginal_covariances`), None: plain PMHT's.
+    """E-step: weights ``w (B, W, L, M, N, S, n_components)`` (0 on padding, where a pair is no
+    candidate and where a track is not ``alive (B, W, N)``) and the residuals of the candidate pairs
+    (:func:`compact_weights`, whose weights these are, set out over every pair)."""
+    w, nu, idx, _ = compact_weights(pr, X, lists, inflate, alive, P)
+    return over_pairs(w, idx, pr.pairs), nu
+
+
+def over_pairs(w: torch.Tensor, idx: torch.Tensor, S: int) -> torch.Tensor:
+    """Weights over the lists' candidate pairs ``w (B, W, L, M, N, Sc, n_components)`` set out over
+    every pair: ``(B, W, L, M, N, S, n_components)``, 0 where a pair is no candidate."""
+    B, W, L, M, N, Sc, n_c = w.shape
+    full = w.new_zeros(B, W, L, M, N, S, n_c)
+    return full.scatter_(5, idx[:, None, None, :, None].expand(B, W, L, M, N, Sc, n_c), w)
+
+
+def compact_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists, inflate: float = 1.0,
+                    alive: torch.Tensor | None = None,
+                    P: torch.Tensor | None = None):
+    """E-step over each list's candidate pairs ``idx (L, Sc)`` (:func:`candidate_pairs`): weights
+    ``w (B, W, L, M, N, Sc, n_components)`` (0 on padding, on a padded candidate and where a track
+    is not ``alive (B, W, N)``), the residuals (:func:`_residual_components`), ``idx`` and each
+    detection's log density over its clutter term, ``log(p(z_r) / (lambda_A / V)) (B, W, L, M)``;
+    ``P (B, W, N, n, n)``: the marginal E-step (:func:`marginal_covariances`), None: plain PMHT's.
 
     The same weights as ``exp(log_t - log p(z_r))`` from :func:`_log_terms` (to rounding; terms
     below ``exp(EXP_FLOOR)`` of a detection's largest are 0), computed in fewer passes over the
     large tensors: the quadratic form from the ``d (d + 1) / 2`` products of residual values, the
     log-sum-exp's shift by each detection's largest term (clutter included), so every term is
     ``<= 1`` and the density ``>= 1``."""
-    nu = _residual_components(pr, X, lists)
+    idx, on = candidate_pairs(lists)
+    nu = _residual_components(pr, X, lists, idx)
     d = len(nu)
     k = pr.kappa * inflate
-    # products nu_i nu_j (B, W, L, M, N, S, 1); a pair that is no candidate for a detection (or
+    # products nu_i nu_j (B, W, L, M, N, Sc, 1); a pair that is no candidate for a detection (or
     # padding, or a track not alive) gets nu_0^2 = inf: its term is exp(-inf) = 0
     prods = {(i, j): (nu[i] * nu[j]).unsqueeze(-1) for i in range(d) for j in range(i, d)}
-    off = ~(lists.candidates & lists.valid.unsqueeze(-1))[:, :, :, :, None, :, None]  # (B, W, L, M, 1, S, 1)
+    off = ~on[:, :, :, :, None, :, None]  # (B, W, L, M, 1, Sc, 1)
     if alive is not None:
         off = off | ~alive[:, :, None, None, :, None, None]
     prods[0, 0] = prods[0, 0].masked_fill(off, math.inf)
+    L, Sc = idx.shape
     if P is None:  # N(z; h, kappa_p R_s): one quadratic form per pair, scaled by 1 / kappa_p
-        Ri = pr.R_inv_chol.transpose(-1, -2) @ pr.R_inv_chol  # (S, d, d) = R_s^-1
+        Ri = (pr.R_inv_chol.transpose(-1, -2) @ pr.R_inv_chol)[idx]  # (L, Sc, d, d) = R_s^-1
         log_norm = (math.log(pr.settings.pd) + pr.log_c
-                    - 0.5 * (d * torch.log(2 * math.pi * k) + pr.log_det[:, None]))  # (S, n_components)
+                    - 0.5 * (d * torch.log(2 * math.pi * k) + pr.log_det[:, None]))[idx]  # (L, Sc, n_components)
         maha = None
         for (i, j), q in prods.items():
-            c = Ri[:, i, j, None] * (1.0 if i == j else 2.0)  # (S, 1)
+            c = (Ri[:, :, i, j] * (1.0 if i == j else 2.0)).reshape(L, 1, 1, Sc, 1)
             maha = q * c if maha is None else torch.addcmul(maha, q, c)
-        arg = torch.addcmul(log_norm, maha, -0.5 / k)  # (B, W, L, M, N, S, n_components)
+        arg = torch.addcmul(log_norm.reshape(L, 1, 1, Sc, -1), maha, -0.5 / k)  # (B, W, L, M, N, Sc, n_components)
     else:  # N(z; h, C): log_norm - sum_ij (C^-1)_ij nu_i nu_j / 2
         J, log_norm = _marginal_terms(pr, X, P, k)
-        J, arg = J[:, :, None, None], log_norm[:, :, None, None]
+        J, arg = _per_list(J, idx), _per_list(log_norm, idx)
         for (i, j), q in prods.items():
             arg = torch.addcmul(arg, q, J[..., i, j], value=-0.5 if i == j else -1.0)
     lam = (lists.candidates.to(X.dtype) * pr.rate).sum(-1)  # (B, W, L, M)
@@ -158,18 +209,21 @@ def association_weights(pr: PMHTProblem, X: torch.Tensor, lists: AssociationList
     e = (arg - top[..., None, None, None]).clamp_min_(EXP_FLOOR).exp_()
     e = torch.nn.functional.threshold_(e, 1.5 * math.exp(EXP_FLOOR), 0.0)  # the floor's exp(EXP_FLOOR) -> 0
     dens = e.sum((-3, -2, -1)) + torch.exp(log_clutter - top)  # >= 1: the largest term is exp(0)
-    return e / dens[..., None, None, None], nu
+    return e / dens[..., None, None, None], nu, idx, top - log_clutter + torch.log(dens)
 
 
-def synthetic_measurements(pr: PMHTProblem, X: torch.Tensor, w: torch.Tensor, nu: list[torch.Tensor], inflate: float = 1.0):
-    """M-step's measurements from the E-step's weights ``w`` and residual values ``nu``
-    (:func:`association_weights`): ``z~ (B, W, N, S d)`` (NaN rows where a pair's weight is below
-    ``min_weight``) and the diagonal scale ``1 / sum(w / kappa)`` per row ``(B, W, N, S d)``."""
+def synthetic_measurements(pr: PMHTProblem, X: torch.Tensor, w: torch.Tensor, nu: list[torch.Tensor],
+                           idx: torch.Tensor, inflate: float = 1.0):
+    """M-step's measurements from the E-step's weights ``w`` and residual values ``nu`` over the
+    lists' candidate pairs ``idx`` (:func:`compact_weights`): ``z~ (B, W, N, S d)`` (NaN rows where
+    a pair's weight is below ``min_weight``) and the diagonal scale ``1 / sum(w / kappa)`` per row
+    ``(B, W, N, S d)``."""
     B, W, N, _ = X.shape
     S, d = pr.pairs, pr.R_inv_chol.shape[-1]
-    a = w @ (1.0 / (pr.kappa * inflate))  # (B, W, L, M, N, S): sum_p w_p / kappa_p
-    total = a.sum((2, 3))  # (B, W, N, S)
-    shift = torch.stack([(a * v).sum((2, 3)) for v in nu], -1) / total.clamp_min(pr.settings.min_weight)[..., None]
+    a = w @ (1.0 / (pr.kappa * inflate))  # (B, W, L, M, N, Sc): sum_p w_p / kappa_p
+    total = to_pairs(a.sum(3), idx, S)  # (B, W, N, S)
+    shift = (torch.stack([to_pairs((a * v).sum(3), idx, S) for v in nu], -1)
+             / total.clamp_min(pr.settings.min_weight)[..., None])
     z = pr.h(X).reshape(B, W, N, S, d) + shift
     if bool(pr.angles.any()):
         z = torch.where(pr.angles, wrap_angle(z), z)
@@ -287,22 +341,24 @@ def expected_complete_log_likelihood(pr: PMHTProblem, X: torch.Tensor, prior: Ga
 
 def em_step(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, lists: AssociationLists, inflate: float = 1.0,
             hand_off: int | None = None, alive: torch.Tensor | None = None, born: torch.Tensor | None = None,
-            start: Gaussian | None = None, P: torch.Tensor | None = None, covariances: bool = True):
+            start: Gaussian | None = None, P: torch.Tensor | None = None, covariances: bool = True,
+            weights: bool = False):
     """One EM iteration on a window: states ``X (b, W, N, n)``, ``prior`` the predicted moments at
     its first scan (one row per run and target, ``(b N, n)``). Returns the new states, their
     covariances ``(b, W, N, n, n)``, the forward filter's prediction at scan ``hand_off`` (default:
-    after the window) and the E-step's weights. Tracks that start inside the window (track
+    after the window) and, with ``weights``, the E-step's weights over every pair
+    (:func:`association_weights`; None otherwise: most callers need none). Tracks that start inside the window (track
     management): ``alive (b, W, N)`` where each explains detections, ``born (b, N)`` the scan of
     the window each starts at (-1: before it) as ``start`` ``(b N, n)`` (see :func:`_smooth`).
     ``P (b, W, N, n, n)``: covariances of ``X`` for the marginal E-step (None: plain PMHT's);
     ``covariances`` False: the smoothed covariances are not computed (None is returned)."""
     b, W, N, n = X.shape
-    w, nu = association_weights(pr, X, lists, inflate, alive, P)
-    z, scale = synthetic_measurements(pr, X, w, nu, inflate)
+    w, nu, idx, _ = compact_weights(pr, X, lists, inflate, alive, P)
+    z, scale = synthetic_measurements(pr, X, w, nu, idx, inflate)
     xs, Ps, handed = _smooth(pr, prior, _rows(z), _rows(scale), W if hand_off is None else hand_off,
                              None if born is None else born.reshape(b * N), start, covariances)
     Ps = None if Ps is None else Ps.reshape(b, N, W, n, n).transpose(1, 2)
-    return xs.reshape(b, N, W, n).transpose(1, 2), Ps, handed, w
+    return xs.reshape(b, N, W, n).transpose(1, 2), Ps, handed, over_pairs(w, idx, pr.pairs) if weights else None
 
 
 def _rows(t: torch.Tensor) -> torch.Tensor:
@@ -322,9 +378,11 @@ def window_evidence(pr: PMHTProblem, X: torch.Tensor, lists: AssociationLists,
     density added to the clutter's (the modified clutter density of LM-IPDA, Musicki & La Scala
     2008), ``sum_r w_rt / (1 - W_rt) / Pd`` (``W_rt`` the detection's total weight on track
     ``t``): the IPDA ratio for a track alone, smaller where other tracks explain its detections."""
-    _, log_t, log_clutter = _log_terms(pr, X, lists, 1.0, alive)
-    w = torch.exp(log_t - _log_density(log_t, log_clutter)[..., None, None, None])  # 0 on padding: log_t = -inf
-    ratio = torch.exp(log_t - log_clutter[..., None, None, None]).sum((2, 3, 6)) / pr.settings.pd
+    w, _, idx, log_over_clutter = compact_weights(pr, X, lists, 1.0, alive)  # 0 on padding and non-candidates
+    S = pr.pairs
+    per_pair = lambda t: to_pairs(t.sum(-1).sum(3), idx, S)  # noqa: E731 - (b, W, L, M, N, Sc, P) -> (b, W, N, S)
+    # exp(log_t - log_clutter) = w p(z_r) / (lambda_A / V)
+    ratio = per_pair(w * log_over_clutter.exp()[..., None, None, None]) / pr.settings.pd
     on_track = w.sum((5, 6), keepdim=True)  # (b, W, L, M, N, 1, 1)
-    shared = (w / (1.0 - on_track).clamp(min=1e-300)).sum((2, 3, 6)) / pr.settings.pd
-    return w.sum((2, 3, 6)), ratio, w.sum((4, 5, 6)), shared
+    shared = per_pair(w / (1.0 - on_track).clamp(min=1e-300)) / pr.settings.pd
+    return per_pair(w), ratio, w.sum((4, 5, 6)), shared
