@@ -162,6 +162,9 @@ RULES = [
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/s([12]) --shard \1/2",
          lambda a: _set(_set(a, "--mc-runs", "20"), "--methods", "EKF"), slow=True),
     Rule(r"pmsr evaluate evaluate/(" + "|".join(STUDIES) + r")\.yaml( --mc-runs \d+)? --out runs/\w+", _mc1, slow=True),
+    # one-run blocks joined into calls of several runs: the EKF and UKF rows on two runs in one call
+    Rule(r"pmsr evaluate evaluate/one_sky\.yaml --out runs/one_sky --batch-runs 10",
+         lambda a: _set(_set(_set(a, "--mc-runs", "2"), "--methods", "EKF,UKF"), "--batch-runs", "2"), integration=True),
     Rule(r"pmsr merge runs/s1 runs/s2 --out runs/eval", setup=SHARDS, slow=True),
     # a bank (tests/test_block_bank.py checks it in-process): the EKF row on two blocks of 10 runs
     Rule(r"pmsr evaluate evaluate/fitee2023_three_trajectories\.yaml --out runs/bank --per-block",
