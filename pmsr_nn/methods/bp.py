@@ -135,6 +135,8 @@ register(MethodKind("bp", "detections", run_bp, OPTIONS, check_sensing=check_sen
                     description="multisensor belief-propagation tracker (TOMB/P with BP association, Meyer et al., "
                                 "Proc. IEEE 2018), pair by pair; starts, confirms and deletes its own tracks by existence"))
 register(MethodKind("bp_3d", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
-                    pooled_lists=True, any_device=_any_device, batchable=True,
+                    # not batchable: its pooled lists, padded to the longest run's, made a joined call slower
+                    # (benchmarks/RESULTS.md, "Several blocks per tracker call")
+                    pooled_lists=True, any_device=_any_device,
                     description="the belief-propagation tracker on the lists a single-frequency-network receiver has "
                                 "(pooled, the illuminator unknown: each pair reads its receiver's list); elsewhere as bp"))
