@@ -108,7 +108,9 @@ def _azimuth() -> dict:
     methods = [m for m in DETECTIONS if m["kind"] in ("s_msjpda", "p_msjpda", "bp", "jpda_learned_gain", "stonesoup")
                and m["name"] != "bp two scans"]
     phd = {"name": "smc_phd", "kind": "smc_phd", "options": {"particles_per_target": 100, "particles_per_birth": 50}}
-    return _designed([{**m, "name": f"{m['name']} azimuth"} for m in methods] + [phd],
+    two_scans = {"name": "p_msjpda two scans azimuth", "kind": "p_msjpda",  # the multi-scan initiator around it
+                 "options": {"initiation": "detections", "init_scans": 2, "fix_covariance": "unscented"}}
+    return _designed([{**m, "name": f"{m['name']} azimuth"} for m in methods] + [two_scans, phd],
                      detections={"pd": 0.9, "clutter": CLUTTER})
 
 
@@ -152,18 +154,13 @@ SCENES = {"streams": _streams, "range_rate": _range_rate, "azimuth": _azimuth, "
           "pooled": _pooled, "maps": _maps}
 
 NOT_YET = "not yet device-agnostic (issue 57 item 5)"
-FIX_INITIATOR = "not yet device-agnostic (issue 57 item 5): pmsr_nn/trackers/fix_initiator.py makes tensors without device="
 ROWS = [(scene, m["name"]) for scene, make in SCENES.items() for m in make()["methods"]]
 XFAIL: dict[str, str] = {
     **{name: NOT_YET for name in ("pmht", "pmht_3d", "pmht_3d pooled", "smc_phd", "smc_phd_pair", "modified_icmb", "pmb",
                                   "icmb", "detect_then_track", "stonesoup", "stonesoup azimuth")},
     # their method files (pmsr_nn/methods/pmht.py, phd_pair.py) make R and the pair models without device=
     "true_assignment_smoother": f"{NOT_YET}: pmsr_nn/methods/pmht.py",
-    "known_association_kf_pair": f"{NOT_YET}: pmsr_nn/methods/phd_pair.py, pmsr_nn/trackers/phd.py",
-    # tracks started from detections with azimuth, and BP's seeds with azimuth: the fix initiator
-    **{name: FIX_INITIATOR for name in ("s_msjpda own tracks azimuth", "s_msjpda bias test azimuth",
-                                        "p_msjpda own tracks azimuth", "jpda_learned_gain own tracks azimuth",
-                                        "bp azimuth", "bp_3d")}}
+    "known_association_kf_pair": f"{NOT_YET}: pmsr_nn/methods/phd_pair.py, pmsr_nn/trackers/phd.py"}
 """Rows whose meta check fails today (strict: one that passes fails the test until its mark goes)."""
 
 
@@ -245,7 +242,7 @@ def test_the_rows_a_kind_runs_on_any_device_are_those_that_pass(scenes):
 PACKAGE = ROOT / "pmsr_nn"
 SCANNED = ("trackers", "filters", "methods")
 OUT_OF_SCOPE = {"trackers/pmht.py", "trackers/pmht_em.py", "trackers/pmht_managed.py", "trackers/pmht_model.py",
-                "trackers/phd.py", "trackers/phd_cartesian.py", "trackers/gtda.py", "trackers/fix_initiator.py",
+                "trackers/phd.py", "trackers/phd_cartesian.py", "trackers/gtda.py",
                 "trackers/labelling.py", "methods/pmht.py", "methods/phd.py", "methods/phd_pair.py", "methods/tbd.py",
                 "methods/stonesoup.py", "methods/kind_metrics.py"}
 """Files of kinds that run on the CPU only (strict xfails above), and the kinds' metrics, which
@@ -341,9 +338,8 @@ def test_kinds_that_run_on_the_cpu_only_are_refused_on_another_device_in_one_lin
     with pytest.raises(ConfigError) as err:
         prepare(sc, "cuda")
     text = str(err.value)
-    assert "\n" not in text and "'S'" not in text
+    assert "\n" not in text and "'S'" not in text and "'own'" not in text  # the fix initiator runs anywhere
     assert "method 'stone': kind stonesoup runs on the CPU only (Stone Soup is NumPy); --device cuda is refused" in text
-    assert "method 'own': kind s_msjpda runs on the CPU only where it starts tracks from detections with azimuth" in text
     assert "method 'P': kind pmht runs on the CPU only; --device cuda is refused (use --device cpu)" in text
     d["methods"] = d["methods"][:1]
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
