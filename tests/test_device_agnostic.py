@@ -108,8 +108,14 @@ def _azimuth() -> dict:
     methods = [m for m in DETECTIONS if m["kind"] in ("s_msjpda", "p_msjpda", "bp", "jpda_learned_gain", "stonesoup")
                and m["name"] != "bp two scans"]
     phd = {"name": "smc_phd", "kind": "smc_phd", "options": {"particles_per_target": 100, "particles_per_birth": 50}}
-    return _designed([{**m, "name": f"{m['name']} azimuth"} for m in methods] + [phd],
+    two_scans = {"name": "p_msjpda two scans azimuth", "kind": "p_msjpda",  # the multi-scan initiator around it
+                 "options": {"initiation": "detections", "init_scans": 2, "fix_covariance": "unscented"}}
+    return _designed([{**m, "name": f"{m['name']} azimuth"} for m in methods] + [two_scans, phd],
                      detections={"pd": 0.9, "clutter": CLUTTER})
+
+
+MARGINAL = {"e_step": "marginal", "anneal": 3.0, "tolerance_m": 1.0}
+"""PMHT's other E-step, with annealing and the early stop."""
 
 
 def _from_start() -> dict:
@@ -117,14 +123,17 @@ def _from_start() -> dict:
     targets = [TWO[0], {"name": "b", **_flight(7800.0, 140.0, 12.0, 0.0, 30.0)}]
     return _designed([{"name": "true_assignment", "kind": "true_assignment"},
                       {"name": "true_assignment_smoother", "kind": "true_assignment_smoother"},
-                      {"name": "pmht", "kind": "pmht"}, {"name": "pmht_3d", "kind": "pmht_3d"}], targets=targets,
+                      {"name": "pmht", "kind": "pmht"}, {"name": "pmht_3d", "kind": "pmht_3d"},
+                      {"name": "pmht_3d marginal", "kind": "pmht_3d", "options": MARGINAL}], targets=targets,
                      detections={"pd": 0.9, "clutter": CLUTTER})
 
 
 def _pooled() -> dict:
     """The one_sky network (a single-frequency network) with lists pooled per receiver."""
     return _designed([{"name": "bp_3d", "kind": "bp_3d"},
-                      {"name": "pmht_3d pooled", "kind": "pmht_3d", "options": {"initiation": "detections"}}],
+                      {"name": "pmht_3d pooled", "kind": "pmht_3d", "options": {"initiation": "detections"}},
+                      {"name": "pmht_3d pooled marginal", "kind": "pmht_3d",
+                       "options": {**MARGINAL, "initiation": "detections"}}],
                      recipe=str(ROOT / "datasets/one_sky_fm.yaml"),
                      detections={"pd": 0.9, "illuminator_known": False, "clutter": {**CLUTTER, "per_scan": 4}})
 
@@ -152,18 +161,12 @@ SCENES = {"streams": _streams, "range_rate": _range_rate, "azimuth": _azimuth, "
           "pooled": _pooled, "maps": _maps}
 
 NOT_YET = "not yet device-agnostic (issue 57 item 5)"
-FIX_INITIATOR = "not yet device-agnostic (issue 57 item 5): pmsr_nn/trackers/fix_initiator.py makes tensors without device="
 ROWS = [(scene, m["name"]) for scene, make in SCENES.items() for m in make()["methods"]]
 XFAIL: dict[str, str] = {
-    **{name: NOT_YET for name in ("pmht", "pmht_3d", "pmht_3d pooled", "smc_phd", "smc_phd_pair", "modified_icmb", "pmb",
-                                  "icmb", "detect_then_track", "stonesoup", "stonesoup azimuth")},
-    # their method files (pmsr_nn/methods/pmht.py, phd_pair.py) make R and the pair models without device=
-    "true_assignment_smoother": f"{NOT_YET}: pmsr_nn/methods/pmht.py",
-    "known_association_kf_pair": f"{NOT_YET}: pmsr_nn/methods/phd_pair.py, pmsr_nn/trackers/phd.py",
-    # tracks started from detections with azimuth, and BP's seeds with azimuth: the fix initiator
-    **{name: FIX_INITIATOR for name in ("s_msjpda own tracks azimuth", "s_msjpda bias test azimuth",
-                                        "p_msjpda own tracks azimuth", "jpda_learned_gain own tracks azimuth",
-                                        "bp azimuth", "bp_3d")}}
+    **{name: NOT_YET for name in ("smc_phd", "smc_phd_pair", "modified_icmb", "pmb", "icmb", "detect_then_track",
+                                  "stonesoup", "stonesoup azimuth")},
+    # its method file (pmsr_nn/methods/phd_pair.py) makes the pair models without device=
+    "known_association_kf_pair": f"{NOT_YET}: pmsr_nn/methods/phd_pair.py, pmsr_nn/trackers/phd.py"}
 """Rows whose meta check fails today (strict: one that passes fails the test until its mark goes)."""
 
 
@@ -244,10 +247,9 @@ def test_the_rows_a_kind_runs_on_any_device_are_those_that_pass(scenes):
 
 PACKAGE = ROOT / "pmsr_nn"
 SCANNED = ("trackers", "filters", "methods")
-OUT_OF_SCOPE = {"trackers/pmht.py", "trackers/pmht_em.py", "trackers/pmht_managed.py", "trackers/pmht_model.py",
-                "trackers/phd.py", "trackers/phd_cartesian.py", "trackers/gtda.py", "trackers/fix_initiator.py",
-                "trackers/labelling.py", "methods/pmht.py", "methods/phd.py", "methods/phd_pair.py", "methods/tbd.py",
-                "methods/stonesoup.py", "methods/kind_metrics.py"}
+OUT_OF_SCOPE = {"trackers/phd.py", "trackers/phd_cartesian.py", "trackers/gtda.py", "trackers/labelling.py",
+                "methods/phd.py", "methods/phd_pair.py", "methods/tbd.py", "methods/stonesoup.py",
+                "methods/kind_metrics.py"}
 """Files of kinds that run on the CPU only (strict xfails above), and the kinds' metrics, which
 read the estimates after the runner has moved them to the CPU."""
 CPU_LITERAL = re.compile(r"""device\s*=\s*["']cpu["']|torch\.device\(\s*["']cpu["']\s*\)""")
@@ -334,17 +336,17 @@ def test_the_runner_moves_a_call_to_the_device_and_its_estimates_back(scenes, mo
 def test_kinds_that_run_on_the_cpu_only_are_refused_on_another_device_in_one_line(tmp_path):
     d = _designed([{"name": "S", "kind": "s_msjpda"}, {"name": "stone", "kind": "stonesoup"},
                    {"name": "own", "kind": "s_msjpda", "options": {"initiation": "detections"}},
-                   {"name": "P", "kind": "pmht"}], targets=[TWO[0]], detections={"pd": 0.9, "clutter": CLUTTER})
+                   {"name": "P", "kind": "pmht"}, {"name": "phd", "kind": "smc_phd"}], targets=[TWO[0]],
+                  detections={"pd": 0.9, "clutter": CLUTTER})
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
     sc = load_scenario(tmp_path / "s.yaml")
     prepare(sc)  # the CPU runs every kind
     with pytest.raises(ConfigError) as err:
         prepare(sc, "cuda")
     text = str(err.value)
-    assert "\n" not in text and "'S'" not in text
+    assert "\n" not in text and not any(f"'{m}'" in text for m in ("S", "own", "P"))  # the fix initiator, PMHT: anywhere
     assert "method 'stone': kind stonesoup runs on the CPU only (Stone Soup is NumPy); --device cuda is refused" in text
-    assert "method 'own': kind s_msjpda runs on the CPU only where it starts tracks from detections with azimuth" in text
-    assert "method 'P': kind pmht runs on the CPU only; --device cuda is refused (use --device cpu)" in text
+    assert "method 'phd': kind smc_phd runs on the CPU only; --device cuda is refused (use --device cpu)" in text
     d["methods"] = d["methods"][:1]
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
     assert prepare(load_scenario(tmp_path / "s.yaml"), "cuda").device == "cuda"  # nothing refused, nothing run yet

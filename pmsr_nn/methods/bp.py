@@ -95,14 +95,6 @@ def check_sensing(spec, sensing) -> None:
             raise ConfigError(f"method {spec.name!r}: {exc}") from None
 
 
-def _any_device(spec, sensing) -> tuple[bool, str]:
-    """``any_device`` of the BP kinds: not with azimuth, where a detection's seed is a fix of the
-    fix initiator's arithmetic (:func:`~pmsr_nn.trackers.bp_tracker.one_detection_seed`)."""
-    if "azimuth" in sensing.detection_model.components:
-        return False, " with azimuth (its seeds use the fix initiator, not device-agnostic yet)"
-    return True, ""
-
-
 def _pooled(spec, sensing) -> bool:
     """Whether the row reads lists pooled per receiver: ``bp_3d`` where the scenario pools them."""
     return spec.kind == "bp_3d" and not sensing.illuminator_known
@@ -131,12 +123,12 @@ OPTIONS = {"gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12),
            "init_gate_probability": Option(0.999, float, 0.5, 1.0 - 1e-12), **INIT_SCAN_OPTIONS,
            "iterations": Option(100, int, 1, 100_000), "tolerance": Option(1e-8, float, 0.0, 1.0)}
 register(MethodKind("bp", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
-                    any_device=_any_device, batchable=True,
+                    any_device=True, batchable=True,
                     description="multisensor belief-propagation tracker (TOMB/P with BP association, Meyer et al., "
                                 "Proc. IEEE 2018), pair by pair; starts, confirms and deletes its own tracks by existence"))
 register(MethodKind("bp_3d", "detections", run_bp, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
                     # not batchable: its pooled lists, padded to the longest run's, made a joined call slower
                     # (benchmarks/RESULTS.md, "Several blocks per tracker call")
-                    pooled_lists=True, any_device=_any_device,
+                    pooled_lists=True, any_device=True,
                     description="the belief-propagation tracker on the lists a single-frequency-network receiver has "
                                 "(pooled, the illuminator unknown: each pair reads its receiver's list); elsewhere as bp"))

@@ -27,7 +27,7 @@ from ..trackers.msjpda import msjpda
 from ..trackers.msjpda_managed import managed_msjpda
 from . import MethodCall, MethodKind, Option, ReadWhen, register
 from .msjpda import OPTIONS, settings
-from .track_management import any_device_initiation, check_initiation, management
+from .track_management import check_initiation, management
 
 
 def _load(spec, context):
@@ -80,6 +80,6 @@ register(MethodKind("jpda_learned_gain", "detections", run_learned_gain,
                      "bias_action": Option("delete", str, choices=("delete", "learn"), read_when=ReadWhen("bias_window")),
                      "consistency_probability": Option(0.99, float, 0.5, 1.0 - 1e-12, nullable=True,
                                                        null="the learned gain acts at every step")},
-                    needs_checkpoint=True, load=_load, check_sensing=check_initiation, any_device=any_device_initiation,
+                    needs_checkpoint=True, load=_load, check_sensing=check_initiation, any_device=True,
                     description="S-MSJPDA with a learned correction of its gain (pmsr train train/jpda_gain.yaml); "
                                 "initiation: oracle or detections"))

@@ -33,8 +33,7 @@ from ..trackers.msjpda import JPDASettings, msjpda, true_assignment_ukf
 from ..trackers.msjpda_managed import managed_msjpda
 from . import MethodCall, MethodKind, Option, ReadWhen, register
 from .kind_metrics import DualityGap, TrackLoss
-from .track_management import (BIAS_OPTIONS, MANAGEMENT_OPTIONS, any_device_initiation, check_initiation,
-                               clutter_density, management)
+from .track_management import BIAS_OPTIONS, MANAGEMENT_OPTIONS, check_initiation, clutter_density, management
 
 ARCHITECTURE = {"s_msjpda": "sequential", "p_msjpda": "parallel"}
 
@@ -91,11 +90,11 @@ OPTIONS = {"m_best": Option(10, int, 1, 100_000), "gate_probability": Option(0.9
            "m_best_search": Option("branch_and_bound", str, choices=M_BEST_SEARCHES), **MANAGEMENT_OPTIONS,
            **BIAS_OPTIONS}  # the innovation bias test: S-MSJPDA from detections only
 register(MethodKind("s_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation, metrics=(TrackLoss(),),
-                    any_device=any_device_initiation, batchable=True,
+                    any_device=True, batchable=True,
                     description="sequential multi-sensor JPDA (Lyu & Wang, IEEE Access 2019), pair by pair; "
                                 "initiation: oracle (handed the births) or detections (starts its own tracks)"))
 register(MethodKind("p_msjpda", "detections", run_msjpda, OPTIONS, check_sensing=check_initiation,
-                    metrics=(TrackLoss(), DualityGap()), any_device=any_device_initiation,
+                    metrics=(TrackLoss(), DualityGap()), any_device=True,
                     batchable=True,  # the gap of a joined call: its largest
                     description="parallel multi-sensor JPDA, (N+1)-D joint events (Lyu & Wang, IEEE Access 2019); "
                                 "initiation: oracle or detections"))

@@ -64,23 +64,25 @@ def lists_of(call: MethodCall) -> AssociationLists:
 
 def run_pmht(call: MethodCall) -> Estimates:
     m, s = call.models, call.sensing
+    R = s.detection_model.R(device=call.product.scans.z.device)
     if call.spec.option("initiation") == "detections":
         pooled = call.spec.kind == "pmht_3d" and call.product.pooled is not None
         rep = managed_pmht(call.product.pooled if pooled else call.product.scans, m.motion, m.dt, m.q, s.detection_model,
-                           s.detection_model.R(), settings(call), management(call.spec, s, pooled))
+                           R, settings(call), management(call.spec, s, pooled))
         return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
-    res = pmht(lists_of(call), call.product.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R(),
-               settings(call))
+    res = pmht(lists_of(call), call.product.prior, m.motion, m.dt, m.q, s.detection_model, R, settings(call))
     B, K, N = res.x.shape[:3]
-    return Estimates(res.x, torch.ones(B, K, N, dtype=torch.bool), res.P)
+    return Estimates(res.x, torch.ones(B, K, N, dtype=torch.bool, device=res.x.device), res.P)
 
 
 def run_true_assignment_smoother(call: MethodCall) -> Estimates:
     m, s, det = call.models, call.sensing, call.product
-    res = true_assignment_ukf(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, s.detection_model.R())
+    dev = det.scans.z.device
+    R = s.detection_model.R(device=dev)
+    res = true_assignment_ukf(det.scans, det.prior, m.motion, m.dt, m.q, s.detection_model, R)
     B, K, N, n = res.x.shape
     rows = lambda t: t.transpose(1, 2).reshape(B * N, K, *t.shape[3:])
-    sm = rts_backward(rows(res.x), rows(res.P), m.motion.F(m.dt), m.motion.Q(m.dt, m.q))
+    sm = rts_backward(rows(res.x), rows(res.P), m.motion.F(m.dt, device=dev), m.motion.Q(m.dt, m.q, device=dev))
     back = lambda t: t.reshape(B, N, K, *t.shape[2:]).transpose(1, 2)
     return Estimates(back(sm.x), call.alive.expand(B, K, N), back(sm.P))
 
@@ -114,14 +116,14 @@ OPTIONS = {"window": Option(10, int, 1, 100_000), "overlap": Option(3, int, 0, 9
            **MANAGEMENT_OPTIONS}
 OPTIONS_3D = {**OPTIONS, "wide_kappa": Option(4.0, float, 1.0, 1e4), "wide_weight": Option(0.5, float, 0.0, 0.99)}
 register(MethodKind("pmht", "detections", run_pmht, OPTIONS, causal=lambda r: False, check=_check_pmht,
-                    check_sensing=_check_sensing,
+                    check_sensing=_check_sensing, any_device=True,
                     description="PMHT with an unscented smoother, illuminator of each detection given "
                                 "(Streit & Luginbuhl 1995); smoothed, not causal; initiation: oracle or detections"))
 register(MethodKind("pmht_3d", "detections", run_pmht, OPTIONS_3D, causal=lambda r: False, check=_check_pmht,
-                    check_sensing=_check_sensing, pooled_lists=True,
+                    check_sensing=_check_sensing, pooled_lists=True, any_device=True,
                     description="target-detection-illuminator PMHT with a Gaussian scale mixture "
                                 "(Li et al., JEIT 2021): per receiver, illuminator unknown; initiation: oracle or "
                                 "detections (also from the pooled lists)"))
 register(MethodKind("true_assignment_smoother", "detections", run_true_assignment_smoother, {},
-                    causal=lambda r: False, check=_all_throughout,
+                    causal=lambda r: False, check=_all_throughout, any_device=True,
                     description="reference: a UKF + RTS smoother per target on exactly its own detections"))

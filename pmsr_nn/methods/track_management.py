@@ -188,17 +188,6 @@ def management(spec, sensing, pooled: bool = False) -> Management:
                       o("existence") == "jipda", o("explained_by"))
 
 
-FIX_INITIATOR_CPU = " where it starts tracks from detections with azimuth (the fix initiator, not device-agnostic yet)"
-
-
-def any_device_initiation(spec, sensing) -> tuple[bool, str]:
-    """A kind's ``any_device`` (:func:`~pmsr_nn.methods.runs_on_any_device`) for a row that may start
-    its own tracks: on any device unless it does so from detections with azimuth (the fix initiator)."""
-    if starts_own_tracks(spec) and "azimuth" in sensing.detection_model.components:
-        return False, FIX_INITIATOR_CPU
-    return True, ""
-
-
 def check_initiation(spec, sensing, pooled: bool = False) -> None:
     """Refuses, in one line naming the row, track management that could never confirm a track,
     detections no initiator can start tracks from, and an innovation bias test on a row that

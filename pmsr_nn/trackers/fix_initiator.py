@@ -26,8 +26,8 @@ def range_azimuth_fix(z: torch.Tensor, model: MeasurementModel) -> tuple[torch.T
     measured azimuth meets the pair's ellipse (range beyond the baseline, finite); 0 where not."""
     comps = model.components
     r, az = z[..., comps.index("range")], z[..., comps.index("azimuth")]
-    tx = model.geometry.pair_tx_positions(z.dtype).to(z.device)[:, None, :]  # (S, 1, 2)
-    rx = model.geometry.pair_rx_positions(z.dtype).to(z.device)[:, None, :]
+    tx = model.geometry.pair_tx_positions(z.dtype, z.device)[:, None, :]  # (S, 1, 2)
+    rx = model.geometry.pair_rx_positions(z.dtype, z.device)[:, None, :]
     base = rx - tx
     u = torch.stack([torch.sin(az), torch.cos(az)], -1)  # azimuth clockwise from north
     L2 = (base * base).sum(-1)
@@ -35,7 +35,7 @@ def range_azimuth_fix(z: torch.Tensor, model: MeasurementModel) -> tuple[torch.T
     rho = (r * r - L2) / denom
     pos = rx + rho.unsqueeze(-1) * u
     ok = torch.isfinite(rho) & (rho > 0) & (r * r > L2)
-    return torch.where(ok.unsqueeze(-1), pos, torch.zeros((), dtype=z.dtype)), ok
+    return torch.where(ok.unsqueeze(-1), pos, torch.zeros((), dtype=z.dtype, device=z.device)), ok
 
 
 FIX_COVARIANCES = ("linearised", "unscented")
@@ -53,14 +53,14 @@ def fix_spread(z: torch.Tensor, model: MeasurementModel, pos: torch.Tensor) -> t
     spreads a fix over hundreds. In the linear regime the two agree."""
     comps = model.components
     rows = [comps.index("range"), comps.index("azimuth")]
-    steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=z.dtype)
+    steps = math.sqrt(3.0) * torch.tensor([model.noise_std[i] for i in rows], dtype=z.dtype, device=z.device)
     moves = [(c, sign * step) for c, step in zip(rows, steps) for sign in (1.0, -1.0)]
     moved = z.expand(len(moves), *z.shape).clone()  # the sigma points, fixed in one call
     for i, (c, step) in enumerate(moves):
         moved[i, ..., c] = moved[i, ..., c] + step
     p, fine = range_azimuth_fix(moved, model)
-    spread = torch.zeros(*pos.shape, 2, dtype=z.dtype)
-    every = torch.ones(pos.shape[:-1], dtype=torch.bool)
+    spread = torch.zeros(*pos.shape, 2, dtype=z.dtype, device=z.device)
+    every = torch.ones(pos.shape[:-1], dtype=torch.bool, device=z.device)
     for i in range(len(moves)):
         dp = p[i] - pos
         spread = spread + dp.unsqueeze(-1) * dp.unsqueeze(-2) / 6.0
@@ -126,11 +126,11 @@ class FixInitiator:
         J = model.jacobian(state).unflatten(-2, (S, len(comps)))  # (B, S, M, S, d, n)
         J = torch.diagonal(J, dim1=1, dim2=3).movedim(-1, 1)  # (B, S, M, d, n)
         H = J[..., [comps.index("range"), comps.index("azimuth")], :][..., pi]  # (B, S, M, 2, 2)
-        sd = torch.tensor([model.noise_std[comps.index("range")], model.noise_std[comps.index("azimuth")]], dtype=z.dtype)
+        sd = torch.tensor([model.noise_std[comps.index(c)] for c in ("range", "azimuth")], dtype=z.dtype, device=z.device)
         det = H[..., 0, 0] * H[..., 1, 1] - H[..., 0, 1] * H[..., 1, 0]
         # the two gradients nearly parallel (the sine of their angle below 1e-6): no fix along it
         ok = ok & (det.abs() > 1e-6 * H[..., 0, :].norm(dim=-1) * H[..., 1, :].norm(dim=-1))
-        H = torch.where(ok[..., None, None], H, torch.eye(2, dtype=z.dtype))
+        H = torch.where(ok[..., None, None], H, torch.eye(2, dtype=z.dtype, device=z.device))
         Hinv = torch.linalg.inv(H)
         cov = Hinv @ torch.diag(sd**2) @ Hinv.transpose(-1, -2)
         if self.covariance == "unscented":  # where a sigma point has no fix, the linearised one
@@ -161,12 +161,13 @@ class FixInitiator:
         later anchors.
         """
         B, S, M = ok.shape
-        src = torch.arange(S) if lists is None else lists
+        dev = ok.device
+        src = torch.arange(S, device=dev) if lists is None else lists
         shared = len(set(src.tolist())) < S
         gamma = gate_threshold(self.gate_probability, 2)
-        free = torch.ones(B, int(src.max()) + 1, M, dtype=torch.bool)  # per list: not in an accepted group
+        free = torch.ones(B, int(src.max()) + 1, M, dtype=torch.bool, device=dev)  # per list: not in an accepted group
         rows = []
-        ar = torch.arange(M)
+        ar = torch.arange(M, device=dev)
         dist = {}  # (c, b): squared distances (B, M, M) of pair c's fixes to pair b's
 
         def d2_of(c: int, b: int) -> torch.Tensor:
@@ -178,9 +179,9 @@ class FixInitiator:
 
         for a in range(S):
             usable = ok & free[:, src]  # (B, S, M)
-            members = torch.full((B, M, S), -1, dtype=torch.int64)
+            members = torch.full((B, M, S), -1, dtype=torch.int64, device=dev)
             members[..., a] = torch.where(usable[:, a], ar, torch.full_like(ar, -1))
-            spread = torch.zeros(B, M, dtype=pos.dtype)  # summed distance of the members to the group
+            spread = torch.zeros(B, M, dtype=pos.dtype, device=dev)  # summed distance of the members to the group
             for b in range(a + 1, S):
                 d2 = d2_of(a, b)
                 agree = inside_gate(d2, gamma) & usable[:, a, :, None] & usable[:, b, None, :]
@@ -190,7 +191,7 @@ class FixInitiator:
                         row = d2_of(c, b).gather(1, m_c.clamp(min=0)[..., None].expand(B, M, M))
                         has_c = (m_c >= 0)[..., None]
                         agree &= ~has_c | inside_gate(row, gamma)
-                        d2 = d2 + torch.where(has_c, row, torch.zeros((), dtype=d2.dtype))
+                        d2 = d2 + torch.where(has_c, row, torch.zeros((), dtype=d2.dtype, device=dev))
                     for c in range(a, b):  # a detection of b's list already in the group under another pair
                         if src[c] == src[b]:
                             agree &= members[..., c, None] != ar
@@ -198,11 +199,11 @@ class FixInitiator:
                 best_d, best = d2.min(-1)  # (B, M): each anchor's nearest agreeing fix of pair b
                 has = torch.isfinite(best_d)
                 # one anchor per fix of pair b: the nearest of those that chose it
-                claim = torch.full((B, M), math.inf, dtype=d2.dtype).scatter_reduce(
+                claim = torch.full((B, M), math.inf, dtype=d2.dtype, device=dev).scatter_reduce(
                     1, best, torch.where(has, best_d, torch.full_like(best_d, math.inf)), "amin")
                 keep = has & (best_d <= claim.gather(1, best))
                 # exact ties: the lowest anchor index keeps the fix
-                first = torch.full((B, M), M, dtype=torch.int64).scatter_reduce(
+                first = torch.full((B, M), M, dtype=torch.int64, device=dev).scatter_reduce(
                     1, best, torch.where(keep, ar.expand(B, M), torch.full_like(best, M)), "amin")
                 keep = keep & (first.gather(1, best) == ar)
                 members[..., b] = torch.where(keep, best, torch.full_like(best, -1))
@@ -213,7 +214,8 @@ class FixInitiator:
             members = torch.where(good[..., None], members, torch.full_like(members, -1))
             for b in range(a, S):  # mark what the accepted groups used
                 idx = members[..., b]
-                used = torch.zeros(B, M + 1, dtype=torch.bool).scatter(1, torch.where(idx >= 0, idx, M), True)[:, :M]
+                used = torch.zeros(B, M + 1, dtype=torch.bool, device=dev).scatter(
+                    1, torch.where(idx >= 0, idx, M), True)[:, :M]
                 free[:, src[b]] &= ~used
             rows.append(members)
         out = torch.cat(rows, 1)  # (B, S*M, S)
@@ -233,23 +235,24 @@ class FixInitiator:
         take = lambda t: t.gather(2, idx.transpose(1, 2)[(...,) + (None,) * (t.dim() - 3)].expand(
             B, S, G, *t.shape[3:])).transpose(1, 2)  # (B, S, M, ...) -> (B, G, S, ...)
         p_i, P_i, z_i = take(pos), take(cov), take(z)
-        eye2 = torch.eye(2, dtype=z.dtype)
+        eye2 = torch.eye(2, dtype=z.dtype, device=z.device)
         info = torch.where(has[..., None, None], torch.linalg.inv(torch.where(has[..., None, None], P_i, eye2)),
-                           torch.zeros((), dtype=z.dtype))
+                           torch.zeros((), dtype=z.dtype, device=z.device))
         Pp = torch.linalg.inv(info.sum(2) + torch.where(real, 0.0, 1.0)[..., None, None] * eye2)
         p = (Pp @ (info @ p_i.unsqueeze(-1)).sum(2)).squeeze(-1)  # (B, G, 2)
         x = z.new_zeros(B, G, n)
         pi, vi = list(model.pos_idx), list(model.vel_idx)
         x[..., pi] = p
-        prec = torch.eye(2, dtype=z.dtype) / self.velocity_sd_mps**2
+        prec = torch.eye(2, dtype=z.dtype, device=z.device) / self.velocity_sd_mps**2
         x[..., vi], Pv = velocity_fit(model, x, z_i, has, prec)
         P = torch.diag_embed(other_sd.to(z.dtype) ** 2).expand(B, G, n, n).clone()
         P[..., pi, :] = 0.0
         P[..., :, pi] = 0.0
         P[..., vi, :] = 0.0
         P[..., :, vi] = 0.0
-        P[..., torch.tensor(pi)[:, None], torch.tensor(pi)] = Pp
-        P[..., torch.tensor(vi)[:, None], torch.tensor(vi)] = Pv
+        ti, tv = torch.tensor(pi, device=z.device), torch.tensor(vi, device=z.device)
+        P[..., ti[:, None], ti] = Pp
+        P[..., tv[:, None], tv] = Pv
         return Gaussian(x, P), real
 
     def initiate(self, z: torch.Tensor, unused: torch.Tensor, model: MeasurementModel, n: int,
@@ -261,7 +264,7 @@ class FixInitiator:
         every pair ending there, each detection fixed once per illuminator hypothesis, and a
         track takes a detection under one hypothesis only (:meth:`groups`)."""
         src = None if routes is None else list_of_pairs(routes)
-        if src is not None and torch.equal(src, torch.arange(len(src))):
+        if src is not None and torch.equal(src, torch.arange(len(src), device=src.device)):
             src = None  # one list per pair
         zp = z if src is None else z[:, src]
         pos, cov, ok = self.fixes(zp, model, n)
@@ -289,16 +292,16 @@ class FixInitiator:
             return groups
         comps = model.components
         rows = [comps.index("range"), comps.index("azimuth")]
-        sd = torch.tensor([model.noise_std[i] for i in rows], dtype=z.dtype)
+        sd = torch.tensor([model.noise_std[i] for i in rows], dtype=z.dtype, device=z.device)
         has = groups >= 0
         idx = groups.clamp(min=0)
         take = lambda t: t.gather(2, idx.transpose(1, 2)[(...,) + (None,) * (t.dim() - 3)].expand(
             B, S, G, *t.shape[3:])).transpose(1, 2)  # (B, S, M, ...) -> (B, G, S, ...)
         zm, pm, Pm = take(z)[..., rows], take(pos), take(cov)
         gates = torch.tensor([math.inf] + [gate_threshold(self.gate_probability, 2 * k - 2) for k in range(2, S + 1)],
-                             dtype=z.dtype)  # by member count; one member: nothing to test
+                             dtype=z.dtype, device=z.device)  # by member count; one member: nothing to test
         pi = list(model.pos_idx)
-        eye = torch.eye(2, dtype=z.dtype)
+        eye = torch.eye(2, dtype=z.dtype, device=z.device)
         for _ in range(S):  # at most one member leaves per round
             info = torch.where(has[..., None, None], torch.linalg.inv(torch.where(has[..., None, None], Pm, eye)), 0.0)
             p = torch.linalg.solve(info.sum(2) + eye * 1e-12, (info @ pm.unsqueeze(-1)).sum(2)).squeeze(-1)  # (B, G, 2)
@@ -317,7 +320,7 @@ class FixInitiator:
             if not bool(bad.any()):
                 break
             worst = torch.where(has, e, -math.inf).argmax(-1, keepdim=True)  # (B, G, 1)
-            has = has & ~(bad[..., None] & (torch.arange(S) == worst))
+            has = has & ~(bad[..., None] & (torch.arange(S, device=worst.device) == worst))
         has = has & (has.sum(-1, keepdim=True) >= self.min_pairs)
         return torch.where(has, groups, torch.full_like(groups, -1))
 
@@ -351,12 +354,12 @@ def _outranked(members: torch.Tensor, good: torch.Tensor, spread: torch.Tensor, 
     B, R, S = members.shape
     M = R
     slot = torch.where(members >= 0, src * M + members, L * M)  # the detection's place over all lists
-    used = torch.zeros(B, R, L * M + 1).scatter_(2, slot, 1.0)[..., :L * M] * good[..., None]
+    used = torch.zeros(B, R, L * M + 1, device=members.device).scatter_(2, slot, 1.0)[..., :L * M] * good[..., None]
     clash = (used @ used.transpose(1, 2)) > 0  # (B, R, R)
     size = (members >= 0).sum(-1)
-    r = torch.arange(R)
+    r = torch.arange(R, device=members.device)
     above = ((size[:, :, None] > size[:, None, :])
              | ((size[:, :, None] == size[:, None, :]) & (spread[:, :, None] < spread[:, None, :]))
              | ((size[:, :, None] == size[:, None, :]) & (spread[:, :, None] == spread[:, None, :])
                 & (r[:, None] < r[None, :])))  # (B, i, j): row i ranks above row j
-    return (clash & above & ~torch.eye(R, dtype=torch.bool)).any(1)
+    return (clash & above & ~torch.eye(R, dtype=torch.bool, device=members.device)).any(1)

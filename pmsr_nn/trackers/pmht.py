@@ -102,7 +102,7 @@ def pmht(lists: AssociationLists, prior: Gaussian, motion: KinematicModel, dt: f
     """PMHT on ``lists`` (``K`` scans), tracks from ``prior`` (``x (B, N, n)`` at scan 0).
 
     ``model``: the pair-layout measurement model (``h`` of a state gives every pair's ``d``
-    values) or any model with ``h``, ``angle_mask``, ``residual`` and ``dim_z`` (one pair);
+    values) or any model with ``h``, ``angle_rows``, ``residual`` and ``dim_z`` (one pair);
     ``R (S d, S d)`` block-diagonal. ``record_objective`` keeps :func:`~.pmht_em.window_objective` after
     every iteration (for checks; it costs one more E-step each).
     """

@@ -94,9 +94,11 @@ class PMHTWindows(Associator):
         self.marginal = pr.settings.e_step == "marginal"
         b = lists.z.shape[0]
         self.X = self.Pm = None
-        self.fresh = torch.ones(b, 0, dtype=torch.bool)  # slots without smoothed covariances from the last window
+        dev = lists.z.device
+        # slots without smoothed covariances from the last window
+        self.fresh = torch.ones(b, 0, dtype=torch.bool, device=dev)
         self.window, self.k = -1, -1
-        self.late = torch.zeros(b, 0, dtype=torch.bool)  # tracks started at the last committed scan
+        self.late = torch.zeros(b, 0, dtype=torch.bool, device=dev)  # tracks started at the last committed scan
 
     def predict(self, g: Gaussian, k: int, F: torch.Tensor, Q: torch.Tensor) -> Gaussian:
         if k not in self.starts:
@@ -122,14 +124,16 @@ class PMHTWindows(Associator):
         self.win = self.lists.take(slice(None), slice(a, a + self.W))
         shift = a - self.starts[i - 1] if i else 0
         self.X = initial_states(pr, g, self.X, shift, self.W, b, C)
-        self.born = torch.full((b, C), -1, dtype=torch.int64)  # scan of the window a track started at (-1: before)
+        dev = g.x.device
+        # scan of the window a track started at (-1: before)
+        self.born = torch.full((b, C), -1, dtype=torch.int64, device=dev)
         if self.marginal:
             Pm = initial_covariances(pr, g, self.Pm, shift, self.W, b, C)
             self.fresh = _pad_slots(self.fresh, C, True, 1)
             self.Pm = _started_covariances(pr, Pm, self.fresh, torch.zeros_like(self.born), g.P)
         self.fit = _WindowFit.empty(self.X, self.lists.z.shape[2], self.lists.z.shape[3], pr.pairs)
-        self.redo = torch.ones(b, dtype=torch.bool)  # runs whose EM must run (again) before this scan
-        self.late = torch.zeros(b, C, dtype=torch.bool)
+        self.redo = torch.ones(b, dtype=torch.bool, device=dev)  # runs whose EM must run (again) before this scan
+        self.late = torch.zeros(b, C, dtype=torch.bool, device=dev)
 
     def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
                   learned: torch.Tensor | None = None) -> AssociationStep:
@@ -143,7 +147,8 @@ class PMHTWindows(Associator):
         if bool(self.redo.any()):
             C = g.x.shape[1]
             self.born = torch.where(associating, self.born, -1)
-            alive = associating[:, None, :] & (self.born[:, None, :] <= torch.arange(self.W)[None, :, None])
+            scans = torch.arange(self.W, device=g.x.device)
+            alive = associating[:, None, :] & (self.born[:, None, :] <= scans[None, :, None])
             # g: the prior at the window's first scan of a track that was there, the initiator's
             # Gaussian of one started inside it (the smoother's start at its scan)
             rows = self.redo.nonzero()[:, 0]
@@ -160,7 +165,7 @@ class PMHTWindows(Associator):
 
     def tracks_started(self, started: torch.Tensor | None, g: Gaussian) -> None:
         C = g.x.shape[1]
-        self.late = torch.zeros(g.x.shape[:2], dtype=torch.bool) if started is None else started
+        self.late = torch.zeros(g.x.shape[:2], dtype=torch.bool, device=g.x.device) if started is None else started
         self.redo = self.late.any(-1)
         if bool(self.redo.any()):
             kk = self.k - self.starts[self.window]
@@ -222,7 +227,7 @@ def _window_em(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, win: Associati
     marginal = P is not None
     X, P = X.clone(), (P.clone() if marginal else X.new_zeros(b, W, C, n, n))
     hx, hP = X.new_zeros(b, C, n), X.new_zeros(b, C, n, n)
-    todo = torch.arange(b)
+    todo = torch.arange(b, device=X.device)
     for it in range(s.em_iterations):
         g = Gaussian(prior.x[todo].reshape(-1, n), prior.P[todo].reshape(-1, n, n))
         X_new, P_new, handed, _ = em_step(pr, X[todo], g, win.take(todo), s.inflation(it), h, alive[todo],
@@ -254,7 +259,8 @@ def _started_rows(pr: PMHTProblem, X: torch.Tensor, rows: torch.Tensor, born: to
     predictions after and the same mean before (where they explain nothing)."""
     W = X.shape[1]
     powers = torch.stack([torch.linalg.matrix_power(pr.F, k) for k in range(W)])  # (W, n, n)
-    steps = (torch.arange(W)[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
+    scans = torch.arange(W, device=born.device)
+    steps = (scans[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
     xk = (powers[steps] @ x0[:, None, :, :, None]).squeeze(-1)
     return torch.where(rows[:, None, :, None], xk, X)
 
@@ -266,6 +272,7 @@ def _started_covariances(pr: PMHTProblem, P: torch.Tensor, rows: torch.Tensor, b
     after and the same before (where they explain nothing)."""
     b, W, C = P.shape[:3]
     seq = initial_covariances(pr, Gaussian(P0[..., 0], P0), None, 0, W, b, C)  # (b, W, C, n, n): j steps after the start
-    steps = (torch.arange(W)[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
+    scans = torch.arange(W, device=born.device)
+    steps = (scans[None, :, None] - born[:, None, :]).clamp(0, W - 1)  # (b, W, C)
     Pk = seq.gather(1, steps[..., None, None].expand(*steps.shape, *P.shape[-2:]))
     return torch.where(rows[:, None, :, None, None], Pk, P)

@@ -208,7 +208,7 @@ def problem(model, motion: KinematicModel, dt: float, q, R: torch.Tensor, s: PMH
     kappa, log_c = s.mixture(dtype, device)
     return PMHTProblem(model, motion.F(dt, dtype, device), motion.Q(dt, q, dtype, device), R,
                     torch.linalg.solve_triangular(L, eye, upper=False), blocks,
-                    2 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1), model.angle_mask[:d].to(device),
+                    2 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1), model.angle_rows(device)[:d],
                     torch.tensor(s.clutter_rate, dtype=dtype, device=device), kappa, log_c,
                     SigmaPoints().weights(motion.dim_x, dtype, device), s, pair_h(model, dtype, device))
 
