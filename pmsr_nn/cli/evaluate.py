@@ -41,7 +41,8 @@ def add_evaluate(sub) -> None:
                          "$PMSR_WORKERS; 1 on a GPU); the figures are one process's, bit for bit")
     ev.add_argument("--batch-runs", metavar="N", default=1, type=positive_int,
                     help="call each tracker that allows it on N runs at once, in whole blocks of runs (default 1: "
-                         "block by block); a study of one-run blocks runs several times faster, its draws unchanged")
+                         "block by block); in a study of one-run blocks those trackers run 1.4-8x faster per run "
+                         "(benchmarks/RESULTS.md), the draws unchanged")
     ev.add_argument("--device", default="cpu", help="torch device the methods run on (default cpu; the draws and the scoring stay on the CPU; docs/cli.md lists the kinds that run on a GPU)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar and no table")
