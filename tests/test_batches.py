@@ -26,7 +26,7 @@ METHODS = [{"name": "EKF", "kind": "ekf"}, {"name": "PF", "kind": "particle_filt
 ROUNDING = 1e-9
 """Relative agreement of a joined call's figures with block-by-block ones: float64 rounding
 (1.1e-16) grouped differently by a batched matrix product, grown through 100 scans of filter
-recursions (3e-13 measured); a changed association, track start or deletion moves a figure by
+recursions; a changed association, track start or deletion moves a figure by
 orders of magnitude more."""
 
 

@@ -80,13 +80,14 @@ class ClutterSpec:
         return self.density_of()
 
 
-def pad_lists(t: torch.Tensor, M: int, fill) -> torch.Tensor:
-    """``t (B, K, S, M', ...)`` with its list axis padded to ``M`` with ``fill``."""
-    if t.shape[3] >= M:
+def pad_axis(t: torch.Tensor, size: int, fill, dim: int) -> torch.Tensor:
+    """``t`` with its axis ``dim`` padded to ``size`` with ``fill`` (as it is where already that long)."""
+    extra = size - t.shape[dim]
+    if extra <= 0:
         return t
     shape = list(t.shape)
-    shape[3] = M - t.shape[3]
-    return torch.cat([t, t.new_full(shape, fill)], 3)
+    shape[dim] = extra
+    return torch.cat([t, t.new_full(shape, fill)], dim)
 
 
 @dataclass
@@ -112,9 +113,9 @@ class Scans:
         """The runs of ``parts`` one after another, each padded to the longest list ``M`` (padding
         is invalid, NaN, origin :data:`PADDING`: a tracker reads only valid detections)."""
         M = max(p.shape[3] for p in parts)
-        return cls(torch.cat([pad_lists(p.z, M, math.nan) for p in parts]),
-                   torch.cat([pad_lists(p.valid, M, False) for p in parts]),
-                   torch.cat([pad_lists(p.origin, M, PADDING) for p in parts]))
+        return cls(torch.cat([pad_axis(p.z, M, math.nan, 3) for p in parts]),
+                   torch.cat([pad_axis(p.valid, M, False, 3) for p in parts]),
+                   torch.cat([pad_axis(p.origin, M, PADDING, 3) for p in parts]))
 
     def to(self, device: torch.device | str) -> "Scans":
         """The same detections on ``device``."""
@@ -217,7 +218,7 @@ class PooledScans:
     def concat(cls, parts: list["PooledScans"]) -> "PooledScans":
         """The runs of ``parts`` one after another (:meth:`Scans.concat`; the same network's routes)."""
         M = max(p.scans.shape[3] for p in parts)
-        return cls(Scans.concat([p.scans for p in parts]), torch.cat([pad_lists(p.pair, M, -1) for p in parts]),
+        return cls(Scans.concat([p.scans for p in parts]), torch.cat([pad_axis(p.pair, M, -1, 3) for p in parts]),
                    parts[0].routes)
 
     def to(self, device: torch.device | str) -> "PooledScans":

@@ -15,7 +15,7 @@ import torch
 
 from ..filters.gaussian import Gaussian, predict
 from ..motion import KinematicModel
-from ..simulation.detections import PooledScans, Scans
+from ..simulation.detections import PooledScans, Scans, pad_axis
 from .loop import run_tracker
 from .management import Management, TrackReport
 from .own_tracks import OwnTracks
@@ -67,7 +67,7 @@ def managed_pmht(scans: Scans | PooledScans, motion: KinematicModel, dt: float, 
         tracks = OwnTracks(management, model, motion.dim_x, settings.pd, lists.z.dtype, **initiate)
         parts.append(run_tracker(chunk, motion, dt, q, PMHTWindows(pr, chunk, starts, list(motion.pos_idx)), tracks))
     N = max(p.x.shape[2] for p in parts)
-    cat = lambda name, fill: torch.cat([_pad_slots(getattr(p, name), N, fill) for p in parts], 0)
+    cat = lambda name, fill: torch.cat([pad_axis(getattr(p, name), N, fill, 2) for p in parts], 0)
     return TrackReport(cat("x", math.nan), cat("P", 0.0), cat("exists", False), cat("existence", 0.0)).trimmed()
 
 
@@ -107,7 +107,7 @@ class PMHTWindows(Associator):
         # started at the last committed scan (after that EM) predicted from its initiator
         fit = self.fit.padded(g.x.shape[1])
         step = predict(g, self.pr.F, self.pr.Q)
-        late = _pad_slots(self.late, g.x.shape[1], False, 1)
+        late = pad_axis(self.late, g.x.shape[1], False, 1)
         if self.marginal:  # the smoothed covariances the next window starts from; late tracks have none
             self.Pm, self.fresh = fit.P, late.clone()
         return Gaussian(torch.where(late[..., None], step.x, fit.handed.x),
@@ -129,7 +129,7 @@ class PMHTWindows(Associator):
         self.born = torch.full((b, C), -1, dtype=torch.int64, device=dev)
         if self.marginal:
             Pm = initial_covariances(pr, g, self.Pm, shift, self.W, b, C)
-            self.fresh = _pad_slots(self.fresh, C, True, 1)
+            self.fresh = pad_axis(self.fresh, C, True, 1)
             self.Pm = _started_covariances(pr, Pm, self.fresh, torch.zeros_like(self.born), g.P)
         self.fit = _WindowFit.empty(self.X, self.lists.z.shape[2], self.lists.z.shape[3], pr.pairs)
         self.redo = torch.ones(b, dtype=torch.bool, device=dev)  # runs whose EM must run (again) before this scan
@@ -169,10 +169,10 @@ class PMHTWindows(Associator):
         self.redo = self.late.any(-1)
         if bool(self.redo.any()):
             kk = self.k - self.starts[self.window]
-            self.born = torch.where(self.late, kk, _pad_slots(self.born, C, -1, 1))
-            self.X = _started_rows(self.pr, _pad_slots(self.X, C, 0.0), self.late, self.born, g.x)
+            self.born = torch.where(self.late, kk, pad_axis(self.born, C, -1, 1))
+            self.X = _started_rows(self.pr, pad_axis(self.X, C, 0.0, 2), self.late, self.born, g.x)
             if self.marginal:
-                self.Pm = _started_covariances(self.pr, _pad_slots(self.Pm, C, 0.0), self.late, self.born, g.P)
+                self.Pm = _started_covariances(self.pr, pad_axis(self.Pm, C, 0.0, 2), self.late, self.born, g.P)
 
 
 @dataclass
@@ -199,10 +199,10 @@ class _WindowFit:
 
     def padded(self, C: int) -> "_WindowFit":
         """Slots up to ``C``; the new slots are free (no weight, no evidence)."""
-        return _WindowFit(_pad_slots(self.X, C, 0.0), _pad_slots(self.P, C, 0.0),
-                          Gaussian(_pad_slots(self.handed.x, C, 0.0, 1), _pad_slots(self.handed.P, C, 0.0, 1)),
-                          _pad_slots(self.pair_w, C, 0.0), _pad_slots(self.ratio, C, 0.0), self.target_w,
-                          _pad_slots(self.shared, C, 0.0))
+        return _WindowFit(pad_axis(self.X, C, 0.0, 2), pad_axis(self.P, C, 0.0, 2),
+                          Gaussian(pad_axis(self.handed.x, C, 0.0, 1), pad_axis(self.handed.P, C, 0.0, 1)),
+                          pad_axis(self.pair_w, C, 0.0, 2), pad_axis(self.ratio, C, 0.0, 2), self.target_w,
+                          pad_axis(self.shared, C, 0.0, 2))
 
     def put(self, rows: torch.Tensor, part: "_WindowFit") -> "_WindowFit":
         """A copy with the runs ``rows`` replaced by ``part``."""
@@ -240,16 +240,6 @@ def _window_em(pr: PMHTProblem, X: torch.Tensor, prior: Gaussian, win: Associati
             if len(todo) == 0:
                 break
     return _WindowFit(X, P, Gaussian(hx, hP), *window_evidence(pr, X, win, alive))
-
-
-def _pad_slots(t: torch.Tensor, C: int, fill, dim: int = 2) -> torch.Tensor:
-    """``t`` with its slot axis ``dim`` padded to ``C`` with ``fill``."""
-    extra = C - t.shape[dim]
-    if extra <= 0:
-        return t
-    shape = list(t.shape)
-    shape[dim] = extra
-    return torch.cat([t, t.new_full(shape, fill)], dim)
 
 
 def _started_rows(pr: PMHTProblem, X: torch.Tensor, rows: torch.Tensor, born: torch.Tensor,
