@@ -350,13 +350,18 @@ def fault_census_before_after(before: dict, after: dict) -> list[str]:
 
 SET_TRACKER_GPU = "benchmarks/results/set_tracker_h200.json"
 SET_TRACKER_CPU = "benchmarks/results/set_tracker_cpu.json"
+SET_TRACKER_COMMIT = "4699b3d"
+"""The commit that last held the set tracker and benchmarks/bench_set_tracker.py (removed from the
+package under issue 56); the records' commands ran that script."""
 
 
 def bench_set_tracker(gpu: dict, cpu: dict) -> list[str]:
     """The set tracker's seconds per run of 240 scans on the device machine's GPU and on the 2-core CPU
-    (benchmarks/bench_set_tracker.py, one JSON each); the commands as the document gives them."""
+    (benchmarks/bench_set_tracker.py, one JSON each; the script is at commit ``SET_TRACKER_COMMIT``);
+    the commands as the document gives them."""
     g, c = gpu["cuda"]["seconds_per_run"], cpu["cpu"]["seconds_per_run"]
-    return ["| device | command, date | s per run of 240 scans | record |", "|---|---|---:|---|",
+    return ["| device | command (at commit " + SET_TRACKER_COMMIT + "), date | s per run of 240 scans | record |",
+            "|---|---|---:|---|",
             row([f"{gpu['cuda']['name']} (device machine, torch {gpu['torch']})",
                  "`python benchmarks/bench_set_tracker.py --checkpoint runs/set_tracker_s0/tracker.pt --runs "
                  f"{gpu['runs']} --repeats 3 --devices cuda`, {gpu['date']}, right after the training in the same device call",

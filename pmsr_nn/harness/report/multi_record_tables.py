@@ -181,7 +181,8 @@ SET_TRACKER_DIAGNOSIS = tuple(f"evaluate/results/set_tracker_diagnosis/s{seed}_r
 
 def set_tracker_diagnosis(*records: dict) -> list[str]:
     """evaluate/set_tracker_diagnosis.py's stages per seed and re-association rounds (one record
-    each, ``SET_TRACKER_DIAGNOSIS``'s order): GOSPA beside the empty set's, missed and false per
+    each, ``SET_TRACKER_DIAGNOSIS``'s order; the script left the package with the set tracker under
+    issue 56 and is at commit 4699b3d): GOSPA beside the empty set's, missed and false per
     window, the seeds' and the association's shares, position errors, existence probabilities."""
     (empty,) = {round(r["gospa_empty_set_m"]) for r in records}
     out = [f'| seed, re-association rounds | GOSPA (m), "no target" {empty} | missed / false per window '
