@@ -1,7 +1,7 @@
 """pmsr_nn: target tracking in multistatic passive radar.
 
 Simulators, learned trackers (DFNN / MDFNN / RNN / KalmanNet-style filter, and on detections a
-learned JPDA gain and a set tracker), classical filters and bounds, and an
+learned JPDA gain), classical filters and bounds, and an
 evaluation harness that runs them all on the same Monte Carlo draws.
 """
 

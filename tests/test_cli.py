@@ -232,7 +232,8 @@ def test_a_recipe_without_sensors_is_refused_naming_the_file(tmp_path, capsys):
 
 def test_the_train_help_names_every_kind_train_trains(capsys):
     """``pmsr --help`` once said "DFNN / MDFNN / RNN"; every model kind of the training config and
-    both trackers on detections (the kinds ``pmsr train`` hands to their own trainers) must be named."""
+    the tracker on detections (the kind ``pmsr train`` hands to its own trainer) must be named, and
+    the set tracker (removed under issue 56) no longer."""
     from typing import get_args, get_type_hints
 
     from pmsr_nn.nets.config import ModelConfig
@@ -242,7 +243,56 @@ def test_the_train_help_names_every_kind_train_trains(capsys):
     line = " ".join(re.search(r"^    train +(.*?)\n    select", capsys.readouterr().out, re.M | re.S)[1].split())
     kinds = get_args(get_type_hints(ModelConfig)["kind"])
     assert set(kinds) == {"mdfnn", "dfnn", "rnn", "kalmannet"}
-    assert all(k in line.lower() for k in kinds) and "jpda_gain" in line and "set_tracker" in line
+    assert all(k in line.lower() for k in kinds) and "jpda_gain" in line and "set_tracker" not in line
+
+
+SET_TRACKER_META = {"format": "pmsr_nn.set_tracker", "format_version": 1, "pmsr_nn_version": "0.1.0",
+                    "model": {"window": 6, "d_model": 16}, "components": ["range", "range_rate", "azimuth"],
+                    "noise_std": [30.0, 2.0, 0.05], "pos_idx": [0, 1, 2], "vel_idx": [3, 4, 5], "dt_s": 1.0,
+                    "dim_x": 9, "training": {"seed": 0}}
+"""The ``pmsr`` block of a checkpoint of the end-to-end set tracker (``set_metadata`` at 4699b3d,
+geometry left out), removed from the package under issue 56."""
+
+
+def test_a_checkpoint_of_the_removed_set_tracker_is_refused_in_one_line_by_every_reader(tmp_path, capsys):
+    """A set-tracker checkpoint given to the package (kind learned, ``pmsr track``, ``pmsr export-onnx``,
+    kind jpda_learned_gain) is refused in one line naming what it was and the commit that has its
+    code, not read as a foreign file or a crash, and nothing is written."""
+    import torch
+
+    from pmsr_nn.errors import CheckpointError
+    from pmsr_nn.nets.checkpoint import read_checkpoint
+    from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
+
+    ck = tmp_path / "tracker.pt"
+    torch.save({"pmsr": SET_TRACKER_META, "state_dict": {"encoder.weight": torch.zeros(2, 2)}}, ck)
+    why = f"{ck} is a checkpoint of the end-to-end set tracker, removed from the package under issue 56"
+    for read in (read_checkpoint, load_gain_checkpoint):  # kind learned, pmsr track / export-onnx; jpda_learned_gain
+        with pytest.raises(CheckpointError, match="removed from the package under issue 56") as exc:
+            read(ck)
+        assert str(exc.value).startswith(why) and "4699b3d" in str(exc.value) and "\n" not in str(exc.value)
+    z = tmp_path / "z.csv"
+    z.write_text("time_s,r1\n0,1\n")
+    for argv in (["track", "--checkpoint", str(ck), "--input", str(z), "--out", str(tmp_path / "est.csv")],
+                 ["export-onnx", "--checkpoint", str(ck), "--out", str(tmp_path / "t.onnx")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"pmsr: error: {why}") and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tracker.pt", "z.csv"]
+
+
+def test_a_set_tracker_training_config_is_refused_in_one_line(tmp_path, capsys):
+    """``kind: set_tracker`` (train/set_tracker.yaml at 4699b3d) names what left the package and
+    where it is, and writes nothing."""
+    config = tmp_path / "set_tracker.yaml"
+    config.write_text(yaml.safe_dump({"kind": "set_tracker", "name": "set_tracker", "seed": 0,
+                                      "recipe": str(RECIPE), "model": {"d_model": 128}}))
+    assert main(["train", str(config), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"pmsr: error: {config}: kind set_tracker is the end-to-end set tracker, removed from the package "
+                   "under issue 56 (evaluate/RESULTS.md; its code is at commit 4699b3d); this pmsr_nn does not "
+                   "train it\n")
+    assert not (tmp_path / "run").exists()
 
 
 TINY_SCENARIO = """\

@@ -190,9 +190,6 @@ RULES = [
     Rule(r"python (evaluate|benchmarks)/\w+\.py( evaluate/\w+\.yaml)?( --\S+( [^-\s]\S*)*)*"),
     Rule(r"pmsr train train/jpda_gain\.yaml --out runs/jpda_gain_s0 seed=0", lambda a: [*a, *TINY_SCENES,
                                                                                      "scenes.window=10"]),
-    Rule(r"pmsr train train/set_tracker\.yaml --out runs/set_tracker_s0 seed=0",
-         lambda a: [*a, *TINY_SCENES, "accelerator=cpu", "model.d_model=16", "model.heads=2", "model.encoder_layers=1",
-                    "model.decoder_layers=1"]),
 ]
 
 

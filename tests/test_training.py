@@ -604,10 +604,10 @@ def test_a_training_in_process_gives_back_the_callers_threads_and_determinism(tm
         torch.use_deterministic_algorithms(before[1])
 
 
-@pytest.mark.parametrize("module, entry", [("set_training", "train_set"), ("jpda_training", "train_gain")])
+@pytest.mark.parametrize("module, entry", [("jpda_training", "train_gain")])
 def test_the_scene_trainings_give_back_the_callers_threads_even_when_they_fail(monkeypatch, module, entry):
-    """The set tracker's and the learned gain's trainings set ``threads`` for their own run only,
-    and hand the caller its settings back also when the run raises."""
+    """The learned gain's training sets ``threads`` for its own run only, and hands the caller its
+    settings back also when the run raises."""
     import importlib
     from types import SimpleNamespace
 

@@ -12,10 +12,10 @@ def add_train(sub) -> None:
     t = sub.add_parser(
         "train",
         help="train a learned tracker (DFNN / MDFNN / RNN / KalmanNet-style filter on measurement streams; "
-        "jpda_gain / set_tracker on detections)",
+        "jpda_gain on detections)",
         description="Train a tracker from a YAML config (train/*.yaml) into a run folder: a network on "
         "measurement streams (model.kind mdfnn, dfnn, rnn or kalmannet), or a tracker on detections "
-        "(kind: jpda_gain or set_tracker, trained on scenes drawn on the fly). Checkpoints "
+        "(kind: jpda_gain, trained on scenes drawn on the fly). Checkpoints "
         "(best and last), TensorBoard logs (RUN/tb), the resolved config, tracker.pt for inference and "
         "metrics.json. KEY=VALUE overrides change any config entry, e.g. trainer.max_epochs=5 "
         "model.filter_order=10. A missing dataset is simulated once into the config's cache_dir.",
@@ -63,9 +63,8 @@ def cmd_train(args) -> int:
     config, overrides = split_overrides(args.config, args.overrides)
     if config is None and not args.resume:
         raise PmsrError("give a training config (e.g. train/smoke.yaml), or --resume an existing run")
-    kind = _detection_tracker_kind(config)
-    if kind is not None:
-        return _train_on_detections(kind, config, overrides, args)
+    if _detection_tracker_kind(config) is not None:
+        return _train_on_detections(config, overrides, args)
     cfg = load_train_config(config, overrides) if config is not None else None
     if args.resume and cfg is None and overrides:
         raise PmsrError("overrides need the config they apply to; a resumed run keeps its own config")
@@ -92,31 +91,35 @@ def cmd_select(args) -> int:
     return 0
 
 
+RETIRED_KINDS = {"set_tracker": "pmsr_nn.set_tracker"}
+"""Training config kinds of trackers this package no longer has (kind -> its checkpoint format in
+:data:`pmsr_nn.nets.checkpoint.RETIRED_FORMATS`, which says what it was and where it lives)."""
+
+
 def _detection_tracker_kind(config: str | None) -> str | None:
-    """``jpda_gain`` or ``set_tracker`` for a config of a tracker on detections, else None."""
+    """``jpda_gain`` for a config of the tracker on detections, else None; a config of a kind in
+    ``RETIRED_KINDS`` is refused in one line."""
     from pathlib import Path
 
     from ..config import load_yaml
+    from ..nets.checkpoint import RETIRED_FORMATS
 
     if config is None or not Path(config).is_file():
         return None
     raw = load_yaml(config)
     kind = raw.get("kind") if isinstance(raw, dict) else None
-    return kind if kind in ("jpda_gain", "set_tracker") else None
+    if isinstance(kind, str) and kind in RETIRED_KINDS:
+        raise PmsrError(f"{config}: kind {kind} is {RETIRED_FORMATS[RETIRED_KINDS[kind]]}; this pmsr_nn does not "
+                        "train it")
+    return kind if kind == "jpda_gain" else None
 
 
-def _train_on_detections(kind: str, config: str, overrides: list[str], args) -> int:
-    """A tracker on detections, trained on scenes drawn on the fly (:mod:`pmsr_nn.nets.jpda_training`,
-    :mod:`pmsr_nn.nets.set_training`)."""
+def _train_on_detections(config: str, overrides: list[str], args) -> int:
+    """The tracker on detections, trained on scenes drawn on the fly (:mod:`pmsr_nn.nets.jpda_training`)."""
     if args.resume:
-        raise PmsrError(f"a {kind} run can not be resumed (its steps draw fresh scenes): train it again into a new --out")
-    if kind == "jpda_gain":
-        from ..nets.jpda_training import load_gain_config, train_gain
+        raise PmsrError("a jpda_gain run can not be resumed (its steps draw fresh scenes): train it again into a new --out")
+    from ..nets.jpda_training import load_gain_config, train_gain
 
-        m = train_gain(load_gain_config(config, overrides), args.out)
-    else:
-        from ..nets.set_training import load_set_config, train_set
-
-        m = train_set(load_set_config(config, overrides), args.out)
+    m = train_gain(load_gain_config(config, overrides), args.out)
     print(f"tracker   {args.out / 'tracker.pt'}   (tensorboard --logdir {args.out / 'tb'})")
     return 0 if m["steps"] > 0 else 1

@@ -27,8 +27,20 @@ from .config import ModelConfig
 
 FORMAT = "pmsr_nn.tracker"
 FORMAT_VERSION = 1
-DETECTION_FORMATS = {"pmsr_nn.jpda_gain": "jpda_learned_gain", "pmsr_nn.set_tracker": "set_tracker"}
+DETECTION_FORMATS = {"pmsr_nn.jpda_gain": "jpda_learned_gain"}
 """Checkpoints of the trackers that read detections (format -> the method kind that reads them)."""
+RETIRED_FORMATS = {"pmsr_nn.set_tracker": "the end-to-end set tracker, removed from the package under issue 56 "
+                                          "(evaluate/RESULTS.md; its code is at commit 4699b3d)"}
+"""Checkpoints of trackers this package no longer has (format -> what it was and where it lives):
+refused in one line by every reader."""
+
+
+def refuse_retired(meta, path: Path) -> None:
+    """A one-line :class:`CheckpointError` where ``meta`` (a checkpoint's ``pmsr`` block) is of a
+    format in ``RETIRED_FORMATS``."""
+    fmt = meta.get("format") if isinstance(meta, dict) else None
+    if isinstance(fmt, str) and fmt in RETIRED_FORMATS:
+        raise CheckpointError(f"{path} is a checkpoint of {RETIRED_FORMATS[fmt]}; no command of this pmsr_nn reads it")
 
 
 def tracker_metadata(model: ModelConfig, manifest: dict, normalisation: dict, **training) -> dict:
@@ -115,6 +127,7 @@ def read_checkpoint(path: str | Path) -> tuple[dict, ModelConfig, dict]:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
         raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): {first}") from None
     meta = blob.get("pmsr") if isinstance(blob, dict) else None
+    refuse_retired(meta, path)
     if isinstance(meta, dict) and meta.get("format") in DETECTION_FORMATS:
         raise CheckpointError(f"{path} is a tracker on detections (kind {DETECTION_FORMATS[meta['format']]} of a "
                               "scenario); this command reads trackers of clean measurement streams")
@@ -155,6 +168,7 @@ def read_blob(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
         raise CheckpointError(f"{path} is not a readable torch checkpoint (truncated or corrupted?): {first}") from None
     meta = blob.get("pmsr") if isinstance(blob, dict) else None
+    refuse_retired(meta, path)
     if not isinstance(meta, dict) or meta.get("format") != fmt:
         found = meta.get("format") if isinstance(meta, dict) else None
         hint = " (a learned tracker of clean streams: use it with kind learned)" if found == FORMAT else ""

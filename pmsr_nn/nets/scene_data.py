@@ -1,7 +1,7 @@
 """Training data for trackers that read detections, drawn on the fly: scenes of several targets
 (:func:`pmsr_nn.simulation.scenes.draw_scenes`) and their detections, with a Pd and a clutter
-count drawn per batch. Shared by the hybrid (:mod:`.jpda_training`) and the set tracker
-(:mod:`.set_training`).
+count drawn per batch, for the hybrid (:mod:`.jpda_training`). (The end-to-end set tracker, removed
+under issue 56, drew its scenes here too; it is at commit 4699b3d.)
 """
 
 from __future__ import annotations

@@ -3,8 +3,9 @@
 A training may set torch's thread count (``threads`` in its config) and Lightning's
 ``deterministic=True`` switches on torch's deterministic algorithms. Both are process-wide, so a
 training called in-process (``pmsr demo``, a notebook, the tests) used to leave them set for
-everything that ran afterwards: two pytest workers that had each trained a set tracker with
-``threads: 2`` then ran every later test on four threads over two cores, several times slower.
+everything that ran afterwards: two pytest workers that had each trained a set tracker (removed
+since, under issue 56) with ``threads: 2`` then ran every later test on four threads over two
+cores, several times slower.
 """
 
 from __future__ import annotations
