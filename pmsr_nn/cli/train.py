@@ -63,8 +63,9 @@ def cmd_train(args) -> int:
     config, overrides = split_overrides(args.config, args.overrides)
     if config is None and not args.resume:
         raise PmsrError("give a training config (e.g. train/smoke.yaml), or --resume an existing run")
-    if _detection_tracker_kind(config) is not None:
-        return _train_on_detections(config, overrides, args)
+    kind = _detection_tracker_kind(config)
+    if kind is not None:
+        return _train_on_detections(kind, config, overrides, args)
     cfg = load_train_config(config, overrides) if config is not None else None
     if args.resume and cfg is None and overrides:
         raise PmsrError("overrides need the config they apply to; a resumed run keeps its own config")
@@ -97,8 +98,8 @@ RETIRED_KINDS = {"set_tracker": "pmsr_nn.set_tracker"}
 
 
 def _detection_tracker_kind(config: str | None) -> str | None:
-    """``jpda_gain`` for a config of the tracker on detections, else None; a config of a kind in
-    ``RETIRED_KINDS`` is refused in one line."""
+    """The kind (``jpda_gain``) of a config of a tracker on detections, else None; a config of a kind
+    in ``RETIRED_KINDS`` is refused in one line."""
     from pathlib import Path
 
     from ..config import load_yaml
@@ -111,15 +112,16 @@ def _detection_tracker_kind(config: str | None) -> str | None:
     if isinstance(kind, str) and kind in RETIRED_KINDS:
         raise PmsrError(f"{config}: kind {kind} is {RETIRED_FORMATS[RETIRED_KINDS[kind]]}; this pmsr_nn does not "
                         "train it")
-    return kind if kind == "jpda_gain" else None
+    return kind if kind in ("jpda_gain",) else None
 
 
-def _train_on_detections(config: str, overrides: list[str], args) -> int:
-    """The tracker on detections, trained on scenes drawn on the fly (:mod:`pmsr_nn.nets.jpda_training`)."""
+def _train_on_detections(kind: str, config: str, overrides: list[str], args) -> int:
+    """A tracker on detections, trained on scenes drawn on the fly (:mod:`pmsr_nn.nets.jpda_training`)."""
     if args.resume:
-        raise PmsrError("a jpda_gain run can not be resumed (its steps draw fresh scenes): train it again into a new --out")
-    from ..nets.jpda_training import load_gain_config, train_gain
+        raise PmsrError(f"a {kind} run can not be resumed (its steps draw fresh scenes): train it again into a new --out")
+    if kind == "jpda_gain":
+        from ..nets.jpda_training import load_gain_config, train_gain
 
-    m = train_gain(load_gain_config(config, overrides), args.out)
+        m = train_gain(load_gain_config(config, overrides), args.out)
     print(f"tracker   {args.out / 'tracker.pt'}   (tensorboard --logdir {args.out / 'tb'})")
     return 0 if m["steps"] > 0 else 1
