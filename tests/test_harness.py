@@ -194,7 +194,7 @@ def test_every_entry_path_hands_one_run_to_execute(tmp_path, monkeypatch):
                  "heading_deg": 0.0, "segments": []}]}, [], "trajectory is empty"),
     ({}, ["--shard", "3/2"], "1 <= I <= N"),
     ({}, ["--shard", "2/3"], "only 2 block"),
-    ({}, ["--checkpoint", "EKF=x.pt"], "not a learned method"),
+    ({}, ["--checkpoint", "EKF=x.pt"], "which reads no checkpoint"),
     ({"methods": [{"name": "EKF", "kind": "ekf", "options": {"particles": 5}}]}, [], "unknown option"),
 ])
 def test_bad_scenarios_get_one_line_errors_and_leave_nothing(tmp_path, capsys, change, extra, message):

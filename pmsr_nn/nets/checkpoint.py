@@ -27,7 +27,7 @@ from .config import ModelConfig
 
 FORMAT = "pmsr_nn.tracker"
 FORMAT_VERSION = 1
-DETECTION_FORMATS = {"pmsr_nn.jpda_gain": "jpda_learned_gain"}
+DETECTION_FORMATS = {"pmsr_nn.jpda_gain": "jpda_learned_gain", "pmsr_nn.nebp": "nebp"}
 """Checkpoints of the trackers that read detections (format -> the method kind that reads them)."""
 RETIRED_FORMATS = {"pmsr_nn.set_tracker": "the end-to-end set tracker, removed from the package under issue 56 "
                                           "(evaluate/RESULTS.md; its code is at commit 4699b3d)"}

@@ -51,7 +51,7 @@ class BPAssociation:
     takes to give ``existence``; ``new_existence (B, M)`` the existence of each detection's new
     potential target (0 for padding); ``legacy (B, M)`` the probability that the detection is a
     track's; ``iterations`` the message passes run, ``change`` the last pass's largest change
-    of a message ``nu``."""
+    of a message ``nu``; ``messages (B, C, M)`` the final ``nu_{m->i}``."""
 
     association: torch.Tensor
     weights: torch.Tensor
@@ -61,6 +61,7 @@ class BPAssociation:
     legacy: torch.Tensor
     iterations: int
     change: float
+    messages: torch.Tensor | None = None
 
 
 def leave_one_out_sum(t: torch.Tensor, dim: int) -> torch.Tensor:
@@ -80,7 +81,7 @@ def leave_one_out_sum(t: torch.Tensor, dim: int) -> torch.Tensor:
 
 def bp_associate(ratio: torch.Tensor, existence: torch.Tensor, pd: float | torch.Tensor,
                  birth: torch.Tensor | None = None, valid: torch.Tensor | None = None, iterations: int = 1000,
-                 tolerance: float = 1e-12) -> BPAssociation:
+                 tolerance: float = 1e-12, start: torch.Tensor | None = None) -> BPAssociation:
     """One pair's association beliefs by BP (module docstring).
 
     ``ratio (B, C, M)`` ``L_im``, the likelihood of detection ``m`` under track ``i`` over the
@@ -92,7 +93,9 @@ def bp_associate(ratio: torch.Tensor, existence: torch.Tensor, pd: float | torch
     behind detection ``m`` relative to clutter (None: no births, a free detection is clutter);
     ``valid (B, M)`` the detections that are not padding (None: all). Messages pass until the
     largest change of a ``nu`` is at most ``tolerance`` or ``iterations`` passes are run
-    (``tolerance = 0``: a fixed count). Float64 throughout; no Python loop over runs or tracks.
+    (``tolerance = 0``: a fixed count), from ``nu = 1`` or from ``start (B, C, M)`` (a learned
+    tracker's training runs a few differentiable passes from the fixed point it found without
+    gradients). Float64 throughout; no Python loop over runs or tracks.
     """
     B, C, M = ratio.shape
     dtype = ratio.dtype
@@ -106,12 +109,12 @@ def bp_associate(ratio: torch.Tensor, existence: torch.Tensor, pd: float | torch
     beta = (r * pd).unsqueeze(-1) * ratio  # (B, C, M)
     beta0 = 1.0 - r * pd  # (B, C)
     xi = 1.0 + mu_b  # (B, M)
-    nu = ratio.new_ones(B, C, M)
+    nu = ratio.new_ones(B, C, M) if start is None else start
     passes, change = 0, 0.0
     while passes < iterations:
         mu = beta / (beta0.unsqueeze(-1) + leave_one_out_sum(beta * nu, -1))  # tracks -> detections
         new = 1.0 / (xi.unsqueeze(1) + leave_one_out_sum(mu, 1))  # detections -> tracks
-        change = float((new - nu).abs().max()) if new.numel() else 0.0
+        change = float((new - nu).detach().abs().max()) if new.numel() else 0.0
         nu = new
         passes += 1
         if change <= tolerance:
@@ -126,4 +129,4 @@ def bp_associate(ratio: torch.Tensor, existence: torch.Tensor, pd: float | torch
     # the detection side from the final messages (at the fixed point it agrees with the tracks')
     mu = beta / (beta0.unsqueeze(-1) + leave_one_out_sum(beta * nu, -1))
     total = xi + mu.sum(1)
-    return BPAssociation(association, given, updated, effective, mu_b / total, mu.sum(1) / total, passes, change)
+    return BPAssociation(association, given, updated, effective, mu_b / total, mu.sum(1) / total, passes, change, nu)

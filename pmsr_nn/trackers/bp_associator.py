@@ -36,10 +36,11 @@ dimension, ``d`` measurement components per pair.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import torch
 
+from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
 from ..measurements import MeasurementModel
 from .bp_association import bp_associate
@@ -47,6 +48,9 @@ from .gating import gate_threshold, inside_gate
 from .jpda_associators import pair_innovations
 from .mixture import pda_collapse
 from .roles import AssociationStep, Associator
+
+if TYPE_CHECKING:
+    from .message_refiner import MessageRefiner
 
 
 @dataclass(frozen=True)
@@ -113,14 +117,17 @@ class BPAssociator(Associator):
     ``lists (S,)`` the detection list each pair reads (None: list ``s`` for pair ``s``): where a
     receiver pools its pairs' detections (the illuminator unknown), each of its pairs reads the
     pooled list in turn, so the illuminator is a third dimension of the association, resolved by
-    which pair's prediction a detection fits (``clutter_density`` then the pooled list's)."""
+    which pair's prediction a detection fits (``clutter_density`` then the pooled list's);
+    ``refiner`` a :class:`~.message_refiner.MessageRefiner` (neural-enhanced BP) that corrects each
+    list's likelihood ratios and new-target weights before the message passing (per-pair lists only)."""
 
     correction = None
 
     def __init__(self, model: MeasurementModel, R: torch.Tensor, pd: float, clutter_density: float,
                  existence: Callable[[], torch.Tensor] | None = None, birth: float = 0.0,
                  gate_probability: float = 0.999, explained: float = 0.5, iterations: int = 1000,
-                 tolerance: float = 1e-10, births: Births | None = None, lists: list[int] | None = None):
+                 tolerance: float = 1e-10, births: Births | None = None, lists: list[int] | None = None,
+                 refiner: "MessageRefiner | None" = None):
         self.lists = list(range(model.n_pairs)) if lists is None else [int(v) for v in lists]
         # the pairs that read each list, in the order of its first pair
         self.groups = [[j for j, v in enumerate(self.lists) if v == l] for l in dict.fromkeys(self.lists)]
@@ -130,6 +137,9 @@ class BPAssociator(Associator):
         rows = [model.rows_for_pairs([s]) for s in range(model.n_pairs)]
         self.subs = [model.for_pairs([s]) for s in range(model.n_pairs)]
         self.R = [R[r][:, r] for r in rows]
+        self.refiner = refiner
+        if refiner is not None and any(len(pairs) > 1 for pairs in self.groups):
+            raise ConfigError("learned message corrections read per-pair lists; these lists are pooled per receiver")
 
     def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
                   learned: torch.Tensor | None = None) -> BPStep:
@@ -142,6 +152,8 @@ class BPAssociator(Associator):
         births = self.births
         mu_u = births.undetected().to(dtype).clone() if births is not None else None
         per_pair, explained, passes = {}, torch.zeros(valid.shape, dtype=torch.bool, device=dev), 0
+        if self.refiner is not None:
+            self.refiner.begin_scan()
         if births is not None:  # every pair's seeds at once: they read the detections alone
             seeds, seedable = births.seed(z[:, self.lists], valid[:, self.lists])
         for pairs in self.groups:
@@ -157,7 +169,12 @@ class BPAssociator(Associator):
             else:  # a new target under any of the list's illuminators
                 birth = (mu_u * births.pd / births.clutter_count * J).unsqueeze(-1).expand(B, M)
             prior = torch.where(active, r, 0.0)
-            bp = bp_associate(ratio, prior.repeat(1, J), self.pd, birth, vl, self.iterations, self.tolerance)
+            if self.refiner is not None:  # learned corrections (J == 1); in training they carry gradients
+                ratio, birth = self.refiner.refine(l, g, inns[0], ratio, birth, prior, zl, vl)
+            bp = bp_associate(ratio.detach(), prior.repeat(1, J), self.pd, birth.detach(), vl, self.iterations,
+                              self.tolerance)
+            if self.refiner is not None:
+                self.refiner.observe(bp, self.pd)
             passes = max(passes, bp.iterations)
             explained[:, l] |= bp.legacy >= self.explained
             for k, j in enumerate(pairs):

@@ -39,6 +39,7 @@ from .bp_associator import Births, BPAssociator, BPStep
 from .fix_initiator import FixInitiator, fix_spread, list_of_pairs
 from .initiators import rate_component
 from .loop import run_tracker
+from .message_refiner import MessageRefiner
 from .management import TENTATIVE, TableTracks, TrackReport, parked_state
 from .msjpda import check_scans
 from .roles import Initiator, MeanCorrection
@@ -205,7 +206,8 @@ class BPTracks(TableTracks):
 
 def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
                settings: BPSettings, other_sd: torch.Tensor, velocity_sd_mps: float = 10.0,
-               initiator: Initiator | None = None, routes: torch.Tensor | None = None) -> TrackReport:
+               initiator: Initiator | None = None, routes: torch.Tensor | None = None,
+               refiner: MessageRefiner | None = None) -> TrackReport:
     """The BP tracker (module docstring) on per-pair detection lists ``scans`` (``z (B, K, S, M,
     d)``) of ``model`` with noise ``R (S d, S d)``, the CV/CA prediction of ``motion`` over ``dt``
     with process noise ``q``. New potential targets are seeded one per detection where the
@@ -215,8 +217,9 @@ def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model:
     ``routes (L, S)`` bool: the scans are ``L`` lists pooled per receiver (pair ``s`` ends at the
     receiver of list ``l``; the illuminator of a detection unknown), which each pair reads in
     turn (:class:`~.bp_associator.BPAssociator`'s ``lists``); ``settings``' clutter is then a
-    pooled list's, and the detections must measure azimuth. Returns the confirmed tracks as
-    reported at each scan."""
+    pooled list's, and the detections must measure azimuth. ``refiner``: NEBP's learned corrections
+    of each list's association inputs (:mod:`.message_refiner`; per-pair lists only). Returns the
+    confirmed tracks as reported at each scan."""
     seeding = "azimuth" in model.components
     lists = None
     if routes is None:
@@ -240,5 +243,6 @@ def bp_tracker(scans: Scans, motion: KinematicModel, dt: float, q: float, model:
                         one_detection_seed(model, n, other_sd, velocity_sd_mps, dtype), s.delete_existence)
     associator = BPAssociator(model, R, s.pd * s.gate_probability, s.clutter_density,
                               existence=lambda: tracks.table.existence, gate_probability=s.gate_probability,
-                              iterations=s.iterations, tolerance=s.tolerance, births=births, lists=lists)
+                              iterations=s.iterations, tolerance=s.tolerance, births=births, lists=lists,
+                              refiner=refiner)
     return run_tracker(scans, motion, dt, q, associator, tracks)

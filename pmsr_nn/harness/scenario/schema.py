@@ -335,14 +335,19 @@ class Scenario(StudyFile):
 
     def with_checkpoints(self, checkpoints: dict[str, str]) -> "Scenario":
         """Swap the checkpoint of named learned methods (``--checkpoint NAME=PATH``); the new
-        paths are taken as given (relative to the working directory)."""
+        paths are taken as given (relative to the working directory). Any kind that reads a
+        checkpoint (``learned``, ``jpda_learned_gain``, ``nebp``) takes one."""
+        from ...methods import registry
+
+        kinds = registry()
         by_name = {m.name: m for m in self.methods}
         for name in checkpoints:
             if name not in by_name:
                 raise ConfigError(f"--checkpoint {name}=...: the scenario has no method {name!r} "
                                   f"(methods: {', '.join(by_name)})")
-            if by_name[name].kind != "learned":
-                raise ConfigError(f"--checkpoint {name}=...: {name!r} is a {by_name[name].kind}, not a learned method")
+            kind = kinds.get(by_name[name].kind)
+            if kind is None or not kind.needs_checkpoint:
+                raise ConfigError(f"--checkpoint {name}=...: {name!r} is a {by_name[name].kind}, which reads no checkpoint")
         methods = tuple(dataclasses.replace(m, checkpoint=str(Path(checkpoints[m.name]).resolve()))
                         if m.name in checkpoints else m for m in self.methods)
         return self.replace(methods=methods)
