@@ -110,7 +110,8 @@ def _azimuth() -> dict:
     phd = {"name": "smc_phd", "kind": "smc_phd", "options": {"particles_per_target": 100, "particles_per_birth": 50}}
     two_scans = {"name": "p_msjpda two scans azimuth", "kind": "p_msjpda",  # the multi-scan initiator around it
                  "options": {"initiation": "detections", "init_scans": 2, "fix_covariance": "unscented"}}
-    return _designed([{**m, "name": f"{m['name']} azimuth"} for m in methods] + [two_scans, phd],
+    nebp = {"name": "nebp azimuth", "kind": "nebp", "checkpoint": "nebp.pt"}  # learned corrections on BP
+    return _designed([{**m, "name": f"{m['name']} azimuth"} for m in methods] + [two_scans, phd, nebp],
                      detections={"pd": 0.9, "clutter": CLUTTER})
 
 
@@ -174,7 +175,7 @@ def _gain_checkpoint(folder: Path, scenario: dict) -> None:
     """An untrained gain checkpoint (its output layer drawn, so the correction acts) for the scene's sensors."""
     from pmsr_nn.nets.jpda_gain import GainNet, gain_metadata, save_gain_checkpoint
 
-    plain = {**scenario, "methods": [m for m in scenario["methods"] if m["kind"] != "jpda_learned_gain"]}
+    plain = {**scenario, "methods": [m for m in scenario["methods"] if m["kind"] not in ("nebp", "jpda_learned_gain")]}
     (folder / "plain.yaml").write_text(yaml.safe_dump(plain))
     det = prepare(load_scenario(folder / "plain.yaml")).cases[0].sensing.detection_model
     net = GainNet(det.n_pairs, len(det.components), 6, hidden=8)
@@ -185,11 +186,30 @@ def _gain_checkpoint(folder: Path, scenario: dict) -> None:
     save_gain_checkpoint(folder / "gain.pt", meta, net)
 
 
+def _nebp_checkpoint(folder: Path, scenario: dict) -> None:
+    """An untrained NEBP checkpoint (its heads drawn, so the corrections act) for the scene's sensors."""
+    from pmsr_nn.nets.nebp import NEBPNet, nebp_metadata, save_nebp_checkpoint
+
+    plain = {**scenario, "methods": [m for m in scenario["methods"] if m["kind"] not in ("nebp", "jpda_learned_gain")]}
+    (folder / "plain.yaml").write_text(yaml.safe_dump(plain))
+    det = prepare(load_scenario(folder / "plain.yaml")).cases[0].sensing.detection_model
+    torch.manual_seed(0)
+    net = NEBPNet(det.n_pairs, det.components, hidden=8)
+    with torch.no_grad():
+        for head in (net.edge_out, net.det_out):
+            head.weight.copy_(torch.randn(head.weight.shape, generator=torch.Generator().manual_seed(1)) * 0.3)
+    meta = nebp_metadata(det.geometry.to_dict(), list(det.components), list(det.noise_std), 1.0, 6, net,
+                         [25000.0, 40.0, 1.0])
+    save_nebp_checkpoint(folder / "nebp.pt", meta, net)
+
+
 def prepared(name: str, folder: Path):
     """Scene ``name`` prepared in ``folder``: its setup and block 0's products of its first 2 runs."""
     d = SCENES[name]()
     if any(m["kind"] == "jpda_learned_gain" for m in d["methods"]):
         _gain_checkpoint(folder, d)
+    if any(m["kind"] == "nebp" for m in d["methods"]):
+        _nebp_checkpoint(folder, d)
     (folder / "s.yaml").write_text(yaml.safe_dump(d))
     setup = prepare(load_scenario(folder / "s.yaml"))
     _, products = draw_block(setup, 0, 0)

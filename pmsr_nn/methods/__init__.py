@@ -82,9 +82,7 @@ class MethodCall:
                           self.sensing.to(device), self.resource, self.seed)
 
 
-MIN_CLUTTER_PER_SCAN = 1e-3
-"""A tracker's clutter rate per pair and scan where none is simulated: PMHT and the PHD need a
-positive clutter density (as the JPDA's density floor)."""
+from ..trackers.jpda import MIN_CLUTTER_PER_SCAN  # noqa: E402,F401 - the kinds' clutter floor, re-exported
 
 
 @dataclass(frozen=True)

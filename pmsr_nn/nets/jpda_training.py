@@ -35,14 +35,14 @@ Run folder: ``config.yaml``, ``tb/`` (TensorBoard), ``checkpoints/last.ckpt`` an
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from ..config import from_dict, load_yaml, require, to_dict
-from .scene_data import FlyOptimConfig, SceneConfig, SceneSampler, fit_on_the_fly, resolve_recipe_path, start_run
+from .scene_data import (FlyOptimConfig, SceneConfig, SceneSampler, finish_run, fit_on_the_fly, mean_figures,
+                         resolve_recipe_path, start_run)
 
 
 @dataclass(frozen=True)
@@ -241,8 +241,7 @@ def batch_figures(cfg: GainTrainConfig, problem: Problem, net, step: tuple[int, 
 def baseline_validation(cfg: GainTrainConfig, problem: Problem) -> dict:
     """The plain S-MSJPDA's loss and figure on the validation scenes (what training must beat):
     the means over the validation batches, as Lightning logs the trained network's."""
-    rows = [batch_figures(cfg, problem, None, (cfg.seed, 1_000_000, i)) for i in range(cfg.optim.val_batches)]
-    return {k: sum(float(r[k]) for r in rows) / len(rows) for k in rows[0]}
+    return mean_figures([batch_figures(cfg, problem, None, (cfg.seed, 1_000_000, i)) for i in range(cfg.optim.val_batches)])
 
 
 def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> dict:
@@ -256,7 +255,6 @@ def train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool = True) -> 
 def _train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool) -> dict:
     import lightning.pytorch as pl
 
-    from ..outputs import write_marker
     from .jpda_gain import gain_metadata, save_gain_checkpoint
 
     out = Path(out)
@@ -276,12 +274,8 @@ def _train_gain(cfg: GainTrainConfig, out: str | Path, progress: bool) -> dict:
                          problem.dt, module.net, problem.prior_sd.tolist(), seed=cfg.seed, steps=int(trainer.global_step),
                          config=to_dict(cfg))
     save_gain_checkpoint(out / "tracker.pt", meta, module.net)
-    metrics = {"steps": int(trainer.global_step), "fit_seconds": seconds, "baseline_val": base,
-               "best_val_loss": float(ckpt.best_model_score) if ckpt.best_model_score is not None else None,
-               "last": {k: float(v) for k, v in trainer.callback_metrics.items()}, "threads": torch.get_num_threads()}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    write_marker(out, "train", state="done")
+    metrics = finish_run(out, trainer, ckpt, seconds, base, "val/loss")
     if progress:
-        print(f"trained   {metrics['steps']} steps in {seconds:.0f} s; best validation loss {metrics['best_val_loss']} "
+        print(f"trained   {metrics['steps']} steps in {seconds:.0f} s; best validation loss {metrics['best_val']} "
               f"(S-MSJPDA alone {base['loss']:.4f})", flush=True)
     return metrics

@@ -39,7 +39,6 @@ Run folder: ``config.yaml``, ``tb/`` (TensorBoard), ``checkpoints/`` (Lightning'
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,7 +47,8 @@ import torch
 
 from ..config import from_dict, load_yaml, require, to_dict
 from ..trackers.gating import gate_threshold
-from .scene_data import FlyOptimConfig, SceneConfig, SceneSampler, fit_on_the_fly, resolve_recipe_path, start_run
+from .scene_data import (FlyOptimConfig, SceneConfig, SceneSampler, finish_run, fit_on_the_fly, mean_figures,
+                         resolve_recipe_path, start_run)
 
 
 @dataclass(frozen=True)
@@ -276,9 +276,8 @@ class Problem:
                               self.cfg.model.grad_passes)
 
     def settings(self, pd: float, clutter):
-        from ..methods import MIN_CLUTTER_PER_SCAN
         from ..trackers.bp_tracker import BPSettings
-        from ..trackers.jpda import floored_clutter_density
+        from ..trackers.jpda import MIN_CLUTTER_PER_SCAN, floored_clutter_density
 
         return BPSettings(pd=float(pd), clutter_count=max(float(clutter.per_scan), MIN_CLUTTER_PER_SCAN),
                           clutter_density=floored_clutter_density(clutter, self.model.components))
@@ -354,8 +353,8 @@ def baseline_validation(cfg: NEBPTrainConfig, problem: Problem) -> dict:
     from .nebp import NEBPNet
 
     net = NEBPNet(problem.model.n_pairs, problem.model.components, cfg.model.hidden, cfg.model.rounds, cfg.model.bound)
-    rows = [batch_figures(cfg, problem, net, (cfg.seed, 1_000_000, i), False) for i in range(cfg.optim.val_batches)]
-    return {k: sum(float(r[k]) for r in rows) / len(rows) for k in rows[0]}
+    return mean_figures([batch_figures(cfg, problem, net, (cfg.seed, 1_000_000, i), False)
+                         for i in range(cfg.optim.val_batches)])
 
 
 def train_nebp(cfg: NEBPTrainConfig, out: str | Path, progress: bool = True) -> dict:
@@ -369,7 +368,6 @@ def train_nebp(cfg: NEBPTrainConfig, out: str | Path, progress: bool = True) -> 
 def _train_nebp(cfg: NEBPTrainConfig, out: str | Path, progress: bool) -> dict:
     import lightning.pytorch as pl
 
-    from ..outputs import write_marker
     from .nebp import nebp_metadata, save_nebp_checkpoint
 
     out = Path(out)
@@ -387,12 +385,7 @@ def _train_nebp(cfg: NEBPTrainConfig, out: str | Path, progress: bool) -> dict:
                          problem.dt, problem.motion.dim_x, module.net, problem.scales, seed=cfg.seed,
                          steps=int(trainer.global_step), config=to_dict(cfg))
     save_nebp_checkpoint(out / "tracker.pt", meta, module.net)
-    metrics = {"steps": int(trainer.global_step), "fit_seconds": seconds, "baseline_val": base,
-               "monitor": f"val/{o.monitor}",
-               "best_val": float(ckpt.best_model_score) if ckpt.best_model_score is not None else None,
-               "last": {k: float(v) for k, v in trainer.callback_metrics.items()}, "threads": torch.get_num_threads()}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    write_marker(out, "train", state="done")
+    metrics = finish_run(out, trainer, ckpt, seconds, base, f"val/{o.monitor}")
     if progress:
         print(f"trained   {metrics['steps']} steps in {seconds:.0f} s; best val/{o.monitor} {metrics['best_val']} "
               f"(BP alone {base[o.monitor]:.4f})", flush=True)

@@ -131,6 +131,27 @@ def start_run(out: Path, cfg, recipe: str) -> None:
     (out / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
 
 
+def mean_figures(rows: list[dict]) -> dict:
+    """The mean of each figure over validation batches ``rows`` (as Lightning logs a trained network's)."""
+    return {k: sum(float(r[k]) for r in rows) / len(rows) for k in rows[0]}
+
+
+def finish_run(out: Path, trainer, ckpt, seconds: float, baseline: dict, monitor: str) -> dict:
+    """Write a run folder's ``metrics.json`` (steps, fit seconds, the model-based tracker's
+    validation figures ``baseline``, the monitored figure and its best, the last logged figures,
+    threads) and mark the run done; returns the metrics."""
+    import json
+
+    from ..outputs import write_marker
+
+    metrics = {"steps": int(trainer.global_step), "fit_seconds": seconds, "baseline_val": baseline, "monitor": monitor,
+               "best_val": float(ckpt.best_model_score) if ckpt.best_model_score is not None else None,
+               "last": {k: float(v) for k, v in trainer.callback_metrics.items()}, "threads": torch.get_num_threads()}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_marker(out, "train", state="done")
+    return metrics
+
+
 def fit_on_the_fly(module, out: Path, steps: int, val_every: int, val_batches: int, clip: float,
                    max_time_minutes: float | None, accelerator: str = "cpu", monitor: str = "val/loss",
                    progress: bool = False):

@@ -33,6 +33,11 @@ def miss_cost(pd: float) -> float:
     return -math.log(max(1.0 - pd, MIN_MISS_PROBABILITY))
 
 
+MIN_CLUTTER_PER_SCAN = 1e-3
+"""A tracker's clutter rate per pair and scan where none is simulated: PMHT, the PHD and BP need a
+positive clutter rate (as the JPDA's density floor below)."""
+
+
 def floored_clutter_density(clutter, components) -> float:
     """Expected clutter per unit of the measurement space of ``components`` (a ``ClutterSpec``),
     floored at 1e-3 points per box: a tracker needs a positive density even where none is simulated."""

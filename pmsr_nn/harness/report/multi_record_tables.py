@@ -22,6 +22,9 @@ DENSE_DUPLICATE_FREE = "evaluate/results/dense_crossing_duplicate_free/results.j
 SHARED_DUPLICATE_FREE = "evaluate/results/shared_drones_duplicate_free/results.json"
 DENSE_UNSCENTED = "evaluate/results/dense_crossing_unscented_fixes/results.json"
 SHARED_UNSCENTED = "evaluate/results/shared_drones_unscented_fixes/results.json"
+DENSE_NEBP = "evaluate/results/dense_crossing_nebp/results.json"
+SHARED_NEBP = "evaluate/results/shared_drones_nebp/results.json"
+NEBP_ROW = "NEBP [seed {seed}]"
 
 
 def _methods(rec: dict) -> dict:
@@ -49,49 +52,70 @@ def _seeds(methods: dict, name: str) -> str:
 
 READ_DETECTIONS_SOURCES = (SHARED_BP, SHARED, SHARED_HYBRID, ONE_SKY_BP, ONE_SKY, ONE_SKY_HYBRID, ONE_SKY_MANAGED,
                            ONE_SKY_MANAGED_PMHT, ONE_SKY_UNSCENTED,
-                           DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION)
+                           DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION, SHARED_NEBP, DENSE_NEBP)
 
 
 def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, one_sky_bp: dict, one_sky: dict,
                            one_sky_hybrid: dict, one_sky_managed: dict, one_sky_managed_pmht: dict, one_sky_unscented: dict,
-                           dense_bp: dict, dense: dict, dense_ghosts: dict, access: dict) -> list[str]:
+                           dense_bp: dict, dense: dict, dense_ghosts: dict, access: dict, shared_nebp: dict,
+                           dense_nebp: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
-    rows (the scenarios' studies) and the learned gain's three seeds, per scenario, with one_sky's
-    duplicate-free rows (linearised and unscented fix covariances) below its own; the Access initiation study's nominal case
-    (range and Doppler only) last."""
+    rows (the scenarios' studies), the learned gain's three seeds and NEBP's (its own studies), per
+    scenario, with one_sky's duplicate-free rows (linearised and unscented fix covariances) below
+    its own; the Access initiation study's nominal case (range and Doppler only) last."""
     gain = "S-MSJPDA + learned gain [seed {seed}]"
-    out = ["| scenario | BP | S-MSJPDA | P-MSJPDA | PMHT | SMC-PHD + GTDA | S-MSJPDA + learned gain, seeds 0 / 1 / 2 |",
-           "|---|---:|---:|---:|---:|---:|---|"]
+    out = ["| scenario | BP | S-MSJPDA | P-MSJPDA | PMHT | SMC-PHD + GTDA | S-MSJPDA + learned gain, seeds 0 / 1 / 2 "
+           "| NEBP, seeds 0 / 1 / 2 |",
+           "|---|---:|---:|---:|---:|---:|---|---|"]
     s = _methods(shared)
     out.append(row(["`shared_drones.yaml` (Pd 0.9, 10 clutter points per pair, 50 runs)", _gospa(_methods(shared_bp)["BP"]),
                     _gospa(s["S-MSJPDA from detections"]), _gospa(s["P-MSJPDA from detections"]),
-                    _gospa(s["PMHT from detections"]), "-", _seeds(_methods(shared_hybrid), gain)]))
+                    _gospa(s["PMHT from detections"]), "-", _seeds(_methods(shared_hybrid), gain),
+                    _seeds(_methods(shared_nebp), NEBP_ROW)]))
     o = _methods(one_sky)
     out.append(row(["`one_sky.yaml` (eight drones, Pd 0.85, 10 clutter points per pair, 50 runs; hybrid rows from "
                     "`one_sky_hybrid.yaml`, the same runs)", _gospa(_methods(one_sky_bp)["BP"]),
                     _gospa(o["S-MSJPDA"]), _gospa(o["P-MSJPDA"]), _gospa(o["PMHT"]), _gospa(o["SMC-PHD + GTDA"]),
-                    _seeds(_methods(one_sky_hybrid), gain)]))
+                    _seeds(_methods(one_sky_hybrid), gain), "-"]))
     m = _methods(one_sky_managed)
     out.append(row(["`one_sky_managed.yaml` (the same runs; S- and P-MSJPDA with the duplicate-free "
                     "management; PMHT from `one_sky_managed_pmht.yaml`)", _gospa(_methods(one_sky_bp)["BP"]), _gospa(m["S-MSJPDA (duplicate-free)"]),
                     _gospa(m["P-MSJPDA (duplicate-free)"]),
-                    _gospa(_methods(one_sky_managed_pmht)["PMHT (duplicate-free)"]), "-", "-"]))
+                    _gospa(_methods(one_sky_managed_pmht)["PMHT (duplicate-free)"]), "-", "-", "-"]))
     u = _methods(one_sky_unscented)
     out.append(row(["`one_sky_unscented_fixes.yaml` (the same runs; the duplicate-free management with the fix "
                     "initiator's unscented covariance)", _gospa(_methods(one_sky_bp)["BP"]),
                     *(_gospa(u[f"{name} (duplicate-free, unscented fixes)"]) for name in ("S-MSJPDA", "P-MSJPDA", "PMHT")),
-                    "-", "-"]))
+                    "-", "-", "-"]))
     d = _methods(dense)
     out.append(row(["`dense_crossing.yaml` (Pd 0.7, 40 clutter points per pair, 10 runs)",
                     _gospa(_methods(dense_bp)["BP"]), _gospa(d["S-MSJPDA"]), _gospa(d["P-MSJPDA"]), _gospa(d["PMHT"]),
-                    _gospa(d["SMC-PHD + GTDA"]), _seeds(d, gain)]))
+                    _gospa(d["SMC-PHD + GTDA"]), _seeds(d, gain), _seeds(_methods(dense_nebp), NEBP_ROW)]))
     g = _methods(dense_ghosts)
     out.append(row(["`dense_crossing_ghosts.yaml` (the same runs; S-MSJPDA rows with the innovation bias test)", "-",
-                    _gospa(g["S-MSJPDA + bias test"]), "-", "-", "-", _seeds(g, gain + " + bias test")]))
+                    _gospa(g["S-MSJPDA + bias test"]), "-", "-", "-", _seeds(g, gain + " + bias test"), "-"]))
     a = access["cases"]["nominal"]["methods"]
     out.append(row(["`access2019_msjpda_initiation.yaml`, nominal (range and Doppler only, Pd 0.8, 50 clutter points "
                     "per pair, 10 runs; BP with two-scan initiation)", _gospa(a["BP (2-scan)"]) + " †",
-                    _gospa(a["S-MSJPDA from detections"]), "-", "-", "-", "-"]))
+                    _gospa(a["S-MSJPDA from detections"]), "-", "-", "-", "-", "-"]))
+    return out
+
+
+def nebp_study(rec: dict, oracle: str) -> list[str]:
+    """A NEBP study (dense_crossing_nebp, shared_drones_nebp): the row handed the births (``oracle``,
+    which shows the draws are the main study's), BP and NEBP's three seeds: GOSPA ± s.e., the runs'
+    median / 90 % / worst, the shares, false tracks, first track after birth, seconds per run."""
+    methods = _methods(rec)
+    dt = rec["settings"]["dt_s"]
+    out = ["| row | GOSPA (m) ± s.e. | median / 90 % / worst run (m) | % loc. / missed / false | false tracks / run "
+           "| first track after birth (s) | s / run |",
+           "|---|---:|---|---|---:|---:|---:|"]
+    for name in (oracle, "BP", *(NEBP_ROW.format(seed=s) for s in range(3))):
+        m = methods[name]
+        q = m["gospa_run_quantiles_m"]
+        out.append(row([f"{name} (oracle births)" if name == oracle and "oracle" not in name else name, _gospa(m),
+                        " / ".join(fixed(q[i], 1) for i in (1, 3, 4)), _shares(m), fixed(m["false_tracks_per_run"], 2),
+                        fixed(m["scans_to_first_track"] * dt, 2), fixed(m["seconds_per_run"], 1)]))
     return out
 
 

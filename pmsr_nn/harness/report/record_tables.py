@@ -124,6 +124,8 @@ TABLES: dict[str, Table] = {
     "access2019_msjpda_pd": Table(msjpda.MSJPDA_PD, msjpda.access2019_msjpda_pd),
     "access2019_msjpda_clutter": Table(msjpda.MSJPDA_CLUTTER, msjpda.access2019_msjpda_clutter),
     "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
+    "dense_crossing_nebp": Table(multi.DENSE_NEBP, lambda r: multi.nebp_study(r, "S-MSJPDA (oracle births)")),
+    "shared_drones_nebp": Table(multi.SHARED_NEBP, lambda r: multi.nebp_study(r, "S-MSJPDA")),
     "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
     "duplicate_free": Table((multi.DENSE_DUPLICATE_FREE, multi.SHARED_DUPLICATE_FREE, multi.DENSE_UNSCENTED,
                              multi.SHARED_UNSCENTED), multi.duplicate_free),
