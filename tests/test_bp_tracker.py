@@ -108,8 +108,8 @@ def test_the_undetected_mass_follows_its_recursion_when_nothing_is_detected():
     seen = []
     tracks_cls = BPTracks.updated
 
-    def spy(self, k, step, z, valid, correction):
-        tracks_cls(self, k, step, z, valid, correction)
+    def spy(self, k, step, z, valid):
+        tracks_cls(self, k, step, z, valid)
         seen.append(self.undetected.clone())
 
     BPTracks.updated = spy

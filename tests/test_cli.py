@@ -233,7 +233,7 @@ def test_a_recipe_without_sensors_is_refused_naming_the_file(tmp_path, capsys):
 def test_the_train_help_names_every_kind_train_trains(capsys):
     """``pmsr --help`` once said "DFNN / MDFNN / RNN"; every model kind of the training config and
     the tracker on detections (the kind ``pmsr train`` hands to its own trainer) must be named, and
-    the set tracker (removed under issue 56) no longer."""
+    the set tracker and the hybrid (removed under issue 56) no longer."""
     from typing import get_args, get_type_hints
 
     from pmsr_nn.nets.config import ModelConfig
@@ -243,7 +243,8 @@ def test_the_train_help_names_every_kind_train_trains(capsys):
     line = " ".join(re.search(r"^    train +(.*?)\n    select", capsys.readouterr().out, re.M | re.S)[1].split())
     kinds = get_args(get_type_hints(ModelConfig)["kind"])
     assert set(kinds) == {"mdfnn", "dfnn", "rnn", "kalmannet"}
-    assert all(k in line.lower() for k in kinds) and "jpda_gain" in line and "set_tracker" not in line
+    assert all(k in line.lower() for k in kinds) and "nebp" in line
+    assert "set_tracker" not in line and "jpda_gain" not in line
 
 
 SET_TRACKER_META = {"format": "pmsr_nn.set_tracker", "format_version": 1, "pmsr_nn_version": "0.1.0",
@@ -256,18 +257,18 @@ geometry left out), removed from the package under issue 56."""
 
 def test_a_checkpoint_of_the_removed_set_tracker_is_refused_in_one_line_by_every_reader(tmp_path, capsys):
     """A set-tracker checkpoint given to the package (kind learned, ``pmsr track``, ``pmsr export-onnx``,
-    kind jpda_learned_gain) is refused in one line naming what it was and the commit that has its
+    kind nebp) is refused in one line naming what it was and the commit that has its
     code, not read as a foreign file or a crash, and nothing is written."""
     import torch
 
     from pmsr_nn.errors import CheckpointError
     from pmsr_nn.nets.checkpoint import read_checkpoint
-    from pmsr_nn.nets.jpda_gain import load_gain_checkpoint
+    from pmsr_nn.nets.nebp import load_nebp_checkpoint
 
     ck = tmp_path / "tracker.pt"
     torch.save({"pmsr": SET_TRACKER_META, "state_dict": {"encoder.weight": torch.zeros(2, 2)}}, ck)
     why = f"{ck} is a checkpoint of the end-to-end set tracker, removed from the package under issue 56"
-    for read in (read_checkpoint, load_gain_checkpoint):  # kind learned, pmsr track / export-onnx; jpda_learned_gain
+    for read in (read_checkpoint, load_nebp_checkpoint):  # kind learned, pmsr track / export-onnx; nebp
         with pytest.raises(CheckpointError, match="removed from the package under issue 56") as exc:
             read(ck)
         assert str(exc.value).startswith(why) and "4699b3d" in str(exc.value) and "\n" not in str(exc.value)
@@ -293,6 +294,68 @@ def test_a_set_tracker_training_config_is_refused_in_one_line(tmp_path, capsys):
                    "under issue 56 (evaluate/RESULTS.md; its code is at commit 4699b3d); this pmsr_nn does not "
                    "train it\n")
     assert not (tmp_path / "run").exists()
+
+
+HYBRID_META = {"format": "pmsr_nn.jpda_gain", "format_version": 1, "pmsr_nn_version": "0.1.0",
+               "model": {"hidden": 32}, "components": ["range", "range_rate", "azimuth"],
+               "noise_std": [30.0, 2.0, 0.05], "pos_idx": [0, 1, 2], "vel_idx": [3, 4, 5], "dt_s": 1.0,
+               "dim_x": 9, "training": {"seed": 0}}
+"""The ``pmsr`` block of a checkpoint of the hybrid tracker (S-MSJPDA with a learned gain, format
+``pmsr_nn.jpda_gain`` at c270857, geometry left out), removed from the package under issue 56."""
+
+
+def test_a_checkpoint_of_the_removed_hybrid_is_refused_in_one_line_by_every_reader(tmp_path, capsys):
+    """A hybrid checkpoint (models/released/jpda_gain_s0.pt at c270857) given to kind learned,
+    ``pmsr track``, ``pmsr export-onnx`` or kind nebp is refused in one line naming what it was and
+    the commit that has its code, and nothing is written."""
+    import torch
+
+    from pmsr_nn.errors import CheckpointError
+    from pmsr_nn.nets.checkpoint import read_checkpoint
+    from pmsr_nn.nets.nebp import load_nebp_checkpoint
+
+    ck = tmp_path / "gain.pt"
+    torch.save({"pmsr": HYBRID_META, "state_dict": {"net.0.weight": torch.zeros(2, 2)}}, ck)
+    why = (f"{ck} is a checkpoint of the hybrid tracker (S-MSJPDA with a learned gain correction, kind "
+           "jpda_learned_gain), removed from the package under issue 56 (evaluate/RESULTS.md; its code is at commit "
+           "c270857); no command of this pmsr_nn reads it")
+    for read in (read_checkpoint, load_nebp_checkpoint):
+        with pytest.raises(CheckpointError) as exc:
+            read(ck)
+        assert str(exc.value) == why
+    z = tmp_path / "z.csv"
+    z.write_text("time_s,r1\n0,1\n")
+    for argv in (["track", "--checkpoint", str(ck), "--input", str(z), "--out", str(tmp_path / "est.csv")],
+                 ["export-onnx", "--checkpoint", str(ck), "--out", str(tmp_path / "t.onnx")]):
+        assert main(argv) == 2
+        assert capsys.readouterr().err == f"pmsr: error: {why}\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gain.pt", "z.csv"]
+
+
+def test_a_hybrid_training_config_is_refused_in_one_line(tmp_path, capsys):
+    """``kind: jpda_gain`` (train/jpda_gain.yaml at c270857) names what left the package and where
+    it is, and writes nothing."""
+    config = tmp_path / "jpda_gain.yaml"
+    config.write_text(yaml.safe_dump({"kind": "jpda_gain", "name": "jpda_gain", "seed": 0, "recipe": str(RECIPE),
+                                      "scenes": {"window": 20, "targets": [2, 2]}}))
+    assert main(["train", str(config), "--out", str(tmp_path / "run")]) == 2
+    assert capsys.readouterr().err == (
+        f"pmsr: error: {config}: kind jpda_gain is the hybrid tracker (S-MSJPDA with a learned gain correction, kind "
+        "jpda_learned_gain), removed from the package under issue 56 (evaluate/RESULTS.md; its code is at commit "
+        "c270857); this pmsr_nn does not train it\n")
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_scenario_row_of_the_removed_hybrid_kind_is_refused_in_one_line(tmp_path, capsys):
+    """A method row of kind jpda_learned_gain (evaluate/one_sky_hybrid.yaml at c270857) is refused
+    in one line naming the removal, and nothing is written."""
+    path = tmp_path / "hybrid.yaml"
+    path.write_text(TINY_SCENARIO.replace("kind: ekf}", "kind: jpda_learned_gain, checkpoint: gain.pt}", 1))
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown method kind 'jpda_learned_gain'" in err
+    assert "removed from the package under issue 56" in err and "c270857" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hybrid.yaml"]
 
 
 TINY_SCENARIO = """\

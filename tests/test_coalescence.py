@@ -152,7 +152,7 @@ def test_own_tracks_merge_a_duplicate_and_report_the_older_id():
     for k in range(5):
         step = AssociationStep(own.table.g, torch.full((1, C), 2), torch.full((1, C, S), 50.0, dtype=torch.float64),
                                torch.ones(1, S, M, dtype=torch.bool))
-        own.updated(k, step, torch.zeros(1, S, M, d, dtype=torch.float64), torch.zeros(1, S, M, dtype=torch.bool), None)
+        own.updated(k, step, torch.zeros(1, S, M, d, dtype=torch.float64), torch.zeros(1, S, M, dtype=torch.bool))
     rep = own.result()
     # ids 2, 5, 7 are report slots 2, 5, 7: the duplicate (id 5) reported at scans 0-1 only
     assert rep.exists[0, :, 2].tolist() == [True] * 5 and rep.exists[0, :, 7].tolist() == [True] * 5

@@ -89,9 +89,6 @@ DETECTIONS = [{"name": "s_msjpda", "kind": "s_msjpda"},
               {"name": "p_msjpda own tracks", "kind": "p_msjpda", "options": {"initiation": "detections"}},
               {"name": "bp", "kind": "bp"},
               {"name": "bp two scans", "kind": "bp", "options": {"init_scans": 2}},
-              {"name": "jpda_learned_gain", "kind": "jpda_learned_gain", "checkpoint": "gain.pt"},
-              {"name": "jpda_learned_gain own tracks", "kind": "jpda_learned_gain", "checkpoint": "gain.pt",
-               "options": {"initiation": "detections"}},
               {"name": "smc_phd_pair", "kind": "smc_phd_pair",
                "options": {"particles_per_target": 100, "particles_per_birth": 50}},
               {"name": "known_association_kf_pair", "kind": "known_association_kf_pair"},
@@ -105,7 +102,7 @@ def _range_rate() -> dict:
 
 def _azimuth() -> dict:
     """The same with azimuth (the fix initiator; BP seeds a target from each detection)."""
-    methods = [m for m in DETECTIONS if m["kind"] in ("s_msjpda", "p_msjpda", "bp", "jpda_learned_gain", "stonesoup")
+    methods = [m for m in DETECTIONS if m["kind"] in ("s_msjpda", "p_msjpda", "bp", "stonesoup")
                and m["name"] != "bp two scans"]
     phd = {"name": "smc_phd", "kind": "smc_phd", "options": {"particles_per_target": 100, "particles_per_birth": 50}}
     two_scans = {"name": "p_msjpda two scans azimuth", "kind": "p_msjpda",  # the multi-scan initiator around it
@@ -171,26 +168,11 @@ XFAIL: dict[str, str] = {
 """Rows whose meta check fails today (strict: one that passes fails the test until its mark goes)."""
 
 
-def _gain_checkpoint(folder: Path, scenario: dict) -> None:
-    """An untrained gain checkpoint (its output layer drawn, so the correction acts) for the scene's sensors."""
-    from pmsr_nn.nets.jpda_gain import GainNet, gain_metadata, save_gain_checkpoint
-
-    plain = {**scenario, "methods": [m for m in scenario["methods"] if m["kind"] not in ("nebp", "jpda_learned_gain")]}
-    (folder / "plain.yaml").write_text(yaml.safe_dump(plain))
-    det = prepare(load_scenario(folder / "plain.yaml")).cases[0].sensing.detection_model
-    net = GainNet(det.n_pairs, len(det.components), 6, hidden=8)
-    with torch.no_grad():
-        net.out.weight.copy_(torch.randn(net.out.weight.shape, generator=torch.Generator().manual_seed(0)) * 0.1)
-    meta = gain_metadata(det.geometry.to_dict(), list(det.components), list(det.noise_std), 1.0, net,
-                         [100.0, 5.0, 0.1] * 2)
-    save_gain_checkpoint(folder / "gain.pt", meta, net)
-
-
 def _nebp_checkpoint(folder: Path, scenario: dict) -> None:
     """An untrained NEBP checkpoint (its heads drawn, so the corrections act) for the scene's sensors."""
     from pmsr_nn.nets.nebp import NEBPNet, nebp_metadata, save_nebp_checkpoint
 
-    plain = {**scenario, "methods": [m for m in scenario["methods"] if m["kind"] not in ("nebp", "jpda_learned_gain")]}
+    plain = {**scenario, "methods": [m for m in scenario["methods"] if m["kind"] != "nebp"]}
     (folder / "plain.yaml").write_text(yaml.safe_dump(plain))
     det = prepare(load_scenario(folder / "plain.yaml")).cases[0].sensing.detection_model
     torch.manual_seed(0)
@@ -206,8 +188,6 @@ def _nebp_checkpoint(folder: Path, scenario: dict) -> None:
 def prepared(name: str, folder: Path):
     """Scene ``name`` prepared in ``folder``: its setup and block 0's products of its first 2 runs."""
     d = SCENES[name]()
-    if any(m["kind"] == "jpda_learned_gain" for m in d["methods"]):
-        _gain_checkpoint(folder, d)
     if any(m["kind"] == "nebp" for m in d["methods"]):
         _nebp_checkpoint(folder, d)
     (folder / "s.yaml").write_text(yaml.safe_dump(d))

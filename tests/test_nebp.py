@@ -231,9 +231,10 @@ def test_a_checkpoint_for_another_measurement_set_is_one_line_exit_2_and_nothing
 def test_a_checkpoint_of_another_kind_is_one_line_exit_2_and_nothing_written(tmp_path, capsys):
     import shutil
 
-    shutil.copy(ROOT / "models/released/jpda_gain_s0.pt", tmp_path / "g.pt")
+    shutil.copy(ROOT / "models/released/rnn.pt", tmp_path / "g.pt")
     path = _scenario(tmp_path, checkpoint="g.pt")
-    _refused(tmp_path, capsys, path, "is not a NEBP checkpoint (format 'pmsr_nn.jpda_gain')")
+    _refused(tmp_path, capsys, path, "is not a NEBP checkpoint (format 'pmsr_nn.tracker') (a learned tracker of clean "
+                                     "streams: use it with kind learned)")
 
 
 def test_a_training_config_whose_scenes_have_no_detections_is_one_line_exit_2_and_nothing_written(tmp_path, capsys):

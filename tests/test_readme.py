@@ -188,8 +188,6 @@ RULES = [
     Rule(r"pmsr methods( \w+)*"),
     # Scripts: their own tests cover them; here their options must exist (`--help` lists them).
     Rule(r"python (evaluate|benchmarks)/\w+\.py( evaluate/\w+\.yaml)?( --\S+( [^-\s]\S*)*)*"),
-    Rule(r"pmsr train train/jpda_gain\.yaml --out runs/jpda_gain_s0 seed=0", lambda a: [*a, *TINY_SCENES,
-                                                                                     "scenes.window=10"]),
     Rule(r"pmsr train train/nebp\.yaml --out runs/nebp_s0 seed=0", lambda a: [*a, *TINY_SCENES, "scenes.window=12",
                                                                             "optim.skip_scans=3"]),
 ]

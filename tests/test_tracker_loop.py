@@ -103,13 +103,13 @@ def test_the_gnn_kind_runs_through_evaluate(gnn, tmp_path):
 
 
 def test_the_classical_trackers_import_no_learned_part():
-    """trackers/ is classical but for the learned gain it hosts: no other module of it imports
-    that module or anything of nets/ (the loop sees a learned part only as a MeanCorrection)."""
+    """trackers/ is classical: no module of it imports anything of nets/ (NEBP's network reaches
+    BP only as a refiner handed to it)."""
     from test_structure import PACKAGE, ROOT, import_graph
 
     graph = import_graph(ROOT, PACKAGE)
     assert "pmsr_nn.trackers.msjpda" in graph and "pmsr_nn.trackers.loop" in graph["pmsr_nn.trackers.msjpda"]
-    learned = {m for m in graph if m.startswith("pmsr_nn.nets")} | {"pmsr_nn.trackers.learned_gain"}
+    learned = {m for m in graph if m.startswith("pmsr_nn.nets")}
     offenders = {m: sorted(set(edges) & learned) for m, edges in graph.items()
-                 if m.startswith("pmsr_nn.trackers") and m != "pmsr_nn.trackers.learned_gain" and set(edges) & learned}
+                 if m.startswith("pmsr_nn.trackers") and set(edges) & learned}
     assert not offenders, offenders

@@ -604,10 +604,10 @@ def test_a_training_in_process_gives_back_the_callers_threads_and_determinism(tm
         torch.use_deterministic_algorithms(before[1])
 
 
-@pytest.mark.parametrize("module, entry", [("jpda_training", "train_gain")])
+@pytest.mark.parametrize("module, entry", [("nebp_training", "train_nebp")])
 def test_the_scene_trainings_give_back_the_callers_threads_even_when_they_fail(monkeypatch, module, entry):
-    """The learned gain's training sets ``threads`` for its own run only, and hands the caller its
-    settings back also when the run raises."""
+    """NEBP's training sets ``threads`` for its own run only, and hands the caller its settings
+    back also when the run raises."""
     import importlib
     from types import SimpleNamespace
 

@@ -30,7 +30,7 @@ def add_evaluate(sub) -> None:
                          "that names its own methods keeps those of them that are given)")
     ev.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
                     help="use this checkpoint for method NAME, of any kind that reads one (learned, "
-                    "jpda_learned_gain, nebp; repeatable)")
+                    "nebp; repeatable)")
     ev.add_argument("--shard", default="1/1", metavar="I/N", help="run the I-th of N slices of the runs (default 1/1: all)")
     ev.add_argument("--per-block", action="store_true",
                     help="write each block of runs as soon as it is done, as its own shard folder OUT/block-NNNN; "

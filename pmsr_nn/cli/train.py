@@ -12,10 +12,10 @@ def add_train(sub) -> None:
     t = sub.add_parser(
         "train",
         help="train a learned tracker (DFNN / MDFNN / RNN / KalmanNet-style filter on measurement streams; "
-        "jpda_gain / nebp on detections)",
+        "nebp on detections)",
         description="Train a tracker from a YAML config (train/*.yaml) into a run folder: a network on "
         "measurement streams (model.kind mdfnn, dfnn, rnn or kalmannet), or a tracker on detections "
-        "(kind: jpda_gain or nebp, trained on scenes drawn on the fly). Checkpoints "
+        "(kind: nebp, trained on scenes drawn on the fly). Checkpoints "
         "(best and last), TensorBoard logs (RUN/tb), the resolved config, tracker.pt for inference and "
         "metrics.json. KEY=VALUE overrides change any config entry, e.g. trainer.max_epochs=5 "
         "model.filter_order=10. A missing dataset is simulated once into the config's cache_dir.",
@@ -92,13 +92,13 @@ def cmd_select(args) -> int:
     return 0
 
 
-RETIRED_KINDS = {"set_tracker": "pmsr_nn.set_tracker"}
+RETIRED_KINDS = {"set_tracker": "pmsr_nn.set_tracker", "jpda_gain": "pmsr_nn.jpda_gain"}
 """Training config kinds of trackers this package no longer has (kind -> its checkpoint format in
 :data:`pmsr_nn.nets.checkpoint.RETIRED_FORMATS`, which says what it was and where it lives)."""
 
 
 def _detection_tracker_kind(config: str | None) -> str | None:
-    """The kind (``jpda_gain`` or ``nebp``) of a config of a tracker on detections, else None; a config
+    """The kind (``nebp``) of a config of a tracker on detections, else None; a config
     of a kind in ``RETIRED_KINDS`` is refused in one line."""
     from pathlib import Path
 
@@ -112,19 +112,14 @@ def _detection_tracker_kind(config: str | None) -> str | None:
     if isinstance(kind, str) and kind in RETIRED_KINDS:
         raise PmsrError(f"{config}: kind {kind} is {RETIRED_FORMATS[RETIRED_KINDS[kind]]}; this pmsr_nn does not "
                         "train it")
-    return kind if kind in ("jpda_gain", "nebp") else None
+    return kind if kind == "nebp" else None
 
 
 def _train_on_detections(kind: str, config: str, overrides: list[str], args) -> int:
-    """A tracker on detections, trained on scenes drawn on the fly (:mod:`pmsr_nn.nets.jpda_training`,
-    :mod:`pmsr_nn.nets.nebp_training`)."""
+    """A tracker on detections, trained on scenes drawn on the fly (:mod:`pmsr_nn.nets.nebp_training`)."""
     if args.resume:
         raise PmsrError(f"a {kind} run can not be resumed (its steps draw fresh scenes): train it again into a new --out")
-    if kind == "jpda_gain":
-        from ..nets.jpda_training import load_gain_config, train_gain
-
-        m = train_gain(load_gain_config(config, overrides), args.out)
-    elif kind == "nebp":
+    if kind == "nebp":
         from ..nets.nebp_training import load_nebp_config, train_nebp
 
         m = train_nebp(load_nebp_config(config, overrides), args.out)

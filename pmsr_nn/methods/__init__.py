@@ -412,6 +412,9 @@ ELSEWHERE = (
      "(| none for smc_phd_pair); its known-association reference is kind known_association_kf_pair"),
     (("crb", "bound", "pcrlb", "cramer_rao"),
      "the posterior Cramer-Rao bound is kind pcrb (a row of a scenario of designed targets; options bound, q)"),
+    (("jpda_learned_gain",),
+     "the hybrid tracker (S-MSJPDA with a learned gain correction) was removed from the package under issue 56, "
+     "dominated by bp and nebp (evaluate/RESULTS.md; its code is at commit c270857)"),
 )
 """Names a user may try for trackers that are not method kinds, and where they live."""
 

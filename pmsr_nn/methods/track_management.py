@@ -1,7 +1,7 @@
 """Track management as method options: what every kind that starts its own tracks shares (not a
 method kind itself).
 
-A kind that offers ``initiation: oracle | detections`` (S-/P-MSJPDA, PMHT, the hybrid) adds
+A kind that offers ``initiation: oracle | detections`` (S-/P-MSJPDA, PMHT) adds
 :data:`MANAGEMENT_OPTIONS` to its options; a kind that always starts its own tracks adds
 :data:`OWN_TRACK_OPTIONS` (the same without ``initiation``). Both read their components with
 :func:`management` and refuse what could never confirm a track with :func:`check_initiation`
@@ -195,7 +195,7 @@ def check_initiation(spec, sensing, pooled: bool = False) -> None:
     receiver). A kind's ``check_sensing``."""
     if bias_test(spec) is not None and (not starts_own_tracks(spec) or spec.kind == "p_msjpda"):
         raise ConfigError(f"method {spec.name!r}: the innovation bias test (bias_window) acts on the tracks a sequential "
-                          f"tracker starts itself: set initiation: detections on s_msjpda or jpda_learned_gain, or "
+                          f"tracker starts itself: set initiation: detections on s_msjpda, or "
                           f"bias_window: null")
     if not starts_own_tracks(spec):
         return

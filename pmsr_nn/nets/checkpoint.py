@@ -27,10 +27,13 @@ from .config import ModelConfig
 
 FORMAT = "pmsr_nn.tracker"
 FORMAT_VERSION = 1
-DETECTION_FORMATS = {"pmsr_nn.jpda_gain": "jpda_learned_gain", "pmsr_nn.nebp": "nebp"}
+DETECTION_FORMATS = {"pmsr_nn.nebp": "nebp"}
 """Checkpoints of the trackers that read detections (format -> the method kind that reads them)."""
 RETIRED_FORMATS = {"pmsr_nn.set_tracker": "the end-to-end set tracker, removed from the package under issue 56 "
-                                          "(evaluate/RESULTS.md; its code is at commit 4699b3d)"}
+                                          "(evaluate/RESULTS.md; its code is at commit 4699b3d)",
+                   "pmsr_nn.jpda_gain": "the hybrid tracker (S-MSJPDA with a learned gain correction, kind "
+                                        "jpda_learned_gain), removed from the package under issue 56 "
+                                        "(evaluate/RESULTS.md; its code is at commit c270857)"}
 """Checkpoints of trackers this package no longer has (format -> what it was and where it lives):
 refused in one line by every reader."""
 

@@ -1,7 +1,7 @@
 """Training data for trackers that read detections, drawn on the fly: scenes of several targets
 (:func:`pmsr_nn.simulation.scenes.draw_scenes`) and their detections, with a Pd and a clutter
-count drawn per batch, for the hybrid (:mod:`.jpda_training`). (The end-to-end set tracker, removed
-under issue 56, drew its scenes here too; it is at commit 4699b3d.)
+count drawn per batch, for NEBP (:mod:`.nebp_training`). (The end-to-end set tracker and the hybrid,
+removed under issue 56, drew their scenes here too; they are at commits 4699b3d and c270857.)
 """
 
 from __future__ import annotations

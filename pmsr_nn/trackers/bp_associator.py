@@ -121,8 +121,6 @@ class BPAssociator(Associator):
     ``refiner`` a :class:`~.message_refiner.MessageRefiner` (neural-enhanced BP) that corrects each
     list's likelihood ratios and new-target weights before the message passing (per-pair lists only)."""
 
-    correction = None
-
     def __init__(self, model: MeasurementModel, R: torch.Tensor, pd: float, clutter_density: float,
                  existence: Callable[[], torch.Tensor] | None = None, birth: float = 0.0,
                  gate_probability: float = 0.999, explained: float = 0.5, iterations: int = 1000,
@@ -141,8 +139,8 @@ class BPAssociator(Associator):
         if refiner is not None and any(len(pairs) > 1 for pairs in self.groups):
             raise ConfigError("learned message corrections read per-pair lists; these lists are pooled per receiver")
 
-    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
-                  learned: torch.Tensor | None = None) -> BPStep:
+    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor,
+                  associating: torch.Tensor | None) -> BPStep:
         B, C = g.x.shape[:2]
         dtype = g.x.dtype
         dev = g.x.device

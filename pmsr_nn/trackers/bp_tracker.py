@@ -42,7 +42,7 @@ from .loop import run_tracker
 from .message_refiner import MessageRefiner
 from .management import TENTATIVE, TableTracks, TrackReport, parked_state
 from .msjpda import check_scans
-from .roles import Initiator, MeanCorrection
+from .roles import Initiator
 
 
 @dataclass(frozen=True)
@@ -174,11 +174,7 @@ class BPTracks(TableTracks):
         self.predict_table(self.s.survival)
         self.undetected = self.s.survival * self.undetected + self.s.birth_rate
 
-    def learned(self, correction: MeanCorrection | None) -> None:
-        return None
-
-    def updated(self, k: int, step: BPStep, z: torch.Tensor, valid: torch.Tensor,
-                correction: MeanCorrection | None) -> None:
+    def updated(self, k: int, step: BPStep, z: torch.Tensor, valid: torch.Tensor) -> None:
         table, s = self.table, self.s
         before = table.active
         C = before.shape[1]

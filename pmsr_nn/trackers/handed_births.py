@@ -15,7 +15,7 @@ import torch
 
 from ..errors import ConfigError
 from ..filters.gaussian import Gaussian
-from .roles import AssociationStep, MeanCorrection
+from .roles import AssociationStep
 
 
 @dataclass
@@ -76,11 +76,7 @@ class HandedBirths:
     def associating(self, k: int) -> torch.Tensor | None:
         return None if self.active is None else self.active[:, k]
 
-    def learned(self, correction: MeanCorrection | None) -> torch.Tensor | None:
-        return None  # a learned correction acts on every living target's track
-
-    def updated(self, k: int, step: AssociationStep, z: torch.Tensor, valid: torch.Tensor,
-                correction: MeanCorrection | None) -> None:
+    def updated(self, k: int, step: AssociationStep, z: torch.Tensor, valid: torch.Tensor) -> None:
         self.g = step.posterior
         self.x[:, k], self.P[:, k] = self.g.x, self.g.P
         self.dummy[:, k] = step.miss_likeliest

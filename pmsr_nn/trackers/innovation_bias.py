@@ -39,7 +39,7 @@ from scipy.stats import chi2
 
 from ..config import require
 
-BiasAction = Literal["delete", "learn"]
+BiasAction = Literal["delete"]
 
 
 @dataclass(frozen=True)
@@ -47,8 +47,8 @@ class BiasTest:
     """``window`` (scans) of the exponentially weighted innovation mean, ``probability`` of the
     chi-square quantile a confirmed track's statistic must exceed to be flagged, and what a
     tracker does with a flagged track: ``delete`` it (its detections are then free for the
-    initiator), or ``learn``: a hybrid tracker's learned gain correction acts on flagged tracks
-    only (:mod:`.learned_gain`). ``burn_in``: updates of a track's life left out of its mean."""
+    initiator; ``learn``, a learned gain correction acting on flagged tracks only, left with the
+    hybrid tracker under issue 56). ``burn_in``: updates of a track's life left out of its mean."""
 
     window: float = 20.0
     probability: float = 0.999
@@ -58,7 +58,8 @@ class BiasTest:
     def __post_init__(self) -> None:
         require(self.window >= 1.0, f"the bias test's window must be at least 1 scan, got {self.window}")
         require(0.5 <= self.probability < 1.0, f"the bias test's probability must be in [0.5, 1), got {self.probability}")
-        require(self.action in ("delete", "learn"), f"the bias test's action must be delete or learn, got {self.action!r}")
+        require(self.action == "delete", f"the bias test's action must be delete (learn left with the hybrid tracker, "
+                                         f"issue 56), got {self.action!r}")
         require(self.burn_in >= 0, f"the bias test's burn-in must be at least 0 scans, got {self.burn_in}")
 
     @property

@@ -4,7 +4,7 @@ and tracks: the :class:`~.roles.Associator` role of :func:`~.loop.run_tracker`.
 * :class:`SequentialJPDA` (Eqs. 15-21): pair by pair. Each pair's detections update the tracks
   left by the previous pair: sigma-point moments of that pair's measurement, the chi-square gate,
   the association weights (the m-best 2-D events, or each track on its own with ``pda``), and the
-  moment-matched collapse (Eq. 16); a learned :class:`~.roles.MeanCorrection` adds to the mean.
+  moment-matched collapse (Eq. 16).
 * :class:`ParallelJPDA` (Eqs. 9-14): all pairs at once. A track's candidate is one detection (or
   none) per pair; its likelihood is the joint predicted density of the stacked measurements (one
   set of sigma points through all pairs, so the correlation the state uncertainty creates between
@@ -32,7 +32,7 @@ from .clustering import track_clusters
 from .gating import gate_threshold, gaussian_log_likelihood, inside_gate
 from .jpda import batched_single_sensor_marginals, candidate_marginals, detection_costs, miss_cost
 from .mixture import collapse, expand_moments, pda_collapse
-from .roles import Associator, AssociationStep, MeanCorrection
+from .roles import Associator, AssociationStep
 
 Association = Literal["jpda", "pda"]
 
@@ -128,16 +128,12 @@ def shared_ratio(alpha: torch.Tensor, pd: float, ratio: torch.Tensor) -> torch.T
 
 def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: MeasurementModel, R: torch.Tensor,
                 pd: float, clutter_density: float, m_best: int, gamma: float, active: torch.Tensor | None = None,
-                association: Association = "jpda", correction: MeanCorrection | None = None, pair: int = 0,
-                learned: torch.Tensor | None = None) -> PairUpdate:
+                association: Association = "jpda") -> PairUpdate:
     """One pair's detections ``z (B, M, d)`` update tracks ``g`` ``(B, C, n)`` (Eqs. 15-21); a
     track outside ``active (B, C)`` gates nothing (it is only predicted). ``association``:
-    ``jpda`` (the paper's m-best joint events) or ``pda`` (:func:`pda_marginals`).
-    ``correction`` adds its learned correction times the combined innovation of pair ``pair`` to
-    the posterior mean, on the tracks ``learned (B, C)`` (default: ``active``); the association
-    weights are constants to it (no gradient)."""
+    ``jpda`` (the paper's m-best joint events) or ``pda`` (:func:`pda_marginals`)."""
     inn = pair_innovations(g, z, valid, sub, R)
-    mom, nu, L, e, d2 = inn.moments, inn.nu, inn.L, inn.e, inn.d2
+    mom, L, e, d2 = inn.moments, inn.L, inn.e, inn.d2
     log_lik = inn.log_lik.masked_fill(~valid.unsqueeze(1), math.nan)
     gate = inside_gate(d2, gamma) & valid.unsqueeze(1)
     gate = gate if active is None else gate & active.unsqueeze(-1)
@@ -152,8 +148,6 @@ def pair_update(g: Gaussian, z: torch.Tensor, valid: torch.Tensor, sub: Measurem
     miss = alpha[..., M] >= alpha[..., :M].max(-1, initial=0.0)
     ratio = torch.where(gate, log_lik.exp(), torch.zeros((), dtype=log_lik.dtype, device=log_lik.device)).sum(-1)
     out = pda_collapse(g, mom, L, e, gate, w)
-    if correction is not None:
-        out = Gaussian(out.x + correction.step(pair, w, nu, gate, mom, active if learned is None else learned), out.P)
     e_c = (w[..., :M, None] * torch.where(gate[..., None], e, torch.zeros((), dtype=e.dtype, device=e.device))).sum(-2)
     ratio = ratio.detach() / clutter_density
     return PairUpdate(out, miss, mom.S[..., 0, 0].sqrt(), gated, ratio, e_c, w[..., :M].sum(1), shared_ratio(w, pd, ratio))
@@ -163,23 +157,21 @@ class SequentialJPDA(Associator):
     """S-MSJPDA's associator: :func:`pair_update` pair by pair (module docstring).
 
     ``model`` the detections' measurement model, ``R (S d, S d)`` block-diagonal over pairs,
-    ``settings`` a :class:`~.msjpda.JPDASettings`, ``association`` ``jpda`` or ``pda``,
-    ``correction`` a learned part of the update (None: the model's)."""
+    ``settings`` a :class:`~.msjpda.JPDASettings`, ``association`` ``jpda`` or ``pda``."""
 
-    def __init__(self, model: MeasurementModel, R: torch.Tensor, settings, association: Association = "jpda",
-                 correction: MeanCorrection | None = None):
-        self.settings, self.association, self.correction = settings, association, correction
+    def __init__(self, model: MeasurementModel, R: torch.Tensor, settings, association: Association = "jpda"):
+        self.settings, self.association = settings, association
         self.gamma = gate_threshold(settings.gate_probability, len(model.components))
         self.subs = [model.for_pairs([s]) for s in range(model.n_pairs)]
         self.R = [R[model.rows_for_pairs([s])][:, model.rows_for_pairs([s])] for s in range(model.n_pairs)]
 
-    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
-                  learned: torch.Tensor | None = None) -> AssociationStep:
+    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor,
+                  associating: torch.Tensor | None) -> AssociationStep:
         s = self.settings
         steps = []
         for j in range(len(self.subs)):
             step = pair_update(g, z[:, j], valid[:, j], self.subs[j], self.R[j], s.pd, s.clutter_density, s.m_best,
-                               self.gamma, associating, self.association, self.correction, j, learned)
+                               self.gamma, associating, self.association)
             g = step.posterior
             steps.append(step)
         dev = g.x.device
@@ -222,16 +214,14 @@ def _pattern_inverses(S: torch.Tensor, n_pairs: int, d: int) -> tuple[np.ndarray
 
 class ParallelJPDA(Associator):
     """P-MSJPDA's associator: every pair's detections update the tracks jointly (module docstring).
-    ``model``, ``R`` and ``settings`` as :class:`SequentialJPDA`'s; no learned correction."""
-
-    correction = None
+    ``model``, ``R`` and ``settings`` as :class:`SequentialJPDA`'s."""
 
     def __init__(self, model: MeasurementModel, R: torch.Tensor, settings):
         self.model, self.R, self.settings = model, R, settings
         self.gamma = gate_threshold(settings.gate_probability, len(model.components))
 
-    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
-                  learned: torch.Tensor | None = None) -> AssociationStep:
+    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor,
+                  associating: torch.Tensor | None) -> AssociationStep:
         """The joint update of tracks ``g`` from ``z (B, S, M, d)``. ``detected`` counts the pairs
         where some detection was more probable than none; each pair's ``ratio`` is taken under
         that pair's own block of the joint moments."""

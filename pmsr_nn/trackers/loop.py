@@ -32,15 +32,12 @@ def run_tracker(scans: Scans | AssociationLists, motion: KinematicModel, dt: flo
     dtype = scans.z.dtype
     F, Q = motion.F(dt, dtype, scans.z.device), motion.Q(dt, q, dtype, scans.z.device)
     management.begin(B, K, F, Q)
-    correction = associator.correction
-    if correction is not None:
-        correction.start(B, management.g.x.shape[1])
     for k in range(K):
         if k > 0:
             management.g = associator.predict(management.g, k, F, Q)
             management.predicted(k)
         z, valid = scans.z[:, k], scans.valid[:, k]
-        step = associator.associate(management.g, z, valid, management.associating(k), management.learned(correction))
-        management.updated(k, step, z, valid, correction)
+        step = associator.associate(management.g, z, valid, management.associating(k))
+        management.updated(k, step, z, valid)
         associator.tracks_started(management.started, management.g)
     return management.result()

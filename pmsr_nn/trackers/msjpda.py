@@ -37,7 +37,6 @@ from .handed_births import HandedBirths, MultiTargetResult
 from .jpda import M_BEST_SEARCHES
 from .jpda_associators import Association, ParallelJPDA, SequentialJPDA
 from .loop import run_tracker
-from .roles import MeanCorrection
 
 __all__ = ["JPDASettings", "MultiTargetResult", "associator", "check_scans", "check_tracker_inputs", "check_variant",
            "msjpda", "true_assignment_ukf"]
@@ -90,20 +89,19 @@ def check_tracker_inputs(scans: Scans, prior: Gaussian, motion: KinematicModel, 
         raise ConfigError("the prior mean is not finite")
 
 
-def check_variant(architecture: str, association: str, correction) -> None:
-    """One-line refusals of an architecture / association / learned-correction mix no associator offers."""
+def check_variant(architecture: str, association: str) -> None:
+    """One-line refusals of an architecture / association mix no associator offers."""
     if architecture not in ("sequential", "parallel"):
         raise ConfigError(f"architecture must be 'sequential' or 'parallel', got {architecture!r}")
     if association not in ("jpda", "pda"):
         raise ConfigError(f"association must be 'jpda' or 'pda', got {association!r}")
-    if architecture == "parallel" and (association != "jpda" or correction is not None):
-        raise ConfigError("P-MSJPDA associates jointly over the sensors: no pda association or learned gain")
+    if architecture == "parallel" and association != "jpda":
+        raise ConfigError("P-MSJPDA associates jointly over the sensors: no pda association")
 
 
 def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: float, model: MeasurementModel,
            R: torch.Tensor, settings: JPDASettings, architecture: Literal["sequential", "parallel"],
-           active: torch.Tensor | None = None, association: Association = "jpda",
-           correction: MeanCorrection | None = None) -> MultiTargetResult:
+           active: torch.Tensor | None = None, association: Association = "jpda") -> MultiTargetResult:
     """Track ``N`` targets through ``scans`` (``B`` runs, ``K`` scans) from ``prior`` ``x (B, N, n)``.
 
     Step 0 is an update of the prior only (the convention of :mod:`pmsr_nn.filters.kalman`); every
@@ -115,21 +113,20 @@ def msjpda(scans: Scans, prior: Gaussian, motion: KinematicModel, dt: float, q: 
     state at that scan), takes part in the association only while active, and is only predicted
     otherwise (its estimates there mean nothing).
 
-    ``association`` and ``correction`` (sequential only): see
-    :func:`~.jpda_associators.pair_update`.
+    ``association`` (sequential only): see :func:`~.jpda_associators.pair_update`.
     """
     check_tracker_inputs(scans, prior, motion, model)
-    check_variant(architecture, association, correction)
-    return run_tracker(scans, motion, dt, q, associator(model, R, settings, architecture, association, correction),
+    check_variant(architecture, association)
+    return run_tracker(scans, motion, dt, q, associator(model, R, settings, architecture, association),
                        HandedBirths(prior, active))
 
 
 def associator(model: MeasurementModel, R: torch.Tensor, settings: JPDASettings,
-               architecture: Literal["sequential", "parallel"], association: Association = "jpda",
-               correction: MeanCorrection | None = None) -> SequentialJPDA | ParallelJPDA:
+               architecture: Literal["sequential", "parallel"],
+               association: Association = "jpda") -> SequentialJPDA | ParallelJPDA:
     """The associator of S-MSJPDA (``sequential``) or P-MSJPDA (``parallel``)."""
     if architecture == "sequential":
-        return SequentialJPDA(model, R, settings, association, correction)
+        return SequentialJPDA(model, R, settings, association)
     return ParallelJPDA(model, R, settings)
 
 

@@ -1,7 +1,6 @@
 """S-/P-MSJPDA that start, confirm and delete their own tracks: the JPDA associators of
 :mod:`.jpda_associators` with the management :class:`~.own_tracks.OwnTracks` on the one tracker
-loop, with the hybrid's learned gain correction and the innovation bias test
-(:mod:`.innovation_bias`) where asked for."""
+loop, with the innovation bias test (:mod:`.innovation_bias`) where asked for."""
 
 from __future__ import annotations
 
@@ -18,13 +17,11 @@ from .loop import run_tracker
 from .management import Management, TrackReport
 from .msjpda import JPDASettings, associator, check_scans, check_variant
 from .own_tracks import OwnTracks
-from .roles import MeanCorrection
 
 
 def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, model: MeasurementModel, R: torch.Tensor,
                    settings: JPDASettings, architecture: Literal["sequential", "parallel"],
-                   management: Management, association: Association = "jpda",
-                   correction: MeanCorrection | None = None) -> TrackReport:
+                   management: Management, association: Association = "jpda") -> TrackReport:
     """S-/P-MSJPDA that start, confirm and delete their own tracks (:class:`~.own_tracks.OwnTracks`).
 
     Every scan: predict the tracks, associate and update them as :func:`~.msjpda.msjpda` does
@@ -37,17 +34,13 @@ def managed_msjpda(scans: Scans, motion: KinematicModel, dt: float, q: float, mo
     Step 0 has no prediction. Returns the confirmed tracks as reported at each scan (those whose
     existence is at least the management's ``report_existence``).
 
-    ``association`` and ``correction`` (sequential only): see
-    :func:`~.jpda_associators.pair_update`; a slot's learned memory is cleared when its track is
-    deleted.
+    ``association`` (sequential only): see :func:`~.jpda_associators.pair_update`.
     """
     check_scans(scans, model)
-    check_variant(architecture, association, correction)
-    bias = management.bias
-    if bias is not None and (architecture == "parallel" or (bias.action == "learn" and correction is None)):
-        raise ConfigError("the innovation bias test reads per-pair innovations (sequential MSJPDA only); its action "
-                          "'learn' needs a learned gain correction")
+    check_variant(architecture, association)
+    if management.bias is not None and architecture == "parallel":
+        raise ConfigError("the innovation bias test reads per-pair innovations (sequential MSJPDA only)")
     management.check(model, f"{architecture} MSJPDA")
     tracks = OwnTracks(management, model, motion.dim_x, settings.pd * settings.gate_probability, scans.z.dtype)
-    return run_tracker(scans, motion, dt, q, associator(model, R, settings, architecture, association, correction),
+    return run_tracker(scans, motion, dt, q, associator(model, R, settings, architecture, association),
                        tracks)

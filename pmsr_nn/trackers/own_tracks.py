@@ -26,7 +26,7 @@ import torch
 from ..measurements import MeasurementModel
 from .coalescence import CoalescenceTest, merged_existence
 from .management import EXPLAINED, Management, TableTracks
-from .roles import AssociationStep, MeanCorrection
+from .roles import AssociationStep
 
 
 class OwnTracks(TableTracks):
@@ -52,18 +52,7 @@ class OwnTracks(TableTracks):
     def predicted(self, k: int) -> None:
         self.predict_table(self.mg.survival)
 
-    def learned(self, correction: MeanCorrection | None) -> torch.Tensor | None:
-        """Where a learned correction acts this scan (None: every active track): the tracks the
-        bias test flagged with action ``learn``, else the confirmed ones for a correction trained
-        on them only."""
-        if correction is None:
-            return None
-        if self.mg.bias is not None and self.mg.bias.action == "learn":
-            return self.table.biased(self.mg.bias)
-        return self.table.confirmed if correction.confirmed_only else None
-
-    def updated(self, k: int, step: AssociationStep, z: torch.Tensor, valid: torch.Tensor,
-                correction: MeanCorrection | None) -> None:
+    def updated(self, k: int, step: AssociationStep, z: torch.Tensor, valid: torch.Tensor) -> None:
         table, mg = self.table, self.mg
         table.g = step.posterior
         ratio = step.shared_ratio if mg.shared_existence and step.shared_ratio is not None else step.ratio
@@ -80,8 +69,6 @@ class OwnTracks(TableTracks):
             if bool(merged.any()):
                 table.existence = merged_existence(table.existence, merged)
                 table.free(merged.any(1))
-        if correction is not None:
-            correction.forget(~table.active)
         # new tracks are tentative, so reporting before or after starting them is the same
         self.report.write(k, table if step.reported is None else replace(table, g=step.reported), mg.report_existence)
         by_gate = mg.explained_by == "gate" or step.taken is None

@@ -135,8 +135,8 @@ class PMHTWindows(Associator):
         self.redo = torch.ones(b, dtype=torch.bool, device=dev)  # runs whose EM must run (again) before this scan
         self.late = torch.zeros(b, C, dtype=torch.bool, device=dev)
 
-    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
-                  learned: torch.Tensor | None = None) -> AssociationStep:
+    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor,
+                  associating: torch.Tensor | None) -> AssociationStep:
         """Scan ``k`` of the window: EM (again) for the runs that need it, then that scan's
         evidence. ``associating`` is every active slot (own tracks)."""
         self.k += 1

@@ -7,8 +7,7 @@ One batched loop (:func:`~.loop.run_tracker`) runs every tracker that keeps trac
 Two roles fill it (Stone Soup's initiator / deleter / data associator / updater, batched over
 runs and track slots):
 
-* an :class:`Associator` (with its updater inside: the sigma-point moments, and a learned
-  :class:`MeanCorrection` where a hybrid has one) associates one scan's detections with the
+* an :class:`Associator` (with its updater inside: the sigma-point moments) associates one scan's detections with the
   tracks and updates them: :class:`AssociationStep`;
 * a :class:`TrackManagement` holds the tracks and, around the association, predicts their
   existence, confirms and deletes them and starts new ones (its :class:`Initiator`, confirmer and
@@ -66,38 +65,20 @@ class AssociationStep:
     shared_ratio: torch.Tensor | None = None
 
 
-class MeanCorrection(Protocol):
-    """A learned part of the updater (:class:`~pmsr_nn.trackers.learned_gain.GainCorrection`):
-    a correction of each track's updated mean from one pair's association, with a memory per
-    slot."""
-
-    confirmed_only: bool
-
-    def start(self, B: int, C: int) -> None: ...
-
-    def step(self, pair: int, w: torch.Tensor, nu: torch.Tensor, gate: torch.Tensor, mom,
-             active: torch.Tensor | None) -> torch.Tensor: ...
-
-    def forget(self, where: torch.Tensor) -> None: ...
-
-
 class Associator:
     """The association and update of one scan (a base: subclasses write :meth:`associate`).
 
     :meth:`predict` takes the tracks to scan ``k`` (the motion model's ``F``, ``Q``; a windowed
     smoother overrides it), :meth:`associate` associates that scan's detections ``z (B, L, M, d)``
     (``valid (B, L, M)``) with the tracks ``g (B, C, n)`` and updates them: only the slots
-    ``associating (B, C)`` gate detections (None: every slot); a learned correction acts on
-    ``learned (B, C)`` (None: the associating slots). :meth:`tracks_started` hears of the tracks
+    ``associating (B, C)`` gate detections (None: every slot). :meth:`tracks_started` hears of the tracks
     the management started at the scan (``started (B, C)``, their Gaussians in ``g``)."""
-
-    correction: MeanCorrection | None = None
 
     def predict(self, g: Gaussian, k: int, F: torch.Tensor, Q: torch.Tensor) -> Gaussian:
         return predict(g, F, Q)
 
-    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor, associating: torch.Tensor | None,
-                  learned: torch.Tensor | None = None) -> AssociationStep:
+    def associate(self, g: Gaussian, z: torch.Tensor, valid: torch.Tensor,
+                  associating: torch.Tensor | None) -> AssociationStep:
         raise NotImplementedError
 
     def tracks_started(self, started: torch.Tensor | None, g: Gaussian) -> None:
@@ -131,7 +112,7 @@ class TrackManagement(Protocol):
 
     :meth:`begin` once (``B`` runs, ``K`` scans, ``F``, ``Q`` one scan's motion, which an
     initiator that keeps candidates across scans predicts them with), then every scan ``k``: :meth:`predicted` after the loop's prediction of
-    :attr:`g` (``k > 0``), :meth:`associating` and :meth:`learned` before the association,
+    :attr:`g` (``k > 0``), :meth:`associating` before the association,
     :meth:`updated` after it, which sets :attr:`started` (the slots ``(B, C)`` it started tracks
     in, None: none); :meth:`result` at the end."""
 
@@ -144,9 +125,6 @@ class TrackManagement(Protocol):
 
     def associating(self, k: int) -> torch.Tensor | None: ...
 
-    def learned(self, correction: MeanCorrection | None) -> torch.Tensor | None: ...
-
-    def updated(self, k: int, step: AssociationStep, z: torch.Tensor, valid: torch.Tensor,
-                correction: MeanCorrection | None) -> None: ...
+    def updated(self, k: int, step: AssociationStep, z: torch.Tensor, valid: torch.Tensor) -> None: ...
 
     def result(self): ...

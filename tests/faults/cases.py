@@ -865,21 +865,24 @@ case("train/sigterm-after-checkpoint", "train train_long.yaml --out run_sig", si
      signal_after=("run_sig/checkpoints/last.ckpt",), outputs=("run_sig",), timeout=90,
      klass="traceback")
 
-# the hybrid tracker on detections (kind: jpda_gain): refused before anything is written
-GAIN_YAML = "kind: jpda_gain\nrecipe: r.yaml\nscenes: {window: 20, targets: [2, 2]}\noptim: {steps: 2, batch_size: 2}\n"
-GAIN = steps(write("r.yaml", RECIPE_YAML), write("g.yaml", GAIN_YAML))
-case("train/jpda-gain-resume", "train g.yaml --resume --out run3", setup=GAIN, message="can not be resumed",
+# the tracker on detections (kind: nebp): refused before anything is written
+NEBP_YAML = "kind: nebp\nrecipe: r.yaml\nscenes: {window: 20, targets: [2, 2]}\noptim: {steps: 2, batch_size: 2}\n"
+NEBP = steps(write("r.yaml", RECIPE_YAML), write("g.yaml", NEBP_YAML))
+case("train/nebp-resume", "train g.yaml --resume --out run3", setup=NEBP, message="can not be resumed",
      klass="refusal")
-case("train/jpda-gain-pd-out-of-range", "train g.yaml scenes.pd=[0.5,1.5] --out run3", setup=GAIN,
+case("train/nebp-pd-out-of-range", "train g.yaml scenes.pd=[0.5,1.5] --out run3", setup=NEBP,
      message="scenes.pd must lie in (0, 1]", klass="refusal")
-case("train/jpda-gain-unknown-key", "train g.yaml optim.stepz=3 --out run3", setup=GAIN, message="unknown key 'stepz'",
+case("train/nebp-unknown-key", "train g.yaml optim.stepz=3 --out run3", setup=NEBP, message="unknown key 'stepz'",
      klass="refusal")
-case("train/jpda-gain-tracking-unknown", "train g.yaml tracking=magic --out run3", setup=GAIN,
-     message="tracking must be one of oracle, managed", klass="refusal")
-case("train/jpda-gain-recipe-missing", "train g.yaml recipe=nope.yaml --out run3", setup=GAIN, message="nope.yaml",
+case("train/nebp-recipe-missing", "train g.yaml recipe=nope.yaml --out run3", setup=NEBP, message="nope.yaml",
      klass="refusal")
-case("train/jpda-gain-out-user", "train g.yaml --out user", setup=GAIN,
+case("train/nebp-out-user", "train g.yaml --out user", setup=NEBP,
      message="holds files that are not a training run", klass="data_loss")
+# the hybrid tracker's config (kind: jpda_gain), removed under issue 56: one line naming the removal
+GAIN = steps(write("r.yaml", RECIPE_YAML),
+             write("g.yaml", NEBP_YAML.replace("kind: nebp", "kind: jpda_gain")))
+case("train/jpda-gain-removed", "train g.yaml --out run3", setup=GAIN,
+     message="removed from the package under issue 56", klass="refusal")
 
 # ---------------------------------------------------------------------------------------------
 # select

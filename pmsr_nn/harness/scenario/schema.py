@@ -336,7 +336,7 @@ class Scenario(StudyFile):
     def with_checkpoints(self, checkpoints: dict[str, str]) -> "Scenario":
         """Swap the checkpoint of named learned methods (``--checkpoint NAME=PATH``); the new
         paths are taken as given (relative to the working directory). Any kind that reads a
-        checkpoint (``learned``, ``jpda_learned_gain``, ``nebp``) takes one."""
+        checkpoint (``learned``, ``nebp``) takes one."""
         from ...methods import registry
 
         kinds = registry()
