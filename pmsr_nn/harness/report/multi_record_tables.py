@@ -60,7 +60,8 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                            dense_bp: dict, dense: dict, dense_ghosts: dict, access: dict, shared_nebp: dict,
                            dense_nebp: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
-    rows (the scenarios' studies), the learned gain's three seeds and NEBP's (its own studies), per
+    rows (the scenarios' studies), the learned gain's three seeds (the hybrid, removed under issue 56:
+    its records) and NEBP's (its own studies), per
     scenario, with one_sky's duplicate-free rows (linearised and unscented fix covariances) below
     its own; the Access initiation study's nominal case (range and Doppler only) last."""
     gain = "S-MSJPDA + learned gain [seed {seed}]"
@@ -73,8 +74,8 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                     _gospa(s["PMHT from detections"]), "-", _seeds(_methods(shared_hybrid), gain),
                     _seeds(_methods(shared_nebp), NEBP_ROW)]))
     o = _methods(one_sky)
-    out.append(row(["`one_sky.yaml` (eight drones, Pd 0.85, 10 clutter points per pair, 50 runs; hybrid rows from "
-                    "`one_sky_hybrid.yaml`, the same runs)", _gospa(_methods(one_sky_bp)["BP"]),
+    out.append(row(["`one_sky.yaml` (eight drones, Pd 0.85, 10 clutter points per pair, 50 runs; hybrid rows from the "
+                    "record of `one_sky_hybrid.yaml`, at c270857, the same runs)", _gospa(_methods(one_sky_bp)["BP"]),
                     _gospa(o["S-MSJPDA"]), _gospa(o["P-MSJPDA"]), _gospa(o["PMHT"]), _gospa(o["SMC-PHD + GTDA"]),
                     _seeds(_methods(one_sky_hybrid), gain), "-"]))
     m = _methods(one_sky_managed)
