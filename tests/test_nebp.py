@@ -138,7 +138,7 @@ def test_a_tiny_model_trained_for_seconds_beats_bp_where_the_clutter_is_not_what
     space, here the narrow box's, so it distrusts every detection alike; the network reads each
     detection's range-rate. Twenty Adam steps on scenes of ten scans (seconds) lower the beliefs'
     cross-entropy on fixed validation scenes: what each detection is (clutter, a track's, a new
-    target's) by at least 30 %, the whole loss by at least 15 % (measured: 57 % and 29 %)."""
+    target's) by at least 30 %, the whole loss by at least 15 %."""
     pr = _problem(clutter_per_scan=[20, 20], range_rate_mps=[-1.0, 1.0], window=10)
     cfg = pr.cfg
     net = _net(pr)

@@ -48,24 +48,20 @@ def run_nebp(call: MethodCall) -> Estimates:
     refiner = MessageRefiner(ck.net, model.components, model.n_pairs, ck.scales, float(model.noise_std[0]))
     with torch.no_grad():
         rep = bp_tracker(scans, m.motion, m.dt, m.q, model, model.R(device=scans.z.device), settings(call.spec, s),
-                         s.prior_sd, float(call.spec.option("birth_velocity_sd_mps")),
-                         None if "azimuth" in model.components else _no_initiator(call.spec.name), refiner=refiner)
+                         s.prior_sd, float(call.spec.option("birth_velocity_sd_mps")), refiner=refiner)
     return Estimates(rep.x, rep.exists, rep.P, paired=False, existence=rep.existence)
 
 
-def _no_initiator(name: str):
-    raise ConfigError(f"method {name!r}: kind nebp seeds its new targets from single detections and needs azimuth "
-                      "in the detections (use kind bp without azimuth)")
-
-
 def _check(spec, sensing) -> None:
+    """kind bp's checks, and azimuth: NEBP's new targets are seeded from single detections."""
     check_sensing(spec, sensing)
     if "azimuth" not in sensing.detection_model.components:
-        _no_initiator(spec.name)
+        raise ConfigError(f"method {spec.name!r}: kind nebp seeds its new targets from single detections and needs "
+                          "azimuth in the detections (use kind bp without azimuth)")
 
 
 register(MethodKind("nebp", "detections", run_nebp, OPTIONS, needs_checkpoint=True, load=_load, check_sensing=_check,
                     starts_tracks=True, any_device=True, batchable=True,
                     description="neural-enhanced belief propagation (Liang & Meyer, IEEE TSP 2024): the BP tracker "
-                                "with learned corrections of its association likelihoods and new-target weights "
-                                "(pmsr train train/nebp.yaml)"))
+                                "with learned corrections of its association likelihoods and of each detection's weight of "
+                                "target against clutter (pmsr train train/nebp.yaml)"))

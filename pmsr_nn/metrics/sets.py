@@ -116,6 +116,14 @@ def _assigned_terms(D: torch.Tensor, assign: torch.Tensor, p: float) -> tuple[to
     return loc, valid.sum(-1).to(D.dtype)
 
 
+def min_cost_matching(cost: torch.Tensor, row_ok: torch.Tensor, col_ok: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """``(..., M)`` int64: a minimum-cost one-to-one matching of the existing rows ``row_ok (..., M)``
+    and columns ``col_ok (..., N)`` of each ``cost (..., M, N)`` item (the column of each row), -1
+    where a row is unmatched or its pair is not ``keep (..., M, N)``; the solver behind the set
+    metrics (enumeration for small sets, SciPy's otherwise)."""
+    return _solve(cost, row_ok, col_ok, keep)
+
+
 def optimal_assignment(
     est: torch.Tensor, est_mask: torch.Tensor, truth: torch.Tensor, truth_mask: torch.Tensor, c: float, p: float
 ) -> torch.Tensor:

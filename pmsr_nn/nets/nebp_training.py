@@ -42,7 +42,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ..config import from_dict, load_yaml, require, to_dict
@@ -124,15 +123,15 @@ def node_labels(x: torch.Tensor, P: torch.Tensor, live: torch.Tensor, targets: t
                 gate: float) -> torch.Tensor:
     """``(B, C)`` the target each node describes (-1: none; module docstring): nodes' positions ``x
     (B, C, 2)`` with covariances ``P (B, C, 2, 2)``, ``live (B, C)``; targets' positions ``targets
-    (B, N, 2)``, ``alive (B, N)``; a one-to-one assignment (scipy's) minimising the summed negative
-    log-likelihoods ``d2 + log det P`` (a node whose Gaussian is narrow holds its target against a
-    newborn's wide one), each kept pair's squared Mahalanobis distance ``d2`` inside ``gate``."""
-    from scipy.optimize import linear_sum_assignment
+    (B, N, 2)``, ``alive (B, N)``; a one-to-one assignment (:func:`~pmsr_nn.metrics.sets.min_cost_matching`)
+    minimising the summed negative log-likelihoods ``d2 + log det P`` (a node whose Gaussian is
+    narrow holds its target against a newborn's wide one), each kept pair's squared Mahalanobis
+    distance ``d2`` inside ``gate``."""
+    from ..metrics.sets import min_cost_matching
 
     B, C = live.shape
-    labels = torch.full((B, C), -1, dtype=torch.long)
     if C == 0 or targets.shape[1] == 0:
-        return labels
+        return torch.full((B, C), -1, dtype=torch.long)
     diff = targets[:, None, :, :] - x[:, :, None, :]  # (B, C, N, 2)
     Ps = 0.5 * (P + P.transpose(-1, -2))
     d2 = torch.einsum("bcni,bcij,bcnj->bcn", diff, torch.linalg.inv(Ps), diff)
@@ -140,13 +139,8 @@ def node_labels(x: torch.Tensor, P: torch.Tensor, live: torch.Tensor, targets: t
     # the negative log-likelihood (up to a constant), not d2 alone: a newborn's wide Gaussian puts a target at a
     # small d2 and would take it from the track that holds it
     nll = d2 + torch.logdet(Ps)[:, :, None]
-    cost = torch.where(ok, nll, torch.full((), 1e12, dtype=d2.dtype)).cpu().numpy()
-    okn = ok.cpu().numpy()
-    for b in np.nonzero(okn.any((1, 2)))[0]:
-        rows, cols = linear_sum_assignment(cost[b])
-        keep = okn[b, rows, cols]
-        labels[b, torch.as_tensor(rows[keep])] = torch.as_tensor(cols[keep], dtype=torch.long)
-    return labels
+    cost = torch.where(ok, nll, torch.full((), 1e12, dtype=d2.dtype))
+    return min_cost_matching(cost, ok.any(-1), ok.any(-2), ok)
 
 
 CLUTTER, LEGACY, NEW = 0, 1, 2
@@ -283,7 +277,7 @@ class Problem:
                           clutter_density=floored_clutter_density(clutter, self.model.components))
 
     def track(self, net, step: tuple[int, ...], B: int, train: bool):
-        """Run NEBP (``net``) on ``B`` scenes of seed ``step``: ``(report, truth, supervisor)``."""
+        """Run NEBP (``net``) on ``B`` scenes of seed ``step``: ``(report, truth, supervisor, refiner)``."""
         from ..trackers.bp_tracker import bp_tracker
 
         scans, truth, pd, clutter, _ = self.sampler.draw(step, B)
@@ -293,7 +287,7 @@ class Problem:
         refiner = self.refiner(net, sup)
         with torch.set_grad_enabled(train):
             rep = bp_tracker(scans, self.motion, self.dt, self.q, self.model, self.model.R(), self.settings(pd, clutter),
-                             self.prior_sd, 10.0, refiner=refiner)
+                             self.prior_sd, refiner=refiner)  # kind bp's defaults, its birth velocity prior included
         return rep, truth, sup, refiner
 
     def gospa_m(self, rep, truth: torch.Tensor) -> float:

@@ -119,7 +119,7 @@ class BPAssociator(Associator):
     pooled list in turn, so the illuminator is a third dimension of the association, resolved by
     which pair's prediction a detection fits (``clutter_density`` then the pooled list's);
     ``refiner`` a :class:`~.message_refiner.MessageRefiner` (neural-enhanced BP) that corrects each
-    list's likelihood ratios and new-target weights before the message passing (per-pair lists only)."""
+    list's likelihood ratios and detection weights before the message passing (per-pair lists only)."""
 
     def __init__(self, model: MeasurementModel, R: torch.Tensor, pd: float, clutter_density: float,
                  existence: Callable[[], torch.Tensor] | None = None, birth: float = 0.0,

@@ -38,6 +38,8 @@ from typing import Callable
 
 import torch
 
+from .bp_association import bp_associate
+
 ANGLES = ("azimuth",)
 """Measurement components that are angles (read as cosine and sine)."""
 
@@ -151,7 +153,7 @@ class MessageRefiner:
         self.scales, self.range_sd_unit = scales, float(range_sd_unit)
         self.supervisor, self.grad_passes = supervisor, grad_passes
         self.k = -1
-        self.loss, self.terms = None, 0
+        self.loss = None
         self._last = None
 
     def begin_scan(self) -> None:
@@ -176,15 +178,12 @@ class MessageRefiner:
         messages ``bp.messages``."""
         if self.supervisor is None or self._last is None:
             return
-        from .bp_association import bp_associate
-
         pair, g, ratio, birth, prior, valid = self._last
         self._last = None
         beliefs = bp_associate(ratio, prior, pd, birth, valid, self.grad_passes, 0.0, start=bp.messages.detach())
         term = self.supervisor(self.k, pair, g, prior, ratio, valid, beliefs)
         if term is not None:
             self.loss = term if self.loss is None else self.loss + term
-            self.terms += 1
 
 
 def bounded(raw: torch.Tensor, bound: float) -> torch.Tensor:
