@@ -264,18 +264,35 @@ def test_a_checkpoint_round_trips_and_an_edited_one_is_refused(tmp_path):
         load_nebp_checkpoint(tmp_path / "bad.pt")
 
 
-@pytest.mark.parametrize("main_name, oracle", [("dense_crossing", "S-MSJPDA (oracle births)"),
-                                               ("shared_drones", "S-MSJPDA")])
-def test_the_nebp_companions_are_their_studies_but_for_the_rows(main_name, oracle):
+@pytest.mark.parametrize("main_name, companion, oracle, stem", [
+    ("dense_crossing", "dense_crossing_nebp", "S-MSJPDA (oracle births)", "nebp"),
+    ("shared_drones", "shared_drones_nebp", "S-MSJPDA", "nebp"),
+    ("one_sky_bp", "one_sky_nebp", "S-MSJPDA (oracle births)", "nebp_one_sky")])
+def test_the_nebp_companions_are_their_studies_but_for_the_rows(main_name, companion, oracle, stem):
     """``evaluate/<study>_nebp.yaml``: every setting but the name, the description and the rows is
     the study's (the draws do not depend on those), its first rows are the study's oracle row and
-    BP, the others NEBP from the released checkpoints."""
+    BP, the others NEBP from the released checkpoints made for its sensors."""
     import yaml
 
     root = ROOT / "evaluate"
-    main_, nebp = (yaml.safe_load((root / f).read_text()) for f in (f"{main_name}.yaml", f"{main_name}_nebp.yaml"))
+    main_, nebp = (yaml.safe_load((root / f"{f}.yaml").read_text()) for f in (main_name, companion))
     rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
     assert rest(nebp) == rest(main_)
     assert nebp["methods"][:2] == [next(m for m in main_["methods"] if m["name"] == oracle), {"name": "BP", "kind": "bp"}]
     assert [(m["kind"], m["checkpoint"]) for m in nebp["methods"][2:]] == [
-        ("nebp", f"../models/released/nebp_s{s}.pt") for s in range(3)]
+        ("nebp", f"../models/released/{stem}_s{s}.pt") for s in range(3)]
+
+
+def test_the_hard_one_sky_is_one_sky_nebp_but_for_pd_and_clutter():
+    """``evaluate/one_sky_hard.yaml``: one_sky_nebp's draws, rows and settings, but Pd 0.7 (0.85) and
+    40 clutter points per pair (80 per receiver's pooled list of two pairs; one_sky 10 and 20)."""
+    import yaml
+
+    root = ROOT / "evaluate"
+    nebp, hard = (yaml.safe_load((root / f).read_text()) for f in ("one_sky_nebp.yaml", "one_sky_hard.yaml"))
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "detections")}  # noqa: E731
+    assert rest(hard) == rest(nebp)
+    d_nebp, d_hard = nebp["detections"], hard["detections"]
+    assert (d_nebp["pd"], d_hard["pd"]) == (0.85, 0.7) and d_hard["illuminator_known"] is False
+    assert (d_nebp["clutter"]["per_scan"], d_hard["clutter"]["per_scan"]) == (20, 80)
+    assert {**d_hard, "pd": 0.85, "clutter": {**d_hard["clutter"], "per_scan": 20}} == d_nebp

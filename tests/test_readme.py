@@ -127,7 +127,7 @@ SHARDS = [tiny_blocks_scenario] + [["evaluate", "tiny/drones.yaml", "--out", f"r
 STUDIES = ("fitee2023_mismatch", "one_sky", "remotesensing2020_icmb", "jeit2021_pmht", "fm_front_end", "daniyan_smcphd",
            "daniyan_smcphd_signals", "access2019_msjpda", "access2019_msjpda_pd", "access2019_msjpda_mbest",
            "access2019_msjpda_clutter", "access2019_msjpda_initiation", "dense_crossing", "one_sky_bp",
-           "dense_crossing_bp", "shared_drones_bp", "one_sky_stonesoup", "dense_crossing_nebp")
+           "dense_crossing_bp", "shared_drones_bp", "one_sky_stonesoup", "dense_crossing_nebp", "one_sky_hard")
 TINY_SCENES = ["optim.steps=2", "optim.val_every=1", "optim.val_scenes=2", "optim.batch_size=2", "scenes.targets=[2,2]"]
 """A tracker on detections trained in seconds: two steps of two scenes of two targets."""
 
@@ -188,7 +188,7 @@ RULES = [
     Rule(r"pmsr methods( \w+)*"),
     # Scripts: their own tests cover them; here their options must exist (`--help` lists them).
     Rule(r"python (evaluate|benchmarks)/\w+\.py( evaluate/\w+\.yaml)?( --\S+( [^-\s]\S*)*)*"),
-    Rule(r"pmsr train train/nebp\.yaml --out runs/nebp_s0 seed=0", lambda a: [*a, *TINY_SCENES, "scenes.window=12",
+    Rule(r"pmsr train train/nebp(_one_sky)?\.yaml --out runs/nebp(_one_sky)?_s0 seed=0", lambda a: [*a, *TINY_SCENES, "scenes.window=12",
                                                                             "optim.skip_scans=3"]),
 ]
 
