@@ -45,3 +45,30 @@ def test_the_shares_are_the_merged_reports_and_blocks_of_several_runs_are_refuse
     execute(open_run(several, tmp_path / "two" / "bank", target="bank", progress=False))
     with pytest.raises(ConfigError, match="blocks of 2 runs: each run's parts need one run per block"):
         script.run_parts(tmp_path / "two" / "bank", None, "own")
+
+
+@pytest.mark.integration
+def test_the_missed_part_splits_into_starts_and_the_rest(tmp_path):
+    """Drone a is born at scan 0 (before the 10-scan warm-up), b at scan 20: with 3 start scans the
+    missed part at a start is b's scans 20-22 alone, read straight from the block sums; the two
+    halves add up to the whole; with start scans as long as the case, nothing is missed elsewhere."""
+    from pmsr_nn.harness.run.block_bank import bank_blocks
+    from pmsr_nn.harness.run.block_sums import read_shard
+
+    path = two_drones(tmp_path, methods=ROWS, mc_runs=3, block_runs=1, detections={
+        "pd": 0.6, "clutter": {"per_scan": 3, "range_m": [0.0, 25000.0], "range_rate_mps": [-40.0, 40.0]}})
+    execute(open_run(path, tmp_path / "bank", target="bank", progress=False))
+    script = load_script("evaluate/gospa_shares.py")
+    assert script.birth_scans(tmp_path / "bank", "c") == [0, 20]
+    whole = script.run_parts(tmp_path / "bank", None, "own")
+    split = script.run_parts(tmp_path / "bank", None, "own", start_scans=3)
+    assert list(split) == ["localisation", "missed at a start", "missed elsewhere", "false"]
+    by_hand = [float(read_shard(f)[1].sums["c"]["own"]["gospa_missed"][0, 20:23].sum() / 90)
+               for f in bank_blocks(tmp_path / "bank")]
+    np.testing.assert_allclose(split["missed at a start"], by_hand, rtol=1e-12)
+    np.testing.assert_allclose(split["missed at a start"] + split["missed elsewhere"], whole["missed"], rtol=1e-12)
+    assert (split["missed at a start"] > 0).any()  # Pd 0.6: some run starts b a scan or more late
+    every = script.run_parts(tmp_path / "bank", None, "own", start_scans=100)
+    np.testing.assert_allclose(every["missed elsewhere"], 0.0, atol=1e-9 * whole["missed"].max())
+    with pytest.raises(ConfigError, match="--start-scans must be at least 0"):
+        script.run_parts(tmp_path / "bank", None, "own", start_scans=-1)
