@@ -24,6 +24,8 @@ DENSE_UNSCENTED = "evaluate/results/dense_crossing_unscented_fixes/results.json"
 SHARED_UNSCENTED = "evaluate/results/shared_drones_unscented_fixes/results.json"
 DENSE_NEBP = "evaluate/results/dense_crossing_nebp/results.json"
 SHARED_NEBP = "evaluate/results/shared_drones_nebp/results.json"
+ONE_SKY_NEBP = "evaluate/results/one_sky_nebp/results.json"
+ONE_SKY_HARD = "evaluate/results/one_sky_hard/results.json"
 NEBP_ROW = "NEBP [seed {seed}]"
 
 
@@ -52,18 +54,20 @@ def _seeds(methods: dict, name: str) -> str:
 
 READ_DETECTIONS_SOURCES = (SHARED_BP, SHARED, SHARED_HYBRID, ONE_SKY_BP, ONE_SKY, ONE_SKY_HYBRID, ONE_SKY_MANAGED,
                            ONE_SKY_MANAGED_PMHT, ONE_SKY_UNSCENTED,
-                           DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION, SHARED_NEBP, DENSE_NEBP)
+                           DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION, SHARED_NEBP, DENSE_NEBP, ONE_SKY_NEBP,
+                           ONE_SKY_HARD)
 
 
 def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, one_sky_bp: dict, one_sky: dict,
                            one_sky_hybrid: dict, one_sky_managed: dict, one_sky_managed_pmht: dict, one_sky_unscented: dict,
                            dense_bp: dict, dense: dict, dense_ghosts: dict, access: dict, shared_nebp: dict,
-                           dense_nebp: dict) -> list[str]:
+                           dense_nebp: dict, one_sky_nebp: dict, one_sky_hard: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
     rows (the scenarios' studies), the learned gain's three seeds (the hybrid, removed under issue 56:
     its records) and NEBP's (its own studies), per
     scenario, with one_sky's duplicate-free rows (linearised and unscented fix covariances) below
-    its own; the Access initiation study's nominal case (range and Doppler only) last."""
+    its own and its hard variant (BP and NEBP alone) after them; the Access initiation study's
+    nominal case (range and Doppler only) last."""
     gain = "S-MSJPDA + learned gain [seed {seed}]"
     out = ["| scenario | BP | S-MSJPDA | P-MSJPDA | PMHT | SMC-PHD + GTDA | S-MSJPDA + learned gain, seeds 0 / 1 / 2 "
            "| NEBP, seeds 0 / 1 / 2 |",
@@ -75,9 +79,9 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                     _seeds(_methods(shared_nebp), NEBP_ROW)]))
     o = _methods(one_sky)
     out.append(row(["`one_sky.yaml` (eight drones, Pd 0.85, 10 clutter points per pair, 50 runs; hybrid rows from the "
-                    "record of `one_sky_hybrid.yaml`, at c270857, the same runs)", _gospa(_methods(one_sky_bp)["BP"]),
+                    "record of `one_sky_hybrid.yaml`, at c270857, NEBP rows from `one_sky_nebp.yaml`, the same runs)", _gospa(_methods(one_sky_bp)["BP"]),
                     _gospa(o["S-MSJPDA"]), _gospa(o["P-MSJPDA"]), _gospa(o["PMHT"]), _gospa(o["SMC-PHD + GTDA"]),
-                    _seeds(_methods(one_sky_hybrid), gain), "-"]))
+                    _seeds(_methods(one_sky_hybrid), gain), _seeds(_methods(one_sky_nebp), NEBP_ROW)]))
     m = _methods(one_sky_managed)
     out.append(row(["`one_sky_managed.yaml` (the same runs; S- and P-MSJPDA with the duplicate-free "
                     "management; PMHT from `one_sky_managed_pmht.yaml`)", _gospa(_methods(one_sky_bp)["BP"]), _gospa(m["S-MSJPDA (duplicate-free)"]),
@@ -88,6 +92,9 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                     "initiator's unscented covariance)", _gospa(_methods(one_sky_bp)["BP"]),
                     *(_gospa(u[f"{name} (duplicate-free, unscented fixes)"]) for name in ("S-MSJPDA", "P-MSJPDA", "PMHT")),
                     "-", "-", "-"]))
+    h = _methods(one_sky_hard)
+    out.append(row(["`one_sky_hard.yaml` (one_sky's drones with Pd 0.7 and 40 clutter points per pair, 50 runs)", _gospa(h["BP"]),
+                    "-", "-", "-", "-", "-", _seeds(h, NEBP_ROW)]))
     d = _methods(dense)
     out.append(row(["`dense_crossing.yaml` (Pd 0.7, 40 clutter points per pair, 10 runs)",
                     _gospa(_methods(dense_bp)["BP"]), _gospa(d["S-MSJPDA"]), _gospa(d["P-MSJPDA"]), _gospa(d["PMHT"]),
@@ -103,7 +110,7 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
 
 
 def nebp_study(rec: dict, oracle: str) -> list[str]:
-    """A NEBP study (dense_crossing_nebp, shared_drones_nebp): the row handed the births (``oracle``,
+    """A NEBP study (dense_crossing_nebp, shared_drones_nebp, one_sky_nebp, one_sky_hard): the row handed the births (``oracle``,
     which shows the draws are the main study's), BP and NEBP's three seeds: GOSPA ± s.e., the runs'
     median / 90 % / worst, the shares, false tracks, first track after birth, seconds per run."""
     methods = _methods(rec)

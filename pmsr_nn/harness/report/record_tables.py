@@ -126,6 +126,8 @@ TABLES: dict[str, Table] = {
     "shared_drones_bp": Table(multi.SHARED_BP, multi.shared_drones_bp),
     "dense_crossing_nebp": Table(multi.DENSE_NEBP, lambda r: multi.nebp_study(r, "S-MSJPDA (oracle births)")),
     "shared_drones_nebp": Table(multi.SHARED_NEBP, lambda r: multi.nebp_study(r, "S-MSJPDA")),
+    "one_sky_nebp": Table(multi.ONE_SKY_NEBP, lambda r: multi.nebp_study(r, "S-MSJPDA (oracle births)")),
+    "one_sky_hard": Table(multi.ONE_SKY_HARD, lambda r: multi.nebp_study(r, "S-MSJPDA (oracle births)")),
     "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
     "duplicate_free": Table((multi.DENSE_DUPLICATE_FREE, multi.SHARED_DUPLICATE_FREE, multi.DENSE_UNSCENTED,
                              multi.SHARED_UNSCENTED), multi.duplicate_free),
