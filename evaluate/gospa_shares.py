@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from pmsr_nn.errors import ConfigError
-from pmsr_nn.harness.run.block_bank import BANK_FILE, bank_blocks, bank_scenario
-from pmsr_nn.harness.run.block_sums import read_shard, resolved_base
+from pmsr_nn.harness.run.block_bank import bank_blocks, bank_identity, bank_scenario
+from pmsr_nn.harness.run.block_sums import read_shard
 from pmsr_nn.harness.scenario.prepared import set_scans_after
 
 PARTS = {"localisation": "gospa_loc", "missed": "gospa_missed", "false": "gospa_false"}
@@ -37,11 +37,10 @@ PARTS = {"localisation": "gospa_loc", "missed": "gospa_missed", "false": "gospa_
 
 def birth_scans(bank: Path, case: str) -> list[int]:
     """The scan of each target's birth in ``case`` (its ``birth_s`` over the recipe's interval)."""
-    import json
-
     from pmsr_nn.simulation.recipe import TrackRecipe, load_recipe
 
-    scenario = bank_scenario(bank)
+    identity = bank_identity(bank)
+    scenario = identity["scenario"]
     (c,) = [c for c in scenario["cases"] if c["name"] == case]
     if "targets" not in c:
         raise ConfigError(f"case {case!r} of {bank} names no targets with births (a world scenario): --start-scans "
@@ -49,10 +48,7 @@ def birth_scans(bank: Path, case: str) -> list[int]:
     if scenario["recipe"] is None:  # the built-in recipe, as the harness takes it
         dt = TrackRecipe().motion.dt_s
     else:
-        held = Path(bank) / BANK_FILE
-        meta = held if held.is_file() else bank_blocks(bank)[0] / "shard.json"  # bank.json deleted: a block names it
-        base = resolved_base(json.loads(meta.read_text(encoding="utf-8"))["base_dir"], meta.parent)
-        dt = load_recipe(Path(base) / scenario["recipe"]).motion.dt_s
+        dt = load_recipe(Path(identity["base_dir"]) / scenario["recipe"]).motion.dt_s
     return [int(round(float(t.get("birth_s", 0.0)) / dt)) for t in c["targets"]]
 
 

@@ -63,15 +63,22 @@ def made_per_block(path: Path) -> bool:
         return False
 
 
-def bank_scenario(bank: Path) -> dict:
-    """The scenario (as ``Scenario.to_dict`` wrote it) that bank ``bank`` runs: from its
-    ``bank.json``, or, where that was deleted, from a block's ``shard.json``; anything else at
-    ``bank`` is refused in one line."""
+def bank_identity(bank: Path) -> dict:
+    """``{"scenario", "base_dir"}`` of bank ``bank``: the scenario (as ``Scenario.to_dict`` wrote
+    it) and its absolute folder, from its ``bank.json``, or, where that was deleted, from a
+    block's ``shard.json``; anything else at ``bank`` is refused in one line."""
     if is_bank(bank):
-        return json.loads((Path(bank) / BANK_FILE).read_text(encoding="utf-8"))["scenario"]
-    if made_per_block(bank) and bank_blocks(bank):  # bank.json deleted: every block names the scenario too
-        return json.loads((bank_blocks(bank)[0] / "shard.json").read_text(encoding="utf-8"))["scenario"]
-    raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
+        meta = Path(bank) / BANK_FILE
+    elif made_per_block(bank) and bank_blocks(bank):  # bank.json deleted: every block names the scenario too
+        meta = bank_blocks(bank)[0] / "shard.json"
+    else:
+        raise ConfigError(f"{bank} is not a block bank of 'pmsr evaluate --per-block'")
+    return _identity(json.loads(meta.read_text(encoding="utf-8")), meta.parent)
+
+
+def bank_scenario(bank: Path) -> dict:
+    """The scenario that bank ``bank`` runs (:func:`bank_identity`)."""
+    return bank_identity(bank)["scenario"]
 
 
 def bank_blocks(bank: Path) -> list[Path]:
