@@ -91,6 +91,38 @@ def test_one_update_matches_the_phd_update_equation_evaluated_particle_by_partic
     assert torch.equal(new.x, x)  # the update moves no particle
 
 
+def test_the_windowed_likelihood_is_the_full_product_where_every_pair_is_formed():
+    """Each particle reads only the detections inside its range window; the pairs left out are those
+    whose exponent is below -700, which the full ``(B, M, J)`` product sets to 0 too. Particles over
+    +-3 km of the detections put many pairs just inside and just outside the window's edge (range
+    residuals of 0.5-1.2 km, exponents from -140 to -800); a window half as wide would drop pairs the
+    full product keeps. Two runs, padding on both sides."""
+    f = phd(pairs=1)
+    g = torch.Generator().manual_seed(3)
+    B, M, J = 2, 400, 12
+    centre = torch.tensor([3000.0, 5.0, 0.0, 6000.0, -2.0, 0.0], dtype=torch.float64)
+    x = centre + torch.randn(B, M, 6, generator=g, dtype=torch.float64) * torch.tensor([1500, 3, 0.01, 1500, 3, 0.01])
+    w = torch.rand(B, M, generator=g, dtype=torch.float64) * 1e-3
+    w[1, 300:] = 0.0  # padding particles (log w = -inf)
+    z = f.pairs[0].h(x[:, :J] + torch.randn(B, J, 6, generator=g, dtype=torch.float64) * 100.0)
+    valid = torch.ones(B, J, dtype=torch.bool)
+    valid[0, 9:] = False
+    st = PHDState(x, w, w.sum(1))
+    assert f._window_c == 0  # windows in range
+    cand, inside = f._windows(f.pairs[0].h(x), torch.log(f.pd * w) + f._log_norm, z, valid)
+    assert cand.shape[-1] < J  # each particle reads fewer columns than the list has
+    windowed = f.weighted_likelihood(st, 0, z, valid)
+    f._window_c = None
+    full = f.weighted_likelihood(st, 0, z, valid)
+    kept = full > 0
+    exponent = torch.log(full[kept])
+    assert float(exponent.min()) < -600.0 and int(kept.sum()) > 10 * B * J  # the scene reaches the cut
+    # the same numbers: each is the exp of the same exponent (vectorised and scalar exp differ by at most an ulp)
+    assert torch.equal(windowed > 0, kept)
+    assert torch.allclose(windowed, full, rtol=4e-16, atol=0.0)
+    assert not bool(windowed[0, :, 9:].any()) and not bool(windowed[1, 300:].any())
+
+
 def test_the_mass_follows_the_expected_number_in_closed_form_and_after_every_step():
     """Survival, birth mass and a scan without detections in closed form; then, on three pairs with
     clutter, the particle weights against the recursion's count after every step (float64 sums of

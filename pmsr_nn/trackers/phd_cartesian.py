@@ -156,6 +156,9 @@ class CartesianPHD:
         self.pairs = [model.for_pairs([s]) for s in range(model.n_pairs)]
         self.sd = torch.tensor(model.noise_std, dtype=torch.float64)
         self.angle = [c == "azimuth" for c in model.components]
+        # the component whose residual bounds the likelihood's windows (weighted_likelihood): the first that is
+        # not an angle (an angle's residual wraps, so it does not sort)
+        self._window_c = next((c for c, a in enumerate(self.angle) if not a), None)
         self._log_norm = -0.5 * len(model.components) * math.log(2 * math.pi) - float(self.sd.log().sum())
         self.pos, self.vel = list(motion.pos_idx), list(motion.vel_idx)
         self.other_sd = torch.as_tensor(other_sd, dtype=torch.float64)
@@ -213,20 +216,60 @@ class CartesianPHD:
 
     def weighted_likelihood(self, st: PHDState, s: int, z: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         """``Pd g_ij w_i (B, M, J)`` of pair ``s``'s detections ``z (B, J, d)`` (0 for padding on either
-        side), formed in the exponent: ``log(Pd w_i) + log N(z_j; h_s(x_i), R)``."""
+        side), formed in the exponent: ``e_ij = log(Pd w_i) + log N(z_j; h_s(x_i), R)``, and 0 where
+        ``e_ij < -700`` (:meth:`_exponent`).
+
+        Only the pairs that can pass that cut are formed (:meth:`_windows`): ``e_ij`` is at most
+        ``log(Pd w_i) + log c - r_ij^2 / (2 sd^2)`` in any one non-angle component (range: ``r`` its
+        residual), so a detection farther than ``sd sqrt(2 (700 + log(Pd c w_i)))`` from particle
+        ``i``'s predicted value in that component is a 0 of the full product. The detections are
+        sorted in it and each particle reads the run of them inside its window: the same values as
+        the full ``(B, M, J)`` product, from a few columns per particle instead of ``J``."""
         hx = self.pairs[s].h(st.x)  # (B, M, d)
+        row = torch.log(self.pd * st.w) + self._log_norm  # (B, M), -inf for padding
+        B, M, J = hx.shape[0], hx.shape[1], z.shape[1]
+        if self._window_c is None or M == 0 or J == 0:
+            col = torch.where(valid, torch.zeros((), dtype=z.dtype), torch.full((), -math.inf, dtype=z.dtype))
+            e = self._exponent(z[:, None, :, :], hx[:, :, None, :], row[:, :, None]).add_(col[:, None, :])
+            return e.masked_fill_(e < -700.0, -math.inf).exp_()
+        cand, inside = self._windows(hx, row, z, valid)  # (B, M, W)
+        zc = z.gather(1, cand.reshape(B, -1, 1).expand(B, cand.shape[1] * cand.shape[2], z.shape[-1]))
+        e = self._exponent(zc.reshape(*cand.shape, z.shape[-1]), hx[:, :, None, :], row[:, :, None])
+        e = e.masked_fill_(~inside | (e < -700.0), -math.inf).exp_()
+        # each inside (i, j) is written once; an outside slot adds its 0 to a column its run holds
+        return torch.zeros(B, M, J, dtype=e.dtype).scatter_add_(2, cand, e)
+
+    def _exponent(self, z: torch.Tensor, hx: torch.Tensor, row: torch.Tensor) -> torch.Tensor:
+        """``row - sum_c (wrapped z_c - hx_c)^2 / (2 sd_c^2)`` broadcast over ``z (..., d)`` and ``hx (..., d)``
+        (each component's square summed in order, so a pair's exponent is the same number whichever
+        layout holds it)."""
         e = None
         for c in range(len(self.angle)):
-            r = z[:, None, :, c] - hx[:, :, None, c]  # (B, M, J)
+            r = z[..., c] - hx[..., c]
             if self.angle[c]:
                 r = wrap_angle(r)
             r = r.mul_(1.0 / float(self.sd[c])).square_()
             e = r if e is None else e.add_(r)
-        row = torch.log(self.pd * st.w) + self._log_norm  # (B, M), -inf for padding
-        col = torch.where(valid, torch.zeros((), dtype=e.dtype), torch.full((), -math.inf, dtype=e.dtype))  # (B, J)
-        e = e.mul_(-0.5).add_(row[:, :, None]).add_(col[:, None, :])
-        # exp below -708 is subnormal, which x86 handles ~10x slower; such a term (< 1e-304) changes no sum
-        return e.masked_fill_(e < -700.0, -math.inf).exp_()
+        return e.mul_(-0.5).add_(row)
+
+    def _windows(self, hx: torch.Tensor, row: torch.Tensor, z: torch.Tensor, valid: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each particle's candidate detections (:meth:`weighted_likelihood`): ``cand (B, M, W)``, indices
+        into ``z (B, J, d)``, and ``inside (B, M, W)``: slot ``k`` holds a detection of the particle's
+        window (the others repeat a column of the run). ``W`` is the widest window."""
+        B, M, J = hx.shape[0], hx.shape[1], z.shape[1]
+        c = self._window_c
+        # the half-width where the exponent's bound reaches -700, widened by 1e-9 so rounding keeps every
+        # pair the full product keeps; a padding particle (row -inf) gets width 0
+        half = float(self.sd[c]) * torch.sqrt(2.0 * (700.0 + row).clamp(min=0.0)) * (1.0 + 1e-9)  # (B, M)
+        key, order = torch.where(valid, z[..., c], torch.full((), math.inf, dtype=z.dtype)).sort(1)  # (B, J)
+        h = hx[..., c].contiguous()
+        lo = torch.searchsorted(key, h - half)
+        count = torch.searchsorted(key, h + half, right=True) - lo  # (B, M)
+        W = max(int(count.max()), 1)
+        slot = torch.arange(W)
+        cand = order.gather(1, (lo[..., None] + slot).clamp(max=J - 1).reshape(B, M * W)).reshape(B, M, W)
+        return cand, slot < count[..., None]
 
     def update(self, st: PHDState, s: int, z: torch.Tensor, valid: torch.Tensor):
         """Pair ``s``'s PHD update with its detections ``z (B, J, d)``: the state and the detections'
