@@ -232,12 +232,13 @@ class CartesianPHD:
             col = torch.where(valid, torch.zeros((), dtype=z.dtype), torch.full((), -math.inf, dtype=z.dtype))
             e = self._exponent(z[:, None, :, :], hx[:, :, None, :], row[:, :, None]).add_(col[:, None, :])
             return e.masked_fill_(e < -700.0, -math.inf).exp_()
-        cand, inside = self._windows(hx, row, z, valid)  # (B, M, W)
-        zc = z.gather(1, cand.reshape(B, -1, 1).expand(B, cand.shape[1] * cand.shape[2], z.shape[-1]))
-        e = self._exponent(zc.reshape(*cand.shape, z.shape[-1]), hx[:, :, None, :], row[:, :, None])
-        e = e.masked_fill_(~inside | (e < -700.0), -math.inf).exp_()
-        # each inside (i, j) is written once; an outside slot adds its 0 to a column its run holds
-        return torch.zeros(B, M, J, dtype=e.dtype).scatter_add_(2, cand, e)
+        particle, detection = self._windows(hx, row, z, valid)  # (P,) each: the pairs inside the windows
+        e = self._exponent(z.reshape(B * J, -1).index_select(0, detection), hx.reshape(B * M, -1).index_select(
+            0, particle), row.reshape(-1).index_select(0, particle))
+        out = torch.zeros(B * M * J, dtype=e.dtype)
+        # particle = b M + i, detection = b J + j: the entry (b, i, j) is particle J + j
+        out.index_copy_(0, particle * J + detection.remainder(J), e.masked_fill_(e < -700.0, -math.inf).exp_())
+        return out.reshape(B, M, J)
 
     def _exponent(self, z: torch.Tensor, hx: torch.Tensor, row: torch.Tensor) -> torch.Tensor:
         """``row - sum_c (wrapped z_c - hx_c)^2 / (2 sd_c^2)`` broadcast over ``z (..., d)`` and ``hx (..., d)``
@@ -254,22 +255,26 @@ class CartesianPHD:
 
     def _windows(self, hx: torch.Tensor, row: torch.Tensor, z: torch.Tensor, valid: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Each particle's candidate detections (:meth:`weighted_likelihood`): ``cand (B, M, W)``, indices
-        into ``z (B, J, d)``, and ``inside (B, M, W)``: slot ``k`` holds a detection of the particle's
-        window (the others repeat a column of the run). ``W`` is the widest window."""
+        """The (particle, detection) pairs inside the particles' windows (:meth:`weighted_likelihood`)
+        of predicted values ``hx (B, M, d)``, log-weights ``row (B, M)`` and detections ``z (B, J, d)``,
+        ``valid (B, J)``: flat indices ``(P,)``, ``b M + i`` and ``b J + j``, grouped by particle."""
         B, M, J = hx.shape[0], hx.shape[1], z.shape[1]
         c = self._window_c
         # the half-width where the exponent's bound reaches -700, widened by 1e-9 so rounding keeps every
         # pair the full product keeps; a padding particle (row -inf) gets width 0
         half = float(self.sd[c]) * torch.sqrt(2.0 * (700.0 + row).clamp(min=0.0)) * (1.0 + 1e-9)  # (B, M)
         key, order = torch.where(valid, z[..., c], torch.full((), math.inf, dtype=z.dtype)).sort(1)  # (B, J)
-        h = hx[..., c].contiguous()
-        lo = torch.searchsorted(key, h - half)
-        count = torch.searchsorted(key, h + half, right=True) - lo  # (B, M)
-        W = max(int(count.max()), 1)
-        slot = torch.arange(W)
-        cand = order.gather(1, (lo[..., None] + slot).clamp(max=J - 1).reshape(B, M * W)).reshape(B, M, W)
-        return cand, slot < count[..., None]
+        h = hx[..., c]
+        # both ends by one search; a detection exactly at the (widened) upper end is past the cut either way
+        ends = torch.searchsorted(key, torch.cat([h - half, h + half], 1))  # (B, 2 M)
+        lo = ends[:, :M].reshape(-1)
+        count = ends[:, M:].reshape(-1) - lo
+        particle = torch.repeat_interleave(torch.arange(B * M), count)  # (P,): b M + i
+        start = torch.repeat_interleave(count.cumsum(0) - count, count)
+        b = particle.div(M, rounding_mode="floor")
+        flat_order = (order + (torch.arange(B) * J)[:, None]).reshape(-1)  # b J + j, in each run's sorted order
+        return particle, flat_order.index_select(0, b * J + lo.index_select(0, particle) + torch.arange(len(particle))
+                                                 - start)
 
     def update(self, st: PHDState, s: int, z: torch.Tensor, valid: torch.Tensor):
         """Pair ``s``'s PHD update with its detections ``z (B, J, d)``: the state and the detections'
