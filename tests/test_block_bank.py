@@ -179,6 +179,24 @@ def test_the_command_line_reports_each_block_and_merges_the_bank(tmp_path, capsy
     assert json.loads((tmp_path / "merged" / "results.json").read_text())["mc_runs"] == 2
 
 
+@pytest.mark.integration
+def test_a_bank_of_some_rows_is_continued_by_the_same_command(tmp_path, capsys):
+    """``--methods`` with ``--per-block``: the second process (or the second sitting) of a bank that
+    holds some rows continues it, as for the whole scenario, and a bank of other rows is refused."""
+    path = tiny(tmp_path, block_runs=1, mc_runs=2)
+    cmd = ["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--methods", "UKF"]
+    assert main(cmd + ["--shard", "2/2"]) == 0
+    assert main(cmd) == 0
+    assert "1 of shard 1/1's 2 block(s) already there" in capsys.readouterr().out
+    assert main(["merge", str(tmp_path / "bank"), "--out", str(tmp_path / "merged")]) == 0
+    results = json.loads((tmp_path / "merged" / "results.json").read_text())
+    assert results["mc_runs"] == 2 and all(list(c["methods"]) == ["UKF"] for c in results["cases"].values())
+    before = snapshot(tmp_path / "bank")
+    assert main(["evaluate", str(path), "--out", str(tmp_path / "bank"), "--per-block", "--methods", "EKF"]) == 2
+    assert "another scenario" in capsys.readouterr().err
+    assert snapshot(tmp_path / "bank") == before
+
+
 def test_every_block_records_the_environment_the_process_started_with(tmp_path, monkeypatch):
     """Commits made while a long bank runs do not change the code it runs: each block names the
     commit the process started at."""

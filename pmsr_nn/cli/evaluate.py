@@ -192,8 +192,10 @@ def cmd_evaluate(args) -> int:
         from ..harness.scenario.loading import load_any
         from ..outputs import check_folder_target
 
-        # the scenario file is an input even when evaluate() is handed the loaded scenario
-        check_folder_target(args.out, overwrite=args.overwrite, inputs=[args.scenario], allow=RESULT_COMMANDS)
+        # the scenario file is an input even when evaluate() is handed the loaded scenario; a bank (--per-block) is
+        # checked by open_run, which continues one that exists
+        if not args.per_block:
+            check_folder_target(args.out, overwrite=args.overwrite, inputs=[args.scenario], allow=RESULT_COMMANDS)
         sc = load_any(args.scenario, runs, checkpoints, args.seed)
         scenario, checkpoints, runs = keep_methods(sc, method_names(args.methods, [m.name for m in sc.methods])), None, None
     if args.per_block:
