@@ -108,11 +108,11 @@ def test_the_windowed_likelihood_is_the_full_product_where_every_pair_is_formed(
     valid = torch.ones(B, J, dtype=torch.bool)
     valid[0, 9:] = False
     st = PHDState(x, w, w.sum(1))
-    assert f._window_c == 0  # windows in range
+    assert f.window_component == 0  # windows in range
     particle, _ = f._windows(f.pairs[0].h(x), torch.log(f.pd * w) + f._log_norm, z, valid)
     assert len(particle) < 0.5 * int(valid.sum(1) @ (w > 0).sum(1))  # fewer than half the pairs are formed
     windowed = f.weighted_likelihood(st, 0, z, valid)
-    f._window_c = None
+    f.window_component = None
     full = f.weighted_likelihood(st, 0, z, valid)
     kept = full > 0
     exponent = torch.log(full[kept])

@@ -63,15 +63,21 @@ def label_spec(spec) -> LabelSpec:
                      game=GameSpec(), coalescence=coalescence(o))
 
 
+def make_filter(call: MethodCall) -> CartesianPHD:
+    """The call's SMC-PHD filter: the method's settings, the case's Pd and clutter, the scenario's motion model."""
+    spec, m, s = call.spec, call.models, call.sensing
+    q = m.q if spec.option("q") is None else float(spec.option("q"))
+    model = s.detection_model
+    return CartesianPHD(phd_spec(spec, s), m.motion, m.dt, q, model, s.pd, [clutter_intensity(s)] * model.n_pairs,
+                        s.prior_sd)
+
+
 def run_smc_phd(call: MethodCall) -> Estimates:
     """The filter on the call's per-pair detections, its estimates labelled: unpaired tracks ``x (B, K, tracks, n)``
     in the motion model's state; extras of the labelling and the PHD's ``phd_expected (B, K)`` (its
     integral after each scan's update) and ``phd_particles (B, K)``."""
-    spec, m, s = call.spec, call.models, call.sensing
-    q = m.q if spec.option("q") is None else float(spec.option("q"))
-    model = s.detection_model
-    phd = CartesianPHD(phd_spec(spec, s), m.motion, m.dt, q, model, s.pd, [clutter_intensity(s)] * model.n_pairs,
-                       s.prior_sd)
+    spec, m = call.spec, call.models
+    phd = make_filter(call)
     det = call.product.scans
     est = phd.run(det.z, det.valid, seeded_generator(*call.seed, method_stream(spec.name)))
     # the labelling gates on the first two state entries: positions first, the rest after

@@ -19,7 +19,10 @@ sum to the expected number of targets. One scan:
    ``Pd``, clutter intensity ``kappa_s`` per unit of its measurement space and Gaussian likelihood
    ``g_s(z | x)`` of the wrapped residual ``z - h_s(x)``, diagonal ``R``):
    ``w_i <- (1 - Pd) w_i + sum_j Pd g_ij w_i / (kappa_s + sum_l Pd g_lj w_l)``
-   (:func:`~.phd.correct`). The order of the pairs matters (Mahler's caveat of the iterated
+   (:func:`~.phd.correct`). A pair's likelihood is formed only for the particle-detection pairs
+   whose bistatic-range residual leaves its exponent above -700 (a term below that, under 1e-304,
+   is set to 0 either way): the detections sorted in range, each particle reads those inside its window
+   (:meth:`CartesianPHD.weighted_likelihood`). The order of the pairs matters (Mahler's caveat of the iterated
    corrector): a target the *last* pair missed keeps only ``1 - Pd`` of its mass (0.11 at Pd 0.9,
    one scan in ten), one an earlier pair missed is restored by the next. Steps 4 and 5 therefore
    decide and budget per cluster, not by the final mass;
@@ -137,7 +140,11 @@ class CartesianPHD:
     """The filter of the module docstring: ``motion`` with PSD ``q`` and scans ``dt`` s apart; detections
     of ``model`` (pair layout, ``S`` pairs) with detection probability ``pd`` and clutter intensity
     ``kappa (S,)`` per pair (per unit of the pair's measurement space, azimuth in rad); births'
-    deviations ``other_sd (n,)`` for the entries neither the fix nor the rate sets."""
+    deviations ``other_sd (n,)`` for the entries neither the fix nor the rate sets.
+
+    ``window_component``: the measurement component whose residual bounds the likelihood's windows
+    (:meth:`weighted_likelihood`), the first that is not an angle (an angle's residual wraps, so it
+    does not sort); None forms every particle-detection pair (the full product, the same numbers)."""
 
     def __init__(self, spec: CartesianPHDSpec, motion: KinematicModel, dt: float, q, model: MeasurementModel,
                  pd: float, kappa, other_sd: torch.Tensor):
@@ -156,9 +163,7 @@ class CartesianPHD:
         self.pairs = [model.for_pairs([s]) for s in range(model.n_pairs)]
         self.sd = torch.tensor(model.noise_std, dtype=torch.float64)
         self.angle = [c == "azimuth" for c in model.components]
-        # the component whose residual bounds the likelihood's windows (weighted_likelihood): the first that is
-        # not an angle (an angle's residual wraps, so it does not sort)
-        self._window_c = next((c for c, a in enumerate(self.angle) if not a), None)
+        self.window_component = next((c for c, a in enumerate(self.angle) if not a), None)
         self._log_norm = -0.5 * len(model.components) * math.log(2 * math.pi) - float(self.sd.log().sum())
         self.pos, self.vel = list(motion.pos_idx), list(motion.vel_idx)
         self.other_sd = torch.as_tensor(other_sd, dtype=torch.float64)
@@ -228,7 +233,7 @@ class CartesianPHD:
         hx = self.pairs[s].h(st.x)  # (B, M, d)
         row = torch.log(self.pd * st.w) + self._log_norm  # (B, M), -inf for padding
         B, M, J = hx.shape[0], hx.shape[1], z.shape[1]
-        if self._window_c is None or M == 0 or J == 0:
+        if self.window_component is None or M == 0 or J == 0:
             col = torch.where(valid, torch.zeros((), dtype=z.dtype), torch.full((), -math.inf, dtype=z.dtype))
             e = self._exponent(z[:, None, :, :], hx[:, :, None, :], row[:, :, None]).add_(col[:, None, :])
             return e.masked_fill_(e < -700.0, -math.inf).exp_()
@@ -259,7 +264,7 @@ class CartesianPHD:
         of predicted values ``hx (B, M, d)``, log-weights ``row (B, M)`` and detections ``z (B, J, d)``,
         ``valid (B, J)``: flat indices ``(P,)``, ``b M + i`` and ``b J + j``, grouped by particle."""
         B, M, J = hx.shape[0], hx.shape[1], z.shape[1]
-        c = self._window_c
+        c = self.window_component
         # the half-width where the exponent's bound reaches -700, widened by 1e-9 so rounding keeps every
         # pair the full product keeps; a padding particle (row -inf) gets width 0
         half = float(self.sd[c]) * torch.sqrt(2.0 * (700.0 + row).clamp(min=0.0)) * (1.0 + 1e-9)  # (B, M)
