@@ -160,11 +160,8 @@ SCENES = {"streams": _streams, "range_rate": _range_rate, "azimuth": _azimuth, "
 
 NOT_YET = "not yet device-agnostic (issue 57 item 5)"
 ROWS = [(scene, m["name"]) for scene, make in SCENES.items() for m in make()["methods"]]
-XFAIL: dict[str, str] = {
-    **{name: NOT_YET for name in ("smc_phd", "smc_phd_pair", "modified_icmb", "pmb", "icmb", "detect_then_track",
-                                  "stonesoup", "stonesoup azimuth")},
-    # its method file (pmsr_nn/methods/phd_pair.py) makes the pair models without device=
-    "known_association_kf_pair": f"{NOT_YET}: pmsr_nn/methods/phd_pair.py, pmsr_nn/trackers/phd.py"}
+XFAIL: dict[str, str] = {name: NOT_YET for name in ("modified_icmb", "pmb", "icmb", "detect_then_track", "stonesoup",
+                                                     "stonesoup azimuth")}
 """Rows whose meta check fails today (strict: one that passes fails the test until its mark goes)."""
 
 
@@ -247,9 +244,7 @@ def test_the_rows_a_kind_runs_on_any_device_are_those_that_pass(scenes):
 
 PACKAGE = ROOT / "pmsr_nn"
 SCANNED = ("trackers", "filters", "methods")
-OUT_OF_SCOPE = {"trackers/phd.py", "trackers/phd_cartesian.py", "trackers/gtda.py", "trackers/labelling.py",
-                "methods/phd.py", "methods/phd_pair.py", "methods/tbd.py", "methods/stonesoup.py",
-                "methods/kind_metrics.py"}
+OUT_OF_SCOPE = {"methods/tbd.py", "methods/stonesoup.py", "methods/kind_metrics.py"}
 """Files of kinds that run on the CPU only (strict xfails above), and the kinds' metrics, which
 read the estimates after the runner has moved them to the CPU."""
 CPU_LITERAL = re.compile(r"""device\s*=\s*["']cpu["']|torch\.device\(\s*["']cpu["']\s*\)""")
@@ -344,9 +339,17 @@ def test_kinds_that_run_on_the_cpu_only_are_refused_on_another_device_in_one_lin
     with pytest.raises(ConfigError) as err:
         prepare(sc, "cuda")
     text = str(err.value)
-    assert "\n" not in text and not any(f"'{m}'" in text for m in ("S", "own", "P"))  # the fix initiator, PMHT: anywhere
+    # the fix initiator, PMHT, the SMC-PHD: anywhere
+    assert "\n" not in text and not any(f"'{m}'" in text for m in ("S", "own", "P", "phd"))
     assert "method 'stone': kind stonesoup runs on the CPU only (Stone Soup is NumPy); --device cuda is refused" in text
-    assert "method 'phd': kind smc_phd runs on the CPU only; --device cuda is refused (use --device cpu)" in text
+    maps = _maps()  # kinds refused with no reason to give, two in one line
+    maps["methods"] = [m for m in maps["methods"] if m["kind"] in ("modified_icmb", "detect_then_track")]
+    (tmp_path / "maps.yaml").write_text(yaml.safe_dump(maps))
+    with pytest.raises(ConfigError) as err:
+        prepare(load_scenario(tmp_path / "maps.yaml"), "cuda")
+    text, why = str(err.value), "runs on the CPU only; --device cuda is refused (use --device cpu)"
+    assert "\n" not in text
+    assert all(f"method '{k}': kind {k} {why}" in text for k in ("modified_icmb", "detect_then_track"))
     d["methods"] = d["methods"][:1]
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
     assert prepare(load_scenario(tmp_path / "s.yaml"), "cuda").device == "cuda"  # nothing refused, nothing run yet

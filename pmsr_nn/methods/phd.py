@@ -79,16 +79,18 @@ def run_smc_phd(call: MethodCall) -> Estimates:
     spec, m = call.spec, call.models
     phd = make_filter(call)
     det = call.product.scans
-    est = phd.run(det.z, det.valid, seeded_generator(*call.seed, method_stream(spec.name)))
+    dev = det.z.device  # the draws too: a generator on the device of the tensors it fills
+    est = phd.run(det.z, det.valid, seeded_generator(*call.seed, method_stream(spec.name), device=dev))
     # the labelling gates on the first two state entries: positions first, the rest after
     n = m.motion.dim_x
     pos = list(m.motion.pos_idx)
-    perm = torch.tensor(pos + [i for i in range(n) if i not in pos])
+    perm = torch.tensor(pos + [i for i in range(n) if i not in pos], device=dev)
     back = torch.argsort(perm)
     square = lambda P, idx: P[..., idx, :][..., idx]
     merge_idx = [perm.tolist().index(i) for i in (*pos, *m.motion.vel_idx)]  # the coalescence test's: position, velocity
     lab = label_tracks(est.x[..., perm], square(est.P, perm), est.exists, square(phd.F, perm), square(phd.Q, perm),
-                       label_spec(spec), seeded_generator(*call.seed, method_stream(spec.name), 1), merge_idx)
+                       label_spec(spec), seeded_generator(*call.seed, method_stream(spec.name), 1, device=dev),
+                       merge_idx)
     extras = {**lab.extras, "phd_expected": est.expected, "phd_particles": est.particles}
     return Estimates(lab.x[..., back], lab.exists, square(lab.P, back), extras, paired=False)
 
@@ -121,7 +123,7 @@ OPTIONS = {
     **COALESCENCE_OPTIONS,
 }
 register(MethodKind("smc_phd", "detections", run_smc_phd, OPTIONS, check_sensing=check_sensing, starts_tracks=True,
-                    metrics=(Labelling(), PHDFigures()),
+                    metrics=(Labelling(), PHDFigures()), any_device=True,
                     description="multi-sensor SMC-PHD in Cartesian state (iterated corrector over the pairs, births "
                                 "from position fixes) with GTDA or Hungarian track labelling (Daniyan et al.); "
                                 "starts its own tracks"))

@@ -72,14 +72,14 @@ def _rate_component(model: MeasurementModel) -> str:
     return next(c for c in model.components if c in RATE_COMPONENTS)
 
 
-def pair_deviations(model: MeasurementModel, pair: int) -> torch.Tensor:
-    """The detections' deviations ``(2,)`` of bistatic range (m) and range-rate (m/s)."""
+def pair_deviations(model: MeasurementModel, pair: int, device=None) -> torch.Tensor:
+    """The detections' deviations ``(2,)`` of bistatic range (m) and range-rate (m/s), on ``device``."""
     comps = list(model.components)
     rate = _rate_component(model)
     sd_r, sd_v = float(model.noise_std[comps.index("range")]), float(model.noise_std[comps.index(rate)])
     if rate == "doppler":
         sd_v = sd_v * SPEED_OF_LIGHT / float(model.geometry.pair_carriers()[pair])
-    return torch.tensor([sd_r, sd_v], dtype=torch.float64)
+    return torch.tensor([sd_r, sd_v], dtype=torch.float64, device=device)
 
 
 def pair_detections(call: MethodCall, pair: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -142,15 +142,17 @@ def run_phd(call: MethodCall):
     same settings made on the same block (module docstring)."""
     spec, s = call.spec, call.sensing
     pair = int(spec.option("pair"))
-    settings = (pair, phd_settings(spec), tuple(pair_deviations(s.detection_model, pair).tolist()), float(s.pd),
+    dev = call.product.scans.z.device
+    settings = (pair, phd_settings(spec), tuple(pair_deviations(s.detection_model, pair, dev).tolist()), float(s.pd),
                 pair_clutter_intensity(s, pair), float(call.models.dt))
-    phd = SMCPHD(settings[1], torch.tensor(settings[2], dtype=torch.float64), settings[3], settings[4], settings[5])
+    phd = SMCPHD(settings[1], torch.tensor(settings[2], dtype=torch.float64, device=dev), settings[3], settings[4],
+                 settings[5])
     for product, seed, key, est, seconds in _CACHE:
         if product is call.product and seed == tuple(call.seed) and key == settings:
             return phd, est, seconds, True
     z, valid, _ = pair_detections(call, pair)
     t0 = time.perf_counter()
-    est = phd.run(z, valid, seeded_generator(*call.seed, PHD_STREAM))
+    est = phd.run(z, valid, seeded_generator(*call.seed, PHD_STREAM, device=dev))
     seconds = time.perf_counter() - t0
     _CACHE.insert(0, (call.product, tuple(call.seed), settings, est, seconds))
     del _CACHE[CACHE_SIZE:]
@@ -180,7 +182,7 @@ def run_smc_phd_pair(call: MethodCall) -> Estimates:
     if spec.option("labelling") == "none":  # one set per scan, no identity: no label-following figures
         return Estimates(est.x, est.exists, None, {**extras, "unlabelled": True}, paired=False)
     lab = label_tracks(est.x, est.P, est.exists, phd.F, phd.Q, label_settings(spec),
-                       seeded_generator(*call.seed, method_stream(spec.name)))
+                       seeded_generator(*call.seed, method_stream(spec.name), device=est.x.device))
     return Estimates(lab.x, lab.exists, None, {**lab.extras, **extras}, paired=False)
 
 
@@ -194,12 +196,12 @@ def known_association_kf(z: torch.Tensor, origin: torch.Tensor, N: int, F: torch
     ``z (B, K, J, 2)``, ``origin (B, K, J)``; returns ``x (B, K, N, 2)``, ``P (B, K, N, 2, 2)`` and
     ``exists (B, K, N)`` (alive and started)."""
     B, K, J, _ = z.shape
-    own = torch.full((B, K, N, 2), float("nan"), dtype=torch.float64)
+    own = torch.full((B, K, N, 2), float("nan"), dtype=torch.float64, device=z.device)
     b, k, j = torch.nonzero(origin >= 0, as_tuple=True)
     own[b, k, origin[b, k, j]] = z[b, k, j].to(torch.float64)
-    x = torch.zeros(B, N, 2, dtype=torch.float64)
+    x = torch.zeros(B, N, 2, dtype=torch.float64, device=z.device)
     P = R.expand(B, N, 2, 2).clone()
-    started = torch.zeros(B, N, dtype=torch.bool)
+    started = torch.zeros(B, N, dtype=torch.bool, device=z.device)
     xs, Ps, ex = [], [], []
     for k in range(K):
         pred = predict(Gaussian(x, P), F, Q)
@@ -222,8 +224,8 @@ def run_known_association_kf_pair(call: MethodCall) -> Estimates:
     unlabelled tracks (matched to the targets scan by scan like every other row of the plane)."""
     pair = int(call.spec.option("pair"))
     z, _, origin = pair_detections(call, pair)
-    F, Q = cv_matrices(call.models.dt, float(call.spec.option("process_sd_mps2")))
-    R = torch.diag(pair_deviations(call.sensing.detection_model, pair) ** 2)
+    F, Q = cv_matrices(call.models.dt, float(call.spec.option("process_sd_mps2")), z.device)
+    R = torch.diag(pair_deviations(call.sensing.detection_model, pair, z.device) ** 2)
     x, P, exists = known_association_kf(z, origin, call.alive.shape[1], F, Q, R, call.alive)
     return Estimates(x, exists, P, paired=False)
 
@@ -293,6 +295,7 @@ OPTIONS = {
 }
 register(MethodKind("smc_phd_pair", "detections", run_smc_phd_pair, OPTIONS, check_sensing=check_pair_sensing,
                     starts_tracks=True, space=pair_space, metrics=(Labelling(), PHDFigures(), Unlabelled()),
+                    any_device=True,
                     description="SMC-PHD in one pair's bistatic plane [r, rdot] (Daniyan et al.; births around the "
                                 "previous scan's detections no existing target explains, births: adaptive; "
                                 "every_detection: on all of them), its estimates labelled by GTDA or the Hungarian "
@@ -300,7 +303,7 @@ register(MethodKind("smc_phd_pair", "detections", run_smc_phd_pair, OPTIONS, che
                                 "range); starts its own tracks"))
 register(MethodKind("known_association_kf_pair", "detections", run_known_association_kf_pair,
                     {"pair": PAIR, "process_sd_mps2": PROCESS_SD}, check_sensing=check_pair_sensing,
-                    initiation="association known", space=pair_space,
+                    initiation="association known", space=pair_space, any_device=True,
                     description="reference: a Kalman filter per target in one pair's bistatic plane on exactly its own "
                                 "detections (reads their true origins), started at its first detection (births "
                                 "known); scored in that plane"))

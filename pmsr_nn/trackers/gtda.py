@@ -75,8 +75,8 @@ def utilities(d2: torch.Tensor, strategy_ok: torch.Tensor, gate: float, spec: Ga
     """Own-distance utilities ``U (B, P, T + 1)`` (last column: null), before the conflict term."""
     B, P, T = d2.shape
     bad = -gate * (1 + spec.conflict)
-    U = torch.where(strategy_ok[:, None, :] & inside_gate(d2, gate), -d2, torch.full((), bad, dtype=d2.dtype))
-    return torch.cat([U, torch.full((B, P, 1), -gate, dtype=d2.dtype)], -1)
+    U = torch.where(strategy_ok[:, None, :] & inside_gate(d2, gate), -d2, d2.new_full((), bad))
+    return torch.cat([U, d2.new_full((B, P, 1), -gate)], -1)
 
 
 def _payoffs(U: torch.Tensor, s: torch.Tensor, player: torch.Tensor, penalty: float) -> torch.Tensor:
@@ -85,7 +85,7 @@ def _payoffs(U: torch.Tensor, s: torch.Tensor, player: torch.Tensor, penalty: fl
     index) plays ``n`` (never for null)."""
     B, P, S = U.shape
     on = torch.nn.functional.one_hot(s, S).bool() & player[..., None]  # (B, Q, S): q plays n
-    idx = torch.arange(P)
+    idx = torch.arange(P, device=U.device)
     better = (U[:, None, :, :] > U[:, :, None, :]) | ((U[:, None, :, :] == U[:, :, None, :])
                                                         & (idx[None, :, None] < idx[:, None, None]))  # (B, P, Q, S)
     blocked = (on[:, None, :, :] & better & (idx[:, None] != idx[None, :])[None, :, :, None]).any(2)
@@ -102,8 +102,8 @@ def play(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor, gate
     U = utilities(d2, strategy_ok, gate, spec)
     penalty = spec.conflict * gate
     s = U.argmax(-1)  # each player starts on its own best strategy
-    regret = torch.zeros(B, P, S, S, dtype=d2.dtype)  # (from l, to n), discounted sums
-    rows = torch.arange(B)[:, None], torch.arange(P)[None, :]
+    regret = d2.new_zeros(B, P, S, S)  # (from l, to n), discounted sums
+    rows = torch.arange(B, device=d2.device)[:, None], torch.arange(P, device=d2.device)[None, :]
     rounds = 0
     for i in range(1, spec.iterations + 1):
         rounds = i
@@ -112,7 +112,7 @@ def play(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor, gate
         regret.mul_(spec.forgetting)
         regret[rows[0], rows[1], s] += gain
         r = (regret[rows[0], rows[1], s] / i).clamp(min=0)  # (B, P, S): Eq. 5 from the current strategy
-        r = torch.where(player[..., None], r, torch.zeros((), dtype=r.dtype))
+        r = torch.where(player[..., None], r, r.new_zeros(()))
         if not bool((r > 0).any()):
             break
         alpha = spec.alpha_scale * r.sum(-1, keepdim=True).clamp(min=1e-300)  # Eq. 8's alpha, per player
@@ -132,10 +132,10 @@ def resolve_conflicts(choice: torch.Tensor, d2: torch.Tensor) -> tuple[torch.Ten
     ``(choice (B, P), repaired (B,))``."""
     B, P, T = d2.shape
     if T == 0:
-        return choice, torch.zeros(B, dtype=torch.int64)
+        return choice, torch.zeros(B, dtype=torch.int64, device=choice.device)
     on = torch.nn.functional.one_hot(choice.clamp(min=0), T).bool() & (choice >= 0)[..., None]  # (B, P, T)
-    dist = torch.where(on, d2, torch.full((), math.inf, dtype=d2.dtype))
+    dist = torch.where(on, d2, d2.new_full((), math.inf))
     winner = dist.argmin(1)  # (B, T)
-    keep = on & (torch.arange(P)[None, :, None] == winner[:, None, :])
+    keep = on & (torch.arange(P, device=d2.device)[None, :, None] == winner[:, None, :])
     lost = (choice >= 0) & ~keep.any(-1)
     return torch.where(lost, torch.full_like(choice, -1), choice), lost.sum(1)

@@ -83,9 +83,9 @@ def hungarian(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor,
     (:func:`~.gating.inside_gate`)."""
     B, n_tracks, _ = d2.shape
     choice = np.full((B, n_tracks), -1, dtype=np.int64)
-    cost = torch.nan_to_num(d2, nan=gate).clamp(max=gate).numpy()
-    inside = inside_gate(d2, gate).numpy()
-    pl, ok = player.numpy(), strategy_ok.numpy()
+    cost = torch.nan_to_num(d2, nan=gate).clamp(max=gate).cpu().numpy()
+    inside = inside_gate(d2, gate).cpu().numpy()
+    pl, ok = player.cpu().numpy(), strategy_ok.cpu().numpy()
     for b in range(B):
         rows, cols = np.flatnonzero(pl[b]), np.flatnonzero(ok[b])
         if len(rows) == 0 or len(cols) == 0:
@@ -94,7 +94,7 @@ def hungarian(d2: torch.Tensor, player: torch.Tensor, strategy_ok: torch.Tensor,
         r, k = linear_sum_assignment(c)
         take = inside[b, rows[r], cols[k]]
         choice[b, rows[r[take]]] = cols[k[take]]
-    return torch.from_numpy(choice)
+    return torch.from_numpy(choice).to(d2.device)
 
 
 def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torch.Tensor, Q: torch.Tensor,
@@ -105,28 +105,30 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
     ``game_rounds (K,)`` and ``repaired (B,)`` (GTDA only), ``labels (B,)`` labels confirmed per run,
     ``started (B,)`` tracks started per run (tentative ones included)."""
     B, K, C, n = x.shape
+    dev = x.device
     cap = max(C, 1)
-    tx = torch.zeros(B, cap, n, dtype=torch.float64)
-    tP = torch.eye(n, dtype=torch.float64).expand(B, cap, n, n).clone()
-    alive = torch.zeros(B, cap, dtype=torch.bool)
-    label = torch.full((B, cap), -1, dtype=torch.int64)
-    missed = torch.zeros(B, cap, dtype=torch.int64)
-    hits = torch.zeros(B, cap, dtype=torch.int64)
-    age = torch.zeros(B, cap, dtype=torch.int64)
-    next_label = torch.zeros(B, dtype=torch.int64)
-    started = torch.zeros(B, dtype=torch.int64)
+    tx = torch.zeros(B, cap, n, dtype=torch.float64, device=dev)
+    tP = torch.eye(n, dtype=torch.float64, device=dev).expand(B, cap, n, n).clone()
+    alive = torch.zeros(B, cap, dtype=torch.bool, device=dev)
+    label = torch.full((B, cap), -1, dtype=torch.int64, device=dev)
+    missed = torch.zeros(B, cap, dtype=torch.int64, device=dev)
+    hits = torch.zeros(B, cap, dtype=torch.int64, device=dev)
+    age = torch.zeros(B, cap, dtype=torch.int64, device=dev)
+    next_label = torch.zeros(B, dtype=torch.int64, device=dev)
+    started = torch.zeros(B, dtype=torch.int64, device=dev)
     confirmer = spec.confirmer
-    at_once = bool(confirmer.confirms(torch.ones((), dtype=torch.int64)))  # 1 of 1: labelled when started
-    rounds, repaired = [], torch.zeros(B, dtype=torch.int64)
+    at_once = bool(confirmer.confirms(torch.ones((), dtype=torch.int64, device=dev)))  # 1 of 1: labelled when started
+    rounds, repaired = [], torch.zeros(B, dtype=torch.int64, device=dev)
     rows_out = []  # per scan: (b, label, estimate index)
     gate = spec.gate
     merging = None if spec.coalescence is None else CoalescenceTest(
-        spec.coalescence, B, list(range(n)) if merge_idx is None else merge_idx)
+        spec.coalescence, B, list(range(n)) if merge_idx is None else merge_idx, dev)
     for k in range(K):
         tx, tP = tx @ F.T, F @ tP @ F.T + Q
         ek, Pk, ok = torch.nan_to_num(x[:, k]), P[:, k], exists[:, k]
         d2 = track_distances(tx, tP, ek, Pk)
-        d2 = torch.where(alive[:, :, None] & ok[:, None, :] & ~d2.isnan(), d2, torch.full((), math.inf))  # inf: no gate
+        # inf: no gate
+        d2 = torch.where(alive[:, :, None] & ok[:, None, :] & ~d2.isnan(), d2, d2.new_full((), math.inf))
         if spec.method == "gtda":
             res = play(d2, alive, ok, gate, spec.game, g)
             choice = res.choice
@@ -158,15 +160,16 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
         b, p = (alive & ~took & (hits >= 2) & (label >= 0)).nonzero(as_tuple=True)  # coasting: the prediction under the label
         rows_out.append((k, b, label[b, p], tx[b, p], tP[b, p]))
         # estimates no track took start tracks in free slots
-        taken = torch.zeros(B, C + 1, dtype=torch.bool).scatter_(1, torch.where(took, choice, C), True)[:, :C]
+        taken = torch.zeros(B, C + 1, dtype=torch.bool, device=dev).scatter_(1, torch.where(took, choice, C),
+                                                                             True)[:, :C]
         new = ok & ~taken
         n_new = new.sum(1)
         short = int((n_new - (~alive).sum(1)).max()) if B else 0
         if short > 0:
-            grow = lambda t, fill: torch.cat([t, torch.full((B, short) + t.shape[2:], fill, dtype=t.dtype)], 1)
+            grow = lambda t, fill: torch.cat([t, t.new_full((B, short) + t.shape[2:], fill)], 1)
             tx, alive, label, missed, hits, age = (grow(tx, 0.0), grow(alive, False), grow(label, -1), grow(missed, 0),
                                                    grow(hits, 0), grow(age, 0))
-            tP = torch.cat([tP, torch.eye(n, dtype=torch.float64).expand(B, short, n, n)], 1)
+            tP = torch.cat([tP, torch.eye(n, dtype=torch.float64, device=dev).expand(B, short, n, n)], 1)
             cap += short
         if bool(new.any()):
             free_first = torch.sort(alive.to(torch.int8), dim=1, stable=True).indices  # free slots first
@@ -183,12 +186,12 @@ def label_tracks(x: torch.Tensor, P: torch.Tensor, exists: torch.Tensor, F: torc
             else:
                 label[b, slot] = -1
     L = int(next_label.max()) if B else 0
-    out_x = torch.full((B, K, L, n), float("nan"), dtype=torch.float64)
-    out_P = torch.zeros(B, K, L, n, n, dtype=torch.float64)
-    out_e = torch.zeros(B, K, L, dtype=torch.bool)
+    out_x = torch.full((B, K, L, n), float("nan"), dtype=torch.float64, device=dev)
+    out_P = torch.zeros(B, K, L, n, n, dtype=torch.float64, device=dev)
+    out_e = torch.zeros(B, K, L, dtype=torch.bool, device=dev)
     for k, b, lab, xv, Pv in rows_out:
         out_x[b, k, lab], out_P[b, k, lab], out_e[b, k, lab] = xv, Pv, True
     extras = {"labels": next_label, "started": started}
     if spec.method == "gtda":
-        extras.update(game_rounds=torch.tensor(rounds), repaired=repaired)
+        extras.update(game_rounds=torch.tensor(rounds, device=dev), repaired=repaired)
     return Estimates(out_x, out_e, out_P, extras, paired=False)

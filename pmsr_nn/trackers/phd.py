@@ -99,10 +99,11 @@ def check_phd_settings(spec) -> None:
     require(0 < spec.gate_probability < 1, f"gate_probability must be in (0, 1), got {spec.gate_probability}")
 
 
-def cv_matrices(dt: float, sigma: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """``F (2, 2)`` and ``Q (2, 2)`` of the seed's Eq. 3: ``Q = sigma^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]``."""
-    F = torch.tensor([[1.0, dt], [0.0, 1.0]], dtype=torch.float64)
-    Q = sigma**2 * torch.tensor([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]], dtype=torch.float64)
+def cv_matrices(dt: float, sigma: float, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """``F (2, 2)`` and ``Q (2, 2)`` of the seed's Eq. 3: ``Q = sigma^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]``
+    (on ``device``)."""
+    F = torch.tensor([[1.0, dt], [0.0, 1.0]], dtype=torch.float64, device=device)
+    Q = sigma**2 * torch.tensor([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]], dtype=torch.float64, device=device)
     return F, Q
 
 
@@ -160,14 +161,14 @@ def correct(st: PHDState, pg: torch.Tensor, valid: torch.Tensor, pd: float, kapp
     taken_p = None if P is None else pg[:, :P].sum(1)  # (B, J): the persistent particles' part
     taken = pg.sum(1) if P is None else taken_p + pg[:, P:].sum(1)  # (B, J)
     denom = kappa + taken
-    inv = torch.where(denom > 0, 1.0 / denom, torch.zeros((), dtype=denom.dtype))
+    inv = torch.where(denom > 0, 1.0 / denom, denom.new_zeros(()))
     part_w = taken * inv
     # sum_j Pd g_ij w_i / denom_j as one product (no (B, M, J) ratio tensor)
     w = (1 - pd) * st.w + torch.bmm(pg, inv[:, :, None])[..., 0]
     part_x = torch.bmm(pg.transpose(1, 2), st.x) / taken.clamp(min=1e-300)[..., None]
     expected = (1 - pd) * st.expected + part_w.sum(1)
-    explained = None if P is None else torch.where(valid, taken_p * inv, torch.zeros((), dtype=w.dtype))
-    part_w = torch.where(valid & (taken > 0), part_w, torch.full((), -1.0, dtype=w.dtype))
+    explained = None if P is None else torch.where(valid, taken_p * inv, w.new_zeros(()))
+    part_w = torch.where(valid & (taken > 0), part_w, w.new_full((), -1.0))
     return PHDState(st.x, w, expected, explained=explained), part_x, part_w
 
 
@@ -186,8 +187,9 @@ def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate
     B, M = st.w.shape
     n = st.x.shape[-1]
     S = seeds.shape[1]
+    dev = st.x.device
     if near_seeds is None:
-        near_seeds = inside_gate(d2(seeds, seeds, torch.arange(S).expand(B, S)), gate)  # (B, S, S)
+        near_seeds = inside_gate(d2(seeds, seeds, torch.arange(S, device=dev).expand(B, S)), gate)  # (B, S, S)
     centres, exists, picked = [], [], []
     for _ in range(S):  # greedy: the heaviest seed, then drop the seeds inside its gate
         best = seed_mass.argmax(1)
@@ -198,15 +200,15 @@ def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate
         exists.append(ok)
         picked.append(best)
         near = near_seeds.gather(1, best[:, None, None].expand(B, 1, S))[:, 0]
-        seed_mass = torch.where(near & ok[:, None], torch.full((), -1.0, dtype=torch.float64), seed_mass)
+        seed_mass = torch.where(near & ok[:, None], torch.full((), -1.0, dtype=torch.float64, device=dev), seed_mass)
     C = len(centres)
     if C == 0:
-        return (torch.zeros(B, 0, n, dtype=torch.float64), torch.zeros(B, 0, n, n, dtype=torch.float64),
-                torch.zeros(B, 0, dtype=torch.float64), torch.zeros(B, 0, dtype=torch.bool),
-                torch.zeros(B, M, dtype=torch.int64))
+        zeros = lambda *shape, dtype=torch.float64: torch.zeros(shape, dtype=dtype, device=dev)
+        return (zeros(B, 0, n), zeros(B, 0, n, n), zeros(B, 0), zeros(B, 0, dtype=torch.bool),
+                zeros(B, M, dtype=torch.int64))
     # (B, C, n), (B, C), (B, C)
     centre, exists, which = torch.stack(centres, 1), torch.stack(exists, 1), torch.stack(picked, 1)
-    base = (torch.arange(B) * (C + 1))[:, None]
+    base = (torch.arange(B, device=dev) * (C + 1))[:, None]
     w = st.w.reshape(-1)
     binned = lambda owner, v: torch.bincount(owner, v, minlength=B * (C + 1)).reshape(B, C + 1)[:, :C]
     for it in range(iterations + 1):  # the last pass only assigns (and gives P)
@@ -232,24 +234,25 @@ def cluster(st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, d2, gate
 class SMCPHD:
     """The filter of the module docstring for detections with deviations ``sd (2,)`` (m, m/s),
     detection probability ``pd`` and clutter intensity ``kappa`` (per scan, per m x m/s), scans
-    ``dt`` s apart."""
+    ``dt`` s apart; its tensors are on ``sd``'s device (the detections' it reads)."""
 
     def __init__(self, spec: PHDSpec, sd: torch.Tensor, pd: float, kappa: float, dt: float):
         require(0 < pd <= 1, f"pd must be in (0, 1], got {pd}")
         require(kappa >= 0 and math.isfinite(kappa), f"the clutter intensity must be finite and >= 0, got {kappa}")
         self.spec, self.pd, self.kappa, self.gate = spec, float(pd), float(kappa), spec.gate
         self.sd = torch.as_tensor(sd, dtype=torch.float64)
-        self.F, self.Q = cv_matrices(dt, spec.process_sd_mps2)
+        dev = self.sd.device
+        self.F, self.Q = cv_matrices(dt, spec.process_sd_mps2, dev)
         # Q = G G^T has rank one: the noise is one white acceleration per step, a ~ N(0, sigma^2), moving x by G a
-        self.G = spec.process_sd_mps2 * torch.tensor([dt**2 / 2, dt], dtype=torch.float64)
+        self.G = spec.process_sd_mps2 * torch.tensor([dt**2 / 2, dt], dtype=torch.float64, device=dev)
         self._norm = 1.0 / (2 * math.pi * float(self.sd.prod()))
 
     def empty(self, B: int) -> PHDState:
-        return PHDState(torch.zeros(B, 0, 2, dtype=torch.float64), torch.zeros(B, 0, dtype=torch.float64),
-                        torch.zeros(B, dtype=torch.float64))
+        zeros = lambda *shape: torch.zeros(shape, dtype=torch.float64, device=self.sd.device)
+        return PHDState(zeros(B, 0, 2), zeros(B, 0), zeros(B))
 
     def _move(self, x: torch.Tensor, g: torch.Generator) -> torch.Tensor:
-        return x @ self.F.T + standard_normal(x.shape[:-1] + (1,), g) * self.G
+        return x @ self.F.T + standard_normal(x.shape[:-1] + (1,), g, device=x.device) * self.G
 
     def predict(self, st: PHDState, z_prev: torch.Tensor | None, valid_prev: torch.Tensor | None,
                 g: torch.Generator) -> PHDState:
@@ -266,11 +269,12 @@ class SMCPHD:
         elif z_prev is not None and z_prev.shape[1]:
             B, J, _ = z_prev.shape
             n = self.spec.particles_per_birth
-            seeds = torch.where(valid_prev[..., None], z_prev, torch.zeros((), dtype=z_prev.dtype))
-            xb = seeds[:, :, None, :] + standard_normal((B, J, n, 2), g) * self.sd
+            seeds = torch.where(valid_prev[..., None], z_prev, z_prev.new_zeros(()))
+            xb = seeds[:, :, None, :] + standard_normal((B, J, n, 2), g, device=z_prev.device) * self.sd
             xb = self._move(xb.reshape(B, J * n, 2), g)
             count = valid_prev.sum(1)  # (B,)
-            share = torch.where(count > 0, self.spec.birth_rate / (count.clamp(min=1) * n), torch.zeros(()))
+            share = torch.where(count > 0, self.spec.birth_rate / (count.clamp(min=1) * n),
+                                torch.zeros((), device=count.device))
             wb = (valid_prev[:, :, None].expand(B, J, n).reshape(B, J * n)).to(torch.float64) * share[:, None]
             x, w = torch.cat([x, xb], 1), torch.cat([w, wb], 1)
             expected = expected + torch.where(count > 0, torch.full_like(expected, self.spec.birth_rate),
@@ -285,20 +289,21 @@ class SMCPHD:
         mass ``(B,)``. A birth given no particle is given no mass, so the mass stays ``w.sum(1)``."""
         spec = self.spec
         B, J, _ = z.shape
-        s = torch.zeros(B, J, dtype=torch.float64) if explained is None else explained.to(torch.float64)
-        u = torch.where(valid, (1.0 - s).clamp(0.0, 1.0), torch.zeros((), dtype=torch.float64))  # (B, J)
+        dev = z.device
+        s = torch.zeros(B, J, dtype=torch.float64, device=dev) if explained is None else explained.to(torch.float64)
+        u = torch.where(valid, (1.0 - s).clamp(0.0, 1.0), torch.zeros((), dtype=torch.float64, device=dev))  # (B, J)
         U = u.sum(1, keepdim=True).clamp(min=1.0)  # (B, 1)
         per = torch.clamp(spec.particles_per_birth / U, min=float(spec.birth_particles_min))
         n = torch.round(u * per).to(torch.int64)  # (B, J): particles follow the mass, floored per birth
-        mass = torch.where(n > 0, spec.birth_rate * u / U, torch.zeros((), dtype=torch.float64))  # (B, J)
+        mass = torch.where(n > 0, spec.birth_rate * u / U, torch.zeros((), dtype=torch.float64, device=dev))  # (B, J)
         ends = n.cumsum(1)
         total = ends[:, -1]
         N = int(total.max())
-        pos = torch.arange(N).expand(B, N)
+        pos = torch.arange(N, device=dev).expand(B, N)
         seed = torch.searchsorted(ends, pos.contiguous(), right=True).clamp(max=J - 1)  # (B, N): its detection
         born = pos < total[:, None]
-        xb = z.gather(1, seed[..., None].expand(B, N, 2)) + standard_normal((B, N, 2), g) * self.sd
-        wb = torch.where(born, (mass / n.clamp(min=1)).gather(1, seed), torch.zeros((), dtype=torch.float64))
+        xb = z.gather(1, seed[..., None].expand(B, N, 2)) + standard_normal((B, N, 2), g, device=dev) * self.sd
+        wb = torch.where(born, (mass / n.clamp(min=1)).gather(1, seed), mass.new_zeros(()))
         return self._move(xb, g), wb, mass.sum(1)
 
     def weighted_likelihood(self, st: PHDState, z: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
@@ -308,7 +313,7 @@ class SMCPHD:
         ``(B, M, J)`` temporaries; the cancellation costs ``|x / sd|^2 x eps`` (below 1e-9 at 100 km)."""
         xs, zs = st.x / self.sd, z / self.sd
         row = torch.log(self.pd * self._norm * st.w) - 0.5 * (xs * xs).sum(-1)  # (B, M), -inf for padding
-        col = torch.where(valid, -0.5 * (zs * zs).sum(-1), torch.full((), -math.inf, dtype=zs.dtype))  # (B, J)
+        col = torch.where(valid, -0.5 * (zs * zs).sum(-1), zs.new_full((), -math.inf))  # (B, J)
         e = torch.baddbmm(row[:, :, None] + col[:, None, :], xs, zs.transpose(1, 2))
         # exp below -708 is subnormal, which x86 handles ~10x slower; such a term (< 1e-304) changes no sum
         return e.masked_fill_(e < -700.0, -math.inf).exp_()
@@ -341,9 +346,9 @@ class SMCPHD:
         if M == 0:
             return st
         logw = torch.log(st.w / torch.where(mass > 0, mass, torch.ones_like(mass))[:, None])
-        comp = torch.where(st.w > 0, torch.zeros((), dtype=torch.int64), torch.ones((), dtype=torch.int64))
+        comp = torch.where(st.w > 0, 0, 1)
         x, comp_new, logw_new = segmented_resample(st.x, logw, comp, (mass > 0)[:, None], counts, g)
-        w = torch.where(comp_new == 0, logw_new.exp() * mass[:, None], torch.zeros((), dtype=torch.float64))
+        w = torch.where(comp_new == 0, logw_new.exp() * mass[:, None], logw_new.new_zeros(()))
         return PHDState(x, w, st.expected, explained=st.explained)
 
     def run(self, z: torch.Tensor, valid: torch.Tensor, g: torch.Generator, progress=None) -> PHDEstimates:

@@ -140,7 +140,8 @@ class CartesianPHD:
     """The filter of the module docstring: ``motion`` with PSD ``q`` and scans ``dt`` s apart; detections
     of ``model`` (pair layout, ``S`` pairs) with detection probability ``pd`` and clutter intensity
     ``kappa (S,)`` per pair (per unit of the pair's measurement space, azimuth in rad); births'
-    deviations ``other_sd (n,)`` for the entries neither the fix nor the rate sets.
+    deviations ``other_sd (n,)`` for the entries neither the fix nor the rate sets. Its tensors are on
+    ``other_sd``'s device (the detections' it reads).
 
     ``window_component``: the measurement component whose residual bounds the likelihood's windows
     (:meth:`weighted_likelihood`), the first that is not an angle (an angle's residual wraps, so it
@@ -149,7 +150,9 @@ class CartesianPHD:
     def __init__(self, spec: CartesianPHDSpec, motion: KinematicModel, dt: float, q, model: MeasurementModel,
                  pd: float, kappa, other_sd: torch.Tensor):
         check_model(model)
-        kappa = [float(k) for k in torch.as_tensor(kappa, dtype=torch.float64).reshape(-1)]
+        self.other_sd = torch.as_tensor(other_sd, dtype=torch.float64)
+        dev = self.other_sd.device
+        kappa = [float(k) for k in torch.as_tensor(kappa, dtype=torch.float64, device=dev).reshape(-1)]
         require(len(kappa) == model.n_pairs, f"need one clutter intensity per pair ({model.n_pairs}), got {len(kappa)}")
         require(0 < pd <= 1, f"pd must be in (0, 1], got {pd}")
         require(all(k >= 0 and math.isfinite(k) for k in kappa),
@@ -157,24 +160,23 @@ class CartesianPHD:
         self.spec, self.motion, self.model = spec, motion, model
         self.pd, self.kappa = float(pd), kappa
         self.n = motion.dim_x
-        self.F = motion.F(dt)
-        self.Q = motion.Q(dt, q)
-        self.L = motion.noise_factor(dt, q)
+        self.F = motion.F(dt, device=dev)
+        self.Q = motion.Q(dt, q, device=dev)
+        self.L = motion.noise_factor(dt, q, device=dev)
         self.pairs = [model.for_pairs([s]) for s in range(model.n_pairs)]
-        self.sd = torch.tensor(model.noise_std, dtype=torch.float64)
+        self.sd = torch.tensor(model.noise_std, dtype=torch.float64, device=dev)
         self.angle = [c == "azimuth" for c in model.components]
         self.window_component = next((c for c, a in enumerate(self.angle) if not a), None)
         self._log_norm = -0.5 * len(model.components) * math.log(2 * math.pi) - float(self.sd.log().sum())
         self.pos, self.vel = list(motion.pos_idx), list(motion.vel_idx)
-        self.other_sd = torch.as_tensor(other_sd, dtype=torch.float64)
         self.fix = FixInitiator(min_pairs=1)
 
     def empty(self, B: int) -> PHDState:
-        return PHDState(torch.zeros(B, 0, self.n, dtype=torch.float64), torch.zeros(B, 0, dtype=torch.float64),
-                        torch.zeros(B, dtype=torch.float64))
+        zeros = lambda *shape: torch.zeros(shape, dtype=torch.float64, device=self.other_sd.device)
+        return PHDState(zeros(B, 0, self.n), zeros(B, 0), zeros(B))
 
     def _move(self, x: torch.Tensor, g: torch.Generator) -> torch.Tensor:
-        return x @ self.F.T + standard_normal(x.shape, g) @ self.L.T
+        return x @ self.F.T + standard_normal(x.shape, g, device=x.device) @ self.L.T
 
     # -- 1. and 2.
 
@@ -191,12 +193,12 @@ class CartesianPHD:
         nb, n = self.spec.particles_per_birth, self.n
         pos, cov, ok = self.fix.fixes(z, self.model, n)  # (B, S, J, 2), (B, S, J, 2, 2), (B, S, J)
         seed = valid & ok
-        cov = torch.where(seed[..., None, None], cov, torch.eye(2, dtype=z.dtype))
+        cov = torch.where(seed[..., None, None], cov, torch.eye(2, dtype=z.dtype, device=z.device))
         x0 = z.new_zeros(B, S, J, n)
         x0[..., self.pos] = pos
         # velocity: the prior N(0, sd^2 I) times the detection's rate row (linear in velocity at a known position)
         D = len(self.vel)
-        prec = torch.eye(D, dtype=z.dtype).expand(B, S, J, D, D) / self.spec.birth_velocity_sd_mps**2
+        prec = torch.eye(D, dtype=z.dtype, device=z.device).expand(B, S, J, D, D) / self.spec.birth_velocity_sd_mps**2
         eta = z.new_zeros(B, S, J, D)
         c = rate_component(self.model)
         if c is not None:
@@ -206,15 +208,15 @@ class CartesianPHD:
             eta = grad * (z[..., c] / var)[..., None]
         Pv = torch.linalg.inv(prec)
         x0[..., self.vel] = (Pv @ eta[..., None])[..., 0]
-        eps = standard_normal((B, S, J, nb, n), g)
+        eps = standard_normal((B, S, J, nb, n), g, device=z.device)
         xb = x0[:, :, :, None, :] + eps * self.other_sd
         for idx, root in ((self.pos, psd_root(cov)), (self.vel, psd_root(Pv))):
             xb[..., idx] = x0[..., idx][..., None, :] + eps[..., idx] @ root.transpose(-1, -2)
         xb = self._move(xb.reshape(B, S * J * nb, n), g)
         count = seed.sum((1, 2))  # (B,)
-        share = torch.where(count > 0, self.spec.birth_rate / (count.clamp(min=1) * nb), torch.zeros((), dtype=z.dtype))
+        share = torch.where(count > 0, self.spec.birth_rate / (count.clamp(min=1) * nb), z.new_zeros(()))
         wb = seed[..., None].expand(B, S, J, nb).reshape(B, S * J * nb).to(z.dtype) * share[:, None]
-        mass = torch.where(count > 0, torch.tensor(self.spec.birth_rate, dtype=z.dtype), torch.zeros((), dtype=z.dtype))
+        mass = torch.where(count > 0, z.new_full((), self.spec.birth_rate), z.new_zeros(()))
         return PHDState(xb, wb, mass)
 
     # -- 3.
@@ -234,13 +236,13 @@ class CartesianPHD:
         row = torch.log(self.pd * st.w) + self._log_norm  # (B, M), -inf for padding
         B, M, J = hx.shape[0], hx.shape[1], z.shape[1]
         if self.window_component is None or M == 0 or J == 0:
-            col = torch.where(valid, torch.zeros((), dtype=z.dtype), torch.full((), -math.inf, dtype=z.dtype))
+            col = torch.where(valid, z.new_zeros(()), z.new_full((), -math.inf))
             e = self._exponent(z[:, None, :, :], hx[:, :, None, :], row[:, :, None]).add_(col[:, None, :])
             return e.masked_fill_(e < -700.0, -math.inf).exp_()
         particle, detection = self._windows(hx, row, z, valid)  # (P,) each: the pairs inside the windows
         e = self._exponent(z.reshape(B * J, -1).index_select(0, detection), hx.reshape(B * M, -1).index_select(
             0, particle), row.reshape(-1).index_select(0, particle))
-        out = torch.zeros(B * M * J, dtype=e.dtype)
+        out = e.new_zeros(B * M * J)
         # particle = b M + i, detection = b J + j: the entry (b, i, j) is particle J + j
         out.index_copy_(0, particle * J + detection.remainder(J), e.masked_fill_(e < -700.0, -math.inf).exp_())
         return out.reshape(B, M, J)
@@ -268,18 +270,20 @@ class CartesianPHD:
         # the half-width where the exponent's bound reaches -700, widened by 1e-9 so rounding keeps every
         # pair the full product keeps; a padding particle (row -inf) gets width 0
         half = float(self.sd[c]) * torch.sqrt(2.0 * (700.0 + row).clamp(min=0.0)) * (1.0 + 1e-9)  # (B, M)
-        key, order = torch.where(valid, z[..., c], torch.full((), math.inf, dtype=z.dtype)).sort(1)  # (B, J)
+        key, order = torch.where(valid, z[..., c], z.new_full((), math.inf)).sort(1)  # (B, J)
         h = hx[..., c]
         # both ends by one search; a detection exactly at the (widened) upper end is past the cut either way
         ends = torch.searchsorted(key, torch.cat([h - half, h + half], 1))  # (B, 2 M)
         lo = ends[:, :M].reshape(-1)
         count = ends[:, M:].reshape(-1) - lo
-        particle = torch.repeat_interleave(torch.arange(B * M), count)  # (P,): b M + i
+        dev = hx.device
+        particle = torch.repeat_interleave(torch.arange(B * M, device=dev), count)  # (P,): b M + i
         start = torch.repeat_interleave(count.cumsum(0) - count, count)
         b = particle.div(M, rounding_mode="floor")
-        flat_order = (order + (torch.arange(B) * J)[:, None]).reshape(-1)  # b J + j, in each run's sorted order
-        return particle, flat_order.index_select(0, b * J + lo.index_select(0, particle) + torch.arange(len(particle))
-                                                 - start)
+        # b J + j, in each run's sorted order
+        flat_order = (order + (torch.arange(B, device=dev) * J)[:, None]).reshape(-1)
+        return particle, flat_order.index_select(0, b * J + lo.index_select(0, particle)
+                                                 + torch.arange(len(particle), device=dev) - start)
 
     def update(self, st: PHDState, s: int, z: torch.Tensor, valid: torch.Tensor):
         """Pair ``s``'s PHD update with its detections ``z (B, J, d)``: the state and the detections'
@@ -300,7 +304,8 @@ class CartesianPHD:
 
     def _spread(self, P: torch.Tensor) -> torch.Tensor:
         """Spreads ``P (..., 2, 2)`` symmetrised and floored by ``cluster_sd_m^2`` per axis: a clustering metric's covariance."""
-        return 0.5 * (P + P.transpose(-1, -2)) + self.spec.cluster_sd_m**2 * torch.eye(2, dtype=P.dtype)
+        eye = torch.eye(2, dtype=P.dtype, device=P.device)
+        return 0.5 * (P + P.transpose(-1, -2)) + self.spec.cluster_sd_m**2 * eye
 
     def estimate(self, st: PHDState, seeds: torch.Tensor, seed_mass: torch.Tensor, seed_P: torch.Tensor):
         """Clusters (step 4) from the partitions ``seeds (B, S, n)``, ``seed_mass (B, S)``, ``seed_P
@@ -314,7 +319,7 @@ class CartesianPHD:
         sp = seeds[..., self.pos]
         W = whitening(self._spread(seed_P))  # (B, S, 2, 2)
         pair_S = self._spread(seed_P[:, :, None] + seed_P[:, None, :] + self.spec.cluster_sd_m**2 * torch.eye(
-            2, dtype=seed_P.dtype))  # (B, S, S, 2, 2)
+            2, dtype=seed_P.dtype, device=seed_P.device))  # (B, S, S, 2, 2)
         near_seeds = inside_gate(mahalanobis(sp[:, :, None] - sp[:, None, :], pair_S), self.spec.gate)
 
         def d2(x, c, which):
@@ -335,22 +340,22 @@ class CartesianPHD:
             return st
         spec = self.spec
         comp = torch.where(st.w > 0, owner, torch.full_like(owner, C + 1))  # C: no cluster; C + 1: padding
-        mass = torch.zeros(B, C + 2, dtype=st.w.dtype).scatter_add_(1, comp, st.w)[:, :C + 1]  # (B, C + 1)
+        mass = st.w.new_zeros(B, C + 2).scatter_add_(1, comp, st.w)[:, :C + 1]  # (B, C + 1)
         per_mass = torch.round(spec.particles_per_target * mass)
         counts = torch.cat([per_mass[:, :C].clamp(min=spec.particles_per_target),
                             per_mass[:, C:].clamp(min=spec.particles_per_birth)], 1)
         counts = torch.where(mass > 0, counts, torch.zeros_like(counts)).to(torch.int64)
-        share = torch.cat([mass, torch.ones(B, 1, dtype=mass.dtype)], 1).gather(1, comp)
+        share = torch.cat([mass, mass.new_ones(B, 1)], 1).gather(1, comp)
         logw = torch.log(st.w / share.clamp(min=1e-300))
         x, own, logw = segmented_resample(st.x, logw, comp, mass > 0, counts, g)
-        w = torch.where(own <= C, logw.exp() * torch.cat([mass, torch.zeros(B, 1, dtype=mass.dtype)], 1).gather(
-            1, own), torch.zeros((), dtype=st.w.dtype))
+        w = torch.where(own <= C, logw.exp() * torch.cat([mass, mass.new_zeros(B, 1)], 1).gather(1, own),
+                        st.w.new_zeros(()))
         if spec.regularisation == 0 or C == 0 or x.shape[1] == 0:
             return PHDState(x, w, st.expected)
         A = (4.0 / (n + 2)) ** (1.0 / (n + 4))
         h = spec.regularisation * A * counts[:, :C].clamp(min=1).to(x.dtype) ** (-1.0 / (n + 4))  # (B, C)
         root = psd_root(P) * h[..., None, None]  # (B, C, n, n)
-        eps = standard_normal(x.shape, g)
+        eps = standard_normal(x.shape, g, device=x.device)
         for c in range(C):  # few clusters: one batched product each
             x = torch.where((own == c)[..., None], x + eps @ root[:, c].transpose(1, 2), x)
         return PHDState(x, w, st.expected)
