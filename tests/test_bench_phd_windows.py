@@ -33,5 +33,7 @@ def test_bench_phd_windows_records_identical_estimates_and_its_own_ratios(tmp_pa
     med = rec["median_s"]
     assert set(med) == {"full", "windows", "windows_default_counts", "full_default_counts"}
     assert rec["ratio_windows_to_full"] == pytest.approx(med["windows"] / med["full"], rel=1e-12)
+    assert rec["ratio_windows_to_full_default_counts"] == pytest.approx(
+        med["windows_default_counts"] / med["full_default_counts"], rel=1e-12)
     assert rec["ratio_to_before"] == pytest.approx(med["windows"] / med["full_default_counts"], rel=1e-12)
     assert rec["info"]["command"].startswith("python ")
