@@ -44,7 +44,10 @@ from pmsr_nn.harness.run.runner import prepare  # noqa: E402
 from pmsr_nn.harness.scenario.loading import load_any  # noqa: E402
 
 MATMUL = {"mm", "bmm", "addmm", "baddbmm", "addbmm", "matmul", "dot", "mv", "addmv", "linear"}
-CUBIC = ("cholesky", "solve", "inv", "lu", "eigh", "svd", "qr", "det", "slogdet", "triangular")
+CUBIC = frozenset({"cholesky", "solve", "inv", "inverse", "lu", "eigh", "eigvalsh", "svd", "qr", "det", "slogdet",
+                   "logdet", "triangular"})
+"""Words of the factorisations' and solves' aten names (``linalg_solve_triangular``, ``_linalg_det``):
+matched as whole words, so ``sqrt`` is not a QR and ``detach`` not a determinant."""
 
 
 def _shape(t) -> tuple[int, ...]:
@@ -85,7 +88,7 @@ class OpCounter(TorchDispatchMode):
         if name in MATMUL and len(tensors) >= 2 and tensors[-1].dim() >= 1:
             k = _shape(tensors[-2])[-1] if tensors[-2].dim() else 1
             self.flops += 2 * n_out * k
-        elif any(c in name for c in CUBIC) and tensors and tensors[0].dim() >= 2:
+        elif not CUBIC.isdisjoint(name.split("_")) and tensors and tensors[0].dim() >= 2:
             shape = _shape(tensors[0])
             self.flops += _prod(shape[:-2]) * shape[-1] ** 3
         else:
