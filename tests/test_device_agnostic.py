@@ -24,7 +24,7 @@ from pmsr_nn.errors import ConfigError
 from pmsr_nn.harness.run.blocks import _first_runs, call_method, draw_block
 from pmsr_nn.harness.run.runner import prepare
 from pmsr_nn.harness.scenario.schema import load_scenario
-from pmsr_nn.methods import registry
+from pmsr_nn.methods import MethodCall, registry
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -160,8 +160,7 @@ SCENES = {"streams": _streams, "range_rate": _range_rate, "azimuth": _azimuth, "
 
 NOT_YET = "not yet device-agnostic (issue 57 item 5)"
 ROWS = [(scene, m["name"]) for scene, make in SCENES.items() for m in make()["methods"]]
-XFAIL: dict[str, str] = {name: NOT_YET for name in ("modified_icmb", "pmb", "icmb", "detect_then_track", "stonesoup",
-                                                     "stonesoup azimuth")}
+XFAIL: dict[str, str] = {name: NOT_YET for name in ("stonesoup", "stonesoup azimuth")}
 """Rows whose meta check fails today (strict: one that passes fails the test until its mark goes)."""
 
 
@@ -243,8 +242,8 @@ def test_the_rows_a_kind_runs_on_any_device_are_those_that_pass(scenes):
 # -- what the meta check can not see ---------------------------------------------------------------
 
 PACKAGE = ROOT / "pmsr_nn"
-SCANNED = ("trackers", "filters", "methods")
-OUT_OF_SCOPE = {"methods/tbd.py", "methods/stonesoup.py", "methods/kind_metrics.py"}
+SCANNED = ("trackers", "filters", "methods", "tbd")
+OUT_OF_SCOPE = {"methods/stonesoup.py", "methods/kind_metrics.py"}
 """Files of kinds that run on the CPU only (strict xfails above), and the kinds' metrics, which
 read the estimates after the runner has moved them to the CPU."""
 CPU_LITERAL = re.compile(r"""device\s*=\s*["']cpu["']|torch\.device\(\s*["']cpu["']\s*\)""")
@@ -269,9 +268,9 @@ def _calls(text: str, opener: str):
 
 
 def test_no_tensor_is_made_on_a_literal_cpu_without_saying_why():
-    """A literal CPU device (``device="cpu"``, ``torch.device("cpu")``) in the trackers, filters and
-    methods only with a comment on its line saying why (``# device: ...``, e.g. a check of the
-    geometry alone); ``.cpu()`` on the way to numpy is the next test's."""
+    """A literal CPU device (``device="cpu"``, ``torch.device("cpu")``) in the trackers, filters,
+    methods and track-before-detect only with a comment on its line saying why (``# device: ...``,
+    e.g. a check of the geometry alone); ``.cpu()`` on the way to numpy is the next test's."""
     found = [f"{rel}:{i + 1}: {line.strip()}" for rel, lines in _sources() for i, line in enumerate(lines)
              if CPU_LITERAL.search(line.split("#")[0]) and "# device:" not in line]
     assert not found, found
@@ -328,10 +327,25 @@ def test_the_runner_moves_a_call_to_the_device_and_its_estimates_back(scenes, mo
     assert products["detections"].scans.z.device.type == "cpu"  # the draws stay where they were made
 
 
+def test_the_maps_product_hands_its_maps_on_its_device_and_draws_them_on_the_cpu(scenes):
+    """The ``rd_maps`` product draws a frame's maps when a kind asks, where the truth is (the CPU,
+    so every device reads the same maps), and hands them on the device the runner moved it to
+    (:meth:`~pmsr_nn.methods.MethodCall.to`), whose ``device`` the map kinds follow."""
+    setup, products = scenes("maps")
+    maps = products["rd_maps"]
+    call = MethodCall(setup.methods[0], maps, setup.cases[0].alive, setup.models, setup.cases[0].sensing)
+    moved = call.to("meta").product
+    assert (maps.device.type, moved.device.type, moved.truth_x.device.type) == ("cpu", "meta", "cpu")
+    frame, there = maps.frame(1), moved.frame(1)
+    assert there.device.type == "meta" and (there.shape, there.dtype) == (frame.shape, frame.dtype)
+    assert moved.first_scans(2).device.type == "meta" and torch.equal(maps.to("cpu").frame(1), frame)
+
+
 def test_kinds_that_run_on_the_cpu_only_are_refused_on_another_device_in_one_line(tmp_path):
     d = _designed([{"name": "S", "kind": "s_msjpda"}, {"name": "stone", "kind": "stonesoup"},
                    {"name": "own", "kind": "s_msjpda", "options": {"initiation": "detections"}},
-                   {"name": "P", "kind": "pmht"}, {"name": "phd", "kind": "smc_phd"}], targets=[TWO[0]],
+                   {"name": "P", "kind": "pmht"}, {"name": "phd", "kind": "smc_phd"},
+                   {"name": "stone 2", "kind": "stonesoup"}], targets=[TWO[0]],
                   detections={"pd": 0.9, "clutter": CLUTTER})
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
     sc = load_scenario(tmp_path / "s.yaml")
@@ -341,15 +355,11 @@ def test_kinds_that_run_on_the_cpu_only_are_refused_on_another_device_in_one_lin
     text = str(err.value)
     # the fix initiator, PMHT, the SMC-PHD: anywhere
     assert "\n" not in text and not any(f"'{m}'" in text for m in ("S", "own", "P", "phd"))
-    assert "method 'stone': kind stonesoup runs on the CPU only (Stone Soup is NumPy); --device cuda is refused" in text
-    maps = _maps()  # kinds refused with no reason to give, two in one line
-    maps["methods"] = [m for m in maps["methods"] if m["kind"] in ("modified_icmb", "detect_then_track")]
+    why = "runs on the CPU only (Stone Soup is NumPy); --device cuda is refused (use --device cpu)"
+    assert all(f"method '{m}': kind stonesoup {why}" in text for m in ("stone", "stone 2"))  # two in one line
+    maps = _maps()  # the map kinds: anywhere (their maps drawn on the CPU, handed on the device)
     (tmp_path / "maps.yaml").write_text(yaml.safe_dump(maps))
-    with pytest.raises(ConfigError) as err:
-        prepare(load_scenario(tmp_path / "maps.yaml"), "cuda")
-    text, why = str(err.value), "runs on the CPU only; --device cuda is refused (use --device cpu)"
-    assert "\n" not in text
-    assert all(f"method '{k}': kind {k} {why}" in text for k in ("modified_icmb", "detect_then_track"))
+    assert prepare(load_scenario(tmp_path / "maps.yaml"), "cuda").device == "cuda"
     d["methods"] = d["methods"][:1]
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(d))
     assert prepare(load_scenario(tmp_path / "s.yaml"), "cuda").device == "cuda"  # nothing refused, nothing run yet

@@ -249,11 +249,11 @@ def os_cfar(power: torch.Tensor, guard: tuple[int, int] = (2, 1), train: tuple[i
         thr = (alpha[d, u] * xk).to(power.dtype)
         hit = maps.to(power.dtype)[b, d, u] > thr
         b, d, u, xk, thr = b[hit], d[hit], u[hit], xk[hit], thr[hit]
-        threshold = torch.full((maps.shape[0], D, U), float("nan"), dtype=power.dtype)
+        threshold = torch.full((maps.shape[0], D, U), float("nan"), dtype=power.dtype, device=dev)
         threshold[b, d, u] = thr
         noise = torch.full_like(threshold, float("nan"))
         noise[b, d, u] = (xk / scale[d, u]).to(power.dtype)
-        detections = torch.zeros(threshold.shape, dtype=torch.bool)
+        detections = torch.zeros(threshold.shape, dtype=torch.bool, device=dev)
         detections[b, d, u] = True
         return CfarResult(detections=detections.reshape(power.shape), threshold=threshold.reshape(power.shape),
                           noise=noise.reshape(power.shape), **common)

@@ -32,7 +32,9 @@ track. Per-frame extras for the Remote Sensing figures (read by the kinds' metri
 ``tbd_best_x`` / ``tbd_best_r`` (the most probable component's mean and existence), ``tbd_snr_db``
 (the SNR each map's update used) and ``tbd_particles``.
 
-Random draws: the filter's from ``(seed, case, block, crc32(name))``.
+Random draws: the filter's from ``(seed, case, block, crc32(name))``, on the device of the maps
+(the product's ``device``: its maps are drawn on the CPU and handed there), as every tensor of the
+filter.
 """
 
 from __future__ import annotations
@@ -84,21 +86,21 @@ def tracks_of(out: MBOutput, threshold: float, to_state) -> tuple[torch.Tensor, 
     the next birth into it) that is above ``threshold`` at some frame; ``to_state`` maps CV
     means ``(..., 4)`` into the scenario's state."""
     B, K, n_slots = out.r.shape
+    dev = out.r.device
     exists = out.r > threshold
     born = torch.nn.functional.one_hot(out.born, n_slots).to(torch.int64)  # (B, K, n_slots)
     life = born.cumsum(1)  # (B, K, n_slots): how many births the slot had so far
-    key = torch.arange(n_slots) * (K + 1) + life  # (B, K, n_slots): one id per life of a slot
+    key = torch.arange(n_slots, device=dev) * (K + 1) + life  # (B, K, n_slots): one id per life of a slot
     L = n_slots * (K + 1)
-    reported = torch.zeros(B, L, dtype=torch.int64).scatter_reduce(1, key.flatten(1), exists.flatten(1).to(torch.int64),
-                                                                     "amax")
+    reported = life.new_zeros(B, L).scatter_reduce(1, key.flatten(1), exists.flatten(1).to(torch.int64), "amax")
     M = max(int(reported.sum(1).max()), 1)
     index = (reported.cumsum(1) - 1).gather(1, key.flatten(1)).view(B, K, n_slots)  # track of each (run, frame, slot)
     keep = reported.gather(1, key.flatten(1)).view(B, K, n_slots).bool() & (out.r > 0)
     b, k, q = torch.nonzero(keep, as_tuple=True)
     t = index[b, k, q]
-    x = torch.zeros(B, K, M, 4, dtype=torch.float64)
+    x = torch.zeros(B, K, M, 4, dtype=torch.float64, device=dev)
     x[b, k, t] = out.x[b, k, q]
-    r = torch.zeros(B, K, M, dtype=torch.float64)
+    r = torch.zeros(B, K, M, dtype=torch.float64, device=dev)
     r[b, k, t] = out.r[b, k, q]
     return to_state(x), r > threshold, r
 
@@ -108,7 +110,8 @@ def run_tbd(call: MethodCall) -> Estimates:
     spec = call.spec
     scene = call.sensing.rd_maps
     mb = mb_spec(spec)
-    out = run_filter(scene, mb, call.product, seeded_generator(*call.seed, method_stream(spec.name)), detect_spec(spec))
+    g = seeded_generator(*call.seed, method_stream(spec.name), device=call.product.device)  # the maps' device
+    out = run_filter(scene, mb, call.product, g, detect_spec(spec))
     n = call.models.motion.dim_x
     to_state = lambda cv: scene.from_cv(cv, n)
     x, exists, r = tracks_of(out, mb.threshold, to_state)
@@ -178,11 +181,11 @@ FRAMES = (TBDFrames(describe),)
 """What every kind reports beside the runner's figures: the Remote Sensing 2020 figures per frame."""
 
 register(MethodKind("pmb", "rd_maps", run_tbd, {**SNR_MODEL, **SUBAREA, **COMMON}, check_sensing=check_sensing,
-                    starts_tracks=True, metrics=FRAMES,
+                    starts_tracks=True, metrics=FRAMES, any_device=True,
                     description="SMC multi-Bernoulli track-before-detect, product update of every map (PMB; Zeng et "
                                 "al., Remote Sensing 2020), modelled or true SNR; starts its own tracks"))
 register(MethodKind("icmb", "rd_maps", run_tbd, {**ORDER, **SNR_MODEL, **SUBAREA, **COMMON}, check_sensing=check_sensing,
-                    starts_tracks=True, metrics=FRAMES,
+                    starts_tracks=True, metrics=FRAMES, any_device=True,
                     description="SMC multi-Bernoulli track-before-detect, one map after another in SNR order (ICMB; "
                                 "Zeng et al.), modelled or true SNR; starts its own tracks"))
 register(MethodKind("modified_icmb", "rd_maps", run_tbd, {"order": Option("ascending", str, choices=("ascending",
@@ -190,13 +193,13 @@ register(MethodKind("modified_icmb", "rd_maps", run_tbd, {"order": Option("ascen
                                                           "snr_estimator": Option("bootstrap", str,
                                                                                   choices=("bootstrap", "max")),
                                                           **SUBAREA, **COMMON},
-                    check_sensing=check_sensing, starts_tracks=True, metrics=FRAMES,
+                    check_sensing=check_sensing, starts_tracks=True, metrics=FRAMES, any_device=True,
                     description="ICMB with each map's SNR estimated online, ordering the maps (the modified ICMB of "
                                 "Zeng et al., Remote Sensing 2020); starts its own tracks"))
 register(MethodKind("detect_then_track", "rd_maps", run_tbd,
                     {"pfa": Option(1e-4, float, 1e-12, 0.5), "detector": Option("os_cfar", str,
                                                                                 choices=("os_cfar", "known_noise")),
                      **ORDER, **COMMON},
-                    check_sensing=check_sensing, starts_tracks=True, metrics=FRAMES,
+                    check_sensing=check_sensing, starts_tracks=True, metrics=FRAMES, any_device=True,
                     description="each map thresholded (OS-CFAR or the known-noise threshold at pfa per cell), the "
                                 "detections tracked by the same multi-Bernoulli filter; starts its own tracks"))

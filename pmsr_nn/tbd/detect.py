@@ -93,12 +93,13 @@ def detect(maps: torch.Tensor, noise_power: float, pfa: float, lobe_cells: float
 def detection_probability(snr_db: torch.Tensor, pfa: float, lobe_cells: float, points: int = 101) -> torch.Tensor:
     """Per map: probability that the target's peak cell exceeds the threshold, averaged over uniform
     sub-cell offsets in both axes (``|z|^2 / (sigma^2 / 2)`` is non-central chi-square, 2 degrees of
-    freedom, non-centrality ``2 SNR G^2``)."""
+    freedom, non-centrality ``2 SNR G^2``); computed by SciPy on the CPU, given on ``snr_db``'s device."""
     off = (np.arange(points) + 0.5) / points - 0.5
-    G2 = (np.asarray(triangle(torch.tensor(off) / lobe_cells))[:, None] * np.sinc(off)[None, :]) ** 2
-    snr = 10.0 ** (np.asarray(snr_db, dtype=np.float64) / 10)
+    tri = triangle(torch.from_numpy(off) / lobe_cells).numpy()  # cpu: a NumPy table for SciPy
+    G2 = (tri[:, None] * np.sinc(off)[None, :]) ** 2
+    snr = 10.0 ** (np.asarray(snr_db.cpu().numpy(), dtype=np.float64) / 10)
     pd = [float(stats.ncx2.sf(2 * math.log(1 / pfa), 2, 2 * s * G2).mean()) for s in snr.ravel()]
-    return torch.tensor(pd, dtype=torch.float64).reshape(np.shape(snr))
+    return torch.tensor(pd, dtype=torch.float64, device=snr_db.device).reshape(np.shape(snr))
 
 
 class DetectionLikelihood:
@@ -119,7 +120,7 @@ class DetectionLikelihood:
         dd = (d[..., None] - peaks.d[:, None]) / s.sd_doppler_cells  # (B, M, P, J)
         du = (u[..., None] - peaks.u[:, None]) / s.sd_range_cells
         dens = torch.exp(-0.5 * (dd * dd + du * du)) / (2 * math.pi * s.sd_doppler_cells * s.sd_range_cells)
-        dens = torch.where(peaks.valid[:, None], dens, torch.zeros((), dtype=dens.dtype)).sum(-1).to(torch.float64)
+        dens = torch.where(peaks.valid[:, None], dens, dens.new_zeros(())).sum(-1).to(torch.float64)
         pd = self.pd.to(torch.float64)
         loglr = torch.log1p(-pd + pd * dens / s.pfa)
         B = x.shape[0]

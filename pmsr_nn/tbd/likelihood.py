@@ -41,8 +41,8 @@ class CellValues:
     G: torch.Tensor
 
 
-def _offsets(half: int, n: int) -> torch.Tensor:
-    return torch.arange(-min(half, n), min(half, n) + 1)
+def _offsets(half: int, n: int, device) -> torch.Tensor:
+    return torch.arange(-min(half, n), min(half, n) + 1, device=device)
 
 
 def gather_cells(maps_abs: torch.Tensor, d: torch.Tensor, u: torch.Tensor, lobe_cells: float,
@@ -81,18 +81,20 @@ def sub_area(shape: tuple[int, int, int], d: torch.Tensor, u: torch.Tensor, lobe
     ``(B, M, S, C)``."""
     S, D, U = shape
     B, M = d.shape[:2]
+    dev = d.device
     if half is None:  # every row; the columns the triangle reaches
-        rows = torch.arange(D).view(1, 1, 1, D).expand(B, M, S, D)
+        rows = torch.arange(D, device=dev).view(1, 1, 1, D).expand(B, M, S, D)
         cw = math.ceil(lobe_cells)
-        cols = torch.round(u).to(torch.int64)[..., None] + torch.arange(-cw, cw + 1)
+        cols = torch.round(u).to(torch.int64)[..., None] + torch.arange(-cw, cw + 1, device=dev)
     else:
-        rows = torch.round(d).to(torch.int64)[..., None] + _offsets(half, D)
-        cols = torch.round(u).to(torch.int64)[..., None] + _offsets(half, U)
+        rows = torch.round(d).to(torch.int64)[..., None] + _offsets(half, D, dev)
+        cols = torch.round(u).to(torch.int64)[..., None] + _offsets(half, U, dev)
     # the response is separable: a factor per row and per column, zero outside the map
     row_f = torch.sinc(rows - d[..., None]).abs() * ((rows >= 0) & (rows < D))
     col_f = triangle((cols - u[..., None]) / lobe_cells) * ((cols >= 0) & (cols < U))
     G = (row_f[..., :, None] * col_f[..., None, :]).reshape(B, M, S, -1)
-    flat = (torch.arange(S).view(1, 1, S, 1) * D + rows.clamp(0, D - 1))[..., :, None] * U + cols.clamp(0, U - 1)[..., None, :]
+    flat = ((torch.arange(S, device=dev).view(1, 1, S, 1) * D + rows.clamp(0, D - 1))[..., :, None] * U
+            + cols.clamp(0, U - 1)[..., None, :])
     return G, flat.reshape(B, M, S, -1)
 
 
@@ -174,7 +176,7 @@ def ml_amplitude(cells: CellValues, noise_power: float, iterations: int = 30, to
     below ``tol`` relative, or after ``iterations``."""
     zG = cells.absz.to(torch.float64) * cells.G.to(torch.float64)
     G2 = (cells.G.to(torch.float64) ** 2).sum(-1)
-    safe = torch.where(G2 > 0, G2, torch.ones((), dtype=G2.dtype))
+    safe = torch.where(G2 > 0, G2, G2.new_ones(()))
     a = zG.sum(-1) / safe
     positive = (zG * zG).sum(-1) > noise_power * G2
     c = 2.0 * zG / noise_power
@@ -184,11 +186,11 @@ def ml_amplitude(cells: CellValues, noise_power: float, iterations: int = 30, to
         drho = torch.where(x > 1e-6, 1.0 - rho / x.clamp(min=1e-6) - rho * rho, torch.full_like(x, 0.5))
         f = (zG * rho).sum(-1) - a * G2
         df = (zG * drho * c).sum(-1) - G2
-        step = torch.where(df < 0, f / df, torch.zeros((), dtype=f.dtype))
+        step = torch.where(df < 0, f / df, f.new_zeros(()))
         a = (a - step).clamp(min=0.0)
         if bool((step.abs() <= tol * a.clamp(min=1e-12)).all()):
             break
-    return torch.where((G2 > 0) & positive, a, torch.zeros((), dtype=a.dtype)).to(cells.absz.dtype)
+    return torch.where((G2 > 0) & positive, a, a.new_zeros(())).to(cells.absz.dtype)
 
 
 def max_ml_amplitude(cells: CellValues, valid: torch.Tensor, noise_power: float, iterations: int = 30,
@@ -210,8 +212,8 @@ def candidate_ml_amplitudes(cells: CellValues, valid: torch.Tensor, noise_power:
     ``B x M x S x C`` cells, 30 times) is what it saves."""
     zG = (cells.absz * cells.G).sum(-1)
     G2 = (cells.G * cells.G).sum(-1)
-    a0 = torch.where(valid[..., None] & (G2 > 0), zG / torch.where(G2 > 0, G2, torch.ones((), dtype=G2.dtype)),
-                     torch.zeros((), dtype=zG.dtype))  # (B, M, S)
+    a0 = torch.where(valid[..., None] & (G2 > 0), zG / torch.where(G2 > 0, G2, G2.new_ones(())),
+                     zG.new_zeros(()))  # (B, M, S)
     M = a0.shape[1]
     k = M if candidates is None else min(candidates, M)
     _, idx = a0.topk(k, dim=1)  # (B, k, S)

@@ -123,7 +123,7 @@ def range_doppler(states: torch.Tensor, tx: torch.Tensor, spec: MapSpec, rx: tor
     pos = torch.stack([x, y, torch.full_like(x, spec.altitude_m)], -1)  # (..., 3)
     vel = torch.stack([vx, vy, torch.zeros_like(vx)], -1)
     if rx is None:
-        rx = torch.zeros(1, 3, dtype=tx.dtype)
+        rx = torch.zeros(1, 3, dtype=tx.dtype, device=tx.device)
     q = pos[..., None, :] - rx.to(pos.dtype)  # (..., P, 3): the target from each map's receiver
     s = (tx.to(torch.float64) - rx.to(torch.float64)).to(tx.dtype)  # (P, 3): each transmitter from its receiver
     d_t = (q - s).norm(dim=-1)
@@ -138,7 +138,7 @@ def range_doppler(states: torch.Tensor, tx: torch.Tensor, spec: MapSpec, rx: tor
     if lam is None:
         raise ValueError("range_doppler: no wavelength (give maps.wavelength_m or carrier_hz, or per-map wavelengths)")
     if isinstance(lam, torch.Tensor):
-        lam = lam.to(rate.dtype)
+        lam = lam.to(rate.device, rate.dtype)
     return rng, -rate / lam
 
 
@@ -235,13 +235,14 @@ def frame_at_cells(d: torch.Tensor, u: torch.Tensor, present: torch.Tensor, ampl
     B, N, P = d.shape
     D, U = size
     s = math.sqrt(noise_power / 2)
-    noise = torch.randn((B, P, D, U, 2), generator=g, dtype=torch.float32) * s
+    dev = d.device  # the draws too: ``g`` is a generator of this device
+    noise = torch.randn((B, P, D, U, 2), generator=g, dtype=torch.float32, device=dev) * s
     maps = torch.view_as_complex(noise)
-    phase = torch.rand((B, P, N), generator=g, dtype=torch.float64) * (2 * math.pi)
-    rows = torch.arange(D, dtype=torch.float64)
-    cols = torch.arange(U, dtype=torch.float64)
+    phase = torch.rand((B, P, N), generator=g, dtype=torch.float64, device=dev) * (2 * math.pi)
+    rows = torch.arange(D, dtype=torch.float64, device=dev)
+    cols = torch.arange(U, dtype=torch.float64, device=dev)
     sig = None
-    zero = torch.zeros((), dtype=torch.complex128)
+    zero = torch.zeros((), dtype=torch.complex128, device=dev)
     for n in range(N):
         # separable: (B, P, D, 1) x (B, P, 1, U)
         dr = torch.sinc(rows - d[:, n, :, None])

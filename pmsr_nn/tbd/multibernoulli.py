@@ -58,11 +58,10 @@ class BirthBox:
             lo, hi = getattr(self, name)
             require(math.isfinite(lo) and math.isfinite(hi) and lo < hi, f"birth_box.{name} must be [lo, hi] with lo < hi")
 
-    def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Lower and upper corners ``(4,)`` in the CV state order ``[x, vx, y, vy]``."""
-        lo = torch.tensor([self.x_m[0], self.vx_mps[0], self.y_m[0], self.vy_mps[0]], dtype=torch.float64)
-        hi = torch.tensor([self.x_m[1], self.vx_mps[1], self.y_m[1], self.vy_mps[1]], dtype=torch.float64)
-        return lo, hi
+    def bounds(self, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Lower and upper corners ``(4,)`` in the CV state order ``[x, vx, y, vy]`` (on ``device``)."""
+        corner = lambda i: [self.x_m[i], self.vx_mps[i], self.y_m[i], self.vy_mps[i]]
+        return tuple(torch.tensor(corner(i), dtype=torch.float64, device=device) for i in (0, 1))
 
 
 @dataclass(frozen=True)
@@ -143,9 +142,9 @@ class MBOutput:
 def _segment_logsumexp(values: torch.Tensor, comp: torch.Tensor, slots: int) -> torch.Tensor:
     """Per run and component slot ``(B, slots)``: log of the sum of ``exp(values)`` over its particles."""
     B = values.shape[0]
-    top = torch.full((B, slots), -math.inf, dtype=values.dtype).scatter_reduce(1, comp, values, "amax")
-    safe = torch.where(torch.isfinite(top), top, torch.zeros((), dtype=top.dtype))
-    s = torch.zeros((B, slots), dtype=values.dtype).scatter_add(1, comp, torch.exp(values - safe.gather(1, comp)))
+    top = values.new_full((B, slots), -math.inf).scatter_reduce(1, comp, values, "amax")
+    safe = torch.where(torch.isfinite(top), top, top.new_zeros(()))
+    s = values.new_zeros((B, slots)).scatter_add(1, comp, torch.exp(values - safe.gather(1, comp)))
     return torch.log(s) + safe
 
 
@@ -169,7 +168,8 @@ class MapLikelihood:
     """The maps' likelihood ratios of states (the seed's filter): ``maps(k) -> (B, P, D, U)``
     gives frame ``k``'s maps, ``cells(x, k) -> (d, u)`` the fractional cells ``(B, M, P)`` of states
     ``x (B, M, 4)`` at frame ``k``; ``true_snr_db (P,)`` the scenario's, used when ``spec`` models
-    none and estimates none; ``g``: the generator of the ``bootstrap`` estimate's replica maps."""
+    none and estimates none, on the maps' device; ``g``: the generator of the ``bootstrap``
+    estimate's replica maps, of that device."""
 
     def __init__(self, spec: MBSpec, maps: Callable, cells: Callable, lobe_cells: float, noise_power: float,
                  true_snr_db: torch.Tensor, g: torch.Generator | None = None):
@@ -184,7 +184,8 @@ class MapLikelihood:
         s = self.spec.snr_model_db
         if s is None:
             return self.true_snr_db.expand(B, P)
-        return torch.tensor(s, dtype=torch.float64).expand(B, P)  # one value for every map, or one per map
+        snr = torch.tensor(s, dtype=torch.float64, device=self.true_snr_db.device)
+        return snr.expand(B, P)  # one value for every map, or one per map
 
     def __call__(self, x: torch.Tensor, valid: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Log ratios ``(B, M, P)`` of states ``x (B, M, 4)`` and the SNRs ``(B, P)`` (dB) used."""
@@ -212,7 +213,8 @@ class MultiBernoulliTBD:
     (B, P))`` gives each state's log likelihood ratio per map at frame ``k`` and the SNRs that order
     the maps (:class:`MapLikelihood`, or detections: :mod:`.detect`); ``cells(x, k)`` the states'
     fractional cells (merging); ``F``, ``noise_factor``: the CV model over one frame for unit
-    acceleration variance; ``lobe_cells``: the range triangle's half-width."""
+    acceleration variance; ``lobe_cells``: the range triangle's half-width. Its tensors are on
+    ``F``'s device (the maps'), ``g`` a generator of that device."""
 
     def __init__(self, spec: MBSpec, box: BirthBox, lobe_cells: float, F: torch.Tensor, noise_factor: torch.Tensor):
         self.spec, self.box, self.lobe_cells = spec, box, lobe_cells
@@ -221,10 +223,11 @@ class MultiBernoulliTBD:
     def run(self, K: int, measure: Callable, cells: Callable, B: int, g: torch.Generator) -> MBOutput:
         spec = self.spec
         Q = spec.max_components
-        st = MBState(torch.zeros(B, 0, 4, dtype=torch.float64), torch.zeros(B, 0, dtype=torch.float64),
-                     torch.zeros(B, 0, dtype=torch.int64), torch.zeros(B, Q, dtype=torch.float64))
+        dev = self.F.device
+        zeros = lambda *shape, dtype=torch.float64: torch.zeros(shape, dtype=dtype, device=dev)
+        st = MBState(zeros(B, 0, 4), zeros(B, 0), zeros(B, 0, dtype=torch.int64), zeros(B, Q))
         xs, rs, snrs, orders, counts, born = [], [], [], [], [], []
-        lo, hi = self.box.bounds()
+        lo, hi = self.box.bounds(dev)
         for k in range(K):
             st = self._predict(st, g) if k else st
             st, slot = self._birth(st, lo, hi, g)
@@ -233,7 +236,7 @@ class MultiBernoulliTBD:
             P = loglr.shape[-1]
             order = torch.argsort(snr, dim=1, descending=spec.update == "descending", stable=True)
             if spec.update == "given":
-                order = torch.arange(P).expand(B, P)
+                order = torch.arange(P, device=dev).expand(B, P)
             st = self._update(st, loglr, order)
             st = self._prune_merge(st, cells(self._components(st)[0], k))
             x_q, r_q = self._components(st)  # the estimates come after pruning and merging (the seed's order)
@@ -250,7 +253,7 @@ class MultiBernoulliTBD:
 
     def _predict(self, st: MBState, g: torch.Generator) -> MBState:
         B, M, _ = st.x.shape
-        w = torch.randn((B, M, self.L.shape[-1]), generator=g, dtype=torch.float64)
+        w = torch.randn((B, M, self.L.shape[-1]), generator=g, dtype=torch.float64, device=st.x.device)
         x = st.x @ self.F.T + w @ self.L.T * self.spec.accel_sd_mps2
         return MBState(x, st.logw, st.comp, st.r * self.spec.survival)
 
@@ -265,9 +268,10 @@ class MultiBernoulliTBD:
         dropped = torch.zeros_like(free).scatter_(1, slot[:, None], True)
         comp = torch.where(dropped.gather(1, st.comp.clamp(max=Q - 1)) & (st.comp < Q), torch.full_like(st.comp, Q), st.comp)
         logw = torch.where(comp < Q, st.logw, torch.full_like(st.logw, -math.inf))
-        xb = lo + (hi - lo) * torch.rand((B, n, 4), generator=g, dtype=torch.float64)
+        xb = lo + (hi - lo) * torch.rand((B, n, 4), generator=g, dtype=torch.float64, device=lo.device)
         r = st.r.scatter(1, slot[:, None], self.spec.birth_r)
-        return MBState(torch.cat([st.x, xb], 1), torch.cat([logw, torch.full((B, n), -math.log(n), dtype=torch.float64)], 1),
+        logw_b = torch.full((B, n), -math.log(n), dtype=torch.float64, device=logw.device)
+        return MBState(torch.cat([st.x, xb], 1), torch.cat([logw, logw_b], 1),
                        torch.cat([comp, slot[:, None].expand(B, n)], 1), r), slot
 
     def _bernoulli_update(self, st: MBState, loglr: torch.Tensor) -> MBState:
@@ -276,7 +280,7 @@ class MultiBernoulliTBD:
         lw = torch.where(st.comp < Q, st.logw + loglr, torch.full_like(st.logw, -math.inf))
         log_m = _segment_logsumexp(lw, st.comp, Q + 1)[:, :Q]  # (B, Q): log of the mean ratio
         active = st.r > 0
-        log_m = torch.where(active, log_m, torch.zeros((), dtype=log_m.dtype))
+        log_m = torch.where(active, log_m, log_m.new_zeros(()))
         logit = torch.log(st.r.clamp(min=1e-300)) - torch.log1p(-st.r.clamp(max=1 - 1e-15))
         r = torch.where(active, torch.sigmoid(logit + log_m), st.r)
         norm = torch.cat([log_m, torch.zeros_like(log_m[:, :1])], 1).gather(1, st.comp)
@@ -292,40 +296,41 @@ class MultiBernoulliTBD:
     def _components(self, st: MBState) -> tuple[torch.Tensor, torch.Tensor]:
         """Weighted means ``(B, Q, 4)`` and existence ``(B, Q)`` of the components."""
         B, Q = st.r.shape
-        w = torch.where(st.comp < Q, st.logw.exp(), torch.zeros((), dtype=st.logw.dtype))
-        mean = torch.zeros(B, Q + 1, 4, dtype=torch.float64).index_put_(
-            (torch.arange(B)[:, None].expand_as(st.comp), st.comp), w[..., None] * st.x, accumulate=True)[:, :Q]
+        w = torch.where(st.comp < Q, st.logw.exp(), st.logw.new_zeros(()))
+        mean = torch.zeros(B, Q + 1, 4, dtype=torch.float64, device=st.x.device).index_put_(
+            (torch.arange(B, device=st.comp.device)[:, None].expand_as(st.comp), st.comp), w[..., None] * st.x,
+            accumulate=True)[:, :Q]
         return mean, st.r.clone()
 
     def _prune_merge(self, st: MBState, mean_cells: tuple) -> MBState:
         """``mean_cells``: the fractional cells ``(d, u)``, each ``(B, Q, P)``, of the components' means."""
         spec = self.spec
         B, Q = st.r.shape
-        r = torch.where(st.r >= spec.prune, st.r, torch.zeros((), dtype=st.r.dtype))
+        r = torch.where(st.r >= spec.prune, st.r, st.r.new_zeros(()))
         active = r > 0
         # merging: each component joins the most probable other one close to it, when that one is more probable
         d, u = mean_cells
         near = (((d[:, :, None] - d[:, None, :]).abs() <= spec.merge_doppler_cells)
                 & ((u[:, :, None] - u[:, None, :]).abs() <= self.lobe_cells))  # (B, Q, Q, P)
         pair = active[:, :, None] & active[:, None, :]
-        q_idx = torch.arange(Q)
+        q_idx = torch.arange(Q, device=r.device)
         stronger = (r[:, None, :] > r[:, :, None]) | ((r[:, None, :] == r[:, :, None])
                                                        & (q_idx[None, None, :] < q_idx[None, :, None]))
         # sharing cells in some maps only: the weaker explains the stronger's energy there (a ghost)
         ghost = (near.any(-1) & ~near.all(-1) & pair & stronger).any(2)
-        r = torch.where(ghost, torch.zeros((), dtype=r.dtype), r)
+        r = torch.where(ghost, r.new_zeros(()), r)
         active = r > 0
         close = near.all(-1) & active[:, :, None] & active[:, None, :]
         cand = torch.where(close & stronger, r[:, None, :], torch.full_like(close, -1.0, dtype=r.dtype))
         best_r, target = cand.max(2)
         target = torch.where(best_r > 0, target, q_idx.expand(B, Q))  # self: no merge
         target = target.gather(1, target)  # one hop further: chains join their head
-        into = torch.zeros(B, Q, dtype=r.dtype).scatter_add(1, target, r)
-        r_new = torch.where(target == torch.arange(Q), into.clamp(max=spec.r_max), torch.zeros((), dtype=r.dtype))
+        into = r.new_zeros(B, Q).scatter_add(1, target, r)
+        r_new = torch.where(target == q_idx, into.clamp(max=spec.r_max), r.new_zeros(()))
         # particle weights within the merged component: r_source w / sum r
-        comp_full = torch.cat([target, torch.full((B, 1), Q, dtype=torch.int64)], 1)
-        r_full = torch.cat([r, torch.zeros(B, 1, dtype=r.dtype)], 1)
-        into_full = torch.cat([into, torch.ones(B, 1, dtype=r.dtype)], 1)
+        comp_full = torch.cat([target, target.new_full((B, 1), Q)], 1)
+        r_full = torch.cat([r, r.new_zeros(B, 1)], 1)
+        into_full = torch.cat([into, into.new_ones(B, 1)], 1)
         new_comp = comp_full.gather(1, st.comp)
         keep = (new_comp < Q) & (r_full.gather(1, st.comp) > 0)
         logw = st.logw + torch.log(r_full.gather(1, st.comp).clamp(min=1e-300)) - torch.log(into_full.gather(1, new_comp))
@@ -336,6 +341,6 @@ class MultiBernoulliTBD:
     def _resample(self, st: MBState, g: torch.Generator) -> MBState:
         spec = self.spec
         counts = torch.where(st.r > 0, (st.r * spec.particles_max).round().clamp(spec.particles_min, spec.particles_max),
-                             torch.zeros((), dtype=st.r.dtype)).to(torch.int64)
+                             st.r.new_zeros(())).to(torch.int64)
         x, comp, logw = segmented_resample(st.x, st.logw, st.comp, st.r > 0, counts, g)
         return MBState(x, logw, comp, st.r)

@@ -28,11 +28,14 @@ from .scene import MapScene, RangeDopplerMaps, TBDScene, make_rd_maps
 
 def run_filter(scene: MapScene, spec: MBSpec, product: RangeDopplerMaps, g: torch.Generator,
                detect: DetectSpec | None = None) -> MBOutput:
-    """The CV multi-Bernoulli filter of ``spec`` over every frame of ``product`` (its runs batched)."""
+    """The CV multi-Bernoulli filter of ``spec`` over every frame of ``product`` (its runs batched),
+    on the device of the product's maps (``g`` a generator of that device)."""
     cv = motion_model("cv", 2)
     dt = scene.frame_s
-    mb = MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(dt), cv.noise_factor(dt, 1.0))
-    snr = torch.tensor(scene.snr_db, dtype=torch.float64)
+    dev = product.device
+    mb = MultiBernoulliTBD(spec, scene.birth_box, scene.maps.lobe_cells, cv.F(dt, device=dev),
+                           cv.noise_factor(dt, 1.0, device=dev))
+    snr = torch.tensor(scene.snr_db, dtype=torch.float64, device=dev)
     if detect is not None:
         measure = DetectionLikelihood(detect, product.frame, scene.cells, scene.maps.lobe_cells, scene.maps.noise_power,
                                       snr)

@@ -118,8 +118,10 @@ class MapScene:
         return torch.tensor(self.wavelength_m, dtype=torch.float64)
 
     def range_doppler(self, x: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """Excess range (m) and Doppler (Hz) ``(..., P)`` of CV states ``x (..., 4)`` at frame ``k``."""
-        return range_doppler(x, self.tx[k].to(x.dtype), self.maps, self.rx.to(x.dtype), self.wavelength)
+        """Excess range (m) and Doppler (Hz) ``(..., P)`` of CV states ``x (..., 4)`` at frame ``k``,
+        on ``x``'s device."""
+        return range_doppler(x, self.tx[k].to(x.device, x.dtype), self.maps, self.rx.to(x.device, x.dtype),
+                             self.wavelength)
 
     @cached_property
     def grid(self) -> MapGrid:
@@ -162,12 +164,12 @@ class MapScene:
 
         Computed in float32 (the particles' bulk cost): the range formula has no cancellation, each
         transmitter's offset from its receiver is formed in float64 first, and the rounding (under
-        0.01 m of range, 1e-6 Hz) is far below a cell."""
+        0.01 m of range, 1e-6 Hz) is far below a cell. On ``x``'s device (the scene's own tensors,
+        made once on the CPU, are moved there)."""
         grid = self.grid
-        rng, dop = range_doppler(x.to(torch.float32), self.tx[k].to(torch.float32), self.maps, self.rx.to(torch.float32),
-                                 self.wavelength)
-        return ((dop - grid.doppler0_hz.to(torch.float32)) / grid.doppler_cell_hz,
-                (rng - grid.range0_m.to(torch.float32)) / grid.range_cell_m)
+        f32 = lambda t: t.to(x.device, torch.float32)
+        rng, dop = range_doppler(f32(x), f32(self.tx[k]), self.maps, f32(self.rx), self.wavelength)
+        return (dop - f32(grid.doppler0_hz)) / grid.doppler_cell_hz, (rng - f32(grid.range0_m)) / grid.range_cell_m
 
     def cv_states(self, x: torch.Tensor) -> torch.Tensor:
         """The planar CV states ``(..., 4)`` ``[x, vx, y, vy]`` of truth states ``x (..., n)``."""
@@ -175,7 +177,7 @@ class MapScene:
 
     def from_cv(self, x: torch.Tensor, n: int) -> torch.Tensor:
         """States ``(..., n)`` of the truth's space from CV states ``(..., 4)`` (other columns 0)."""
-        out = torch.zeros(*x.shape[:-1], n, dtype=x.dtype)
+        out = x.new_zeros(*x.shape[:-1], n)
         out[..., list(self.state_index)] = x
         return out
 
@@ -348,39 +350,51 @@ class RangeDopplerMaps:
     """The ``rd_maps`` product of a block: ``frame(k)`` gives maps ``(B, P, D, U)`` complex64 of
     frame ``k`` (0-based); ``truth_x (B, K, N, 4)`` the targets' CV states (NaN while absent),
     ``present (K, N)``. ``select``: the runs this product hands out (:meth:`runs`); the maps are
-    always drawn for the whole block, so a run's maps do not depend on which runs are asked for."""
+    always drawn for the whole block, so a run's maps do not depend on which runs are asked for.
+    ``moved_to``: the device the maps are handed on (:meth:`to`; ``None``: the truth's)."""
 
     scene: MapScene
     truth_x: torch.Tensor
     present: torch.Tensor
     seed: int
     select: slice | None = None
+    moved_to: torch.device | None = None
 
     @property
     def B(self) -> int:
         return self.truth_x.shape[0] if self.select is None else self.truth_x[self.select].shape[0]
 
+    @property
+    def device(self) -> torch.device:
+        """The device of the maps :meth:`frame` gives (a method's tensors follow it)."""
+        return self.truth_x.device if self.moved_to is None else self.moved_to
+
+    def to(self, device: torch.device | str) -> "RangeDopplerMaps":
+        """The same product handing its maps on ``device``. They are still drawn where the truth is
+        (the CPU, as every product's draws), so every device reads the same maps."""
+        return dataclasses.replace(self, moved_to=torch.device(device))
+
     def frame(self, k: int) -> torch.Tensor:
         sc = self.scene
         x = torch.nan_to_num(self.truth_x[:, k])  # (B, N, 4); absent targets add nothing
         rng, dop = sc.range_doppler(x, k)  # (B, N, P)
-        g = seeded_generator(self.seed, k)
+        g = seeded_generator(self.seed, k, device=x.device)
         present = self.present[k].expand(x.shape[0], -1)
-        maps = simulate_frame(rng.transpose(1, 2), dop.transpose(1, 2), present, torch.tensor(sc.snr_db, dtype=torch.float64),
-                              sc.grid, sc.maps, g)
-        return maps if self.select is None else maps[self.select]
+        snr = torch.tensor(sc.snr_db, dtype=torch.float64, device=x.device)
+        maps = simulate_frame(rng.transpose(1, 2), dop.transpose(1, 2), present, snr, sc.grid, sc.maps, g)
+        return (maps if self.select is None else maps[self.select]).to(self.device)
 
     def first_scans(self, W: int) -> "RangeDopplerMaps":
         """The maps of the first ``W`` frames (each frame's maps those of the whole product)."""
         W = min(W, self.scene.frames)
-        return RangeDopplerMaps(dataclasses.replace(self.scene, frames=W), self.truth_x[:, :W], self.present[:W],
-                                self.seed, self.select)
+        return dataclasses.replace(self, scene=dataclasses.replace(self.scene, frames=W), truth_x=self.truth_x[:, :W],
+                                   present=self.present[:W])
 
     def runs(self, i: slice) -> "RangeDopplerMaps":
         """The product of runs ``i`` of the block (a slice of the block's runs)."""
         if self.select is not None:
             raise ValueError("runs() of a product that is already a selection")
-        return RangeDopplerMaps(self.scene, self.truth_x, self.present, self.seed, i)
+        return dataclasses.replace(self, select=i)
 
     def examples(self) -> dict:
         """Run 0's maps around the first target at three frames of its life (first, middle, next to
@@ -409,9 +423,9 @@ class RangeDopplerMaps:
                 if re > rs and ce > cs:
                     win[p, rs - r0:re - r0, cs - c0:ce - c0] = power[p, rs:re, cs:ce]
                 origin[p] = torch.tensor([r0, c0], dtype=torch.float64)
-            out[f"@rd_maps_power_f{k + 1}"] = win.numpy()
-            out[f"@rd_maps_origin_f{k + 1}"] = origin.numpy()
-            out[f"@rd_maps_cells_f{k + 1}"] = torch.stack([d, u], -1).to(torch.float64).numpy()
+            out[f"@rd_maps_power_f{k + 1}"] = win.cpu().numpy()
+            out[f"@rd_maps_origin_f{k + 1}"] = origin.cpu().numpy()
+            out[f"@rd_maps_cells_f{k + 1}"] = torch.stack([d, u], -1).to(torch.float64).cpu().numpy()
         return out
 
 

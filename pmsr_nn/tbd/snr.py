@@ -78,9 +78,11 @@ def replica_maxima(shape: tuple[int, int, int], d: torch.Tensor, u: torch.Tensor
     new = torch.ones_like(ordered, dtype=torch.bool)
     new[..., 1:] = ordered[..., 1:] != ordered[..., :-1]
     distinct = torch.empty_like(perm).scatter_(-1, perm, new.cumsum(-1) - 1)  # (B, P, n S): its distinct cell
-    noise = torch.randn((replicas, B, P, n * S, 2), generator=g, dtype=torch.float64) * math.sqrt(noise_power / 2)
+    dev = d.device  # the draws too: ``g`` is a generator of this device
+    sd = math.sqrt(noise_power / 2)
+    noise = torch.randn((replicas, B, P, n * S, 2), generator=g, dtype=torch.float64, device=dev) * sd
     noise = torch.view_as_complex(noise).gather(-1, distinct.expand(replicas, -1, -1, -1))
-    phase = torch.rand((replicas, B, P, 1), generator=g, dtype=torch.float64) * (2 * math.pi)
+    phase = torch.rand((replicas, B, P, 1), generator=g, dtype=torch.float64, device=dev) * (2 * math.pi)
     within = cell % (D * U)
     at = response(within // U, within % U, d[:, 0].to(torch.float64)[..., None], u[:, 0].to(torch.float64)[..., None],
                   lobe_cells)  # (B, P, n S)
