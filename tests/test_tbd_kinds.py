@@ -230,6 +230,27 @@ def test_the_warm_up_calls_each_method_once_on_the_first_run_untimed(tmp_path, m
     assert [s for _, _, s, _ in calls] == [(3, 0, 1), (3, 0, 1), (3, 1, 1)]
 
 
+def test_a_map_kind_warms_up_on_the_first_frames_only(tmp_path, monkeypatch):
+    """On a case longer than the warm-up's slice, a map kind warms up once, on the frames up to
+    ``WARM_SCANS`` after the first birth of run 0: it reads its frame count from the product it is
+    handed, not from the case (which made the slice fail and the warm-up run the whole first run)."""
+    setup = prepare(scenario_from_dict(tiny(cases=[{"name": "c", "targets": [dict(TARGET)], "end_s": 40.0}]),
+                                       tmp_path))
+    case, spec = setup.cases[0], setup.methods[0]
+    K = case.alive.shape[0]
+    W = int(case.alive.any(1).nonzero()[0]) + blocks.WARM_SCANS
+    assert K > W  # the slice is shorter than the case
+    _, products = draw_block(setup, 0, 0)
+    kind, calls = setup.kinds[spec.name], []
+
+    def spy(call, run=kind.run):
+        calls.append((call.product.B, call.product.scene.frames))
+        return run(call)
+    monkeypatch.setitem(setup.kinds, spec.name, dataclasses.replace(kind, run=spy))
+    blocks.warm_up(setup, spec, case, products)
+    assert calls == [(1, W)]
+
+
 def test_shards_merge_to_exactly_the_unsharded_figures(tmp_path):
     """Shards 1/2 and 2/2 of a TBD scenario merged give the unsharded results.json bit for bit
     (timings aside), the Remote Sensing per-frame figures included."""

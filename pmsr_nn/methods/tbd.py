@@ -108,7 +108,7 @@ def tracks_of(out: MBOutput, threshold: float, to_state) -> tuple[torch.Tensor, 
 def run_tbd(call: MethodCall) -> Estimates:
     """The kind's filter on the call's maps: unpaired tracks and the per-frame extras (module docstring)."""
     spec = call.spec
-    scene = call.sensing.rd_maps
+    scene = call.product.scene  # the case's, but for its frames where the product is a first slice (the warm-up's)
     mb = mb_spec(spec)
     g = seeded_generator(*call.seed, method_stream(spec.name), device=call.product.device)  # the maps' device
     out = run_filter(scene, mb, call.product, g, detect_spec(spec))
