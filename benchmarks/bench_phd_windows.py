@@ -31,10 +31,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import write_figures  # noqa: E402
+from scenario import first_block  # noqa: E402
 
-from pmsr_nn.harness.run.blocks import draw_block  # noqa: E402
-from pmsr_nn.harness.run.runner import prepare  # noqa: E402
-from pmsr_nn.harness.scenario.loading import load_any  # noqa: E402
 from pmsr_nn.methods import MethodCall, method_stream  # noqa: E402
 from pmsr_nn.methods.phd import OPTIONS, make_filter  # noqa: E402
 from pmsr_nn.rng import seeded_generator  # noqa: E402
@@ -50,10 +48,7 @@ def main() -> int:
     ap.add_argument("--json", type=Path, help="write the figures here")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    sc = load_any(args.scenario, mc_runs=1)
-    setup = prepare(sc)
-    case = setup.cases[0]
-    _, products = draw_block(setup, 0, 0)
+    sc, setup, case, products = first_block(args.scenario)
     (spec,) = [m for m in setup.methods if m.name == args.row]
     kind = setup.kinds[spec.name]
     seed = (sc.seed, 0, 0)

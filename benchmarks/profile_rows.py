@@ -38,10 +38,9 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_info import median_seconds, write_figures  # noqa: E402
+from scenario import first_block  # noqa: E402
 
-from pmsr_nn.harness.run.blocks import call_method, draw_block  # noqa: E402
-from pmsr_nn.harness.run.runner import prepare  # noqa: E402
-from pmsr_nn.harness.scenario.loading import load_any  # noqa: E402
+from pmsr_nn.harness.run.blocks import call_method  # noqa: E402
 
 MATMUL = {"mm", "bmm", "addmm", "baddbmm", "addbmm", "matmul", "dot", "mv", "addmv", "linear"}
 CUBIC = frozenset({"cholesky", "solve", "inv", "inverse", "lu", "eigh", "eigvalsh", "svd", "qr", "det", "slogdet",
@@ -143,10 +142,7 @@ def main() -> int:
     ap.add_argument("--json", type=Path, help="write the figures here")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    sc = load_any(args.scenario, mc_runs=1)
-    setup = prepare(sc)
-    case = setup.cases[0]
-    _, products = draw_block(setup, 0, 0)
+    sc, setup, case, products = first_block(args.scenario)
     machine = machine_figures()
     print(f"machine: {machine['dispatch_us']:.1f} us per tiny op, {machine['gflops']:.1f} GFLOP/s (matrix product), "
           f"{machine['gelems']:.2f} G elements/s (elementwise)", flush=True)

@@ -25,3 +25,15 @@ def ca_scenario(n_tracks: int, steps: int, device: str = "cpu") -> SimpleNamespa
     prior = Gaussian(x0.to(device), torch.diag(sd**2).expand(n_tracks, 6, 6).contiguous().to(device))
     return SimpleNamespace(motion=motion, model=model, truth=batch.states.to(device), z=batch.measurements.to(device),
                            R=model.R(batch.noise_std).to(device), prior=prior, q=recipe.effective_motion().q_psd)
+
+
+def first_block(path):
+    """One run of a study (``path``, a scenario YAML): ``(scenario, setup, its first case, block 0's
+    products)``, what the per-row benchmarks call each row on."""
+    from pmsr_nn.harness.run.blocks import draw_block
+    from pmsr_nn.harness.run.runner import prepare
+    from pmsr_nn.harness.scenario.loading import load_any
+
+    sc = load_any(path, mc_runs=1)
+    setup = prepare(sc)
+    return sc, setup, setup.cases[0], draw_block(setup, 0, 0)[1]

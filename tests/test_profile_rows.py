@@ -3,26 +3,15 @@ product 2 m n k, a factorisation or solve n^3 per matrix, one per element writte
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-
+from bench_module import load_benchmark
 
 @pytest.fixture(scope="module")
 def profile_rows():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        spec = importlib.util.spec_from_file_location("profile_rows", ROOT / "benchmarks" / "profile_rows.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        yield mod
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+    return load_benchmark("profile_rows")
 
 
 def counted(profile_rows, fn) -> tuple[int, int, int]:
