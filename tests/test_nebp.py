@@ -97,6 +97,10 @@ def test_the_edge_and_detection_loss_by_hand_on_two_tracks_and_two_detections():
     # edges (0,0) y=1 p=0.7; (0,1) y=0 p=0.1; (1,1) y=1 p=0.5; (1,0) is not gated
     assert float(es) == pytest.approx(-math.log(0.7) - math.log(0.9) - math.log(0.5), rel=1e-12)
     assert float(ds) == pytest.approx(-math.log(0.8) - math.log(0.6), rel=1e-12)
+    # optim.new_weight weighs the new target's detection (detection 1) only; the edges keep their sum
+    es3, ds3, _, _ = association_loss(association, new, legacy, gated, target, det_class, torch.tensor([[True, True]]),
+                                      new_weight=3.0)
+    assert float(ds3) == pytest.approx(-math.log(0.8) - 3.0 * math.log(0.6), rel=1e-12) and float(es3) == float(es)
     clutter = torch.tensor([[CLUTTER, CLUTTER]])  # p(clutter) = 1 - 0.8 - 0.1 and 1 - 0.3 - 0.6
     _, ds2, _, _ = association_loss(association, new, legacy, gated, target, clutter, torch.tensor([[True, False]]))
     assert float(ds2) == pytest.approx(-math.log(0.1), rel=1e-9)
@@ -237,15 +241,18 @@ def test_a_checkpoint_of_another_kind_is_one_line_exit_2_and_nothing_written(tmp
                                      "streams: use it with kind learned)")
 
 
-def test_a_training_config_whose_scenes_have_no_detections_is_one_line_exit_2_and_nothing_written(tmp_path, capsys):
+@pytest.mark.parametrize("override, message", [("scenes.pd=[0.0,0.0]", "scenes.pd must lie in (0, 1]"),
+                                               ("optim.new_weight=0", "optim.new_weight must be in (0, 100], got 0")])
+def test_a_training_config_it_can_not_train_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, override,
+                                                                                    message):
     from pmsr_nn.cli import main
 
     cfg = (ROOT / "train/nebp.yaml").read_text().replace("../datasets/", str(ROOT / "datasets") + "/")
     (tmp_path / "nebp.yaml").write_text(cfg)
     before = sorted(p.name for p in tmp_path.iterdir())
-    assert main(["train", str(tmp_path / "nebp.yaml"), "--out", str(tmp_path / "run"), "scenes.pd=[0.0,0.0]"]) == 2
+    assert main(["train", str(tmp_path / "nebp.yaml"), "--out", str(tmp_path / "run"), override]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "scenes.pd must lie in (0, 1]" in err[0], err
+    assert len(err) == 1 and message in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 

@@ -25,7 +25,8 @@ batch and divided by the number of terms, each term weighted by ``optim.*_weight
 cross-entropy of each gated edge's association probability ``p(a_i = m)`` against "detection
 ``m`` is node ``i``'s target"; the cross-entropy of each detection's three beliefs (clutter, a
 track's, a new target's) against its truth (clutter; a target some node describes; a target no
-node describes); and the binary cross-entropy of each node's updated existence against "the node
+node describes), a new target's detection weighted by ``optim.new_weight`` (its miss is a late
+start, which GOSPA scores as a missed target); and the binary cross-entropy of each node's updated existence against "the node
 describes a target". The best checkpoint is the one with the lowest validation GOSPA
 (``optim.monitor: gospa_m``; ``loss`` for the loss): the loss is a proxy, GOSPA what is scored. The beliefs come from
 ``grad_passes`` message passes with gradients, started at BP's converged messages (computed
@@ -76,6 +77,7 @@ class NEBPOptimConfig(FlyOptimConfig):
     edge_weight: float = 1.0
     detection_weight: float = 1.0
     existence_weight: float = 1.0
+    new_weight: float = 1.0
     monitor: str = "gospa_m"
 
     def __post_init__(self) -> None:
@@ -83,6 +85,7 @@ class NEBPOptimConfig(FlyOptimConfig):
         w = (self.edge_weight, self.detection_weight, self.existence_weight)
         require(min(w) >= 0 and sum(w) > 0, "optim: edge_weight, detection_weight and existence_weight must be "
                                             "non-negative, not all 0")
+        require(0 < self.new_weight <= 100, f"optim.new_weight must be in (0, 100], got {self.new_weight}")
         require(self.monitor in ("gospa_m", "loss"), f"optim.monitor must be gospa_m or loss, got {self.monitor!r}")
         require(0.5 <= self.label_gate_probability < 1.0,
                 f"optim.label_gate_probability must be in [0.5, 1), got {self.label_gate_probability}")
@@ -157,16 +160,17 @@ def existence_loss(existence: torch.Tensor, live: torch.Tensor, target: torch.Te
 
 
 def association_loss(association: torch.Tensor, new_existence: torch.Tensor, legacy: torch.Tensor,
-                     gated: torch.Tensor, edge_target: torch.Tensor, det_class: torch.Tensor, valid: torch.Tensor
-                     ) -> tuple[torch.Tensor, torch.Tensor, int, int]:
+                     gated: torch.Tensor, edge_target: torch.Tensor, det_class: torch.Tensor, valid: torch.Tensor,
+                     new_weight: float = 1.0) -> tuple[torch.Tensor, torch.Tensor, int, int]:
     """``(edge sum, detection sum, edges, detections)`` of one list (module docstring).
 
     ``association (B, C, M + 1)`` BP's association probabilities (last column: none),
     ``new_existence (B, M)`` and ``legacy (B, M)`` each detection's new-target and track beliefs
     (the rest is clutter); ``gated (B, C, M)`` the edges scored, ``edge_target (B, C, M)`` bool,
     ``det_class (B, M)`` one of :data:`CLUTTER`, :data:`LEGACY`, :data:`NEW`; ``valid (B, M)``.
-    The edge sum is ``-sum [y log p + (1 - y) log (1 - p)]``, the detection sum ``-sum log
-    p(class)``, each probability floored at 1e-12."""
+    The edge sum is ``-sum [y log p + (1 - y) log (1 - p)]``, the detection sum ``-sum w log
+    p(class)`` with ``w = new_weight`` for a :data:`NEW` detection (a target no node describes yet:
+    its miss is a late start) and 1 otherwise, each probability floored at 1e-12."""
     M = association.shape[-1] - 1
     p = association[..., :M].clamp(1e-12, 1.0 - 1e-12)
     y = edge_target.to(p.dtype)
@@ -175,7 +179,8 @@ def association_loss(association: torch.Tensor, new_existence: torch.Tensor, leg
     clutter = (1.0 - legacy - new_existence)
     probs = torch.stack([clutter, legacy, new_existence], -1).clamp(min=1e-12)
     chosen = probs.gather(-1, det_class.clamp(0, 2).unsqueeze(-1))[..., 0]
-    det_sum = torch.where(valid, -chosen.log(), torch.zeros((), dtype=p.dtype)).sum()
+    weight = torch.where(det_class == NEW, new_weight, 1.0).to(p.dtype)
+    det_sum = torch.where(valid, -chosen.log() * weight, torch.zeros((), dtype=p.dtype)).sum()
     return edge_sum, det_sum, int(gated.sum()), int(valid.sum())
 
 
@@ -193,9 +198,11 @@ class Supervisor:
     none)."""
 
     def __init__(self, truth: torch.Tensor, origin: torch.Tensor, pos: list[int], gate: float,
-                 edge_weight: float = 1.0, detection_weight: float = 1.0, existence_weight: float = 1.0):
+                 edge_weight: float = 1.0, detection_weight: float = 1.0, existence_weight: float = 1.0,
+                 new_weight: float = 1.0):
         self.truth, self.origin, self.pos, self.gate = truth, origin, pos, gate
         self.weights = (edge_weight, detection_weight, existence_weight)
+        self.new_weight = new_weight
         self.count = 0
         self.edge_sum = 0.0
         self.det_sum = 0.0
@@ -238,7 +245,7 @@ class Supervisor:
         described = (origin.unsqueeze(-1) == labels.unsqueeze(1)).any(-1) & (origin >= 0)  # (B, M)
         det_class = torch.where(origin < 0, CLUTTER, torch.where(described, LEGACY, NEW))
         es, ds, ne, nd = association_loss(beliefs.association, beliefs.new_existence, beliefs.legacy, gated,
-                                          edge_target, det_class, valid)
+                                          edge_target, det_class, valid, self.new_weight)
         xs, nx = existence_loss(beliefs.existence, live, labels >= 0)
         self.count += ne + nd + nx
         self.edge_sum += float(es.detach())
@@ -283,7 +290,7 @@ class Problem:
         scans, truth, pd, clutter, _ = self.sampler.draw(step, B)
         o = self.cfg.optim
         sup = Supervisor(truth, scans.origin, list(self.motion.pos_idx), self.gate, o.edge_weight, o.detection_weight,
-                         o.existence_weight)
+                         o.existence_weight, o.new_weight)
         refiner = self.refiner(net, sup)
         with torch.set_grad_enabled(train):
             rep = bp_tracker(scans, self.motion, self.dt, self.q, self.model, self.model.R(), self.settings(pd, clutter),
