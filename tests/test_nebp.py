@@ -110,6 +110,24 @@ def test_the_edge_and_detection_loss_by_hand_on_two_tracks_and_two_detections():
     assert nx == 2 and float(xs) == pytest.approx(-math.log(0.9) - math.log(0.8), rel=1e-12)
 
 
+def test_scenes_with_births_hold_targets_absent_and_undetected_before_their_birth_scan():
+    """``scenes.births``: a target other than target 0 may be born at a scan of the window's first
+    half; before it its state is NaN and no detection comes from it, after it it stays."""
+    pr = _problem(births=0.7, targets=[4, 4])
+    scans, truth, *_ = pr.sampler.draw((3, 0), 6)
+    alive = torch.isfinite(truth).all(-1)  # (B, K, N)
+    K = truth.shape[1]
+    assert bool(alive[:, :, 0].all()) and bool(alive[:, K // 2].all())  # target 0 throughout; all born by K / 2
+    assert not bool(alive[:, 0].all())  # some are born later
+    assert bool((alive[:, 1:] >= alive[:, :-1]).all())  # once born, alive to the end of the window
+    B, _, S, M = scans.origin.shape
+    o = scans.origin
+    b, k, s, m = (o >= 0).nonzero(as_tuple=True)
+    assert len(b) > 0 and bool(alive[b, k, o[b, k, s, m]].all())  # every target detection is of a living target
+    plain = _problem(targets=[4, 4]).sampler.draw((3, 0), 6)[1]
+    assert bool(torch.isfinite(plain).all())  # without births every target lives throughout
+
+
 def test_a_narrow_track_holds_its_target_against_a_wide_newborn_and_a_ghost_gets_none():
     x = torch.tensor([[[0.0, 0.0], [50.0, 0.0], [400.0, 0.0]]], dtype=torch.float64)
     P = torch.stack([torch.eye(2) * 30.0**2, torch.eye(2) * 500.0**2, torch.eye(2) * 30.0**2]).unsqueeze(0).double()

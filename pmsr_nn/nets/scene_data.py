@@ -21,7 +21,9 @@ class SceneConfig:
     """What the training scenes are (:func:`~pmsr_nn.simulation.scenes.draw_scenes`): ``window`` scans,
     ``targets`` (fewest, most) per scene, the chances of a formation mate and a crossing target,
     ``pd`` and ``clutter_per_scan`` ranges (per batch; clutter per pair and scan, uniform over the
-    box below), and the detections' noise deviations."""
+    box below), and the detections' noise deviations. ``births``: the chance that a target other
+    than target 0 is born at a uniform scan of the window's first half, absent (NaN, undetected)
+    before it; 0 (the default) keeps every target alive throughout, and the draws as they were."""
 
     window: int = 60
     targets: tuple[int, int] = (2, 4)
@@ -32,9 +34,11 @@ class SceneConfig:
     range_m: tuple[float, float] = (0.0, 25000.0)
     range_rate_mps: tuple[float, float] = (-40.0, 40.0)
     noise: dict = field(default_factory=lambda: {"range_m": 30.0, "range_rate_mps": 2.0, "azimuth_deg": 3.0})
+    births: float = 0.0
 
     def __post_init__(self) -> None:
         require(self.window >= 5, f"scenes.window must be at least 5 scans, got {self.window}")
+        require(0.0 <= self.births <= 1.0, f"scenes.births must be a chance in [0, 1], got {self.births}")
         require(1 <= self.targets[0] <= self.targets[1] <= 20, f"scenes.targets must be 1 <= fewest <= most <= 20, "
                                                                 f"got {self.targets}")
         require(0.0 < self.pd[0] <= self.pd[1] <= 1.0, f"scenes.pd must lie in (0, 1], got {self.pd}")
@@ -113,7 +117,15 @@ class SceneSampler:
         per_scan = int(torch.randint(s.clutter_per_scan[0], s.clutter_per_scan[1] + 1, (1,), generator=g))
         truth = draw_scenes(self.recipe, self.model.geometry, B, N, s.window, g, s.formation, s.crossing)
         clutter = ClutterSpec(per_scan=per_scan, range_m=s.range_m, range_rate_mps=s.range_rate_mps)
-        return simulate_scans(truth, self.model, pd, clutter, g), truth, pd, clutter, g
+        alive = None
+        if s.births > 0:  # drawn only then: a config without births draws the scenes it always drew
+            K = s.window
+            late = torch.rand(B, N, generator=g, dtype=torch.float64) < s.births
+            late[:, 0] = False
+            birth = torch.where(late, torch.randint(1, K // 2 + 1, (B, N), generator=g), 0)  # (B, N)
+            alive = torch.arange(K)[None, :, None] >= birth[:, None, :]  # (B, K, N)
+            truth = torch.where(alive[..., None], truth, torch.full((), math.nan, dtype=truth.dtype))
+        return simulate_scans(truth, self.model, pd, clutter, g, alive=alive), truth, pd, clutter, g
 
 
 def start_run(out: Path, cfg, recipe: str) -> None:
