@@ -243,7 +243,8 @@ class CartesianPHD:
         e = self._exponent(z.reshape(B * J, -1).index_select(0, detection), hx.reshape(B * M, -1).index_select(
             0, particle), row.reshape(-1).index_select(0, particle))
         out = e.new_zeros(B * M * J)
-        # particle = b M + i, detection = b J + j: the entry (b, i, j) is particle J + j
+        # particle = b M + i and detection = b J + j, so entry (b, i, j) of the flat output is particle J + j;
+        # an exponent below -700 is 0: exp there is subnormal, ~10x slower on x86, and (< 1e-304) changes no sum
         out.index_copy_(0, particle * J + detection.remainder(J), e.masked_fill_(e < -700.0, -math.inf).exp_())
         return out.reshape(B, M, J)
 
