@@ -349,13 +349,18 @@ def make_module(cfg: NEBPTrainConfig, problem: Problem):
     return NEBPModule()
 
 
+def validate(cfg: NEBPTrainConfig, problem: Problem, net) -> dict:
+    """The mean figures of :func:`batch_figures` of network ``net`` over the validation scenes."""
+    return mean_figures([batch_figures(cfg, problem, net, (cfg.seed, 1_000_000, i), False)
+                         for i in range(cfg.optim.val_batches)])
+
+
 def baseline_validation(cfg: NEBPTrainConfig, problem: Problem) -> dict:
     """BP's loss and GOSPA on the validation scenes (the untrained network: zero corrections)."""
     from .nebp import NEBPNet
 
-    net = NEBPNet(problem.model.n_pairs, problem.model.components, cfg.model.hidden, cfg.model.rounds, cfg.model.bound)
-    return mean_figures([batch_figures(cfg, problem, net, (cfg.seed, 1_000_000, i), False)
-                         for i in range(cfg.optim.val_batches)])
+    return validate(cfg, problem, NEBPNet(problem.model.n_pairs, problem.model.components, cfg.model.hidden,
+                                          cfg.model.rounds, cfg.model.bound))
 
 
 def train_nebp(cfg: NEBPTrainConfig, out: str | Path, progress: bool = True) -> dict:
