@@ -163,20 +163,45 @@ def pcrb(truth: torch.Tensor, motion: KinematicModel, dt: float, q, model: Measu
     sum_s = torch.zeros(K, n, n, dtype=dtype, device=device) if smoothing else None
     pos_f = truth.new_empty(B, K)
     pos_s = truth.new_empty(B, K) if smoothing else None
-    pos = list(motion.pos_idx)
     for s in range(0, B, chunk):
         e = min(B, s + chunk)
         R_c = R if R.dim() == 2 else R[s:e]
-        Q_c = Q if Q.dim() == 2 else Q[s:e]
-        J0 = _inverse_spd(P0 if P0.dim() == 2 else P0[s:e]).expand(e - s, n, n)
-        P = _filtering_pass(measurement_information(truth[s:e], model, R_c, detection_probability), J0, F, Q_c)
-        sum_f += P.sum(0)
-        pos_f[s:e] = torch.diagonal(P, dim1=-2, dim2=-1)[..., pos].sum(-1).sqrt()
+        r = _per_trajectory(measurement_information(truth[s:e], model, R_c, detection_probability), F,
+                            Q if Q.dim() == 2 else Q[s:e], P0 if P0.dim() == 2 else P0[s:e], motion, smoothing)
+        sum_f += r.filtering * (e - s)
+        pos_f[s:e] = r.per_track_position
         if smoothing:
-            Ps = rts_backward(None, P, F, Q_c).P
-            sum_s += Ps.sum(0)
-            pos_s[s:e] = torch.diagonal(Ps, dim1=-2, dim2=-1)[..., pos].sum(-1).sqrt()
+            sum_s += r.smoothing * (e - s)
+            pos_s[s:e] = r.per_track_position_smoothing
     return BoundResult(form, sum_f / B, None if sum_s is None else sum_s / B, motion.pos_idx, motion.vel_idx, pos_f, pos_s)
+
+
+def _per_trajectory(info: torch.Tensor, F: torch.Tensor, Q: torch.Tensor, P0: torch.Tensor, motion: KinematicModel,
+                    smoothing: bool) -> BoundResult:
+    """The per-trajectory bound of measurement information ``info (B, K, n, n)`` (module docstring)."""
+    B, K, n = info.shape[:3]
+    J0 = _inverse_spd(P0.to(info.dtype)).expand(B, n, n)
+    P = _filtering_pass(info, J0, F, Q)
+    Ps = rts_backward(None, P, F, Q).P if smoothing else None
+    pos = list(motion.pos_idx)
+    track = lambda C: torch.diagonal(C, dim1=-2, dim2=-1)[..., pos].sum(-1).sqrt()
+    return BoundResult("per_trajectory", P.mean(0), None if Ps is None else Ps.mean(0), motion.pos_idx,
+                       motion.vel_idx, track(P), None if Ps is None else track(Ps))
+
+
+def information_bound(info: torch.Tensor, motion: KinematicModel, dt: float, q, P0: torch.Tensor,
+                      smoothing: bool = True) -> BoundResult:
+    """The per-trajectory PCRB of :func:`pcrb` from measurement information already formed:
+    ``info (B, K, n, n)`` per trajectory and step (another sensor's, e.g. range-Doppler maps':
+    :mod:`pmsr_nn.tbd.bound`), ``q`` and ``P0 (n, n)`` or ``(B, n, n)`` as for :func:`pcrb`."""
+    n = motion.dim_x
+    if info.dim() != 4 or info.shape[-2:] != (n, n):
+        raise ConfigError(f"info must be (B, K, {n}, {n}); got {tuple(info.shape)}")
+    if bool((torch.linalg.cholesky_ex(P0)[1] != 0).any()):
+        raise ConfigError("P0 is not positive definite")
+    F = motion.F(dt, info.dtype, info.device)
+    Q = motion.Q(dt, q, info.dtype, info.device)
+    return _per_trajectory(info, F, Q, P0, motion, smoothing)
 
 
 def finite_memory_pcrb(truth: torch.Tensor, motion: KinematicModel, dt: float, q, model: MeasurementModel | LinearMeasurementModel,

@@ -5,7 +5,7 @@ information matrix, and the per-trajectory form never below the information-aver
 import pytest
 import torch
 
-from pmsr_nn.bounds import measurement_information, pcrb
+from pmsr_nn.bounds import information_bound, measurement_information, pcrb
 from pmsr_nn.errors import ConfigError
 from pmsr_nn.filters import Gaussian, kalman_filter, rts_smoother
 from pmsr_nn.measurements import LinearMeasurementModel
@@ -131,3 +131,16 @@ def test_finite_memory_window_equals_a_filtering_pass_over_that_window(tracks):
     # less memory, less information: every step's position bound is at least the full filter's
     full = pcrb(truth, motion, DT, Q_PSD, model, R, P0, smoothing=False)
     assert bool((bound.position_rmse() >= full.position_rmse() * (1 - 1e-12)).all())
+
+
+def test_information_bound_is_the_pcrb_of_the_same_information(tracks):
+    """The bound from information formed elsewhere (a map's, :mod:`pmsr_nn.tbd.bound`) is
+    :func:`pcrb`'s per-trajectory bound when handed the detections' own information."""
+    motion, model, truth, R = tracks
+    ref = pcrb(truth, motion, DT, Q_PSD, model, R, P0)
+    ours = information_bound(measurement_information(truth, model, R), motion, DT, Q_PSD, P0)
+    torch.testing.assert_close(ours.filtering, ref.filtering, rtol=1e-12, atol=0.0)
+    torch.testing.assert_close(ours.smoothing, ref.smoothing, rtol=1e-12, atol=0.0)
+    torch.testing.assert_close(ours.per_track_position, ref.per_track_position, rtol=1e-12, atol=0.0)
+    with pytest.raises(ConfigError, match=r"info must be \(B, K, 6, 6\)"):
+        information_bound(measurement_information(truth, model, R)[0], motion, DT, Q_PSD, P0)

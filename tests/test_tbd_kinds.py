@@ -293,6 +293,10 @@ def test_pmsr_evaluate_writes_the_remote_sensing_figures(tmp_path):
     assert res["kind"] == "sampled"  # a case only maps are formed of has no PCRB (the recipe's model is not the maps')
     case = res["cases"]["c"]
     assert case["rd_maps"]["present"] == [False, True, True, False] and case["rd_maps"]["table_frame"] == 3
+    # the map bound (pmsr_nn.tbd.bound, tested in tests/test_tbd_bound.py): NaN while no target lives, falling as
+    # frames add information, and what the report's ratio column divides by
+    bound = case["rd_maps"]["bound_pos_m"]
+    assert math.isnan(bound[0]) and math.isnan(bound[3]) and 0 < bound[2] < bound[1]
     assert set(case["methods"]) == {"m5", "m1", "dtt"}
     m5 = case["methods"]["m5"]["tbd"]
     assert len(m5["detected_frame_rate"]) == 4 and len(m5["snr_db"]) == 4 and len(m5["snr_db"][0]) == 2
@@ -304,6 +308,11 @@ def test_pmsr_evaluate_writes_the_remote_sensing_figures(tmp_path):
     report = (out / "report.md").read_text()
     assert "| m1 | 1x1 |" in report and "| 46.7 | 36.86 | 51.9 |" in report  # ours beside the paper's row
     assert "| m5 | own, from rd_maps |" in report  # the tracks table names what map rows start tracks from
+    assert f"Map bound: {bound[2]:.1f} m at the last frame with a target" in report
+    rms = case["methods"]["m5"]["tbd"]["rms_pos_last_present_m"]
+    assert f"| {rms:.1f} | {case['methods']['m5']['tbd']['median_pos_err_last_present_m']:.1f} | {rms / bound[2]:.1f} |" \
+        in report
+    assert f"where the map bound is {bound[2]:.1f} m" in proc.stdout
     for fig in ("detected", "tbd_rms", "snr", "subarea", "existence", "ospa", "maps"):
         assert (out / f"c_{fig}.png").stat().st_size > 10_000, fig
         assert f"c_{fig}.png" in report

@@ -4,7 +4,8 @@ Takes the true states ``x (K, N, n)`` (NaN where a target is not alive), ``alive
 shared :class:`~pmsr_nn.methods.Models` and the initiation prior ``P0 (n, n)``; gives per target,
 from its birth, the per-trajectory PCRB curves (:func:`case_bounds`, a :class:`~.prepared.Bounds`)
 and the finite-memory bound of each causal learned tracker (:func:`memory_bounds`), each a
-``(K, N)`` numpy curve in metres (or metres per second), NaN where a target is not alive.
+``(K, N)`` numpy curve in metres (or metres per second), NaN where a target is not alive; and the
+bound of a case's range-Doppler maps (:func:`maps_bound`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import torch
 
 from ...bounds import finite_memory_pcrb, pcrb
 from ...methods import Models, method_kind
+from ...tbd.bound import map_bound
+from ...tbd.scene import MapScene
 from .prepared import Bounds
 
 
@@ -73,3 +76,26 @@ def memory_bounds(x: torch.Tensor, alive: torch.Tensor, methods, resources: dict
             cache[key] = min(L, alive.shape[0]), _curves(parts, alive.shape[0], lambda b: b.position_rmse().numpy())
         out[spec.name] = cache[key]
     return out
+
+
+def maps_bound(scene: MapScene, x: torch.Tensor, alive: torch.Tensor, models: Models, prior_sd: torch.Tensor) -> np.ndarray:
+    """The filtering bound of each target seen through the case's maps alone
+    (:func:`~pmsr_nn.tbd.bound.map_bound`: every map's information and the model's ``q`` from its
+    birth), as the position RMSE over the targets living at each frame ``(K,)`` (m; NaN where
+    none lives): what the map rows' RMS error is held to. The prior is what the map filters know
+    at a birth, the birth box (uniform: variance ``width^2 / 12`` of position and velocity), and
+    ``prior_sd (n,)`` for the state's other components."""
+    m = models
+    lo, hi = scene.birth_box.bounds()
+    var = prior_sd.to(torch.float64).clone() ** 2
+    var[list(scene.state_index)] = (hi - lo) ** 2 / 12
+    P0 = torch.diag(var)
+    parts = []
+    for t in range(alive.shape[1]):
+        on = torch.nonzero(alive[:, t]).flatten()
+        k0, k1 = int(on[0]), int(on[-1]) + 1
+        parts.append((k0, k1, map_bound(scene, x[k0:k1, t], k0, m.motion, m.dt, m.q, P0)))
+    per_target = _curves(parts, alive.shape[0], lambda b: b.position_rmse().numpy())
+    living = np.isfinite(per_target).sum(1)
+    mse = np.where(living > 0, np.nansum(per_target ** 2, axis=1) / np.maximum(living, 1), np.nan)
+    return np.sqrt(mse)

@@ -175,6 +175,11 @@ TBD_DEFINITIONS = {
                   "the largest ML amplitude over the predicted particles, Eq. 25)",
     "tbd.power_ratio": "expected share of the target's map energy inside the sub-area, for the triangle x sinc "
                        "response with uniform sub-cell offsets (pmsr_nn.tbd.maps.power_ratio)",
+    "rd_maps.bound_pos_m": "per frame (a case's): the filtering PCRB of each target seen through every map alone "
+                           "(pmsr_nn.tbd.bound: the Fisher information of the cell response at the map's SNR, phase "
+                           "unknown, amplitude known; the scenario's motion model and q; prior the birth box's uniform "
+                           "spread from the target's birth), position RMSE over the living targets (NaN while none "
+                           "lives)",
 }
 """Definitions of the track-before-detect rows' own figures (``tbd`` in their results)."""
 

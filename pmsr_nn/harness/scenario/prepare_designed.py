@@ -35,7 +35,7 @@ from ...simulation.products import DesignedTruth, SampledTruth, SensorSetup, che
 from ...simulation.recipe import TrackRecipe, load_recipe
 from ...simulation.tracks import MEASUREMENT_COMPONENTS, build_models
 from ...tbd.scene import build_scene
-from .case_bounds import case_bounds, memory_bounds
+from .case_bounds import case_bounds, maps_bound, memory_bounds
 from .definitions import designed_definitions, world_definitions
 from .prepared import Case, Setup, device_refusals, method_refusals, raise_refusals, set_scans_after
 from .schema import Scenario
@@ -145,7 +145,8 @@ def case_maps(sc: Scenario, c, recipe: TrackRecipe, models: Models, sensing: Sen
     grid = scene.grid
     info = {"maps": list(scene.names), "snr_db": list(scene.snr_db), "map_cells": [grid.D, grid.U],
             "doppler_cell_hz": scene.maps.doppler_cell_hz, "range_cell_m": scene.maps.range_cell_m,
-            "present": present.tolist(), "table_frame": frame}
+            "present": present.tolist(), "table_frame": frame,
+            "bound_pos_m": maps_bound(scene, x, alive, models, sensing.prior_sd).tolist()}
     return out, {"rd_maps": info}, []
 
 
