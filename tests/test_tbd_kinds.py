@@ -370,6 +370,25 @@ def test_a_birth_box_outside_the_maps_is_refused(tmp_path, capsys):
     assert "the birth box is outside the map's coverage for SVN2" in err and "widen rd_maps.map_extent" in err
 
 
+def test_maps_too_coarse_to_localise_are_refused(tmp_path, capsys):
+    """A 1 km birth box seen through an FM channel's 1.5 km range cells spans under 4 of them."""
+    d = tiny()
+    d["rd_maps"]["maps"]["bandwidth_hz"] = 1.0e5
+    err = _refused(tmp_path, d, capsys)
+    assert "map SVN18: its range cells of 1499 m give 0.9 cells" in err and "fewer than 4" in err and "maps.bandwidth_hz" in err
+
+
+def test_a_bandwidth_sets_the_range_cells_and_lobe():
+    """``bandwidth_hz`` B: a range triangle of half-width c / B over cells of c / 2B; with either rate
+    it sets given otherwise, one line (the rates it sets, as a recorded spec holds them, reload)."""
+    dvbt = MapSpec(bandwidth_hz=7.6e6, wavelength_m=0.5)
+    assert dvbt.range_cell_m == pytest.approx(C / 15.2e6) and dvbt.lobe_cells == pytest.approx(2.0)
+    assert MapSpec(**{**dataclasses.asdict(dvbt)}) == dvbt
+    with pytest.raises(ConfigError, match="give bandwidth_hz, or sample_rate_hz and chip_rate_hz, not both"):
+        MapSpec(bandwidth_hz=1.0e5, sample_rate_hz=3.0e5)
+    assert MapSpec().sample_rate_hz == 5.0e6 and MapSpec().chip_rate_hz == 1.023e6  # the seed's, without one
+
+
 @pytest.mark.parametrize("transmitters", [True, False])
 def test_an_snr_list_of_the_wrong_length_is_refused(tmp_path, capsys, transmitters):
     d = tiny()

@@ -55,7 +55,10 @@ class Satellite:
 @dataclass(frozen=True)
 class MapSpec:
     """How maps are formed. ``sample_rate_hz`` sets the range cell (``c / fs``), ``chip_rate_hz``
-    the triangle's half-width, ``doppler_cell_hz`` the Doppler cell (the inverse of the coherent
+    the triangle's half-width (defaults: the seed's 5 MHz and C/A code's 1.023 MHz); or
+    ``bandwidth_hz`` ``B`` sets both, for a signal of that bandwidth (a DVB-T channel's 7.6 MHz: a
+    half-width ``c / B`` of 39 m and cells of ``c / 2B``, 20 m; an FM channel's 100 kHz: 3 km and
+    1.5 km); ``doppler_cell_hz`` the Doppler cell (the inverse of the coherent
     frame); the carrier is ``wavelength_m`` or ``carrier_hz`` (at most one; neither: each
     transmitter's own carrier, which a scenario's FM transmitters have and satellites have not);
     ``noise_power`` per cell; ``altitude_m``: the target's (known, constant) height above the
@@ -63,15 +66,25 @@ class MapSpec:
     birth box can reach."""
 
     wavelength_m: float | None = None
-    sample_rate_hz: float = 5.0e6
-    chip_rate_hz: float = 1.023e6
+    sample_rate_hz: float | None = None
+    chip_rate_hz: float | None = None
     doppler_cell_hz: float = 0.5
     noise_power: float = 1.0
     altitude_m: float = 5000.0
     margin_cells: int = 8
     carrier_hz: float | None = None
+    bandwidth_hz: float | None = None
 
     def __post_init__(self) -> None:
+        B = self.bandwidth_hz
+        require(B is None or (math.isfinite(B) and B > 0), f"maps.bandwidth_hz must be positive (or null), got {B}")
+        fs, chip = (5.0e6, 1.023e6) if B is None else (2 * B, B)
+        # with a bandwidth, the two rates it sets may be given only as it sets them (a recorded spec reloads)
+        require(B is None or all(v is None or math.isclose(v, w) for v, w in ((self.sample_rate_hz, fs),
+                                                                              (self.chip_rate_hz, chip))),
+                "maps: give bandwidth_hz, or sample_rate_hz and chip_rate_hz, not both")
+        object.__setattr__(self, "sample_rate_hz", fs if self.sample_rate_hz is None else self.sample_rate_hz)
+        object.__setattr__(self, "chip_rate_hz", chip if self.chip_rate_hz is None else self.chip_rate_hz)
         for name in ("sample_rate_hz", "chip_rate_hz", "doppler_cell_hz", "noise_power"):
             v = getattr(self, name)
             require(math.isfinite(v) and v > 0, f"maps.{name} must be positive, got {v}")
@@ -153,6 +166,9 @@ class MapGrid:
     U: int
     range_cell_m: float
     doppler_cell_hz: float
+    reach_cells: tuple[torch.Tensor, torch.Tensor] | None = None
+    """Per map ``(P,)``: how many Doppler and range cells the surveillance area (what the birth box
+    reaches) spans, margins aside (:func:`grid_covering`'s grid; None for a grid given by hand)."""
 
     def cell_coordinates(self, rng: torch.Tensor, dop: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Fractional (Doppler row, range column) of ranges / Dopplers ``(..., P)``."""
@@ -197,7 +213,7 @@ def grid_covering(box_lo: torch.Tensor, box_hi: torch.Tensor, tx: torch.Tensor, 
     r0, f0 = r_lo - pad_r, f_lo - pad_f
     U = int(math.ceil(float(((r_hi + pad_r - r0) / dr).max()))) + 1
     D = int(math.ceil(float(((f_hi + pad_f - f0) / df).max()))) + 1
-    return MapGrid(r0, f0, D, U, dr, df)
+    return MapGrid(r0, f0, D, U, dr, df, ((f_hi - f_lo) / df, (r_hi - r_lo) / dr))
 
 
 def triangle(x: torch.Tensor) -> torch.Tensor:

@@ -38,6 +38,11 @@ from .multibernoulli import BirthBox
 GNSS_WAVELENGTH_M = 0.19
 """The seed's wavelength (GPS L1), what a :class:`TBDScene` of satellites uses when its maps give none."""
 
+MIN_REACH_CELLS = 4
+"""Fewest range cells (per map) the surveillance area may span: below, the maps say where a target
+is no better than whether one is. Doppler is not held to it: its span is the birth box's velocity
+spread, which a study may narrow to a known target's speed."""
+
 MAX_MAP_CELLS = 20_000_000
 """Most cells a map may have (Doppler rows x range columns): a block's frame holds runs x maps of them."""
 
@@ -130,6 +135,13 @@ class MapScene:
         (:func:`~.maps.grid_covering`); a one-line :class:`ConfigError` otherwise."""
         lo, hi = self.birth_box.bounds()
         reach = grid_covering(lo, hi, self.tx, self.frame_s, self.maps, rx=self.rx, wavelength=self.wavelength)
+        span = reach.reach_cells[1]
+        if bool((span < MIN_REACH_CELLS).any()):
+            p = int(span.argmin())
+            raise ConfigError(f"map {self.names[p]}: its range cells of {self.maps.range_cell_m:.0f} m give "
+                              f"{float(span[p]):.1f} cells over the surveillance area (the excess ranges the birth "
+                              f"box reaches), fewer than {MIN_REACH_CELLS}: the maps can not localise a target there; "
+                              "use finer cells (a wider maps.bandwidth_hz or a higher sample_rate_hz)")
         if self.map_extent is None:
             grid = reach
         else:
