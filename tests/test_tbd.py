@@ -11,6 +11,7 @@ import pytest
 import torch
 from scipy import optimize, special, stats
 
+from pmsr_nn.errors import ConfigError
 from pmsr_nn.tbd.detect import DetectSpec, detect, detection_probability
 import pmsr_nn.tbd.likelihood as likelihood
 from pmsr_nn.tbd.likelihood import (CellValues, bessel_ratio, gather_cells, log_i0e, log_likelihood_ratio,
@@ -235,6 +236,38 @@ def test_resampling_gives_each_component_its_count_from_its_own_particles():
                 picks[int(s)] += 1
     frac = picks[[0, 3, 6]] / picks.sum()
     assert torch.allclose(frac, torch.tensor([0.5, 0.25, 0.25]), atol=0.02)
+
+
+def test_roughening_jitters_each_component_by_its_own_spread():
+    """Gordon's roughening ``K (max - min) L^(-1/4)`` per component and coordinate: two components of
+    different spreads and counts, the jitter's sample variance inside its chi-square interval
+    (99.9 %), the padding untouched; K = 0 (the default, the seed's filter) draws nothing."""
+    K = 0.2
+    f = MultiBernoulliTBD(MBSpec(roughening=K), BirthBox(), 4.9, torch.eye(4, dtype=torch.float64),
+                          torch.zeros(4, 2, dtype=torch.float64))
+    L0, L1, pad = 4000, 1000, 10
+    base = torch.zeros(1, L0 + L1 + pad, 4, dtype=torch.float64)
+    base[0, :L0] = torch.linspace(-50.0, 50.0, L0)[:, None] * torch.tensor([1.0, 0.01, 2.0, 0.02], dtype=torch.float64)
+    base[0, L0:L0 + L1] = torch.linspace(0.0, 10.0, L1)[:, None]
+    comp = torch.tensor([[0] * L0 + [1] * L1 + [2] * pad])  # Q = 2: slot 2 is the padding
+    out = f._roughen(base, comp, 2, torch.Generator().manual_seed(5))
+    jitter = out - base
+    assert bool((jitter[0, L0 + L1:] == 0).all())
+    for sl, spread, L in ((slice(0, L0), torch.tensor([100.0, 1.0, 200.0, 2.0]), L0), (slice(L0, L0 + L1),
+                                                                                      torch.full((4,), 10.0), L1)):
+        sd = K * spread.to(torch.float64) * L ** -0.25
+        ratio = (jitter[0, sl] ** 2).sum(0) / sd ** 2  # chi-square with L degrees of freedom per coordinate
+        lo, hi = stats.chi2.ppf([0.0005, 0.9995], L)
+        assert bool(((ratio > lo) & (ratio < hi)).all()), (ratio / L).tolist()
+    plain = MultiBernoulliTBD(MBSpec(), BirthBox(), 4.9, torch.eye(4, dtype=torch.float64),
+                              torch.zeros(4, 2, dtype=torch.float64))
+    st = MBState(base, torch.zeros(1, L0 + L1 + pad, dtype=torch.float64), comp, torch.tensor([[0.6, 0.3]],
+                                                                                               dtype=torch.float64))
+    a = plain._resample(st, torch.Generator().manual_seed(5))
+    kept = a.comp[0] < 2
+    assert bool((a.x[0, kept][:, None] == base[0][None]).all(-1).any(-1).all())  # copies of particles, no jitter
+    with pytest.raises(ConfigError, match="roughening must be a finite number >= 0"):
+        MBSpec(roughening=-0.1)
 
 
 @pytest.mark.slow  # a statistical study over frames and SNRs

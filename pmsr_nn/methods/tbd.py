@@ -19,7 +19,8 @@ options are what varies within a filter:
   their true SNRs.
 
 Common options: the filter's detection ``threshold`` on the existence, ``survival``, ``birth_r``,
-``prune``, the particle counts, the CV model's ``accel_sd_mps2`` and (map likelihoods) the
+``prune``, the particle counts, the CV model's ``accel_sd_mps2``, ``roughening`` (Gordon's K
+after each resampling; 0, the seed's filter, has none) and (map likelihoods) the
 ``subarea_half`` read around each state (null: the whole map). Defaults are the seed's, except
 ``snr_estimator``.
 
@@ -69,7 +70,7 @@ def mb_spec(spec) -> MBSpec:
                       particles_min=int(o("particles_min")), particles_max=int(o("particles_max")),
                       birth_particles=int(o("birth_particles")), birth_r=float(o("birth_r")),
                       survival=float(o("survival")), prune=float(o("prune")), threshold=float(o("threshold")),
-                      accel_sd_mps2=float(o("accel_sd_mps2")))
+                      accel_sd_mps2=float(o("accel_sd_mps2")), roughening=float(o("roughening")))
     except ConfigError as exc:
         raise ConfigError(f"method {spec.name!r}: {exc}") from None
 
@@ -173,6 +174,7 @@ COMMON = {
     "particles_max": Option(10_000, int, 1, 10_000_000),
     "birth_particles": Option(10_000, int, 1, 10_000_000),
     "accel_sd_mps2": Option(0.05, float, 0.0, 1.0e3),
+    "roughening": Option(0.0, float, 0.0, 10.0),
 }
 SUBAREA = {"subarea_half": Option(2, int, 0, 10_000, nullable=True, null="the whole map")}
 SNR_MODEL = {"snr_model_db": Option(None, float, -100.0, 100.0, nullable=True, null="each map's true SNR")}

@@ -96,6 +96,7 @@ class MBSpec:
     snr_candidates: int = 256
     snr_replicas: int = 4
     snr_kept_states: int = 32
+    roughening: float = 0.0
 
     def __post_init__(self) -> None:
         require(self.update in ("product", "ascending", "descending", "given"),
@@ -114,6 +115,8 @@ class MBSpec:
                 f"snr_estimator must be one of {', '.join(SNR_ESTIMATORS)}, got {self.snr_estimator!r}")
         require(self.snr_candidates >= 1 and self.snr_replicas >= 1 and self.snr_kept_states >= 1,
                 "snr_candidates, snr_replicas and snr_kept_states must be at least 1")
+        require(math.isfinite(self.roughening) and self.roughening >= 0,
+                f"roughening must be a finite number >= 0, got {self.roughening}")
 
 
 @dataclass
@@ -343,4 +346,22 @@ class MultiBernoulliTBD:
         counts = torch.where(st.r > 0, (st.r * spec.particles_max).round().clamp(spec.particles_min, spec.particles_max),
                              st.r.new_zeros(())).to(torch.int64)
         x, comp, logw = segmented_resample(st.x, st.logw, st.comp, st.r > 0, counts, g)
+        if spec.roughening > 0:
+            x = self._roughen(x, comp, st.Q, g)
         return MBState(x, logw, comp, st.r)
+
+    def _roughen(self, x: torch.Tensor, comp: torch.Tensor, Q: int, g: torch.Generator) -> torch.Tensor:
+        """Gordon et al.'s (1993) roughening of each component's resampled particles ``x (B, M, 4)``:
+        a normal jitter of deviation ``K (max - min) L^(-1/4)`` per coordinate, ``L`` the
+        component's particles. Without it the CV model's small process noise leaves a resampled
+        cloud a few distinct states that no later map can move (sample impoverishment over
+        hundreds of frames)."""
+        B, M, n = x.shape
+        at = comp[..., None].expand(B, M, n)
+        lo = x.new_full((B, Q + 1, n), math.inf).scatter_reduce(1, at, x, "amin")
+        hi = x.new_full((B, Q + 1, n), -math.inf).scatter_reduce(1, at, x, "amax")
+        count = x.new_zeros(B, Q + 1).scatter_add(1, comp, torch.ones_like(x[..., 0]))
+        sd = self.spec.roughening * torch.nan_to_num(hi - lo, posinf=0.0, neginf=0.0) \
+            * count.clamp(min=1)[..., None] ** (-1.0 / n)
+        w = torch.randn((B, M, n), generator=g, dtype=x.dtype, device=x.device)
+        return x + w * sd.gather(1, at)  # the padding's slot Q has no spread: its zeros stay
