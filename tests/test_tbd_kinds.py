@@ -309,6 +309,8 @@ def test_pmsr_evaluate_writes_the_remote_sensing_figures(tmp_path):
     assert "| m1 | 1x1 |" in report and "| 46.7 | 36.86 | 51.9 |" in report  # ours beside the paper's row
     assert "| m5 | own, from rd_maps |" in report  # the tracks table names what map rows start tracks from
     assert f"Map bound: {bound[2]:.1f} m at the last frame with a target" in report
+    held, spare = m5["targets_held_rate"], m5["unassigned_tracks_per_frame"]
+    assert 0.0 <= held <= 1.0 and f"| {100 * m5['detected_rate_present']:.1f} | {100 * held:.1f} | {spare:.2f} |" in report
     rms = case["methods"]["m5"]["tbd"]["rms_pos_last_present_m"]
     assert f"| {rms:.1f} | {case['methods']['m5']['tbd']['median_pos_err_last_present_m']:.1f} | {rms / bound[2]:.1f} |" \
         in report
@@ -491,3 +493,27 @@ def test_the_progress_bar_says_when_a_method_warms_up(tmp_path, monkeypatch, cap
     capsys.readouterr()
     run_blocks(setup, range(1), progress=True)  # warmed: no warm-up to show
     assert "warm-up" not in capsys.readouterr().err
+
+
+def test_targets_held_and_unassigned_tracks_are_counted_from_the_set_assignment_by_hand():
+    """Two frames, two targets (the second born at frame 2), three tracks: track 0 on target 0 at
+    both frames, track 1 assigned to target 1 at frame 2 but 600 m off (beyond c = 500 m, so not
+    held and unassigned), track 2 assigned to nothing at frame 1. Held: 1 of 1 living target at
+    frame 1, 1 of 2 at frame 2; unassigned tracks: 1 at each frame."""
+    from pmsr_nn.methods.kind_metrics import BlockContext, TBDFrames
+    from pmsr_nn.simulation.products import Truth
+    from pmsr_nn.trackers.base import Estimates
+
+    nan = float("nan")
+    tx = torch.tensor([[[[0.0, 0.0], [nan, nan]], [[10.0, 0.0], [1000.0, 0.0]]]], dtype=torch.float64)  # (1, 2, 2, 2)
+    truth = Truth(tx, torch.tensor([[True, False], [True, True]]))
+    x = torch.tensor([[[[20.0, 0.0], [0.0, 0.0], [3000.0, 0.0]],
+                       [[15.0, 0.0], [1600.0, 0.0], [0.0, 0.0]]]], dtype=torch.float64)  # (1, 2, 3, 2)
+    exists = torch.tensor([[[True, False, True], [True, True, False]]])
+    extras = {"tbd_detected": exists.any(-1), "tbd_best_x": x[:, :, 0], "tbd_best_r": torch.ones(1, 2, dtype=torch.float64),
+              "tbd_snr_db": torch.zeros(1, 2, 1, dtype=torch.float64), "tbd_particles": torch.ones(1, 2)}
+    est = Estimates(x, exists, None, extras, paired=False)
+    assignment = torch.tensor([[[0, -1, -1], [0, 1, -1]]])
+    s = TBDFrames(lambda spec, maps: {}).update(est, truth, BlockContext([0], [1], None, assignment, 500.0))
+    assert s["tbd_held"].tolist() == [1.0, 1.0] and s["tbd_living"].tolist() == [1.0, 2.0]
+    assert s["tbd_unassigned"].tolist() == [1.0, 1.0]

@@ -44,12 +44,16 @@ concatenate rather than stack."""
 @dataclass(frozen=True)
 class BlockContext:
     """What a metric's update reads beside one block's estimates and truth: the position and
-    velocity columns ``pos`` / ``vel`` it is scored on, and the scenario's ``loss`` rule (its
-    ``successive_scans`` and ``gate_range_sd_m``, m; None without one)."""
+    velocity columns ``pos`` / ``vel`` it is scored on, the scenario's ``loss`` rule (its
+    ``successive_scans`` and ``gate_range_sd_m``, m; None without one), and for unpaired tracks the
+    set metrics' per-scan ``assignment (B, K, M)`` of tracks to targets (-1: none) and cut-off
+    ``c_m`` (None for paired estimates)."""
 
     pos: list[int]
     vel: list[int]
     loss: Any = None
+    assignment: Any = None
+    c_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -222,14 +226,17 @@ class TBDFrames(Metric):
     most probable component against the nearest living target over ``tbd_hits (K,)`` runs that
     detect while a target lives; ``tbd_existence (K,)``, ``tbd_snr_db (K, S)``, ``tbd_particles
     (K,)``; per run ``tbd_run_pos_err (B, K)`` (NaN where the run does not detect or no target
-    lives). The row's ``tbd`` part: the Remote Sensing 2020 seed's figures, with what
-    ``describe(spec, rd_maps)`` says of the filter."""
+    lives); from the set metrics' assignment of the same tracks, ``tbd_held (K,)`` the living
+    targets a track is assigned to within the cut-off, ``tbd_living (K,)`` the living targets and
+    ``tbd_unassigned (K,)`` the tracks assigned to none. The row's ``tbd`` part: the Remote Sensing
+    2020 seed's figures, with what ``describe(spec, rd_maps)`` says of the filter, and the targets
+    held and unassigned tracks that the set-metric table counts too."""
 
     describe: Callable
     per_run = ("tbd_run_pos_err",)
     after = "bounds"
     keys = ("tbd_detected", "tbd_pos", "tbd_vel", "tbd_hits", "tbd_existence", "tbd_snr_db", "tbd_particles",
-            "tbd_run_pos_err")
+            "tbd_run_pos_err", "tbd_held", "tbd_living", "tbd_unassigned")
 
     def update(self, est, truth, ctx):
         ex = est.extras
@@ -245,7 +252,17 @@ class TBDFrames(Metric):
         e_v = e_v.gather(-1, nearest[..., None])[..., 0]
         hit = det & truth.alive.any(1)
         zero = torch.zeros((), dtype=e_p.dtype)
-        return {"tbd_detected": det.sum(0).double().numpy(), "tbd_pos": torch.where(hit, e_p, zero).sum(0).numpy(),
+        held = {}
+        if ctx.assignment is not None:
+            a = ctx.assignment  # (B, K, M)
+            mine = t.gather(2, a.clamp(min=0)[..., None].expand(*a.shape, t.shape[-1]))  # (B, K, M, n)
+            near = ((est.x[..., pos] - mine[..., pos]) ** 2).sum(-1) < ctx.c_m ** 2
+            assigned = est.exists & (a >= 0) & near
+            B, K, N = t.shape[:3]
+            held = {"tbd_held": assigned.sum((0, 2)).double().numpy(),
+                    "tbd_living": truth.alive.expand(B, K, N).sum((0, 2)).double().numpy(),
+                    "tbd_unassigned": (est.exists & ~assigned).sum((0, 2)).double().numpy()}
+        return {**held, "tbd_detected": det.sum(0).double().numpy(), "tbd_pos": torch.where(hit, e_p, zero).sum(0).numpy(),
                 "tbd_vel": torch.where(hit, e_v, zero).sum(0).numpy(), "tbd_hits": hit.sum(0).double().numpy(),
                 "tbd_existence": ex["tbd_best_r"].sum(0).numpy(), "tbd_snr_db": ex["tbd_snr_db"].sum(0).numpy(),
                 "tbd_particles": ex["tbd_particles"].sum(0).double().numpy(),
@@ -277,4 +294,13 @@ class TBDFrames(Metric):
                         "existence": (s["tbd_existence"] / B).tolist(), "ospa_frame_m": ospa.tolist(),
                         "ospa_mean_m": float(ospa.mean()), "snr_db": (s["tbd_snr_db"] / B).tolist(),
                         "particles": (s["tbd_particles"] / B).tolist(),
-                        "estimates_per_frame": (s["n_est"] / B).tolist()}}, {}
+                        "estimates_per_frame": (s["n_est"] / B).tolist(), **self._held(s, present, B)}}, {}
+
+    @staticmethod
+    def _held(s: dict, present: np.ndarray, B: int) -> dict:
+        """The share of living targets' frames a track is assigned to within the cut-off, and the
+        unassigned tracks per frame (every frame), where the block sums have them."""
+        if "tbd_held" not in s:
+            return {}
+        return {"targets_held_rate": float(s["tbd_held"][present].sum() / s["tbd_living"][present].sum()),
+                "unassigned_tracks_per_frame": float(s["tbd_unassigned"].sum() / (B * len(present)))}

@@ -199,6 +199,8 @@ class TbdFigures:
     ospa_frame_m: list
     ospa_mean_m: float
     snr_db: list
+    targets_held_rate: float | None = None  # absent from records made before it
+    unassigned_tracks_per_frame: float | None = None
 
 
 @dataclass(frozen=True)

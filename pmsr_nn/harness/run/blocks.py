@@ -135,6 +135,7 @@ def score(setup: Setup, case: Case, est, truth: Truth, space=None, metrics: tupl
     pos, vel = list(setup.models.motion.pos_idx), list(setup.models.motion.vel_idx)
     if space is not None:
         pos, vel = list(space.pos), list(space.vel)
+    sets = None
     if not (case.multi_target or not est.paired):
         out = scoring.point_sums(est, truth, case.scored, pos, vel)
     else:
@@ -149,7 +150,8 @@ def score(setup: Setup, case: Case, est, truth: Truth, space=None, metrics: tupl
         out.update(scoring.track_sums(mapping, est.exists, truth))
         if all(m.labelled(est) for m in metrics):  # a set without identities has no trajectories to score
             out.update(scoring.trajectory_sums(est, truth, pos, *setup.set_metric, case.set_scan_mask))
-    ctx = BlockContext(pos, vel, setup.loss)
+    ctx = BlockContext(pos, vel, setup.loss, None if sets is None or est.paired else sets.assignment,
+                       setup.set_metric[0])
     for metric in metrics:
         out.update(metric.update(est, truth, ctx))
     return out

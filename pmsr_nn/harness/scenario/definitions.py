@@ -175,6 +175,11 @@ TBD_DEFINITIONS = {
                   "the largest ML amplitude over the predicted particles, Eq. 25)",
     "tbd.power_ratio": "expected share of the target's map energy inside the sub-area, for the triangle x sinc "
                        "response with uniform sub-cell offsets (pmsr_nn.tbd.maps.power_ratio)",
+    "tbd.targets_held_rate": "share of the living targets' frames (frames with a target) at which a reported track "
+                             "is assigned to the target by the set metrics' per-scan assignment within the cut-off "
+                             "c_m: the same tracks and assignment as the set-metric table",
+    "tbd.unassigned_tracks_per_frame": "reported tracks per frame that no living target is assigned within c_m "
+                                       "(every frame, mean over runs)",
     "rd_maps.bound_pos_m": "per frame (a case's): the filtering PCRB of each target seen through every map alone "
                            "(pmsr_nn.tbd.bound: the Fisher information of the cell response at the map's SNR, phase "
                            "unknown, amplitude known; the scenario's motion model and q; prior the birth box's uniform "
