@@ -270,6 +270,35 @@ def test_roughening_jitters_each_component_by_its_own_spread():
         MBSpec(roughening=-0.1)
 
 
+def _two_components(r_weak: float):
+    """A strong component (slot 0) and a weaker one (slot 1), 10 particles each, unit weights."""
+    x = torch.zeros(1, 20, 4, dtype=torch.float64)
+    comp = torch.tensor([[0] * 10 + [1] * 10])
+    logw = torch.full((1, 20), -math.log(10), dtype=torch.float64)
+    return MBState(x, logw, comp, torch.tensor([[0.99, r_weak, 0.0]], dtype=torch.float64))
+
+
+@pytest.mark.parametrize("own_nats, kept", [(8.0, True), (1.0, False)])
+def test_a_component_sharing_one_map_with_a_stronger_one_is_a_ghost_unless_its_other_maps_hold_evidence(own_nats, kept):
+    """Two maps; the weaker component's mean shares map 0's cells with the stronger one's and not
+    map 1's. The ``shared`` rule drops it whatever it saw; the ``evidence`` rule keeps it where map 1,
+    the one it shares with no stronger component, gives it ``own_nats`` above ``ghost_evidence``
+    (3 nats). Two components sharing both maps merge under either rule."""
+    d = torch.tensor([[[10.0, 20.0], [10.5, 30.0], [0.0, 0.0]]])  # (B, Q, P): Doppler rows
+    u = torch.tensor([[[40.0, 50.0], [41.0, 60.0], [0.0, 0.0]]])  # range columns (lobe 4.9)
+    evidence = torch.tensor([[[9.0, 9.0], [9.0, own_nats], [0.0, 0.0]]], dtype=torch.float64)
+    make = lambda rule: MultiBernoulliTBD(MBSpec(ghost_rule=rule), BirthBox(), 4.9, torch.eye(4, dtype=torch.float64),
+                                          torch.zeros(4, 2, dtype=torch.float64))
+    shared = make("shared")._prune_merge(_two_components(0.6), (d, u))
+    assert float(shared.r[0, 1]) == 0.0 and float(shared.r[0, 0]) == pytest.approx(0.99)
+    ev = make("evidence")._prune_merge(_two_components(0.6), (d, u), evidence)
+    assert (float(ev.r[0, 1]) == pytest.approx(0.6)) is kept and float(ev.r[0, 0]) == pytest.approx(0.99)
+    both = (d.clone(), u.clone())
+    both[0][0, 1, 1], both[1][0, 1, 1] = 20.3, 50.5  # now near in both maps: one target, merged
+    merged = make("evidence")._prune_merge(_two_components(0.6), both, evidence)
+    assert float(merged.r[0, 1]) == 0.0 and float(merged.r[0, 0]) == pytest.approx(0.999)  # r_max
+
+
 @pytest.mark.slow  # a statistical study over frames and SNRs
 def test_snr_estimate_converges_to_the_truth(request):
     """The online estimate of each map's SNR, averaged over frames 11-16 and 8 runs, within 1 dB."""

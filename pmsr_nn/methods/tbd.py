@@ -20,7 +20,9 @@ options are what varies within a filter:
 
 Common options: the filter's detection ``threshold`` on the existence, ``survival``, ``birth_r``,
 ``prune``, the particle counts, the CV model's ``accel_sd_mps2``, ``roughening`` (Gordon's K
-after each resampling; 0, the seed's filter, has none) and (map likelihoods) the
+after each resampling; 0, the seed's filter, has none), ``ghost_rule`` (``shared``: a component
+sharing some maps' cells with a stronger one is dropped; ``evidence``: unless the maps it shares
+with none give it ``ghost_evidence`` nats of its own) and (map likelihoods) the
 ``subarea_half`` read around each state (null: the whole map). Defaults are the seed's, except
 ``snr_estimator``.
 
@@ -70,7 +72,8 @@ def mb_spec(spec) -> MBSpec:
                       particles_min=int(o("particles_min")), particles_max=int(o("particles_max")),
                       birth_particles=int(o("birth_particles")), birth_r=float(o("birth_r")),
                       survival=float(o("survival")), prune=float(o("prune")), threshold=float(o("threshold")),
-                      accel_sd_mps2=float(o("accel_sd_mps2")), roughening=float(o("roughening")))
+                      accel_sd_mps2=float(o("accel_sd_mps2")), roughening=float(o("roughening")),
+                      ghost_rule=o("ghost_rule"), ghost_evidence=float(o("ghost_evidence")))
     except ConfigError as exc:
         raise ConfigError(f"method {spec.name!r}: {exc}") from None
 
@@ -175,6 +178,8 @@ COMMON = {
     "birth_particles": Option(10_000, int, 1, 10_000_000),
     "accel_sd_mps2": Option(0.05, float, 0.0, 1.0e3),
     "roughening": Option(0.0, float, 0.0, 10.0),
+    "ghost_rule": Option("shared", str, choices=("shared", "evidence")),
+    "ghost_evidence": Option(3.0, float, -1.0e3, 1.0e3),
 }
 SUBAREA = {"subarea_half": Option(2, int, 0, 10_000, nullable=True, null="the whole map")}
 SNR_MODEL = {"snr_model_db": Option(None, float, -100.0, 100.0, nullable=True, null="each map's true SNR")}

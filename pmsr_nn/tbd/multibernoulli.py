@@ -97,6 +97,8 @@ class MBSpec:
     snr_replicas: int = 4
     snr_kept_states: int = 32
     roughening: float = 0.0
+    ghost_rule: Literal["shared", "evidence"] = "shared"
+    ghost_evidence: float = 3.0
 
     def __post_init__(self) -> None:
         require(self.update in ("product", "ascending", "descending", "given"),
@@ -115,6 +117,9 @@ class MBSpec:
                 f"snr_estimator must be one of {', '.join(SNR_ESTIMATORS)}, got {self.snr_estimator!r}")
         require(self.snr_candidates >= 1 and self.snr_replicas >= 1 and self.snr_kept_states >= 1,
                 "snr_candidates, snr_replicas and snr_kept_states must be at least 1")
+        require(self.ghost_rule in ("shared", "evidence"), f"ghost_rule must be shared or evidence, got "
+                                                           f"{self.ghost_rule!r}")
+        require(math.isfinite(self.ghost_evidence), "ghost_evidence must be finite (nats)")
         require(math.isfinite(self.roughening) and self.roughening >= 0,
                 f"roughening must be a finite number >= 0, got {self.roughening}")
 
@@ -240,8 +245,9 @@ class MultiBernoulliTBD:
             order = torch.argsort(snr, dim=1, descending=spec.update == "descending", stable=True)
             if spec.update == "given":
                 order = torch.arange(P, device=dev).expand(B, P)
+            evidence = self._evidence(st, loglr) if spec.ghost_rule == "evidence" else None
             st = self._update(st, loglr, order)
-            st = self._prune_merge(st, cells(self._components(st)[0], k))
+            st = self._prune_merge(st, cells(self._components(st)[0], k), evidence)
             x_q, r_q = self._components(st)  # the estimates come after pruning and merging (the seed's order)
             xs.append(x_q)
             rs.append(r_q)
@@ -305,8 +311,17 @@ class MultiBernoulliTBD:
             accumulate=True)[:, :Q]
         return mean, st.r.clone()
 
-    def _prune_merge(self, st: MBState, mean_cells: tuple) -> MBState:
-        """``mean_cells``: the fractional cells ``(d, u)``, each ``(B, Q, P)``, of the components' means."""
+    def _evidence(self, st: MBState, loglr: torch.Tensor) -> torch.Tensor:
+        """Each component's evidence per map ``(B, Q, P)``: the log of its predicted particles' mean
+        likelihood ratio in that map alone (0 for a free slot)."""
+        Q = st.Q
+        lw = torch.where((st.comp < Q)[..., None], st.logw[..., None] + loglr, torch.full_like(loglr, -math.inf))
+        ev = torch.stack([_segment_logsumexp(lw[..., p], st.comp, Q + 1)[:, :Q] for p in range(loglr.shape[-1])], -1)
+        return torch.where((st.r > 0)[..., None], ev, ev.new_zeros(()))
+
+    def _prune_merge(self, st: MBState, mean_cells: tuple, evidence: torch.Tensor | None = None) -> MBState:
+        """``mean_cells``: the fractional cells ``(d, u)``, each ``(B, Q, P)``, of the components' means;
+        ``evidence (B, Q, P)``: :meth:`_evidence` (``ghost_rule: evidence``), else None."""
         spec = self.spec
         B, Q = st.r.shape
         r = torch.where(st.r >= spec.prune, st.r, st.r.new_zeros(()))
@@ -320,7 +335,13 @@ class MultiBernoulliTBD:
         stronger = (r[:, None, :] > r[:, :, None]) | ((r[:, None, :] == r[:, :, None])
                                                        & (q_idx[None, None, :] < q_idx[None, :, None]))
         # sharing cells in some maps only: the weaker explains the stronger's energy there (a ghost)
-        ghost = (near.any(-1) & ~near.all(-1) & pair & stronger).any(2)
+        partial = near & ~near.all(-1, keepdim=True) & (pair & stronger)[..., None]  # (B, Q, Q, P)
+        if evidence is None:
+            ghost = partial.any(-1).any(2)
+        else:  # unless the maps it shares with no stronger component hold evidence of its own
+            shared = partial.any(2)  # (B, Q, P)
+            own = torch.where(shared, evidence.new_zeros(()), evidence).sum(-1)
+            ghost = shared.any(-1) & (own < spec.ghost_evidence)
         r = torch.where(ghost, r.new_zeros(()), r)
         active = r > 0
         close = near.all(-1) & active[:, :, None] & active[:, None, :]
