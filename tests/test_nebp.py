@@ -292,7 +292,8 @@ def test_a_checkpoint_round_trips_and_an_edited_one_is_refused(tmp_path):
 @pytest.mark.parametrize("main_name, companion, oracle, stem", [
     ("dense_crossing", "dense_crossing_nebp", "S-MSJPDA (oracle births)", "nebp"),
     ("shared_drones", "shared_drones_nebp", "S-MSJPDA", "nebp"),
-    ("one_sky_bp", "one_sky_nebp", "S-MSJPDA (oracle births)", "nebp_one_sky")])
+    ("one_sky_bp", "one_sky_nebp", "S-MSJPDA (oracle births)", "nebp_one_sky"),
+    ("one_sky_bp", "one_sky_nebp_births", "S-MSJPDA (oracle births)", "nebp_one_sky_births")])
 def test_the_nebp_companions_are_their_studies_but_for_the_rows(main_name, companion, oracle, stem):
     """``evaluate/<study>_nebp.yaml``: every setting but the name, the description and the rows is
     the study's (the draws do not depend on those), its first rows are the study's oracle row and

@@ -483,6 +483,25 @@ def test_a_reused_component_slot_starts_a_new_track():
     assert existence[0, :, 0].tolist() == [0.8, 0.9, 0.0, 0.0] and existence[0, :, 1].tolist() == [0.0, 0.0, 0.6, 0.7]
 
 
+def test_a_track_is_confirmed_and_deleted_by_existence():
+    """Hysteresis: confirmed above the threshold (0.5), reported while above ``delete`` (0.2): slot 0's
+    first life dips to 0.3 at frame 1 (still reported) and ends below 0.2 at frame 2; its second
+    life (a birth at frame 3) at 0.4 is not confirmed yet, then is at 0.6; slot 1's life never
+    passes the threshold (no track) though above ``delete``. Without ``delete``, frame 1's dip
+    ends the report there (the same label comes back at frame 2 of the life if above 0.5)."""
+    from pmsr_nn.methods.tbd import tracks_of
+    from pmsr_nn.tbd.multibernoulli import MBOutput
+
+    r = torch.tensor([[[0.8, 0.3], [0.3, 0.4], [0.1, 0.45], [0.4, 0.3], [0.6, 0.3]]], dtype=torch.float64)
+    born = torch.tensor([[0, 1, 1, 0, 1]])  # slot 0 reborn at frame 3 (0-based)
+    x = torch.arange(5 * 2 * 4, dtype=torch.float64).view(1, 5, 2, 4)
+    out = MBOutput(x, r, torch.zeros(1, 5, 1), torch.zeros(1, 5, 1, dtype=torch.int64), torch.zeros(1, 5), born)
+    _, exists, _ = tracks_of(out, 0.5, lambda cv: cv, delete=0.2)
+    assert exists[0].tolist() == [[True, False], [True, False], [False, False], [False, False], [False, True]]
+    _, plain, _ = tracks_of(out, 0.5, lambda cv: cv)
+    assert plain[0].tolist() == [[True, False], [False, False], [False, False], [False, False], [False, True]]
+
+
 def test_the_progress_bar_says_when_a_method_warms_up(tmp_path, monkeypatch, capsys):
     """The untimed warm-up shows as such on the bar, not as the previous row's work."""
     monkeypatch.setattr(blocks, "WARMED", set())

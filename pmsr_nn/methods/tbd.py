@@ -28,11 +28,15 @@ with none give it ``ghost_evidence`` nats of its own) and (map likelihoods) the
 
 Every kind starts its own tracks: it returns the Bernoulli components as unpaired tracks in the
 scenario's state (the planar CV state at the maps' altitude placed in the truth's position and
-velocity columns, acceleration 0), a track existing where its component's existence is above the
-threshold. A component slot is reused after its component died; a birth into a slot starts a new
-track. Per-frame extras for the Remote Sensing figures (read by the kinds' metric
-:class:`~.kind_metrics.TBDFrames`): ``tbd_detected`` (some component above the threshold),
-``tbd_best_x`` / ``tbd_best_r`` (the most probable component's mean and existence), ``tbd_snr_db``
+velocity columns, acceleration 0). A component keeps its label (its slot's life) across frames; a
+track is confirmed by existence (above the threshold) and deleted by existence (below
+``delete_existence``, by default the threshold itself). A component slot is reused after its
+component died; a birth into a slot starts a new track. The per-frame extras below read the same
+reported tracks, so the report's track-before-detect table and its set-metric table count the
+same tracks. Per-frame extras for the Remote Sensing figures (read by the kinds' metric
+:class:`~.kind_metrics.TBDFrames`): ``tbd_detected`` (some track reported), ``tbd_best_x`` (the
+mean of the reported track of highest existence), ``tbd_best_r`` (the existence of the most
+probable component, reported or not), ``tbd_snr_db``
 (the SNR each map's update used) and ``tbd_particles``.
 
 Random draws: the filter's from ``(seed, case, block, crc32(name))``, on the device of the maps
@@ -84,15 +88,23 @@ def detect_spec(spec) -> DetectSpec | None:
     return DetectSpec(pfa=float(spec.option("pfa")), detector=spec.option("detector"))
 
 
-def tracks_of(out: MBOutput, threshold: float, to_state) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def tracks_of(out: MBOutput, threshold: float, to_state, delete: float | None = None
+              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Unpaired tracks of the filter's output: ``x (B, K, M, n)``, ``exists (B, K, M)`` and the
     existence ``(B, K, M)``. A track is one life of a component slot (from the birth into it to
-    the next birth into it) that is above ``threshold`` at some frame; ``to_state`` maps CV
-    means ``(..., 4)`` into the scenario's state."""
+    the next birth into it: its label), confirmed at the first frame its existence is above
+    ``threshold`` and reported from then on while its existence is above ``delete`` (None: the
+    threshold, so reported exactly where above it); ``to_state`` maps CV means ``(..., 4)`` into
+    the scenario's state."""
     B, K, n_slots = out.r.shape
     dev = out.r.device
     exists = out.r > threshold
     born = torch.nn.functional.one_hot(out.born, n_slots).to(torch.int64)  # (B, K, n_slots)
+    if delete is not None and delete < threshold:
+        seen = exists.to(torch.int64).cumsum(1)  # frames above the threshold so far, over the slot's lives
+        before = torch.cat([seen.new_zeros(B, 1, n_slots), seen[:, :-1]], 1)
+        at_birth = torch.where(born.bool(), before, torch.zeros_like(before)).cummax(1).values  # count when this life began
+        exists = (seen > at_birth) & (out.r > delete)
     life = born.cumsum(1)  # (B, K, n_slots): how many births the slot had so far
     key = torch.arange(n_slots, device=dev) * (K + 1) + life  # (B, K, n_slots): one id per life of a slot
     L = n_slots * (K + 1)
@@ -106,7 +118,9 @@ def tracks_of(out: MBOutput, threshold: float, to_state) -> tuple[torch.Tensor, 
     x[b, k, t] = out.x[b, k, q]
     r = torch.zeros(B, K, M, dtype=torch.float64, device=dev)
     r[b, k, t] = out.r[b, k, q]
-    return to_state(x), r > threshold, r
+    reported_now = torch.zeros(B, K, M, dtype=torch.bool, device=dev)
+    reported_now[b, k, t] = exists[b, k, q]
+    return to_state(x), reported_now, r
 
 
 def run_tbd(call: MethodCall) -> Estimates:
@@ -118,9 +132,13 @@ def run_tbd(call: MethodCall) -> Estimates:
     out = run_filter(scene, mb, call.product, g, detect_spec(spec))
     n = call.models.motion.dim_x
     to_state = lambda cv: scene.from_cv(cv, n)
-    x, exists, r = tracks_of(out, mb.threshold, to_state)
-    best_x, detected, best_r = out.best(mb.threshold)
-    extras = {"tbd_detected": detected, "tbd_best_x": to_state(best_x), "tbd_best_r": best_r,
+    x, exists, r = tracks_of(out, mb.threshold, to_state, spec.option("delete_existence"))
+    # detected and its estimate from the reported tracks (the set metrics' own); the existence
+    # curve stays the most probable component's, reported or not
+    best_r = out.best(mb.threshold)[2]
+    top = torch.where(exists, r, torch.full_like(r, -1.0)).argmax(-1)  # (B, K)
+    best_x = x.gather(2, top[..., None, None].expand(*top.shape, 1, x.shape[-1]))[:, :, 0]
+    extras = {"tbd_detected": exists.any(-1), "tbd_best_x": best_x, "tbd_best_r": best_r,
               "tbd_snr_db": out.snr_db, "tbd_particles": out.particles}
     return Estimates(x, exists, None, extras, paired=False, existence=r)
 
@@ -178,6 +196,7 @@ COMMON = {
     "birth_particles": Option(10_000, int, 1, 10_000_000),
     "accel_sd_mps2": Option(0.05, float, 0.0, 1.0e3),
     "roughening": Option(0.0, float, 0.0, 10.0),
+    "delete_existence": Option(None, float, 0.0, 1.0, nullable=True, null="the threshold: reported where above it"),
     "ghost_rule": Option("shared", str, choices=("shared", "evidence")),
     "ghost_evidence": Option(3.0, float, -1.0e3, 1.0e3),
 }
