@@ -309,6 +309,21 @@ def test_the_nebp_companions_are_their_studies_but_for_the_rows(main_name, compa
         ("nebp", f"../models/released/{stem}_s{s}.pt") for s in range(3)]
 
 
+def test_the_births_variants_are_their_studies_but_for_the_checkpoints():
+    """``one_sky_nebp_births.yaml`` / ``one_sky_hard_births.yaml``: one_sky_nebp's / one_sky_hard's
+    draws, settings and rows, each NEBP row reading the network of the same seed trained with births."""
+    import yaml
+
+    root = ROOT / "evaluate"
+    for base in ("one_sky_nebp", "one_sky_hard"):
+        a, b = (yaml.safe_load((root / f"{f}.yaml").read_text()) for f in (base, f"{base}_births"))
+        rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "description", "methods")}  # noqa: E731
+        assert rest(a) == rest(b) and b["name"] == f"{base}_births"
+        moved = [{**m, "checkpoint": m["checkpoint"].replace("nebp_one_sky_s", "nebp_one_sky_births_s")} if "checkpoint" in m
+                 else m for m in a["methods"]]
+        assert b["methods"] == moved and sum("births_s" in m.get("checkpoint", "") for m in b["methods"]) == 3
+
+
 def test_the_hard_one_sky_is_one_sky_nebp_but_for_pd_and_clutter():
     """``evaluate/one_sky_hard.yaml``: one_sky_nebp's draws, rows and settings, but Pd 0.7 (0.85) and
     40 clutter points per pair (80 per receiver's pooled list of two pairs; one_sky 10 and 20)."""
