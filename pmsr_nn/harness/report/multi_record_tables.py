@@ -26,6 +26,7 @@ DENSE_NEBP = "evaluate/results/dense_crossing_nebp/results.json"
 SHARED_NEBP = "evaluate/results/shared_drones_nebp/results.json"
 ONE_SKY_NEBP = "evaluate/results/one_sky_nebp/results.json"
 ONE_SKY_HARD = "evaluate/results/one_sky_hard/results.json"
+ONE_SKY_NEBP_BIRTHS = "evaluate/results/one_sky_nebp_births/results.json"
 NEBP_ROW = "NEBP [seed {seed}]"
 
 
@@ -55,13 +56,13 @@ def _seeds(methods: dict, name: str) -> str:
 READ_DETECTIONS_SOURCES = (SHARED_BP, SHARED, SHARED_HYBRID, ONE_SKY_BP, ONE_SKY, ONE_SKY_HYBRID, ONE_SKY_MANAGED,
                            ONE_SKY_MANAGED_PMHT, ONE_SKY_UNSCENTED,
                            DENSE_BP, DENSE, DENSE_GHOSTS, MSJPDA_INITIATION, SHARED_NEBP, DENSE_NEBP, ONE_SKY_NEBP,
-                           ONE_SKY_HARD)
+                           ONE_SKY_HARD, ONE_SKY_NEBP_BIRTHS)
 
 
 def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, one_sky_bp: dict, one_sky: dict,
                            one_sky_hybrid: dict, one_sky_managed: dict, one_sky_managed_pmht: dict, one_sky_unscented: dict,
                            dense_bp: dict, dense: dict, dense_ghosts: dict, access: dict, shared_nebp: dict,
-                           dense_nebp: dict, one_sky_nebp: dict, one_sky_hard: dict) -> list[str]:
+                           dense_nebp: dict, one_sky_nebp: dict, one_sky_hard: dict, one_sky_nebp_births: dict) -> list[str]:
     """The README's trackers from detections: GOSPA ± s.e. of BP (its own studies), the model-based
     rows (the scenarios' studies), the learned gain's three seeds (the hybrid, removed under issue 56:
     its records) and NEBP's (its own studies), per
@@ -82,6 +83,9 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
                     "record of `one_sky_hybrid.yaml`, at c270857, NEBP rows from `one_sky_nebp.yaml`, the same runs)", _gospa(_methods(one_sky_bp)["BP"]),
                     _gospa(o["S-MSJPDA"]), _gospa(o["P-MSJPDA"]), _gospa(o["PMHT"]), _gospa(o["SMC-PHD + GTDA"]),
                     _seeds(_methods(one_sky_hybrid), gain), _seeds(_methods(one_sky_nebp), NEBP_ROW)]))
+    out.append(row(["`one_sky_nebp_births.yaml` (the same runs; NEBP trained on scenes with births, starts weighed)",
+                    _gospa(_methods(one_sky_nebp_births)["BP"]), "-", "-", "-", "-", "-",
+                    _seeds(_methods(one_sky_nebp_births), NEBP_ROW)]))
     m = _methods(one_sky_managed)
     out.append(row(["`one_sky_managed.yaml` (the same runs; S- and P-MSJPDA with the duplicate-free "
                     "management; PMHT from `one_sky_managed_pmht.yaml`)", _gospa(_methods(one_sky_bp)["BP"]), _gospa(m["S-MSJPDA (duplicate-free)"]),
@@ -110,7 +114,8 @@ def readme_from_detections(shared_bp: dict, shared: dict, shared_hybrid: dict, o
 
 
 def nebp_study(rec: dict, oracle: str) -> list[str]:
-    """A NEBP study (dense_crossing_nebp, shared_drones_nebp, one_sky_nebp, one_sky_hard): the row handed the births (``oracle``,
+    """A NEBP study (dense_crossing_nebp, shared_drones_nebp, one_sky_nebp, one_sky_hard,
+    one_sky_nebp_births): the row handed the births (``oracle``,
     which shows the draws are the main study's), BP and NEBP's three seeds: GOSPA ± s.e., the runs'
     median / 90 % / worst, the shares, false tracks, first track after birth, seconds per run."""
     methods = _methods(rec)

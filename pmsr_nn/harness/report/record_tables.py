@@ -128,6 +128,7 @@ TABLES: dict[str, Table] = {
     "shared_drones_nebp": Table(multi.SHARED_NEBP, lambda r: multi.nebp_study(r, "S-MSJPDA")),
     "one_sky_nebp": Table(multi.ONE_SKY_NEBP, lambda r: multi.nebp_study(r, "S-MSJPDA (oracle births)")),
     "one_sky_hard": Table(multi.ONE_SKY_HARD, lambda r: multi.nebp_study(r, "S-MSJPDA (oracle births)")),
+    "one_sky_nebp_births": Table(multi.ONE_SKY_NEBP_BIRTHS, lambda r: multi.nebp_study(r, "S-MSJPDA (oracle births)")),
     "one_sky_stonesoup": Table(multi.STONESOUP, multi.one_sky_stonesoup),
     "duplicate_free": Table((multi.DENSE_DUPLICATE_FREE, multi.SHARED_DUPLICATE_FREE, multi.DENSE_UNSCENTED,
                              multi.SHARED_UNSCENTED), multi.duplicate_free),
