@@ -322,6 +322,9 @@ def test_the_births_variants_are_their_studies_but_for_the_checkpoints():
         moved = [{**m, "checkpoint": m["checkpoint"].replace("nebp_one_sky_s", "nebp_one_sky_births_s")} if "checkpoint" in m
                  else m for m in a["methods"]]
         assert b["methods"] == moved and sum("births_s" in m.get("checkpoint", "") for m in b["methods"]) == 3
+    a, c = (yaml.safe_load((root / f"{f}.yaml").read_text()) for f in ("one_sky_nebp", "one_sky_bp_birth_rate"))
+    assert rest(a) == rest(c)  # the birth-rate control: the same draws, BP at two birth rates
+    assert [m.get("options", {}).get("birth_rate") for m in c["methods"]] == [None, pytest.approx(0.01 * math.exp(2), 1e-3)]
 
 
 def test_the_hard_one_sky_is_one_sky_nebp_but_for_pd_and_clutter():
