@@ -86,9 +86,8 @@ def map_information(scene: MapScene, x: torch.Tensor, frames: torch.Tensor) -> t
 
 def _cells(scene: MapScene, x: torch.Tensor, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Fractional cells ``(d, u)``, each ``(L, P)`` float64, of states ``x (L, 4)`` at ``frames (L,)``."""
-    grid = scene.grid
     rng, dop = range_doppler(x.to(torch.float64), scene.tx[frames], scene.maps, scene.rx, scene.wavelength)
-    return (dop - grid.doppler0_hz) / grid.doppler_cell_hz, (rng - grid.range0_m) / grid.range_cell_m
+    return scene.grid.cell_coordinates(rng, dop)
 
 
 def map_bound(scene: MapScene, truth: torch.Tensor, first_frame: int, motion: KinematicModel, dt: float, q,

@@ -21,12 +21,13 @@ from .prepared import Bounds
 
 
 def _per_target(x: torch.Tensor, alive: torch.Tensor, fn) -> list[tuple[int, int, object]]:
-    """``fn(truth (1, L, n))`` for each target over its life: ``[(first, end, result), ...]``."""
+    """``fn(truth (1, L, n), first)`` for each target over its life from scan ``first``:
+    ``[(first, end, result), ...]``."""
     out = []
     for t in range(alive.shape[1]):
         on = torch.nonzero(alive[:, t]).flatten()
         k0, k1 = int(on[0]), int(on[-1]) + 1
-        out.append((k0, k1, fn(x[k0:k1, t][None])))
+        out.append((k0, k1, fn(x[k0:k1, t][None], k0)))
     return out
 
 
@@ -41,8 +42,8 @@ def _curves(parts, K: int, get) -> np.ndarray:
 def case_bounds(x: torch.Tensor, alive: torch.Tensor, models: Models, P0: torch.Tensor) -> Bounds:
     """Per-trajectory PCRB of each target over its life (:class:`~.prepared.Bounds`)."""
     m = models
-    full = _per_target(x, alive, lambda tr: pcrb(tr, m.motion, m.dt, m.q, m.model, m.R, P0))
-    q0 = _per_target(x, alive, lambda tr: pcrb(tr, m.motion, m.dt, 0.0, m.model, m.R, P0))
+    full = _per_target(x, alive, lambda tr, _: pcrb(tr, m.motion, m.dt, m.q, m.model, m.R, P0))
+    q0 = _per_target(x, alive, lambda tr, _: pcrb(tr, m.motion, m.dt, 0.0, m.model, m.R, P0))
     K = alive.shape[0]
     return Bounds(_curves(full, K, lambda b: b.position_rmse().numpy()), _curves(full, K, lambda b: b.velocity_rmse().numpy()),
                   _curves(full, K, lambda b: b.position_rmse("smoothing").numpy()),
@@ -71,7 +72,7 @@ def memory_bounds(x: torch.Tensor, alive: torch.Tensor, methods, resources: dict
         P0 = t.training_spread()
         key = (L, tuple(torch.diagonal(P0).tolist()))
         if key not in cache:
-            parts = _per_target(x, alive, lambda tr: finite_memory_pcrb(tr, m.motion, m.dt, m.q, m.model, m.R, P0,
+            parts = _per_target(x, alive, lambda tr, _: finite_memory_pcrb(tr, m.motion, m.dt, m.q, m.model, m.R, P0,
                                                                        memory=min(L, tr.shape[1])))
             cache[key] = min(L, alive.shape[0]), _curves(parts, alive.shape[0], lambda b: b.position_rmse().numpy())
         out[spec.name] = cache[key]
@@ -90,11 +91,7 @@ def maps_bound(scene: MapScene, x: torch.Tensor, alive: torch.Tensor, models: Mo
     var = prior_sd.to(torch.float64).clone() ** 2
     var[list(scene.state_index)] = (hi - lo) ** 2 / 12
     P0 = torch.diag(var)
-    parts = []
-    for t in range(alive.shape[1]):
-        on = torch.nonzero(alive[:, t]).flatten()
-        k0, k1 = int(on[0]), int(on[-1]) + 1
-        parts.append((k0, k1, map_bound(scene, x[k0:k1, t], k0, m.motion, m.dt, m.q, P0)))
+    parts = _per_target(x, alive, lambda tr, first: map_bound(scene, tr[0], first, m.motion, m.dt, m.q, P0))
     per_target = _curves(parts, alive.shape[0], lambda b: b.position_rmse().numpy())
     living = np.isfinite(per_target).sum(1)
     mse = np.where(living > 0, np.nansum(per_target ** 2, axis=1) / np.maximum(living, 1), np.nan)
